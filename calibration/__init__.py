@@ -1,0 +1,1 @@
+"""skynav.calibration"""

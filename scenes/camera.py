@@ -1,0 +1,341 @@
+"""The camera: pinhole intrinsics, Brown-Conrady distortion, optics, sensor parameters.
+
+Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns and y along rows; the
+CENTRE of the top-left pixel is ``(0.0, 0.0)``; a centred principal point is
+``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. Projection ``[x, y, 1]^T ~ K v_cam``, with the lens
+distortion applied to the normalised coordinates between the pinhole and ``K``.
+
+Everything here is a frozen, hashable value object (tuples, not lists) so cameras can be
+dictionary keys, pickled to worker processes, and compared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ConfigValueError
+
+
+def _check(cond: bool, key: str, value, allowed: str) -> None:
+    if not cond:
+        raise ConfigValueError(key, value, allowed)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BrownConrady:
+    """Brown-Conrady lens distortion on normalised coordinates (x/z, y/z).
+
+    ``r2 = x^2 + y^2``, radial ``1 + k1 r2 + k2 r2^2 + k3 r2^3``, tangential ``p1``, ``p2``
+    (OpenCV's ordering and signs):
+    ``xd = x radial + 2 p1 x y + p2 (r2 + 2 x^2)``,
+    ``yd = y radial + p1 (r2 + 2 y^2) + 2 p2 x y``.
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+
+    @property
+    def is_identity(self) -> bool:
+        return self.k1 == self.k2 == self.k3 == self.p1 == self.p2 == 0.0
+
+    def distort(self, xn, yn):
+        """Distorted normalised coordinates of ideal normalised coordinates (arrays)."""
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+        return xd, yd
+
+    def _jacobian(self, xn, yn):
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dradial_dr2 = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3)
+        dxx = radial + 2 * xn * xn * dradial_dr2 + 2 * self.p1 * yn + 6 * self.p2 * xn
+        dxy = 2 * xn * yn * dradial_dr2 + 2 * self.p1 * xn + 2 * self.p2 * yn
+        dyx = 2 * xn * yn * dradial_dr2 + 2 * self.p1 * xn + 2 * self.p2 * yn
+        dyy = radial + 2 * yn * yn * dradial_dr2 + 6 * self.p1 * yn + 2 * self.p2 * xn
+        return dxx, dxy, dyx, dyy
+
+    def undistort(self, xd, yd, *, iterations: int = 20, tol: float = 1e-15):
+        """Ideal normalised coordinates of distorted ones, by Newton's method.
+
+        Converges quadratically from the distorted point as first guess; for the mild
+        distortions of navigation cameras 3-5 iterations reach 1e-15.
+        """
+        xd = np.asarray(xd, dtype=float)
+        yd = np.asarray(yd, dtype=float)
+        if self.is_identity:
+            return xd.copy(), yd.copy()
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            fx, fy = self.distort(x, y)
+            rx, ry = fx - xd, fy - yd
+            a, b, c, d = self._jacobian(x, y)
+            det = a * d - b * c
+            dx = (d * rx - b * ry) / det
+            dy = (-c * rx + a * ry) / det
+            x = x - dx
+            y = y - dy
+            if np.all(np.abs(dx) + np.abs(dy) < tol):
+                break
+        return x, y
+
+
+def default_response_curve():
+    """A plausible CMOS QE x lens-transmission curve, 350-1050 nm every 10 nm.
+
+    A front-illuminated CMOS shape (rise from the UV, peak near 550-600 nm, NIR tail) scaled so
+    that its average over 400-900 nm equals paper 002 table 4's ``Qe x Tlens = 0.49``.
+    Returns (wavelengths_nm, qe_t) as tuples.
+    """
+    wl = np.arange(350.0, 1051.0, 10.0)
+    rise = 1.0 / (1.0 + np.exp(-(wl - 420.0) / 22.0))
+    fall = 1.0 / (1.0 + np.exp((wl - 800.0) / 70.0))
+    shape = rise * fall
+    band = (wl >= 400.0) & (wl <= 900.0)
+    # mean over the band with the trapezoid rule on the uniform 10 nm grid
+    mean = np.trapezoid(shape[band], wl[band]) / (900.0 - 400.0)
+    qe_t = 0.49 * shape / mean
+    return tuple(float(w) for w in wl), tuple(round(float(v), 6) for v in qe_t)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorParams:
+    """Detector parameters (EMVA 1288 linear model, extended). Units are in the names.
+
+    ``gain_dn_per_e`` is the system gain K; ``offset_dn`` the dark offset; ``dsnu_e_per_s`` the
+    pixel-to-pixel standard deviation of the dark current; ``prnu_fraction`` the relative
+    standard deviation of pixel response; ``reset_noise_e`` the kTC noise; the fixed patterns
+    are drawn from ``pattern_seed`` so that one sensor keeps its pattern across frames.
+    """
+
+    bit_depth: int = 8
+    gain_dn_per_e: float = 255.0 / 20000.0
+    offset_dn: float = 2.0
+    full_well_e: float = 20000.0
+    read_noise_e: float = 8.0
+    reset_noise_e: float = 3.0
+    dark_current_e_per_s: float = 5.0
+    dsnu_e_per_s: float = 1.0
+    prnu_fraction: float = 0.01
+    blooming: bool = False
+    pattern_seed: int = 20240515
+
+    def __post_init__(self):
+        _check(isinstance(self.bit_depth, int) and 1 <= self.bit_depth <= 16, "sensor.bit_depth", self.bit_depth, "an integer in 1..16")
+        _check(self.gain_dn_per_e > 0, "sensor.gain_dn_per_e", self.gain_dn_per_e, "> 0")
+        _check(self.full_well_e > 0, "sensor.full_well_e", self.full_well_e, "> 0")
+        for name in ("offset_dn", "read_noise_e", "reset_noise_e", "dark_current_e_per_s", "dsnu_e_per_s", "prnu_fraction"):
+            v = getattr(self, name)
+            _check(math.isfinite(v) and v >= 0, f"sensor.{name}", v, ">= 0")
+
+    @property
+    def max_dn(self) -> int:
+        return (1 << self.bit_depth) - 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class Camera:
+    """A pinhole camera with optional distortion, its optics and its sensor.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size, px.
+    focal_length_mm, pixel_pitch_um : float
+        Focal length and (square) pixel pitch; ``fx = fy = focal_length_mm / pixel_pitch_mm``.
+    cx, cy : float or None
+        Principal point, px (None: centred, ``(W-1)/2``, ``(H-1)/2``).
+    f_number : float
+        Aperture diameter is ``focal_length_mm / f_number``.
+    exposure_s : float
+        Exposure time, s.
+    defocus_sigma_px : float
+        Gaussian defocus PSF standard deviation, px (paper 002 table 4: 0.5 px).
+    cosmic_rays_per_frame : float
+        Mean number of cosmic-ray hits per frame (paper 002: 1).
+    sun_exclusion_rad : float
+        Solar exclusion angle (paper 002: 20 deg).
+    limiting_v_mag : float
+        Faintest V magnitude the camera detects (``visible`` flag); paper 002: V < 7.
+    distortion : BrownConrady
+        Lens distortion.
+    response_wavelengths_nm, response_qe_t : tuple of float
+        Quantum efficiency x lens transmission, tabulated.
+    sensor : SensorParams
+    """
+
+    width: int
+    height: int
+    focal_length_mm: float
+    pixel_pitch_um: float
+    cx: float | None = None
+    cy: float | None = None
+    f_number: float = 2.2
+    exposure_s: float = 0.4
+    defocus_sigma_px: float = 0.5
+    cosmic_rays_per_frame: float = 1.0
+    sun_exclusion_rad: float = math.radians(20.0)
+    limiting_v_mag: float = 7.0
+    distortion: BrownConrady = field(default_factory=BrownConrady)
+    response_wavelengths_nm: tuple = field(default_factory=lambda: default_response_curve()[0])
+    response_qe_t: tuple = field(default_factory=lambda: default_response_curve()[1])
+    sensor: SensorParams = field(default_factory=SensorParams)
+
+    def __post_init__(self):
+        _check(isinstance(self.width, int) and self.width > 0, "camera.width", self.width, "a positive integer")
+        _check(isinstance(self.height, int) and self.height > 0, "camera.height", self.height, "a positive integer")
+        _check(self.focal_length_mm > 0, "camera.focal_length_mm", self.focal_length_mm, "> 0")
+        _check(self.pixel_pitch_um > 0, "camera.pixel_pitch_um", self.pixel_pitch_um, "> 0")
+        _check(self.f_number > 0, "camera.f_number", self.f_number, "> 0")
+        _check(self.exposure_s > 0, "camera.exposure_s", self.exposure_s, "> 0 (seconds)")
+        _check(self.defocus_sigma_px >= 0, "camera.defocus_sigma_px", self.defocus_sigma_px, ">= 0")
+        _check(self.cosmic_rays_per_frame >= 0, "camera.cosmic_rays_per_frame", self.cosmic_rays_per_frame, ">= 0")
+        _check(0 <= self.sun_exclusion_rad < math.pi, "camera.sun_exclusion_deg", math.degrees(self.sun_exclusion_rad), "in [0, 180)")
+        _check(len(self.response_wavelengths_nm) == len(self.response_qe_t) >= 2, "camera.response", len(self.response_qe_t), "matching wavelength and QE*T tables of >= 2 samples")
+        if self.cx is None:
+            object.__setattr__(self, "cx", (self.width - 1) / 2.0)
+        if self.cy is None:
+            object.__setattr__(self, "cy", (self.height - 1) / 2.0)
+        for name in ("response_wavelengths_nm", "response_qe_t"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+
+    # ----------------------------------------------------------------- constructors
+    @classmethod
+    def from_fov(cls, *, fov_rad: float, width: int, height: int, pixel_pitch_um: float, **kw) -> "Camera":
+        """Camera whose horizontal field of view (edge to edge of the sensor) is ``fov_rad``."""
+        _check(0 < fov_rad < math.pi, "camera.fov_deg", math.degrees(fov_rad), "in (0, 180)")
+        focal_mm = 0.5 * width * pixel_pitch_um * 1e-3 / math.tan(0.5 * fov_rad)
+        return cls(width=width, height=height, focal_length_mm=focal_mm, pixel_pitch_um=pixel_pitch_um, **kw)
+
+    def replace(self, **changes) -> "Camera":
+        """A copy with fields changed (``dataclasses.replace``); a changed size recentres cx, cy
+        unless they are given."""
+        if ("width" in changes or "height" in changes) and "cx" not in changes and "cy" not in changes:
+            changes.setdefault("cx", None)
+            changes.setdefault("cy", None)
+        return dataclasses.replace(self, **changes)
+
+    # ----------------------------------------------------------------- derived values
+    @property
+    def focal_length_px(self) -> float:
+        return self.focal_length_mm / (self.pixel_pitch_um * 1e-3)
+
+    @property
+    def K(self) -> np.ndarray:
+        f = self.focal_length_px
+        return np.array([[f, 0.0, self.cx], [0.0, f, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def fov_x_rad(self) -> float:
+        return 2.0 * math.atan(0.5 * self.width / self.focal_length_px)
+
+    @property
+    def fov_y_rad(self) -> float:
+        return 2.0 * math.atan(0.5 * self.height / self.focal_length_px)
+
+    @property
+    def half_diagonal_fov_rad(self) -> float:
+        """Largest angle from the boresight to a sensor corner (ignoring distortion), rad."""
+        dx = max(self.cx + 0.5, self.width - 0.5 - self.cx)
+        dy = max(self.cy + 0.5, self.height - 0.5 - self.cy)
+        return math.atan(math.hypot(dx, dy) / self.focal_length_px)
+
+    @property
+    def aperture_diameter_m(self) -> float:
+        return self.focal_length_mm * 1e-3 / self.f_number
+
+    @property
+    def aperture_area_m2(self) -> float:
+        return math.pi * (0.5 * self.aperture_diameter_m) ** 2
+
+    @property
+    def ifov_rad(self) -> float:
+        """Angle subtended by one pixel at the principal point, rad."""
+        return 1.0 / self.focal_length_px
+
+    # ----------------------------------------------------------------- geometry
+    def project(self, v_cam, *, distort: bool = True):
+        """Pixel coordinates (N, 2) of camera-frame directions (N, 3); NaN where z <= 0."""
+        v = np.asarray(v_cam, dtype=float)
+        z = v[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = np.where(z > 0, v[..., 0] / z, np.nan)
+            yn = np.where(z > 0, v[..., 1] / z, np.nan)
+        if distort and not self.distortion.is_identity:
+            xn, yn = self.distortion.distort(xn, yn)
+        f = self.focal_length_px
+        return np.stack([f * xn + self.cx, f * yn + self.cy], -1)
+
+    def back_project(self, xy_px, *, distorted: bool = True):
+        """Unit camera-frame directions (N, 3) of pixel coordinates (N, 2)."""
+        xy = np.asarray(xy_px, dtype=float)
+        f = self.focal_length_px
+        xn = (xy[..., 0] - self.cx) / f
+        yn = (xy[..., 1] - self.cy) / f
+        if distorted and not self.distortion.is_identity:
+            xn, yn = self.distortion.undistort(xn, yn)
+        v = np.stack([xn, yn, np.ones_like(xn)], -1)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def in_image(self, xy_px, margin_px: float = 0.0):
+        """True where pixel coordinates fall on the sensor (pixel edges at -0.5 and W-0.5)."""
+        xy = np.asarray(xy_px, dtype=float)
+        x, y = xy[..., 0], xy[..., 1]
+        return (x >= -0.5 - margin_px) & (x < self.width - 0.5 + margin_px) & (y >= -0.5 - margin_px) & (y < self.height - 0.5 + margin_px)
+
+    # ----------------------------------------------------------------- I/O
+    def to_dict(self) -> dict:
+        """Plain dict for JSON/YAML (ground truth ``camera``); angles in degrees."""
+        d = {
+            "K": self.K.tolist(),
+            "width": self.width,
+            "height": self.height,
+            "focal_length_mm": self.focal_length_mm,
+            "pixel_pitch_um": self.pixel_pitch_um,
+            "cx": self.cx,
+            "cy": self.cy,
+            "f_number": self.f_number,
+            "exposure_s": self.exposure_s,
+            "bit_depth": self.sensor.bit_depth,
+            "defocus_sigma_px": self.defocus_sigma_px,
+            "cosmic_rays_per_frame": self.cosmic_rays_per_frame,
+            "sun_exclusion_deg": math.degrees(self.sun_exclusion_rad),
+            "limiting_v_mag": self.limiting_v_mag,
+            "distortion": dataclasses.asdict(self.distortion),
+            "response": {"wavelengths_nm": list(self.response_wavelengths_nm), "qe_t": list(self.response_qe_t)},
+            "sensor": dataclasses.asdict(self.sensor),
+        }
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Camera":
+        """Inverse of :meth:`to_dict` (also the reader of YAML camera sections).
+
+        Accepts ``fov_deg`` instead of ``focal_length_mm``; ``K`` and ``bit_depth`` at the top
+        level are ignored/merged (``bit_depth`` goes to the sensor).
+        """
+        from .config import camera_from_mapping  # local import: config depends on this module
+
+        return camera_from_mapping(d)
+
+
+def paper_camera(**overrides) -> Camera:
+    """The camera of paper 002 table 4 (and paper 000 table 1).
+
+    20 deg FOV, f/2.2, 400 ms, 1024 x 1024 px, f = 40 mm (so 13.78 um pixels), QE x T 0.49,
+    defocus 0.5 px, 1 cosmic ray per frame, 20 deg solar exclusion angle, 8-bit output
+    (paper 000 thresholds at "120 out of 255").
+    """
+    width = height = 1024
+    focal_mm = 40.0
+    pitch_um = 2.0 * focal_mm * math.tan(math.radians(10.0)) / width * 1e3
+    cam = Camera(width=width, height=height, focal_length_mm=focal_mm, pixel_pitch_um=pitch_um)
+    return cam.replace(**overrides) if overrides else cam

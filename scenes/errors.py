@@ -1,0 +1,68 @@
+"""Errors of the sky model.
+
+Every class also subclasses the builtin exception a caller would expect (``ValueError``,
+``KeyError``), so generic handlers keep working, and carries the data that explains it. The
+command line prints ``str(error)`` on one line and exits with code 2 for any ``SkynavError``.
+"""
+
+from __future__ import annotations
+
+
+class SkynavError(Exception):
+    """Base class of every error skynav raises for a user's bad input."""
+
+
+class ConfigValueError(SkynavError, ValueError):
+    """A configuration value is outside what is allowed.
+
+    Parameters
+    ----------
+    key : str
+        Dotted name of the offending key, e.g. ``camera.exposure_s``.
+    value : object
+        The value given.
+    allowed : str
+        What is allowed, in words, e.g. ``"> 0"`` or ``"one of: a, b"``.
+    """
+
+    def __init__(self, key: str, value, allowed: str):
+        self.key = key
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"{key} = {value!r} is not allowed; expected {allowed}")
+
+
+class SceneFileError(SkynavError, ValueError):
+    """A scene/recipe file cannot be read or is malformed."""
+
+
+class EphemerisRangeError(SkynavError, ValueError):
+    """Epochs outside the span of the ephemeris kernel.
+
+    Attributes
+    ----------
+    time_mask : ndarray of bool
+        True where the epoch is outside the kernel.
+    """
+
+    def __init__(self, message: str, time_mask=None, start_jd=None, end_jd=None):
+        self.time_mask = time_mask
+        self.start_jd = start_jd
+        self.end_jd = end_jd
+        super().__init__(message)
+
+
+class UnknownBodyError(SkynavError, KeyError):
+    """A body name that skynav does not know."""
+
+    def __init__(self, name: str, allowed):
+        self.name = name
+        self.allowed = tuple(allowed)
+        super().__init__(name)
+
+    def __str__(self) -> str:  # KeyError would print the repr of the key only
+        return f"unknown body {self.name!r}; known bodies: {', '.join(self.allowed)}"
+
+
+class DataFileError(SkynavError, OSError):
+    """An installed data file (ephemeris, catalog) is missing or unreadable."""
