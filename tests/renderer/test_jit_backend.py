@@ -1,0 +1,100 @@
+"""The LLVM/CUDA probe: subprocess isolation, the disable switch, the disk cache."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from skynav.renderer import jit_backend as jb
+
+LLVM15 = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so"
+
+
+@pytest.fixture
+def fresh_probe(tmp_path, monkeypatch):
+    """Isolated cache dir and empty in-process memo; the memo is cleared again afterwards so
+    other tests see the real machine's verdict."""
+    monkeypatch.setenv("SKYNAV_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("SKYNAV_DISABLE_LLVM", raising=False)
+    jb._clear_memo()
+    yield tmp_path
+    jb._clear_memo()
+
+
+def test_llvm_major_version_from_names():
+    assert jb.llvm_major_version("/usr/lib/x86_64-linux-gnu/libLLVM-19.so") == 19
+    assert jb.llvm_major_version("/lib/x86_64-linux-gnu/libLLVM.so.19.1") == 19
+    assert jb.llvm_major_version("/usr/lib/llvm-14/lib/libLLVM-14.0.6.so.1") == 14
+    assert jb.llvm_major_version("/usr/lib/llvm-18/lib/libLLVM.so") == 18
+    assert jb.llvm_major_version("/opt/x/libfoo.so") is None
+
+
+def test_find_libllvm_honours_env_and_prefers_new(monkeypatch):
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/some/where/libLLVM-99.so")
+    assert jb.find_libllvm() == "/some/where/libLLVM-99.so"
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
+    found = jb.find_libllvm()
+    if found is not None:  # whatever it found must be new enough
+        assert jb.llvm_major_version(found) >= jb.MIN_LLVM_MAJOR
+
+
+@pytest.mark.skipif(not os.path.exists(LLVM15), reason="needs the system libLLVM-15 to provoke the abort")
+def test_probe_survives_broken_llvm(fresh_probe, monkeypatch):
+    # With LLVM 15 Dr.Jit's first kernel aborts the process (SIGABRT in instruction selection):
+    # the probe must run that in a child, report it, and leave this process alive.
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", LLVM15)
+    status = jb.probe_llvm(timeout_s=120)
+    assert status.available is False
+    assert status.libllvm == LLVM15
+    assert "failed" in status.reason or "timed out" in status.reason
+    assert os.getpid() > 0  # still here
+    # and configure_llvm does not bless the broken library
+    assert jb.configure_llvm().available is False
+
+
+def test_disable_switch(fresh_probe, monkeypatch):
+    monkeypatch.setenv("SKYNAV_DISABLE_LLVM", "1")
+    status = jb.probe_llvm()
+    assert status.available is False and "SKYNAV_DISABLE_LLVM" in status.reason
+    assert jb.llvm_available() is False
+
+
+def test_cache_file_is_reused(fresh_probe, monkeypatch):
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", jb.find_libllvm() or LLVM15)
+    calls = []
+    real = jb._run_probe
+
+    def counting(*a, **k):
+        calls.append(a)
+        return real(*a, **k)
+
+    monkeypatch.setattr(jb, "_run_probe", counting)
+    first = jb.probe_llvm(timeout_s=120)
+    assert len(calls) == 1
+    data = json.loads(jb.cache_path().read_text())
+    assert len(data) == 1 and next(iter(data.values()))["available"] == first.available
+    jb._clear_memo()  # a new process would start with an empty memo: only the file remains
+
+    def forbidden(*a, **k):
+        raise AssertionError("probe subprocess re-run although the cache is valid")
+
+    monkeypatch.setattr(jb, "_run_probe", forbidden)
+    second = jb.probe_llvm()
+    assert second.available == first.available and second.reason.endswith("(cached)")
+    # a different library (different key) is probed afresh
+    monkeypatch.setattr(jb, "_run_probe", lambda *a, **k: (False, "stub verdict"))
+    jb._clear_memo()
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(fresh_probe / "libLLVM-20.so"))
+    third = jb.probe_llvm()
+    assert third.available is False and "stub verdict" in third.reason
+    assert len(json.loads(jb.cache_path().read_text())) == 2
+
+
+def test_select_variant_is_consistent(fresh_probe):
+    variant, reason = jb.select_mitsuba_variant()
+    assert variant in ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral")
+    assert reason
+    if variant == "llvm_ad_spectral":
+        assert jb.probe_llvm().available
