@@ -1,0 +1,630 @@
+"""Frame files: OpenEXR, PNG, FITS with a TAN WCS, ground-truth JSON; every write is atomic.
+
+Adapter module (STYLE.md section 1): the one place that talks to OpenEXR, Pillow and
+``astropy.io.fits`` for frames. File contracts are those of CONVENTIONS.md "Files":
+
+- **EXR**: float32 named channels (``electrons``, ``irradiance_w_m2``, ...), optional uint32
+  ``source_id``. Compression is ZIP (zlib on blocks of 16 scanlines): lossless for float32 and
+  uint32, deterministic, and read by every EXR tool. PIZ was not chosen because its wavelet gains
+  come on noisy *half* data; ZIP is as good or better on our float32 noise-free signal maps.
+- **PNG**: greyscale, uint8 for bit depth <= 8, uint16 holding the raw DN (not rescaled) for
+  9-16 bit; an ``sBIT`` chunk records the sensor bit depth when it is given.
+- **FITS**: primary HDU, the image as given (uint8/uint16/int/float), plus an optional TAN WCS of
+  the *apparent* sky from :func:`tan_wcs_header`.
+- **JSON**: ground truth of one frame, ``"schema": "skynav.frame/1"``; :func:`validate_truth`
+  lists what CONVENTIONS.md requires and is missing.
+
+Atomicity: each writer encodes to memory and hands the bytes to :func:`atomic_write_bytes`
+(temp file in the same directory, ``fsync``, ``os.replace``, directory ``fsync``), so a reader
+sees either the old file or the complete new one, never a partial file, and a failure leaves no
+temp file behind. :func:`atomic_path` offers the same guarantee to writers that need a path.
+
+Determinism: identical inputs give identical bytes (same library versions): no writer embeds
+a date, a host name or a random value. Tests pin this by SHA-256.
+
+Readers accept a path or a binary file object (STYLE.md section 2).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import math
+import os
+import secrets
+from collections.abc import Mapping
+
+import numpy as np
+
+from skynav.scenes.errors import SkynavError
+
+__all__ = [
+    "FRAME_SCHEMA",
+    "OutputFormatError",
+    "TruthSchemaError",
+    "atomic_write_bytes",
+    "atomic_path",
+    "sha256_file",
+    "write_exr",
+    "read_exr",
+    "read_exr_header",
+    "write_png",
+    "read_png",
+    "tan_wcs_header",
+    "write_fits",
+    "read_fits",
+    "truth_to_jsonable",
+    "truth_json_bytes",
+    "write_truth_json",
+    "read_truth_json",
+    "validate_truth",
+]
+
+FRAME_SCHEMA = "skynav.frame/1"
+
+
+class OutputFormatError(SkynavError, ValueError):
+    """An image or header cannot be written in the requested file format (bad dtype, shape...)."""
+
+
+class TruthSchemaError(SkynavError, ValueError):
+    """Ground truth that does not follow the ``skynav.frame/1`` schema.
+
+    Attributes
+    ----------
+    problems : list of str
+        One line per problem, e.g. ``"attitude.q_cam_icrs: missing"``.
+    """
+
+    def __init__(self, message: str, problems=()):
+        self.problems = list(problems)
+        super().__init__(message)
+
+
+# ----------------------------------------------------------------------------- atomic writes
+def _fsync_dir(directory: str) -> None:
+    """Make a rename durable: fsync the directory (best effort; not possible on Windows)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _temp_name(path: str) -> str:
+    directory, name = os.path.split(os.path.abspath(path))
+    return os.path.join(directory, f".{name}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Context manager yielding a temporary path that replaces ``path`` on success.
+
+    The temporary file lives in the directory of ``path`` (so ``os.replace`` is an atomic
+    rename on the same file system) under a unique hidden name
+    ``.<name>.<pid>.<random>.tmp``. The body must create it. On normal exit the temp file is
+    fsync'ed and renamed onto ``path`` (and the directory fsync'ed); on any exception it is
+    removed and ``path`` is left as it was (absent, or the previous complete file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final destination. Its directory must exist.
+
+    Yields
+    ------
+    str
+        Temporary path to write to.
+
+    Examples
+    --------
+    >>> with atomic_path("frame.fits") as tmp:  # doctest: +SKIP
+    ...     hdul.writeto(tmp)
+    """
+    final = os.path.abspath(os.fspath(path))
+    tmp = _temp_name(final)
+    try:
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    _fsync_dir(os.path.dirname(final))
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    data : bytes
+        The complete file content.
+    """
+    with atomic_path(path) as tmp:
+        # O_EXCL: the random name must not exist; the mode follows the umask like open().
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+
+
+def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
+    """Hexadecimal SHA-256 of a file's bytes (for ``manifest.json``)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(chunk_bytes):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@contextlib.contextmanager
+def _open_binary(source):
+    """Yield a binary file object for a path or pass a file object through (not closed)."""
+    if hasattr(source, "read"):
+        yield source
+    else:
+        with open(source, "rb") as f:
+            yield f
+
+
+# ----------------------------------------------------------------------------- OpenEXR
+# Attributes OpenEXR manages itself; a caller's header must not override them.
+_EXR_RESERVED = frozenset(
+    {"channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
+     "screenWindowCenter", "screenWindowWidth", "type", "tiles", "name", "version", "chunkCount"}
+)
+
+
+def _exr_channel(name, array, shape):
+    a = np.asarray(array)
+    if a.ndim != 2:
+        raise OutputFormatError(f"EXR channel {name!r} has shape {a.shape}; expected a 2-D (H, W) array")
+    if shape is not None and a.shape != shape:
+        raise OutputFormatError(f"EXR channel {name!r} has shape {a.shape}; other channels are {shape}")
+    if a.dtype.kind == "f":
+        return np.ascontiguousarray(a, dtype=np.float32)
+    if a.dtype.kind in "iub":
+        if a.size and (a.min() < 0 or a.max() > np.iinfo(np.uint32).max):
+            raise OutputFormatError(f"EXR channel {name!r}: integer values must fit uint32 (0..4294967295)")
+        return np.ascontiguousarray(a, dtype=np.uint32)
+    raise OutputFormatError(f"EXR channel {name!r} has dtype {a.dtype}; expected float or unsigned integer")
+
+
+def _exr_bytes(channels: Mapping, header: Mapping | None) -> bytes:
+    import OpenEXR  # adapter-local import: the library is heavy and only needed here
+
+    if not channels:
+        raise OutputFormatError("write_exr needs at least one channel")
+    arrays, shape = {}, None
+    for name, array in channels.items():
+        if not isinstance(name, str) or not name:
+            raise OutputFormatError(f"EXR channel name {name!r} must be a non-empty string")
+        arrays[name] = _exr_channel(name, array, shape)
+        shape = arrays[name].shape
+    hdr = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (header or {}).items():
+        if key in _EXR_RESERVED:
+            raise OutputFormatError(f"EXR header key {key!r} is managed by the writer; choose another name")
+        if isinstance(value, (bool, np.bool_)):
+            value = int(value)
+        elif isinstance(value, (int, np.integer)):
+            value = int(value)
+        elif isinstance(value, (float, np.floating)):
+            # OpenEXR's Python binding stores a float attribute as 32-bit; keep the double exactly.
+            value = repr(float(value))
+        elif not isinstance(value, str):
+            raise OutputFormatError(f"EXR header {key!r}: value of type {type(value).__name__}; expected str, int or float")
+        hdr[str(key)] = value
+    buf = io.BytesIO()
+    OpenEXR.File(hdr, arrays).write(buf)
+    return buf.getvalue()
+
+
+def write_exr(path, channels: Mapping, *, header: Mapping | None = None) -> None:
+    """Write named image channels to an OpenEXR file (ZIP compression), atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.exr``.
+    channels : mapping of str to ndarray, shape (H, W)
+        E.g. ``{"electrons": e, "irradiance_w_m2": irr, "source_id": ids}``. Floating arrays are
+        written as float32 (float64 is rounded to float32); integer arrays as uint32 (values
+        must be in 0..2**32-1). All channels share one shape.
+    header : mapping of str to (str, int, float), optional
+        Extra header attributes. Floats are stored as their ``repr`` string (OpenEXR's Python
+        binding would round them to float32), so they come back from
+        :func:`read_exr_header` as ``str``. Structural keys (``compression``, ``channels``...)
+        are refused.
+
+    Raises
+    ------
+    OutputFormatError
+        Empty channel set, wrong shapes or dtypes, or a reserved header key.
+    """
+    atomic_write_bytes(path, _exr_bytes(channels, header))
+
+
+def read_exr(source) -> dict:
+    """Channels of an OpenEXR file, ``{name: ndarray (H, W)}`` (float32 or uint32)."""
+    import OpenEXR
+
+    with _open_binary(source) as f:
+        exr = OpenEXR.File(f, separate_channels=True)
+        return {name: np.array(ch.pixels) for name, ch in exr.channels().items()}
+
+
+def read_exr_header(source) -> dict:
+    """Header attributes of an OpenEXR file (including OpenEXR's own structural ones)."""
+    import OpenEXR
+
+    with _open_binary(source) as f:
+        return dict(OpenEXR.File(f, header_only=True).header())
+
+
+# ----------------------------------------------------------------------------- PNG
+def write_png(path, dn, *, bit_depth: int | None = None) -> None:
+    """Write digital counts as a greyscale PNG, atomically; values are stored as is.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.png``.
+    dn : ndarray, shape (H, W), uint8 or uint16
+        Raw digital counts, DN. uint8 gives an 8-bit PNG, uint16 a 16-bit PNG holding the raw DN
+        (a 12-bit sensor's 4095 is stored as 4095, not rescaled to 65535).
+    bit_depth : int, optional
+        Sensor bit depth, 1..16. When given, the dtype must match CONVENTIONS.md (uint8 for
+        <= 8, uint16 for 9..16), every value must be <= ``2**bit_depth - 1``, and an ``sBIT``
+        chunk records it for readers.
+
+    Raises
+    ------
+    OutputFormatError
+        Wrong shape or dtype, or a value above the bit depth.
+    """
+    from PIL import Image, PngImagePlugin
+
+    a = np.asarray(dn)
+    if a.ndim != 2:
+        raise OutputFormatError(f"PNG image has shape {a.shape}; expected a 2-D (H, W) array of DN")
+    if a.dtype not in (np.uint8, np.uint16):
+        raise OutputFormatError(f"PNG image has dtype {a.dtype}; expected uint8 (bit depth <= 8) or uint16 (9-16)")
+    info = None
+    if bit_depth is not None:
+        if not (isinstance(bit_depth, (int, np.integer)) and 1 <= bit_depth <= 16):
+            raise OutputFormatError(f"PNG bit_depth = {bit_depth!r}; expected an integer in 1..16")
+        want = np.uint8 if bit_depth <= 8 else np.uint16
+        if a.dtype != want:
+            raise OutputFormatError(f"PNG of bit depth {bit_depth} needs {np.dtype(want).name} DN, got {a.dtype}")
+        if a.size and int(a.max()) > (1 << bit_depth) - 1:
+            raise OutputFormatError(f"PNG DN max {int(a.max())} exceeds {(1 << bit_depth) - 1} for bit depth {bit_depth}")
+        info = PngImagePlugin.PngInfo()
+        info.add(b"sBIT", bytes([int(bit_depth)]))  # greyscale sBIT: one byte, significant bits
+    # Pillow maps uint8 -> mode "L" (8-bit) and uint16 -> "I;16" (16-bit greyscale, big-endian
+    # in the file); the round trip is pinned by tests. It writes no time stamp.
+    image = Image.fromarray(np.ascontiguousarray(a))
+    buf = io.BytesIO()
+    image.save(buf, format="PNG", pnginfo=info, compress_level=6)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_png(source) -> np.ndarray:
+    """DN of a greyscale PNG, shape (H, W): uint8 for 8-bit files, uint16 for 16-bit ones."""
+    from PIL import Image
+
+    with _open_binary(source) as f, Image.open(f) as image:
+        if image.mode not in ("L", "I;16", "I;16B", "I"):
+            raise OutputFormatError(f"PNG mode {image.mode!r}; expected greyscale (L or I;16)")
+        a = np.array(image)
+    if a.dtype.kind in "iu" and a.dtype.itemsize > 2:  # mode "I": 16-bit data in int32
+        a = a.astype(np.uint16)
+    return a
+
+
+# ----------------------------------------------------------------------------- FITS + WCS
+def tan_wcs_header(camera_K, width: int, height: int, R_cam_icrs) -> dict:
+    """FITS TAN (gnomonic) WCS of the apparent sky for an undistorted pinhole camera.
+
+    With the camera at ``R_cam_icrs`` (passive, ``v_cam = R_cam_icrs @ u_icrs``) a direction ``u``
+    lands at ``[x, y, 1] ~ K v_cam`` (CONVENTIONS.md pixels, top-left pixel centre at (0, 0)).
+    Writing the tangent-plane (standard) coordinates at the boresight as
+    ``xi = u.e / u.b``, ``eta = u.n / u.b`` (``b`` boresight, ``e`` east, ``n`` north unit
+    vectors), the rows ``r0, r1`` of ``R_cam_icrs`` lie in that plane, so
+    ``[x - cx, y - cy] = K2 M [xi, eta]`` with ``K2 = K[:2, :2]`` and
+    ``M = [[r0.e, r0.n], [r1.e, r1.n]]``. FITS TAN (Calabretta & Greisen 2002, LONPOLE = 180)
+    defines intermediate world coordinates ``(xi, eta)`` in degrees = ``CD @ (p - CRPIX)``, hence
+    ``CD = deg(inv(K2 M))`` and ``CRPIX = (cx + 1, cy + 1)`` (FITS pixels are 1-based; image row 0
+    is FITS row 1, no flip).
+
+    Lens distortion is not represented; the WCS describes the *apparent* directions (after
+    light-time and aberration) the renderer projects, so it matches the rendered stars.
+
+    Parameters
+    ----------
+    camera_K : array_like, shape (3, 3)
+        Intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, px.
+    width, height : int
+        Image size, px (``NAXIS1``, ``NAXIS2``).
+    R_cam_icrs : array_like, shape (3, 3)
+        Attitude, passive, ICRS to camera.
+
+    Returns
+    -------
+    dict
+        FITS keywords (``WCSAXES``, ``CTYPE1/2``, ``CUNIT1/2``, ``CRPIX1/2``, ``CRVAL1/2`` (deg),
+        ``CD1_1`` ... ``CD2_2`` (deg/px), ``LONPOLE``, ``RADESYS`` = ``ICRS``, ``NAXIS1/2``).
+
+    References
+    ----------
+    Calabretta & Greisen (2002), A&A 395, 1077: eqs. 54-55 (TAN), section 2.3 (LONPOLE).
+    """
+    K = np.asarray(camera_K, dtype=float)
+    R = np.asarray(R_cam_icrs, dtype=float)
+    if K.shape != (3, 3) or R.shape != (3, 3):
+        raise OutputFormatError(f"tan_wcs_header needs K and R_cam_icrs of shape (3, 3); got {K.shape}, {R.shape}")
+    b = R[2] / np.linalg.norm(R[2])
+    ra0 = math.atan2(b[1], b[0]) % (2.0 * math.pi)
+    dec0 = math.atan2(b[2], math.hypot(b[0], b[1]))
+    east = np.array([-math.sin(ra0), math.cos(ra0), 0.0])
+    north = np.array([-math.sin(dec0) * math.cos(ra0), -math.sin(dec0) * math.sin(ra0), math.cos(dec0)])
+    M = np.array([[R[0] @ east, R[0] @ north], [R[1] @ east, R[1] @ north]])
+    CD = np.degrees(np.linalg.inv(K[:2, :2] @ M))
+    return {
+        "WCSAXES": 2,
+        "NAXIS1": int(width),
+        "NAXIS2": int(height),
+        "CTYPE1": "RA---TAN",
+        "CTYPE2": "DEC--TAN",
+        "CUNIT1": "deg",
+        "CUNIT2": "deg",
+        "CRPIX1": float(K[0, 2]) + 1.0,
+        "CRPIX2": float(K[1, 2]) + 1.0,
+        "CRVAL1": math.degrees(ra0),
+        "CRVAL2": math.degrees(dec0),
+        "CD1_1": float(CD[0, 0]),
+        "CD1_2": float(CD[0, 1]),
+        "CD2_1": float(CD[1, 0]),
+        "CD2_2": float(CD[1, 1]),
+        "LONPOLE": 180.0,
+        "RADESYS": "ICRS",
+    }
+
+
+# Keywords astropy derives from the data array; a caller's header must not contradict them.
+_FITS_STRUCTURAL = frozenset({"SIMPLE", "BITPIX", "NAXIS", "NAXIS1", "NAXIS2", "EXTEND", "BZERO", "BSCALE"})
+
+
+def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mapping | None = None) -> None:
+    """Write an image (DN or float) to a single-HDU FITS file with an optional WCS, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.fits``.
+    image : ndarray, shape (H, W)
+        uint8, uint16 (stored as int16 with ``BZERO = 32768``, read back as uint16 by astropy),
+        int16/int32, float32 or float64. Row 0 of the array is FITS row 1 (no flip), so pixel
+        ``(x, y)`` of CONVENTIONS.md is FITS ``(x + 1, y + 1)``.
+    wcs_header : mapping, optional
+        Output of :func:`tan_wcs_header`; ``NAXIS1/2`` in it must match the image.
+    header : mapping, optional
+        Extra keywords (<= 8 characters), e.g. ``{"EXPTIME": 0.4}``.
+
+    Raises
+    ------
+    OutputFormatError
+        Wrong shape or dtype, or a WCS made for another image size.
+    """
+    from astropy.io import fits
+
+    a = np.asarray(image)
+    if a.ndim != 2:
+        raise OutputFormatError(f"FITS image has shape {a.shape}; expected a 2-D (H, W) array")
+    if a.dtype.kind not in "uif" or a.dtype.itemsize > 8 or a.dtype == np.uint64:
+        raise OutputFormatError(f"FITS image has dtype {a.dtype}; expected uint8/uint16/int16/int32/float32/float64")
+    hdu = fits.PrimaryHDU(np.ascontiguousarray(a))
+    for source in (wcs_header or {}), (header or {}):
+        for key, value in source.items():
+            key = str(key).upper()
+            if key in ("NAXIS1", "NAXIS2"):
+                n = a.shape[1] if key == "NAXIS1" else a.shape[0]
+                if int(value) != n:
+                    raise OutputFormatError(f"FITS {key} = {value} in the header but the image has {n}; was the WCS made for another camera?")
+                continue
+            if key in _FITS_STRUCTURAL:
+                raise OutputFormatError(f"FITS keyword {key} is set from the data; remove it from the header")
+            if isinstance(value, np.generic):
+                value = value.item()
+            hdu.header[key] = value
+    buf = io.BytesIO()
+    fits.HDUList([hdu]).writeto(buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_fits(source):
+    """(image ndarray (H, W), header as ``astropy.io.fits.Header``) of the primary HDU."""
+    from astropy.io import fits
+
+    with _open_binary(source) as f, fits.open(f, memmap=False) as hdul:
+        return np.array(hdul[0].data), hdul[0].header.copy()
+
+
+# ----------------------------------------------------------------------------- ground truth
+def truth_to_jsonable(obj, _where: str = "truth"):
+    """Plain-JSON copy of ground truth: numpy arrays/scalars to lists/numbers, NaN to None.
+
+    Mappings keep their insertion order; tuples become lists. ``+-inf`` has no JSON form and is
+    refused (a truth value must be finite or NaN = "not defined").
+
+    Raises
+    ------
+    TruthSchemaError
+        Non-string keys, infinities or types JSON cannot hold, naming where.
+    """
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise TruthSchemaError(f"{_where}: key {k!r} is not a string")
+            out[k] = truth_to_jsonable(v, f"{_where}.{k}")
+        return out
+    if isinstance(obj, np.ndarray):
+        return truth_to_jsonable(obj.tolist(), _where)
+    if isinstance(obj, (list, tuple)):
+        return [truth_to_jsonable(v, f"{_where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if obj is None or isinstance(obj, (bool, str, int)):
+        return obj
+    if isinstance(obj, float):
+        if math.isnan(obj):
+            return None
+        if math.isinf(obj):
+            raise TruthSchemaError(f"{_where} = {obj}: infinity has no JSON form; use NaN (written as null) or a finite value")
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TruthSchemaError(f"{_where}: value of type {type(obj).__name__} cannot be written to JSON")
+
+
+def truth_json_bytes(truth: Mapping) -> bytes:
+    """Canonical bytes of ground truth: insertion order, 2-space indent, ASCII, ``repr`` floats."""
+    if not isinstance(truth, Mapping) or truth.get("schema") != FRAME_SCHEMA:
+        got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
+        raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
+    # json writes floats with float.__repr__: the shortest string that reads back bit-exact.
+    text = json.dumps(truth_to_jsonable(truth), indent=2, ensure_ascii=True, allow_nan=False)
+    return (text + "\n").encode("ascii")
+
+
+def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:
+    """Write one frame's ground truth as canonical JSON, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.json``.
+    truth : mapping
+        Must hold ``"schema": "skynav.frame/1"``; numpy values are converted, NaN becomes
+        ``null``. Key order is kept as given (callers build it in a fixed order), so equal
+        truth gives equal bytes.
+    strict : bool
+        Also refuse truth for which :func:`validate_truth` finds problems.
+
+    Raises
+    ------
+    TruthSchemaError
+        Missing/wrong schema, infinities, unserialisable values, or (strict) schema problems.
+    """
+    if strict:
+        problems = validate_truth(truth)
+        if problems:
+            raise TruthSchemaError(f"ground truth has {len(problems)} problem(s): {'; '.join(problems[:5])}", problems)
+    atomic_write_bytes(path, truth_json_bytes(truth))
+
+
+def read_truth_json(source) -> dict:
+    """Ground truth of one frame (``null`` comes back as None); checks the schema name."""
+    with _open_binary(source) as f:
+        truth = json.loads(f.read().decode("utf-8"))
+    if not isinstance(truth, dict) or truth.get("schema") != FRAME_SCHEMA:
+        got = truth.get("schema") if isinstance(truth, dict) else type(truth).__name__
+        raise TruthSchemaError(f'not a skynav frame file: "schema" is {got!r}, expected "{FRAME_SCHEMA}"')
+    return truth
+
+
+# Required keys of CONVENTIONS.md "Per-frame ground truth", with the shape each must have
+# (None: any value). Lists of sources give the keys of each item.
+_TRUTH_SECTIONS = {
+    "epoch": {"tdb_iso": None, "jd_tdb": ()},
+    "observer": {"position_km": (3,), "velocity_km_s": (3,)},
+    "attitude": {"R_cam_icrs": (3, 3), "q_cam_icrs": (4,), "angular_velocity_rad_s": (3,)},
+    "camera": {"K": (3, 3), "width": (), "height": (), "focal_length_mm": (), "pixel_pitch_um": (),
+               "f_number": (), "exposure_s": (), "bit_depth": ()},
+}
+_TRUTH_LISTS = {
+    "stars": {"hip": (), "v_mag": (), "u_icrs": (3,), "xy": (2,), "electrons": ()},
+    "bodies": {"name": None, "xy": (2,), "xy_geometric": (2,), "u_icrs": (3,), "light_time_s": (),
+               "distance_km": (), "v_mag": (), "phase_angle_deg": (), "angular_diameter_px": (),
+               "in_fov": (), "visible": (), "resolved": (), "electrons": ()},
+    "cosmic_rays": {"xy": (2,), "electrons": ()},
+}
+
+
+def _shape_problem(where: str, value, shape) -> str | None:
+    if shape is None or value is None:  # None: NaN written as null, allowed
+        return None
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return f"{where}: not numeric"
+    if a.shape != shape:
+        return f"{where}: shape {a.shape}, expected {shape}"
+    return None
+
+
+def validate_truth(truth) -> list[str]:
+    """Problems of one frame's ground truth against CONVENTIONS.md; empty when it conforms.
+
+    Checks the schema name, the required sections and keys, the shapes of vectors and matrices
+    (``R_cam_icrs`` (3, 3), ``q_cam_icrs`` (4,), ``xy`` (2,), ``u_icrs`` (3,), ...), that
+    ``stars``/``bodies``/``cosmic_rays`` are lists of objects with their keys, and that ``seeds``
+    is present. Works on the in-memory dict (numpy values) and on what :func:`read_truth_json`
+    returns. Extra keys are welcome and not reported.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["attitude.q_cam_icrs: missing", "stars[2].xy: shape (3,), expected (2,)"]``.
+    """
+    if not isinstance(truth, Mapping):
+        return [f"truth: a mapping is required, got {type(truth).__name__}"]
+    problems = []
+    if truth.get("schema") != FRAME_SCHEMA:
+        problems.append(f"schema: {truth.get('schema')!r}, expected {FRAME_SCHEMA!r}")
+    for section, keys in _TRUTH_SECTIONS.items():
+        sub = truth.get(section)
+        if not isinstance(sub, Mapping):
+            problems.append(f"{section}: missing" if sub is None else f"{section}: not an object")
+            continue
+        for key, shape in keys.items():
+            if key not in sub:
+                problems.append(f"{section}.{key}: missing")
+            elif (p := _shape_problem(f"{section}.{key}", sub[key], shape)) is not None:
+                problems.append(p)
+    for section, keys in _TRUTH_LISTS.items():
+        items = truth.get(section)
+        if items is None:
+            problems.append(f"{section}: missing")
+            continue
+        if isinstance(items, (str, bytes, Mapping)) or not hasattr(items, "__iter__"):
+            problems.append(f"{section}: not a list")
+            continue
+        for i, item in enumerate(items):
+            if not isinstance(item, Mapping):
+                problems.append(f"{section}[{i}]: not an object")
+                continue
+            for key, shape in keys.items():
+                if key not in item:
+                    problems.append(f"{section}[{i}].{key}: missing")
+                elif (p := _shape_problem(f"{section}[{i}].{key}", item[key], shape)) is not None:
+                    problems.append(p)
+    if "seeds" not in truth:
+        problems.append("seeds: missing")
+    return problems
