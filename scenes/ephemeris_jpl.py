@@ -1,0 +1,231 @@
+"""Adapter over ``jplephem``: JPL DE421 positions and velocities of the Sun, Moon and planets.
+
+The kernel is the ``de421.bsp`` that the ``skyfield-data`` package installs
+(:func:`skynav.scenes.data_files.de421_path`); it is opened lazily on first use, never in a
+constructor or on import, and an :class:`Ephemeris` pickles without it (it reopens after
+unpickling). Outputs are barycentric ICRS: km and km/s; times are TDB seconds past J2000
+(JD 2451545.0 TDB), passed to jplephem as a two-part Julian date for full precision.
+
+Bodies and the DE421 segments chained for them
+----------------------------------------------
+* sun: 0 -> 10; earth: 0 -> 3 -> 399; moon: 0 -> 3 -> 301.
+* mercury, venus, mars: the body centres 199, 299, 499 (0 -> 1 -> 199, 0 -> 2 -> 299,
+  0 -> 4 -> 499); for Mercury and Venus centre and barycentre coincide in DE421, Mars differs
+  by ~ 20 cm.
+* jupiter, saturn, uranus, neptune: the SYSTEM BARYCENTRES 5, 6, 7, 8, because DE421 has no
+  body-centre segments for them. The offset of the planet centre from its system barycentre is
+  ~ 1 km for Jupiter, ~ 200 km for Saturn (Titan) and tens of km for Uranus and Neptune; seen
+  from 1 AU away, Saturn's is 0.3 arcsec. Satellite ephemerides (sat*.bsp) would remove it.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+
+import numpy as np
+
+from .data_files import de421_path
+from .errors import DataFileError, EphemerisRangeError, UnknownBodyError
+
+BODIES = ("sun", "mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
+
+BODY_NAIF_IDS = {
+    "sun": 10,
+    "mercury": 199,
+    "venus": 299,
+    "earth": 399,
+    "moon": 301,
+    "mars": 499,
+    "jupiter": 5,  # system barycentre: DE421 has no 599 segment
+    "saturn": 6,  # system barycentre
+    "uranus": 7,  # system barycentre
+    "neptune": 8,  # system barycentre
+}
+"""NAIF integer codes of what :class:`Ephemeris` returns for each body."""
+
+BODY_RADII_KM = {
+    "sun": 695700.0,  # IAU 2015 Resolution B3 nominal solar radius (Prsa et al. 2016)
+    "mercury": 2439.4,
+    "venus": 6051.8,
+    "earth": 6371.0084,
+    "moon": 1737.4,
+    "mars": 3389.50,
+    "jupiter": 69911.0,
+    "saturn": 58232.0,
+    "uranus": 25362.0,
+    "neptune": 24622.0,
+}
+"""Mean radii, km: Archinal et al. (2018), "Report of the IAU Working Group on Cartographic
+Coordinates and Rotational Elements: 2015", Celest. Mech. Dyn. Astr. 130:22, Tables 1 and 5
+(Sun: IAU 2015 Resolution B3)."""
+
+_CHAINS = {
+    "sun": ((0, 10),),
+    "mercury": ((0, 1), (1, 199)),
+    "venus": ((0, 2), (2, 299)),
+    "earth": ((0, 3), (3, 399)),
+    "moon": ((0, 3), (3, 301)),
+    "mars": ((0, 4), (4, 499)),
+    "jupiter": ((0, 5),),
+    "saturn": ((0, 6),),
+    "uranus": ((0, 7),),
+    "neptune": ((0, 8),),
+}
+
+J2000_JD = 2451545.0
+SECONDS_PER_DAY = 86400.0
+
+
+def _jd_to_date(jd: float) -> str:
+    """Calendar date (proleptic Gregorian, YYYY-MM-DD) of a Julian date; Fliegel & van Flandern (1968)."""
+    j = int(np.floor(jd + 0.5))
+    f = j + 1401 + (((4 * j + 274277) // 146097) * 3) // 4 - 38
+    e = 4 * f + 3
+    h = 5 * ((e % 1461) // 4) + 2
+    day = (h % 153) // 5 + 1
+    month = (h // 153 + 2) % 12 + 1
+    year = e // 1461 - 4716 + (12 + 2 - month) // 12
+    return f"{year:04d}-{month:02d}-{day:02d}"
+
+
+class Ephemeris:
+    """Barycentric ICRS states of :data:`BODIES` from a JPL SPK kernel (DE421 by default).
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        SPK file; default :func:`skynav.scenes.data_files.de421_path`. Nothing is opened here.
+
+    Examples
+    --------
+    >>> eph = Ephemeris()
+    >>> r_km, v_km_s = eph.position_velocity("earth", 0.0)
+    >>> bool(1.4e8 < np.linalg.norm(r_km) < 1.5e8)
+    True
+    """
+
+    def __init__(self, path=None):
+        self._path = None if path is None else str(path)
+        self._kernel = None
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return f"Ephemeris(path={self._path!r})"
+
+    def __getstate__(self):
+        return {"_path": self._path}
+
+    def __setstate__(self, state):
+        self._path = state["_path"]
+        self._kernel = None
+        self._lock = threading.Lock()
+
+    # -- kernel -------------------------------------------------------------------------------
+    @property
+    def path(self) -> str:
+        """Path of the SPK file."""
+        return self._path if self._path is not None else str(de421_path())
+
+    def _open(self):
+        if self._kernel is None:
+            with self._lock:
+                if self._kernel is None:
+                    from jplephem.spk import SPK
+
+                    try:
+                        kernel = SPK.open(self.path)
+                    except OSError as exc:
+                        raise DataFileError(f"cannot open SPK kernel {self.path}: {exc}") from exc
+                    segs = {(s.center, s.target): s for s in kernel.segments}
+                    missing = [p for chain in _CHAINS.values() for p in chain if p not in segs]
+                    if missing:
+                        raise DataFileError(f"{self.path} lacks segments {missing}")
+                    used = [segs[p] for chain in _CHAINS.values() for p in chain]
+                    self._segments = segs
+                    self._start_jd = max(s.start_jd for s in used)
+                    self._end_jd = min(s.end_jd for s in used)
+                    self._kernel = kernel
+        return self._kernel
+
+    @property
+    def span_tdb_s(self) -> tuple:
+        """(start, end) of the kernel, TDB seconds past J2000 (opens the kernel)."""
+        self._open()
+        return (
+            (self._start_jd - J2000_JD) * SECONDS_PER_DAY,
+            (self._end_jd - J2000_JD) * SECONDS_PER_DAY,
+        )
+
+    # -- states -------------------------------------------------------------------------------
+    def position_velocity(self, body: str, t_tdb_s, *, offset_s=0.0):
+        """Barycentric ICRS position and velocity of a body.
+
+        Parameters
+        ----------
+        body : str
+            One of :data:`BODIES` (case-insensitive).
+        t_tdb_s : float or ndarray, shape (N,)
+            Epochs, TDB seconds past J2000.
+        offset_s : float or ndarray, shape (N,), optional
+            Added to ``t_tdb_s`` without loss of precision (e.g. minus a light-time): the sum is
+            formed as a two-part Julian date, good to ~1e-11 s, where a float of seconds past
+            J2000 resolves only ~2e-7 s.
+
+        Returns
+        -------
+        position_km : ndarray, shape (3,) or (N, 3)
+        velocity_km_s : ndarray, shape (3,) or (N, 3)
+
+        Raises
+        ------
+        UnknownBodyError
+            ``body`` is not in :data:`BODIES`.
+        EphemerisRangeError
+            An epoch is outside the kernel (``.time_mask`` marks which).
+        """
+        key = body.lower() if isinstance(body, str) else body
+        if key not in _CHAINS:
+            raise UnknownBodyError(body, BODIES)
+        self._open()
+        t = np.asarray(t_tdb_s, dtype=float)
+        off = np.asarray(offset_s, dtype=float)
+        scalar = t.ndim == 0 and off.ndim == 0
+        t, off = np.broadcast_arrays(np.atleast_1d(t), np.atleast_1d(off))
+        days = np.floor(t / SECONDS_PER_DAY)
+        jd1 = J2000_JD + days
+        jd2 = ((t - days * SECONDS_PER_DAY) + off) / SECONDS_PER_DAY  # t - 86400 k is exact
+        jd = jd1 + jd2
+        mask = ~((jd >= self._start_jd) & (jd <= self._end_jd))  # NaN counts as outside
+        if mask.any():
+            raise EphemerisRangeError(
+                f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
+                f" {int(mask.sum())} of {mask.size} epochs outside (see .time_mask)",
+                time_mask=mask if not scalar else bool(mask[0]),
+                start_jd=self._start_jd,
+                end_jd=self._end_jd,
+            )
+        pos = np.zeros((3, t.size))
+        vel = np.zeros((3, t.size))
+        for pair in _CHAINS[key]:
+            p, v = self._segments[pair].compute_and_differentiate(jd1, jd2)
+            pos += p
+            vel += v
+        pos = pos.T
+        vel = vel.T / SECONDS_PER_DAY  # jplephem gives km/day
+        if scalar:
+            return pos[0], vel[0]
+        return pos.reshape(t.shape + (3,)), vel.reshape(t.shape + (3,))
+
+    def position(self, body: str, t_tdb_s, *, offset_s=0.0):
+        """Barycentric ICRS position, km; shape (3,) or (N, 3). See :meth:`position_velocity`."""
+        return self.position_velocity(body, t_tdb_s, offset_s=offset_s)[0]
+
+    def _name(self) -> str:
+        return self.path.replace("\\", "/").rsplit("/", 1)[-1]
+
+
+@functools.lru_cache(maxsize=1)
+def default_ephemeris() -> Ephemeris:
+    """The process-wide DE421 :class:`Ephemeris` (kernel opened on first use)."""
+    return Ephemeris()

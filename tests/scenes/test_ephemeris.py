@@ -1,0 +1,90 @@
+"""Ephemeris adapter: range errors, unknown bodies, pickling, batch vs scalar, velocity vs
+central finite differences of position."""
+
+import pickle
+
+import numpy as np
+import pytest
+
+from skynav.scenes.ephemeris_jpl import BODIES, BODY_NAIF_IDS, BODY_RADII_KM, Ephemeris, default_ephemeris
+from skynav.scenes.errors import EphemerisRangeError, SkynavError, UnknownBodyError
+
+YEAR_S = 365.25 * 86400.0
+
+
+def test_tables_cover_bodies():
+    assert set(BODY_RADII_KM) == set(BODIES) == set(BODY_NAIF_IDS)
+
+
+def test_kernel_not_opened_by_constructor():
+    eph = Ephemeris(path="/nonexistent/de421.bsp")  # would fail if opened here
+    assert eph._kernel is None
+
+
+def test_out_of_range_epochs_raise_with_mask_and_message():
+    eph = Ephemeris()
+    t = np.linspace(-10.0, 10.0, 100) * YEAR_S
+    t[[3, 50, 97]] = [-120 * YEAR_S, 60 * YEAR_S, np.nan]  # 1880, 2060, NaN
+    with pytest.raises(EphemerisRangeError) as info:
+        eph.position_velocity("mars", t)
+    err = info.value
+    assert isinstance(err, ValueError) and isinstance(err, SkynavError)
+    assert str(err) == "de421.bsp covers 1899-07-29..2053-10-09 TDB; 3 of 100 epochs outside (see .time_mask)"
+    assert np.flatnonzero(err.time_mask).tolist() == [3, 50, 97]
+    start, end = eph.span_tdb_s
+    # DE421 span: JD 2414864.5 .. 2471184.5 (skyfield-data's de421.bsp)
+    assert start == (2414864.5 - 2451545.0) * 86400.0 and end == (2471184.5 - 2451545.0) * 86400.0
+    eph.position("sun", end)  # the end point itself is inside
+    with pytest.raises(EphemerisRangeError):
+        eph.position("sun", end + 1.0)
+
+
+def test_unknown_body():
+    with pytest.raises(UnknownBodyError) as info:
+        Ephemeris().position("pluto", 0.0)
+    assert isinstance(info.value, KeyError)
+    assert "pluto" in str(info.value) and "neptune" in str(info.value)
+
+
+def test_pickle_round_trip_reopens_lazily():
+    eph = Ephemeris()
+    before = eph.position("moon", 1.0e8)
+    clone = pickle.loads(pickle.dumps(eph))
+    assert clone._kernel is None
+    np.testing.assert_array_equal(clone.position("moon", 1.0e8), before)
+    assert default_ephemeris() is default_ephemeris()
+
+
+@pytest.mark.parametrize("body", BODIES)
+def test_batch_equals_scalar_loop(body, rng):
+    eph = default_ephemeris()
+    t = rng.uniform(-50, 50, 7) * YEAR_S
+    r, v = eph.position_velocity(body, t)
+    assert r.shape == v.shape == (7, 3)
+    for k, tk in enumerate(t):
+        rk, vk = eph.position_velocity(body, tk)
+        assert rk.shape == (3,)
+        np.testing.assert_array_equal(rk, r[k])
+        np.testing.assert_array_equal(vk, v[k])
+
+
+@pytest.mark.parametrize("body", BODIES)
+def test_velocity_matches_central_difference(body, rng):
+    eph = default_ephemeris()
+    t = rng.uniform(-50, 50, 5) * YEAR_S
+    h = 60.0  # s; O(h^2 a') truncation: Moon |da/dt| ~ 2e-11 km/s^3 -> ~1e-8 km/s
+    _, v = eph.position_velocity(body, t)
+    fd = (eph.position(body, t, offset_s=h) - eph.position(body, t, offset_s=-h)) / (2 * h)
+    # 1e-7 km/s = 0.1 mm/s: covers truncation and the ~1e-9 km rounding of 1e9 km positions / 120 s
+    np.testing.assert_allclose(fd, v, rtol=0, atol=1e-7)
+
+
+def test_offset_is_exact_two_part_time():
+    eph = default_ephemeris()
+    t = 1.5e9  # float resolution here is 2.4e-7 s: t + 1e-7 rounds to t or t + 2.4e-7
+    r1 = eph.position("moon", t, offset_s=1e-7)
+    r0 = eph.position("moon", t)
+    _, v = eph.position_velocity("moon", t)
+    # a 0.1 us offset must move the Moon by v * 1e-7 s (~3e-6 km), not by 0 or v * 2.4e-7 s;
+    # 6e-8 km = two ulps of a 1.5e8 km coordinate
+    assert np.all(np.abs((r1 - r0) - v * 1e-7) <= 6e-8)
