@@ -127,7 +127,7 @@ def v_minus_hp(b_v):
     Examples
     --------
     >>> round(float(v_minus_hp(0.0)), 3)
-    -0.011
+    -0.013
     """
     return np.interp(np.clip(b_v, _B_V_GRID[0], _B_V_GRID[-1]), _B_V_GRID, _V_MINUS_HP)
 
@@ -143,7 +143,7 @@ def teff_from_b_v(b_v):
     Examples
     --------
     >>> round(float(teff_from_b_v(0.65)))
-    5730
+    5778
     """
     x = 0.92 * np.clip(b_v, -0.4, 2.0)
     return 4600.0 * (1.0 / (x + 1.7) + 1.0 / (x + 0.62))
