@@ -127,3 +127,206 @@ class Scene:
 
     def bodies_in_fov(self):
         return tuple(b for b in self.bodies if b.in_fov)
+
+
+# --------------------------------------------------------------------------------------------
+# Building a scene
+# --------------------------------------------------------------------------------------------
+
+#: Bodies considered in every scene (the Sun is the illuminator, handled apart).
+SCENE_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
+
+#: Default angular diameter above which a body is ray-traced rather than drawn as a point, px.
+RESOLVED_THRESHOLD_PX = 2.0
+
+ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
+
+
+@dataclass(frozen=True, kw_only=True)
+class SkyBody:
+    """A body's apparent geometry and brightness from the observer, before any pointing."""
+
+    name: str
+    directions: object  # apparent.BodyDirections
+    radius_km: float
+    v_mag: float
+    phase_angle_rad: float
+    sun_angle_rad: float
+    angular_diameter_rad: float
+
+
+def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES):
+    """Apparent directions, magnitudes and angles of solar-system bodies seen from the observer.
+
+    Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun.
+    """
+    from . import apparent, photometry
+    from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+    from .errors import ConfigValueError
+
+    eph = ephemeris or default_ephemeris()
+    r = np.asarray(position_km, dtype=float)
+    v = np.asarray(velocity_km_s, dtype=float)
+    sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+    out = []
+    for name in names:
+        d = apparent.apparent_body(eph, name, r, v, t_tdb_s)
+        radius = BODY_RADII_KM[name]
+        if d.geometric_distance_km <= radius:
+            raise ConfigValueError("observer.position_km", list(np.round(r, 3)), f"a point outside {name} (radius {radius} km)")
+        phase = float(photometry.phase_angle_rad(d.position_km, d.sun_position_km, r))
+        sun_dist = float(np.linalg.norm(d.position_km - d.sun_position_km))
+        vmag = float(photometry.planet_v_mag(name, sun_dist, d.distance_km, phase))
+        elong = float(np.arccos(np.clip(np.dot(d.u_apparent, sun.u_apparent), -1.0, 1.0)))
+        out.append(SkyBody(name=name, directions=d, radius_km=radius, v_mag=vmag, phase_angle_rad=phase,
+                           sun_angle_rad=elong,
+                           angular_diameter_rad=float(photometry.angular_diameter_rad(radius, d.distance_km))))
+    return tuple(out), np.asarray(sun.u_apparent, dtype=float)
+
+
+def brightest_visible_body(bodies, camera) -> "SkyBody":
+    """The brightest body outside the camera's Sun exclusion angle (for ``point_at: auto``)."""
+    candidates = [b for b in bodies if b.sun_angle_rad > camera.sun_exclusion_rad and np.isfinite(b.v_mag)]
+    if not candidates:
+        from .errors import ConfigValueError
+
+        raise ConfigValueError("attitude.point_at", "auto", "a scene with at least one planet outside the Sun exclusion angle")
+    return min(candidates, key=lambda b: b.v_mag)
+
+
+def _tup(a):
+    return tuple(float(x) for x in np.asarray(a, dtype=float).ravel())
+
+
+def build_scene(
+    epoch,
+    *,
+    position_km,
+    velocity_km_s,
+    R_cam_icrs,
+    camera: Camera,
+    angular_velocity_rad_s=(0.0, 0.0, 0.0),
+    star_mag_limit: float = 9.0,
+    resolved_threshold_px: float = RESOLVED_THRESHOLD_PX,
+    ephemeris=None,
+    catalog=None,
+    sky=None,
+) -> Scene:
+    """Compute everything the camera sees at mid-exposure ``epoch``.
+
+    Parameters
+    ----------
+    epoch : astropy.time.Time, str (ISO, TDB) or float (TDB seconds past J2000)
+    position_km, velocity_km_s : array_like, shape (3,)
+        Observer barycentric ICRS state.
+    R_cam_icrs : array_like, shape (3, 3)
+        Attitude at mid-exposure.
+    camera : Camera
+    angular_velocity_rad_s : array_like, shape (3,)
+        Camera-frame body rate; sources move along paths during the exposure.
+    star_mag_limit : float
+        Faintest catalog V included.
+    resolved_threshold_px : float
+        Bodies whose angular diameter exceeds this are flagged ``resolved``.
+    ephemeris, catalog : optional
+        Injected adapters (defaults: DE421, Hipparcos).
+    sky : optional
+        Precomputed ``sky_bodies(...)`` result for this epoch and observer.
+    """
+    from . import apparent, frames
+    from .catalog_hipparcos import load_catalog
+    from .ephemeris_jpl import default_ephemeris
+    from .timescales import tdb_seconds
+
+    t = float(epoch) if isinstance(epoch, (int, float, np.floating)) else float(tdb_seconds(epoch))
+    eph = ephemeris or default_ephemeris()
+    cat = catalog or load_catalog()
+    r = np.asarray(position_km, dtype=float).reshape(3)
+    v = np.asarray(velocity_km_s, dtype=float).reshape(3)
+    R = np.asarray(R_cam_icrs, dtype=float).reshape(3, 3)
+    w = np.asarray(angular_velocity_rad_s, dtype=float).reshape(3)
+    half = 0.5 * camera.exposure_s
+    R_start = frames.propagate_attitude(R, w, -half)
+    R_end = frames.propagate_attitude(R, w, half)
+
+    # --- stars: cone around the boresight wide enough for the whole exposure's sweep
+    sweep = float(np.linalg.norm(w)) * half
+    margin = sweep + np.radians(0.2) + 8.0 * camera.ifov_rad
+    idx = cat.cone(R[2], camera.half_diagonal_fov_rad + margin, v_mag_max=star_mag_limit)
+    sun_pos = eph.position("sun", t)
+    u_astro = cat.directions(idx, t, r)
+    u_star = apparent.apparent_star_directions(u_astro, r, v, sun_pos)
+    xy = camera.project(u_star @ R.T)
+    xy0 = camera.project(u_star @ R_start.T)
+    xy1 = camera.project(u_star @ R_end.T)
+    pad = 8.0 + 6.0 * camera.defocus_sigma_px
+    near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
+    keep = np.flatnonzero(near)
+    stars = StarsInView(
+        hip=np.asarray(cat.hip)[idx][keep], v_mag=np.asarray(cat.v_mag)[idx][keep],
+        b_v=np.asarray(cat.b_v)[idx][keep], teff_k=np.asarray(cat.teff_k)[idx][keep],
+        u_icrs=u_star[keep], xy=xy[keep], xy_start=xy0[keep], xy_end=xy1[keep],
+        in_fov=camera.in_image(xy[keep]),
+    )
+
+    # --- bodies
+    if sky is None:
+        sky = sky_bodies(t, r, v, ephemeris=eph)
+    sky_list, sun_u = sky
+    bodies = []
+    for b in sky_list:
+        d = b.directions
+        p = camera.project((R @ d.u_apparent)[None])[0]
+        in_fov = bool(camera.in_image(p[None])[0])
+        diam_px = b.angular_diameter_rad * camera.focal_length_px
+        bodies.append(BodyInView(
+            name=b.name,
+            u_icrs=_tup(d.u_apparent), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
+            xy=_tup(p),
+            xy_geometric=_tup(camera.project((R @ d.u_geometric)[None])[0]),
+            xy_light_time=_tup(camera.project((R @ d.u_light_time)[None])[0]),
+            xy_start=_tup(camera.project((R_start @ d.u_apparent)[None])[0]),
+            xy_end=_tup(camera.project((R_end @ d.u_apparent)[None])[0]),
+            light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
+            position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
+            radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
+            sun_angle_rad=float(b.sun_angle_rad), angular_diameter_px=float(diam_px),
+            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_apparent), -1, 1)) * ARCSEC_PER_RAD),
+            in_fov=in_fov,
+            visible=bool(in_fov and np.isfinite(b.v_mag) and b.v_mag <= camera.limiting_v_mag
+                         and b.sun_angle_rad > camera.sun_exclusion_rad),
+            resolved=bool(diam_px > resolved_threshold_px),
+        ))
+    return Scene(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R, angular_velocity_rad_s=w,
+                 camera=camera, stars=stars, bodies=tuple(bodies), sun_u_icrs=np.asarray(sun_u),
+                 star_mag_limit=float(star_mag_limit))
+
+
+def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
+    """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
+    from . import frames
+    from .ephemeris_jpl import default_ephemeris
+    from .timescales import tdb_seconds
+
+    eph = ephemeris or default_ephemeris()
+    t = float(tdb_seconds(spec.epoch_tdb_iso))
+    r = np.asarray(spec.position_km, dtype=float)
+    v = np.asarray(spec.velocity_km_s, dtype=float)
+    if spec.relative_to:
+        rb, vb = eph.position_velocity(spec.relative_to, t)
+        r, v = r + rb, v + vb
+    sky = sky_bodies(t, r, v, ephemeris=eph)
+    a = spec.attitude
+    if a.point_at is not None:
+        if a.point_at == "auto":
+            target = brightest_visible_body(sky[0], spec.camera)
+        else:
+            target = next(b for b in sky[0] if b.name == a.point_at)
+        R = frames.point_boresight(target.directions.u_apparent, a.twist_rad)
+    elif a.q_cam_icrs is not None:
+        R = frames.quat_to_dcm(np.asarray(a.q_cam_icrs))
+    else:
+        R = frames.radec_twist_to_dcm(a.ra_rad, a.dec_rad, a.twist_rad)
+    return build_scene(t, position_km=r, velocity_km_s=v, R_cam_icrs=R, camera=spec.camera,
+                       angular_velocity_rad_s=a.angular_velocity_rad_s, star_mag_limit=spec.star_mag_limit,
+                       resolved_threshold_px=spec.resolved_threshold_px, ephemeris=eph, catalog=catalog, sky=sky)

@@ -1,0 +1,125 @@
+"""Ground truth of a rendered frame, schema ``skynav.frame/1`` (CONVENTIONS.md "Files").
+
+Built from the scene (the truth: exact light-time, deflection, relativistic aberration) and from
+what the renderer drew (electrons per source, cosmic rays, seeds). Extra keys beyond the fixed
+ones are welcome; the fixed names are read by outside tools.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from skynav.scenes import frames
+from skynav.scenes.timescales import time_from_tdb_seconds
+
+SCHEMA = "skynav.frame/1"
+
+
+def _seed_record(seed):
+    if seed is None:
+        return None
+    if isinstance(seed, np.random.SeedSequence):
+        return {"entropy": seed.entropy if isinstance(seed.entropy, int) else list(seed.entropy),
+                "spawn_key": list(seed.spawn_key)}
+    if isinstance(seed, (list, tuple)):
+        return [int(s) for s in seed]
+    return int(seed)
+
+
+def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, options) -> dict:
+    """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays)."""
+    from skynav import renderer  # noqa: F401  (package version below)
+
+    cam = scene.camera
+    t = time_from_tdb_seconds(scene.epoch_tdb_s)
+    R = scene.R_cam_icrs
+    ra, dec, twist = frames.dcm_to_radec_twist(R)
+    stars = scene.stars
+    in_fov = np.asarray(stars.in_fov, dtype=bool)
+    star_list = []
+    for i in np.flatnonzero(in_fov):
+        star_list.append({
+            "hip": int(stars.hip[i]),
+            "v_mag": float(stars.v_mag[i]),
+            "b_v": float(stars.b_v[i]),
+            "teff_k": float(stars.teff_k[i]),
+            "u_icrs": stars.u_icrs[i].tolist(),
+            "xy": stars.xy[i].tolist(),
+            "xy_start": stars.xy_start[i].tolist(),
+            "xy_end": stars.xy_end[i].tolist(),
+            "electrons": float(star_electrons[i]),
+        })
+    body_list = []
+    for b in scene.bodies:
+        d = {
+            "name": b.name,
+            "xy": list(b.xy),
+            "xy_geometric": list(b.xy_geometric),
+            "xy_light_time": list(b.xy_light_time),
+            "xy_start": list(b.xy_start),
+            "xy_end": list(b.xy_end),
+            "u_icrs": list(b.u_icrs),
+            "u_geometric": list(b.u_geometric),
+            "u_light_time": list(b.u_light_time),
+            "light_time_s": b.light_time_s,
+            "distance_km": b.distance_km,
+            "position_km": list(b.position_km),
+            "radius_km": b.radius_km,
+            "v_mag": b.v_mag,
+            "phase_angle_deg": math.degrees(b.phase_angle_rad),
+            "sun_angle_deg": math.degrees(b.sun_angle_rad),
+            "aberration_arcsec": b.aberration_arcsec,
+            "angular_diameter_px": b.angular_diameter_px,
+            "in_fov": b.in_fov,
+            "visible": b.visible,
+            "resolved": b.resolved,
+            "electrons": float(body_electrons.get(b.name, 0.0)),
+        }
+        img = resolved.get(b.name)
+        if img is not None:
+            d["rendered_as"] = "mitsuba"
+            d["centre_of_figure_xy"] = list(map(float, img.centre_of_figure_xy))
+            d["photocentre_xy"] = list(map(float, img.photocentre_xy))
+            d["radius_px"] = float(img.radius_px)
+            d["electrons_raw"] = float(img.electrons_raw_total)
+            d["mitsuba_variant"] = img.variant
+        else:
+            d["rendered_as"] = "point" if b.in_fov else "none"
+        body_list.append(d)
+    cr_list = [{"xy": [float(x), float(y)], "electrons": float(e), **({"pixels": p} if p is not None else {})}
+               for (x, y), e, p in _hit_records(hits)]
+    return {
+        "schema": SCHEMA,
+        "epoch": {"tdb_iso": t.isot, "jd_tdb": float(t.jd1 + t.jd2), "tdb_seconds_past_j2000": scene.epoch_tdb_s},
+        "observer": {"position_km": scene.position_km.tolist(), "velocity_km_s": scene.velocity_km_s.tolist()},
+        "attitude": {
+            "R_cam_icrs": R.tolist(),
+            "q_cam_icrs": frames.dcm_to_quat(R).tolist(),
+            "angular_velocity_rad_s": np.asarray(scene.angular_velocity_rad_s).tolist(),
+            "ra_deg": math.degrees(ra), "dec_deg": math.degrees(dec), "twist_deg": math.degrees(twist),
+            "quaternion_convention": "scalar first, paper 000 Eq. 14, v_cam = A v_icrs",
+        },
+        "camera": cam.to_dict(),
+        "render": dataclasses.asdict(options),
+        "sun": {"u_icrs": np.asarray(scene.sun_u_icrs).tolist(), "boresight_angle_deg": math.degrees(scene.sun_angle_rad)},
+        "star_mag_limit": scene.star_mag_limit,
+        "pixel_convention": "x = column, y = row, centre of the top-left pixel at (0, 0)",
+        "stars": star_list,
+        "bodies": body_list,
+        "cosmic_rays": cr_list,
+        "seeds": {"frame": _seed_record(seed), "sensor_pattern": cam.sensor.pattern_seed},
+    }
+
+
+def _hit_records(hits):
+    """(xy, electrons, pixels-or-None) per cosmic-ray hit, whatever the hits container holds."""
+    if hits is None:
+        return []
+    if hasattr(hits, "records"):
+        return hits.records()
+    xy = np.asarray(getattr(hits, "xy", np.zeros((0, 2))), dtype=float).reshape(-1, 2)
+    e = np.asarray(getattr(hits, "electrons", np.zeros(len(xy))), dtype=float).reshape(-1)
+    return [((x, y), ee, None) for (x, y), ee in zip(xy, e)]

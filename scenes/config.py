@@ -1,0 +1,261 @@
+"""Reading configuration mappings (parsed YAML) into scene-model objects, with clear errors.
+
+Every error names the offending key with its dotted path and what is allowed, e.g.
+``camera.exposure_s = -1 is not allowed; expected > 0 (seconds)``. Angles are degrees in files
+(``*_deg`` keys) and radians in code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .camera import BrownConrady, Camera, SensorParams, paper_camera
+from .errors import ConfigValueError, SceneFileError
+
+CAMERA_PRESETS = {"paper": paper_camera}
+
+
+def _number(value, key, *, allowed="a finite number", integer=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigValueError(key, value, allowed)
+    if integer:
+        if int(value) != value:
+            raise ConfigValueError(key, value, "an integer")
+        return int(value)
+    return float(value)
+
+
+def _vector(value, key, n=3):
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise ConfigValueError(key, value, f"a list of {n} numbers")
+    return np.array([_number(v, f"{key}[{i}]") for i, v in enumerate(value)])
+
+
+def _mapping(value, key):
+    if not isinstance(value, dict):
+        raise ConfigValueError(key, value, "a mapping of keys to values")
+    return value
+
+
+def _check_keys(d: dict, key: str, allowed):
+    for k in d:
+        if k not in allowed:
+            where = f"{key}.{k}" if key else str(k)
+            raise ConfigValueError(where, d[k], "no such key; allowed keys: " + ", ".join(sorted(allowed)))
+
+
+_SENSOR_KEYS = {f.name for f in dataclasses.fields(SensorParams)}
+_DIST_KEYS = {f.name for f in dataclasses.fields(BrownConrady)}
+_CAMERA_KEYS = {
+    "preset", "width", "height", "fov_deg", "focal_length_mm", "pixel_pitch_um", "cx", "cy",
+    "f_number", "exposure_s", "defocus_sigma_px", "cosmic_rays_per_frame", "sun_exclusion_deg",
+    "limiting_v_mag", "distortion", "response", "sensor", "K", "bit_depth",
+}
+
+
+def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
+    """A :class:`Camera` from a mapping (a YAML ``camera:`` section or ``Camera.to_dict()``).
+
+    ``preset: paper`` starts from :func:`paper_camera`; other keys override it. Either
+    ``fov_deg`` (horizontal, edge to edge) or ``focal_length_mm`` sets the focal length.
+    """
+    d = _mapping(d if d is not None else {}, key)
+    _check_keys(d, key, _CAMERA_KEYS)
+    preset = d.get("preset", "paper" if "width" not in d else None)
+    if preset is not None and preset not in CAMERA_PRESETS:
+        raise ConfigValueError(f"{key}.preset", preset, "one of: " + ", ".join(CAMERA_PRESETS))
+    base = CAMERA_PRESETS[preset]() if preset else None
+    kw = {}
+    for name in ("width", "height"):
+        if name in d:
+            kw[name] = _number(d[name], f"{key}.{name}", allowed="a positive integer", integer=True)
+    for name in ("focal_length_mm", "pixel_pitch_um", "f_number", "exposure_s", "defocus_sigma_px",
+                 "cosmic_rays_per_frame", "limiting_v_mag"):
+        if name in d:
+            kw[name] = _number(d[name], f"{key}.{name}")
+    for name in ("cx", "cy"):
+        if name in d and d[name] is not None:
+            kw[name] = _number(d[name], f"{key}.{name}")
+    if "sun_exclusion_deg" in d:
+        kw["sun_exclusion_rad"] = math.radians(_number(d["sun_exclusion_deg"], f"{key}.sun_exclusion_deg"))
+    if "distortion" in d:
+        dd = _mapping(d["distortion"], f"{key}.distortion")
+        _check_keys(dd, f"{key}.distortion", _DIST_KEYS)
+        kw["distortion"] = BrownConrady(**{k: _number(v, f"{key}.distortion.{k}") for k, v in dd.items()})
+    if "response" in d:
+        rd = _mapping(d["response"], f"{key}.response")
+        _check_keys(rd, f"{key}.response", {"wavelengths_nm", "qe_t"})
+        wl = rd.get("wavelengths_nm")
+        qe = rd.get("qe_t")
+        if not isinstance(wl, list) or not isinstance(qe, list) or len(wl) != len(qe) or len(wl) < 2:
+            raise ConfigValueError(f"{key}.response", "...", "wavelengths_nm and qe_t lists of equal length >= 2")
+        wl = [_number(v, f"{key}.response.wavelengths_nm[{i}]") for i, v in enumerate(wl)]
+        qe = [_number(v, f"{key}.response.qe_t[{i}]") for i, v in enumerate(qe)]
+        if any(b <= a for a, b in zip(wl, wl[1:])):
+            raise ConfigValueError(f"{key}.response.wavelengths_nm", wl[:3], "strictly increasing wavelengths")
+        if any(not 0 <= v <= 1 for v in qe):
+            raise ConfigValueError(f"{key}.response.qe_t", qe[:3], "values in [0, 1]")
+        kw["response_wavelengths_nm"], kw["response_qe_t"] = tuple(wl), tuple(qe)
+    sensor_d = dict(_mapping(d.get("sensor", {}), f"{key}.sensor"))
+    if "bit_depth" in d:
+        sensor_d.setdefault("bit_depth", d["bit_depth"])
+    if sensor_d:
+        _check_keys(sensor_d, f"{key}.sensor", _SENSOR_KEYS)
+        skw = {}
+        for k, v in sensor_d.items():
+            if k == "blooming":
+                if not isinstance(v, bool):
+                    raise ConfigValueError(f"{key}.sensor.blooming", v, "true or false")
+                skw[k] = v
+            elif k in ("bit_depth", "pattern_seed"):
+                skw[k] = _number(v, f"{key}.sensor.{k}", allowed="an integer", integer=True)
+            else:
+                skw[k] = _number(v, f"{key}.sensor.{k}")
+        base_sensor = base.sensor if base is not None else SensorParams()
+        kw["sensor"] = dataclasses.replace(base_sensor, **skw)
+    if "fov_deg" in d:
+        fov = _number(d["fov_deg"], f"{key}.fov_deg")
+        if not 0 < fov < 180:
+            raise ConfigValueError(f"{key}.fov_deg", fov, "in (0, 180)")
+        width = kw.get("width", base.width if base else None)
+        pitch = kw.get("pixel_pitch_um", base.pixel_pitch_um if base else None)
+        if width is None or pitch is None:
+            raise ConfigValueError(f"{key}.fov_deg", fov, "together with width and pixel_pitch_um (or a preset)")
+        kw["focal_length_mm"] = 0.5 * width * pitch * 1e-3 / math.tan(math.radians(fov) / 2)
+    if base is not None:
+        return base.replace(**kw)
+    missing = [k for k in ("width", "height", "focal_length_mm", "pixel_pitch_um") if k not in kw]
+    if missing:
+        raise ConfigValueError(f"{key}.{missing[0]}", None, "a value (or `preset: paper`)")
+    return Camera(**kw)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AttitudeSpec:
+    """How to point the camera: at a body (or ``auto``: the brightest visible planet), at
+    RA/Dec/twist, or by an explicit quaternion (scalar first) or matrix."""
+
+    point_at: str | None = None
+    ra_rad: float | None = None
+    dec_rad: float | None = None
+    twist_rad: float = 0.0
+    q_cam_icrs: tuple | None = None
+    angular_velocity_rad_s: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneSpec:
+    """A scene as written in a file, before the sky is computed (see :func:`build_from_spec`)."""
+
+    epoch_tdb_iso: str
+    position_km: tuple | None = None
+    velocity_km_s: tuple | None = None
+    relative_to: str | None = None
+    attitude: AttitudeSpec = field(default_factory=AttitudeSpec)
+    camera: Camera = field(default_factory=paper_camera)
+    star_mag_limit: float = 9.0
+    resolved_threshold_px: float = 2.0
+    seed: int = 0
+
+
+_SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "render"}
+
+
+def scene_spec_from_mapping(d) -> SceneSpec:
+    """Validate a scene mapping (parsed YAML) into a :class:`SceneSpec`."""
+    from .ephemeris_jpl import BODIES
+    from .errors import UnknownBodyError
+    from .timescales import to_time
+
+    if not isinstance(d, dict):
+        raise SceneFileError("a scene file must be a mapping with keys: " + ", ".join(sorted(_SCENE_KEYS)))
+    _check_keys(d, "", _SCENE_KEYS)
+    if "epoch" not in d:
+        raise ConfigValueError("epoch", None, "an ISO date in TDB, e.g. 2027-03-15T00:00:00")
+    try:
+        epoch = to_time(str(d["epoch"]))
+        iso = epoch.tdb.isot
+    except Exception:
+        raise ConfigValueError("epoch", d["epoch"], "an ISO date in TDB, e.g. 2027-03-15T00:00:00") from None
+    obs = _mapping(d.get("observer", {}), "observer")
+    _check_keys(obs, "observer", {"position_km", "velocity_km_s", "relative_to"})
+    if "position_km" not in obs or "velocity_km_s" not in obs:
+        raise ConfigValueError("observer", obs, "position_km and velocity_km_s (barycentric ICRS, or relative_to a body)")
+    rel = obs.get("relative_to")
+    if rel is not None and rel not in BODIES:
+        raise UnknownBodyError(str(rel), BODIES)
+    att = _mapping(d.get("attitude", {"point_at": "auto"}), "attitude")
+    _check_keys(att, "attitude", {"point_at", "ra_deg", "dec_deg", "twist_deg", "q_cam_icrs", "angular_velocity_deg_s"})
+    modes = [k for k in ("point_at", "ra_deg", "q_cam_icrs") if k in att]
+    if len(modes) != 1:
+        raise ConfigValueError("attitude", sorted(att), "exactly one of point_at, ra_deg+dec_deg, q_cam_icrs")
+    point_at = att.get("point_at")
+    if point_at is not None and point_at != "auto" and point_at not in BODIES:
+        raise UnknownBodyError(str(point_at), ("auto",) + BODIES)
+    ra = dec = None
+    if "ra_deg" in att:
+        ra = math.radians(_number(att["ra_deg"], "attitude.ra_deg"))
+        decd = _number(att.get("dec_deg"), "attitude.dec_deg")
+        if not -90 <= decd <= 90:
+            raise ConfigValueError("attitude.dec_deg", decd, "in [-90, 90]")
+        dec = math.radians(decd)
+    q = None
+    if "q_cam_icrs" in att:
+        qv = _vector(att["q_cam_icrs"], "attitude.q_cam_icrs", 4)
+        if np.linalg.norm(qv) < 1e-12:
+            raise ConfigValueError("attitude.q_cam_icrs", att["q_cam_icrs"], "a non-zero quaternion (scalar first)")
+        q = tuple(qv / np.linalg.norm(qv))
+    w = np.radians(_vector(att.get("angular_velocity_deg_s", [0, 0, 0]), "attitude.angular_velocity_deg_s"))
+    attitude = AttitudeSpec(point_at=point_at, ra_rad=ra, dec_rad=dec, q_cam_icrs=q,
+                            twist_rad=math.radians(_number(att.get("twist_deg", 0.0), "attitude.twist_deg")),
+                            angular_velocity_rad_s=tuple(float(x) for x in w))
+    camera = camera_from_mapping(d.get("camera", {"preset": "paper"}))
+    rd = _mapping(d.get("render", {}), "render")
+    _check_keys(rd, "render", {"star_mag_limit", "resolved_threshold_px", "seed"})
+    mag = _number(rd.get("star_mag_limit", 9.0), "render.star_mag_limit")
+    if not -2 <= mag <= 14:
+        raise ConfigValueError("render.star_mag_limit", mag, "in [-2, 14] (Hipparcos is complete to about V = 8)")
+    thr = _number(rd.get("resolved_threshold_px", 2.0), "render.resolved_threshold_px")
+    if thr <= 0:
+        raise ConfigValueError("render.resolved_threshold_px", thr, "> 0")
+    seed = _number(rd.get("seed", 0), "render.seed", allowed="a non-negative integer", integer=True)
+    if seed < 0:
+        raise ConfigValueError("render.seed", seed, "a non-negative integer")
+    return SceneSpec(
+        epoch_tdb_iso=iso,
+        position_km=tuple(_vector(obs["position_km"], "observer.position_km")),
+        velocity_km_s=tuple(_vector(obs["velocity_km_s"], "observer.velocity_km_s")),
+        relative_to=rel,
+        attitude=attitude,
+        camera=camera,
+        star_mag_limit=mag,
+        resolved_threshold_px=thr,
+        seed=seed,
+    )
+
+
+def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
+    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(fobj)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise SceneFileError(f"{name}: malformed YAML{where}: {problem}") from None
+    return scene_spec_from_mapping(data)
+
+
+def load_scene_file(path) -> SceneSpec:
+    path = Path(path)
+    if not path.is_file():
+        raise SceneFileError(f"{path}: no such scene file")
+    with open(path, "rb") as f:
+        return read_scene_file(f, str(path))

@@ -1,0 +1,39 @@
+"""Built-in scenes. Each has a YAML twin in ``docs/examples/`` (tested to give the same scene).
+
+``default``: the paper camera (paper 002 table 4) on an Earth-Mars cruise, 2027-02-01 TDB,
+1.2 AU from the Sun between the Earth and Mars (Mars is near opposition, 2027-02-19), moving at
+1.05 x the local circular speed in the ecliptic; the camera points at the brightest planet
+outside the Sun exclusion angle (Mars, V about -0.8 from there).
+"""
+
+from __future__ import annotations
+
+import copy
+
+DEFAULT_SCENE = {
+    "epoch": "2027-02-01T00:00:00",
+    "observer": {
+        "position_km": [-128731399.4, 113269566.7, 51647643.2],
+        "velocity_km_s": [-19.9093, -18.773, -8.1391],
+    },
+    "attitude": {"point_at": "auto", "twist_deg": 0.0},
+    "camera": {"preset": "paper"},
+    "render": {"star_mag_limit": 9.0, "seed": 1},
+}
+
+PRESETS = {"default": DEFAULT_SCENE}
+
+
+def preset_mapping(name: str = "default") -> dict:
+    """A deep copy of a built-in scene mapping (the same keys a scene YAML file has)."""
+    from .errors import ConfigValueError
+
+    if name not in PRESETS:
+        raise ConfigValueError("scene", name, "a YAML file or one of the presets: " + ", ".join(PRESETS))
+    return copy.deepcopy(PRESETS[name])
+
+
+def default_scene_spec():
+    from .config import scene_spec_from_mapping
+
+    return scene_spec_from_mapping(preset_mapping("default"))

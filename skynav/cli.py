@@ -1,0 +1,160 @@
+"""The ``skynav`` command line: parses, validates, calls the parts, prints.
+
+Errors for people: any ``SkynavError`` (bad input) prints one line ``skynav: error: ...`` and
+exits with code 2; argparse usage errors exit 2 as well. Anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+from . import __version__
+
+
+def _fail(message: str) -> int:
+    print(f"skynav: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _load_spec(arg: str | None):
+    from skynav.scenes import config, presets
+
+    if arg is None or arg in presets.PRESETS:
+        return config.scene_spec_from_mapping(presets.preset_mapping(arg or "default"))
+    path = Path(arg)
+    if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
+        from skynav.scenes.errors import SceneFileError
+
+        raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
+    return config.load_scene_file(path)
+
+
+# ----------------------------------------------------------------------------- scene
+def _fmt(x, spec="8.2f"):
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
+
+
+def cmd_scene(args) -> int:
+    import numpy as np
+
+    from skynav.scenes.scene import build_from_spec
+
+    spec = _load_spec(args.scene)
+    scene = build_from_spec(spec)
+    cam = scene.camera
+    ra, dec = (math.degrees(a) for a in __import__("skynav.scenes.frames", fromlist=["x"]).unit_to_radec(scene.R_cam_icrs[2]))
+    print(f"epoch {spec.epoch_tdb_iso} TDB   boresight RA {ra:.4f} deg  Dec {dec:.4f} deg   "
+          f"camera {cam.width}x{cam.height}, FOV {math.degrees(cam.fov_x_rad):.2f} deg, {cam.exposure_s * 1e3:.0f} ms")
+    r_au = np.linalg.norm(scene.position_km) / 149597870.7
+    print(f"observer {r_au:.4f} AU from the barycentre, {np.linalg.norm(scene.velocity_km_s):.3f} km/s;  "
+          f"Sun {math.degrees(scene.sun_angle_rad):.2f} deg from the boresight (exclusion {math.degrees(cam.sun_exclusion_rad):.0f} deg)")
+    print()
+    print(f"{'body':<9} {'V':>7} {'x px':>9} {'y px':>9} {'light-time s':>13} {'aberr. arcsec':>14} "
+          f"{'diam px':>8} {'phase deg':>9} {'Sun deg':>8}  flags")
+    for b in sorted(scene.bodies, key=lambda b: (not b.in_fov, b.v_mag)):
+        flags = ",".join(f for f, on in (("in_fov", b.in_fov), ("visible", b.visible), ("resolved", b.resolved)) if on)
+        print(f"{b.name:<9} {_fmt(b.v_mag, '7.2f')} {_fmt(b.xy[0], '9.2f') if b.in_fov else '        -'} "
+              f"{_fmt(b.xy[1], '9.2f') if b.in_fov else '        -'} {b.light_time_s:13.3f} {b.aberration_arcsec:14.3f} "
+              f"{b.angular_diameter_px:8.3f} {math.degrees(b.phase_angle_rad):9.2f} {math.degrees(b.sun_angle_rad):8.2f}  {flags}")
+    print()
+    vm = scene.stars.v_mag[scene.stars.in_fov]
+    edges = [-2, 3, 4, 5, 6, 7, 8, scene.star_mag_limit]
+    edges = sorted(set(e for e in edges if e <= scene.star_mag_limit))
+    counts = [int(((vm > lo) & (vm <= hi)).sum()) for lo, hi in zip(edges[:-1], edges[1:])]
+    print(f"stars in view: {len(vm)} (V <= {scene.star_mag_limit:g})   " +
+          "  ".join(f"V {lo:g}..{hi:g}: {n}" for lo, hi, n in zip(edges[:-1], edges[1:], counts)))
+    return 0
+
+
+# ----------------------------------------------------------------------------- render
+def cmd_render(args) -> int:
+    import numpy as np
+
+    from skynav.renderer.render import RenderOptions, render, write_frame
+    from skynav.scenes.scene import build_from_spec
+
+    spec = _load_spec(args.scene)
+    seed = spec.seed if args.seed is None else args.seed
+    if seed < 0:
+        return _fail(f"--seed {seed}: expected a non-negative integer")
+    t0 = time.perf_counter()
+    scene = build_from_spec(spec)
+    options = RenderOptions(noise=not args.no_noise, backend=args.backend)
+    frame = render(scene, seed=seed, options=options)
+    t1 = time.perf_counter()
+    out = Path(args.output)
+    formats = ("png", "exr", "json") + (("fits",) if args.fits else ())
+    files = write_frame(frame, out, args.name, formats=formats)
+    t2 = time.perf_counter()
+    truth = frame.truth
+    stars = truth["stars"]
+    maxdn = (1 << scene.camera.sensor.bit_depth) - 1
+    print(f"rendered {scene.camera.width}x{scene.camera.height} frame in {t1 - t0:.2f} s (seed {seed}), wrote in {t2 - t1:.2f} s")
+    print(f"sources: {len(stars)} stars in view, "
+          f"{sum(b['in_fov'] for b in truth['bodies'])} bodies in view, {len(truth['cosmic_rays'])} cosmic rays")
+    for b in truth["bodies"]:
+        if b["in_fov"]:
+            print(f"  {b['name']}: V {b['v_mag']:.2f} at ({b['xy'][0]:.2f}, {b['xy'][1]:.2f}) px, "
+                  f"{b['electrons']:.4g} e-, {b['rendered_as']}{', visible' if b['visible'] else ''}")
+    if stars:
+        s = min(stars, key=lambda s: s["v_mag"])
+        print(f"  brightest star: HIP {s['hip']} V {s['v_mag']:.2f} at ({s['xy'][0]:.2f}, {s['xy'][1]:.2f}) px, {s['electrons']:.4g} e-")
+    print(f"saturated pixels: {int((frame.dn >= maxdn).sum())}   max DN {int(frame.dn.max())} of {maxdn}")
+    for fmt, path in files.items():
+        print(f"  {fmt:<5} {path}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="skynav", description="Deep-space optical navigation imagery: "
+                                "render star fields and planets as a spacecraft camera sees them.")
+    p.add_argument("--version", action="version", version=f"skynav {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("scene", help="print what is in view (bodies, stars, Sun angle)",
+                       description="Compute a scene and print what the camera sees: bodies with magnitude, "
+                       "apparent pixel position, light-time and aberration; star counts by magnitude; Sun angle.")
+    s.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
+    s.set_defaults(func=cmd_scene)
+
+    r = sub.add_parser("render", help="render one frame (PNG, EXR, ground-truth JSON)",
+                       description="Render one frame of a scene: PNG (digital counts), EXR (electrons, irradiance), "
+                       "ground-truth JSON; optional FITS with a TAN WCS.")
+    r.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
+    r.add_argument("-o", "--output", default="skynav-out", help="output folder (default: skynav-out)")
+    r.add_argument("--name", default="frame", help="file stem (default: frame)")
+    r.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's render.seed)")
+    r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
+    r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
+    r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
+    r.set_defaults(func=cmd_render)
+
+    try:
+        from . import cli_dataset
+
+        cli_dataset.add_parser(sub)
+    except ImportError:  # pragma: no cover - datasets command not available in this build
+        pass
+    return p
+
+
+def main(argv=None) -> int:
+    from skynav.scenes.errors import SkynavError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except SkynavError as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        return _fail("interrupted")
