@@ -41,6 +41,7 @@ from importlib import metadata
 from pathlib import Path
 
 from skynav.scenes.data_files import cache_dir
+from skynav.scenes.errors import SkynavError
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +61,10 @@ _SEARCH_GLOBS = (
     "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
     "/usr/local/opt/llvm/lib/libLLVM*.dylib",
 )
+
+
+class BackendUnavailableError(SkynavError, RuntimeError):
+    """A Dr.Jit backend was requested explicitly but does not work on this machine."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,0 +1,430 @@
+"""The camera sensor: expected electrons -> digital numbers (EMVA 1288 linear model, extended).
+
+The chain (EMVA Standard 1288, Release 4.0 Linear, Sect. 2 "Sensor model"; notation there:
+``mu_p`` photons, ``mu_e`` electrons, ``mu_d`` dark electrons, ``K`` system gain, ``sigma_d``
+dark noise, ``sigma_q`` quantisation noise):
+
+1. **Response non-uniformity (PRNU)**: ``mu_e = electrons * g``, with a fixed gain map
+   ``g = 1 + prnu_fraction * N(0, 1)`` (EMVA 1288 Sect. 8, "spatial non-uniformity": PRNU is the
+   relative standard deviation of the photo-response).
+2. **Dark current with DSNU**: ``mu_d = D * exposure_s``, with a fixed per-pixel dark-current
+   map ``D`` of mean ``dark_current_e_per_s`` and spatial standard deviation ``dsnu_e_per_s``. ``D``
+   is drawn from a gamma distribution with exactly that mean and standard deviation: it is
+   non-negative and right-skewed like real dark-current maps (warm pixels), unlike a clipped
+   normal. DSNU is quoted in e-/s so it scales with exposure, as in EMVA 1288 Sect. 8.
+3. **Shot noise**: collected charge ``n ~ Poisson(mu_e + mu_d)`` (EMVA 1288 Sect. 2.1: photon and
+   dark-current shot noise, variance = mean).
+4. **Extra charge** (optional, e.g. cosmic rays, :mod:`skynav.renderer.cosmic_rays`): added here,
+   after the shot noise, because a particle's deposit has its own statistics and is not
+   Poisson-scaled with the optical signal.
+5. **Full well**: ``n = min(n, full_well_e)``; with ``blooming=True`` the excess charge spills
+   along the column, half up and half down, conserving charge until the whole column is full
+   (:func:`bloom_columns`).
+6. **Dark (read + reset) noise**: ``+ N(0, sigma_d)``, ``sigma_d^2 = read_noise_e^2 +
+   reset_noise_e^2``: the kTC reset noise and the read-out noise are independent zero-mean
+   Gaussians added in quadrature (EMVA 1288 Sect. 2.2 lumps them into ``sigma_d``).
+7. **Gain and offset**: ``y = K (n + noise) + offset_dn`` (EMVA 1288 Eq. for ``mu_y``).
+8. **ADC**: round half up, ``DN = floor(y + 0.5)``, so that the mean DN is unbiased,
+   ``E[DN] = K mu + offset`` and the quantisation noise is the uniform ``sigma_q^2 = 1/12 DN^2`` of
+   EMVA 1288 Sect. 2.3; then clipped to ``[0, 2^bit_depth - 1]`` (saturation).
+
+Two interchangeable implementations with identical statistics (not identical bits):
+
+- ``backend="numpy"``: ``Generator.poisson`` (exact; PTRS above mean 10) and
+  ``Generator.normal``; float64.
+- ``backend="llvm"``: one fused Dr.Jit LLVM kernel (float32), Poisson exact too: sequential
+  inversion for means < 10 and Hoermann's PTRS transformed rejection (Hoermann 1993, "The
+  transformed rejection method for generating Poisson random variables", Insurance: Mathematics
+  and Economics 12, 39-45) above -- the same split numpy uses -- with the log-pmf of the
+  acceptance test in Stirling form (error < 3e-4 in log-probability at k = 0, < 1e-7 for k > 10).
+  Gaussians by inverse-erf of one uniform. Random streams: PCG32 (O'Neill 2014), one stream
+  per pixel, seeded from two 64-bit words drawn from the caller's ``numpy.random.Generator``, so
+  the same Generator state gives bit-identical frames on the same backend. Every per-frame
+  number (gain, seeds, exposure ...) enters the kernel as an opaque variable, so the kernel is
+  compiled once and reused across frames, sensors and exposures.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from skynav.scenes.camera import SensorParams
+from skynav.scenes.errors import SkynavError
+
+from . import jit_backend
+
+POISSON_INVERSION_MAX_MEAN = 10.0
+"""Below this mean the llvm path samples Poisson by sequential inversion, above by PTRS."""
+
+_INVERSION_MAX_K = 200  # cap of the inversion loop: P(K > 200 | mean < 10) ~ 1e-200
+
+
+class SensorInputError(SkynavError, ValueError):
+    """An image or exposure handed to the sensor is not acceptable."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExposureDetails:
+    """Intermediates of one exposure.
+
+    Attributes
+    ----------
+    dn : ndarray, shape (H, W), uint8 or uint16
+        Digital numbers.
+    mean_e : ndarray, shape (H, W), float
+        Expected collected charge ``electrons * PRNU + dark_rate * exposure_s``, e-.
+    charge_e : ndarray, shape (H, W), float
+        Collected charge after shot noise, extra charge and full-well clipping / blooming, e-.
+    backend : str
+        ``"numpy"`` or ``"llvm"``.
+    """
+
+    dn: np.ndarray
+    mean_e: np.ndarray
+    charge_e: np.ndarray
+    backend: str
+
+
+# --------------------------------------------------------------------------- fixed patterns
+@functools.lru_cache(maxsize=16)
+def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """PRNU gain map and dark-current map of a sensor, drawn once from ``params.pattern_seed``.
+
+    Parameters
+    ----------
+    params : SensorParams
+    shape : tuple (H, W)
+
+    Returns
+    -------
+    prnu_gain : ndarray, shape (H, W), float32, read-only
+        Relative response, mean 1, standard deviation ``prnu_fraction`` (clipped at 0).
+    dark_e_per_s : ndarray, shape (H, W), float32, read-only
+        Dark current, e-/s: gamma distributed with mean ``dark_current_e_per_s`` and standard
+        deviation ``dsnu_e_per_s`` (constant if either is 0).
+    """
+    prnu_ss, dsnu_ss = np.random.SeedSequence(params.pattern_seed).spawn(2)
+    gain = 1.0 + params.prnu_fraction * np.random.default_rng(prnu_ss).standard_normal(shape)
+    np.maximum(gain, 0.0, out=gain)
+    mu, sd = params.dark_current_e_per_s, params.dsnu_e_per_s
+    if mu > 0 and sd > 0:
+        k_shape = (mu / sd) ** 2  # gamma: mean = k theta, var = k theta^2
+        dark = np.random.default_rng(dsnu_ss).gamma(k_shape, sd * sd / mu, shape)
+    else:
+        dark = np.full(shape, mu)
+    gain = gain.astype(np.float32)
+    dark = dark.astype(np.float32)
+    gain.flags.writeable = False
+    dark.flags.writeable = False
+    return gain, dark
+
+
+# --------------------------------------------------------------------------- blooming
+def bloom_columns(charge_e: np.ndarray, full_well_e: float) -> np.ndarray:
+    """Spill charge above the full well along columns, conserving it until a column is full.
+
+    A run of full pixels holding excess charge passes the excess to the pixels just above and
+    below the run, half each (all of it to one side at the sensor edge); the run grows until the
+    excess is absorbed. Charge is lost only when an entire column is full.
+
+    Parameters
+    ----------
+    charge_e : ndarray, shape (H, W)
+        Collected charge, e- (not modified).
+    full_well_e : float
+
+    Returns
+    -------
+    ndarray, shape (H, W), float64
+        Charge after blooming; every pixel <= ``full_well_e``.
+    """
+    out = np.array(charge_e, dtype=np.float64, copy=True)
+    fw = float(full_well_e)
+    cols = np.flatnonzero((out > fw).any(axis=0))
+    for c in cols:
+        v = out[:, c].copy()
+        n = v.size
+        while True:
+            over = np.flatnonzero(v > fw)
+            if over.size == 0:
+                break
+            lo = hi = int(over[0])
+            while lo > 0 and v[lo - 1] >= fw:
+                lo -= 1
+            while hi < n - 1 and v[hi + 1] >= fw:
+                hi += 1
+            excess = float(np.sum(v[lo : hi + 1] - fw))
+            v[lo : hi + 1] = fw
+            up, down = lo > 0, hi < n - 1
+            if up and down:
+                v[lo - 1] += 0.5 * excess
+                v[hi + 1] += 0.5 * excess
+            elif up:
+                v[lo - 1] += excess
+            elif down:
+                v[hi + 1] += excess
+            else:
+                break  # the whole column is full: the excess drains away
+        out[:, c] = v
+    return out
+
+
+# --------------------------------------------------------------------------- the sensor
+class Sensor:
+    """An image sensor with its fixed patterns.
+
+    Parameters
+    ----------
+    params : SensorParams
+        EMVA 1288 parameters (``skynav.scenes.camera``).
+    shape : tuple (H, W)
+        Image size, px.
+
+    Examples
+    --------
+    >>> sensor = Sensor(SensorParams(bit_depth=12, gain_dn_per_e=0.1), (4, 5))
+    >>> dn = sensor.expose(np.full((4, 5), 1000.0), 0.1, np.random.default_rng(1), backend="numpy")
+    >>> dn.dtype, dn.shape
+    (dtype('uint16'), (4, 5))
+    """
+
+    def __init__(self, params: SensorParams, shape: tuple[int, int]):
+        if not isinstance(params, SensorParams):
+            raise SensorInputError(f"params must be a SensorParams, got {type(params).__name__}")
+        shape = tuple(int(s) for s in shape)
+        if len(shape) != 2 or min(shape) < 1:
+            raise SensorInputError(f"shape must be (H, W) with H, W >= 1, got {shape}")
+        self.params = params
+        self.shape: tuple[int, int] = shape
+        self._jit_patterns = None
+
+    def __repr__(self) -> str:
+        return f"Sensor({self.params!r}, {self.shape!r})"
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Sensor) and (self.params, self.shape) == (other.params, other.shape)
+
+    def __hash__(self) -> int:
+        return hash((self.params, self.shape))
+
+    def __getstate__(self):
+        return {"params": self.params, "shape": self.shape}
+
+    def __setstate__(self, state):
+        self.__init__(state["params"], state["shape"])
+
+    @property
+    def prnu_gain(self) -> np.ndarray:
+        """PRNU gain map, shape (H, W), float32 (see :func:`fixed_patterns`)."""
+        return fixed_patterns(self.params, self.shape)[0]
+
+    @property
+    def dark_e_per_s(self) -> np.ndarray:
+        """Dark-current map, e-/s, shape (H, W), float32 (see :func:`fixed_patterns`)."""
+        return fixed_patterns(self.params, self.shape)[1]
+
+    @property
+    def dark_noise_e(self) -> float:
+        """``sigma_d = sqrt(read_noise_e^2 + reset_noise_e^2)``, e-."""
+        return math.hypot(self.params.read_noise_e, self.params.reset_noise_e)
+
+    @property
+    def dtype(self):
+        """uint8 for bit depth <= 8, else uint16 (CONVENTIONS.md PNG rule)."""
+        return np.uint8 if self.params.bit_depth <= 8 else np.uint16
+
+    # ----------------------------------------------------------------- public entry points
+    def expose(self, electrons, exposure_s: float, rng: np.random.Generator, *, backend: str = "auto", extra_charge_e=None) -> np.ndarray:
+        """Digital numbers of one exposure.
+
+        Parameters
+        ----------
+        electrons : array_like, shape (H, W)
+            Expected photo-electrons per pixel (noise-free, before PRNU), e-.
+        exposure_s : float
+            Exposure time (scales the dark current), s.
+        rng : numpy.random.Generator
+            Source of all randomness; the same state gives the same frame on one backend.
+        backend : {"auto", "llvm", "numpy"}
+            ``auto``: the Dr.Jit LLVM kernel if :func:`jit_backend.configure_llvm` says the
+            backend works here, else numpy.
+        extra_charge_e : array_like, shape (H, W), optional
+            Charge added after the shot noise (cosmic rays), e-.
+
+        Returns
+        -------
+        ndarray, shape (H, W), uint8 (bit depth <= 8) or uint16
+        """
+        return self._run(electrons, exposure_s, rng, backend, extra_charge_e, details=False).dn
+
+    def expose_details(self, electrons, exposure_s: float, rng: np.random.Generator, *, backend: str = "auto", extra_charge_e=None) -> ExposureDetails:
+        """Like :meth:`expose`, also returning the expected and the collected charge.
+
+        Consumes ``rng`` exactly as :meth:`expose` does, and gives the same ``dn``.
+        """
+        return self._run(electrons, exposure_s, rng, backend, extra_charge_e, details=True)
+
+    # ----------------------------------------------------------------- plumbing
+    def _check_inputs(self, electrons, exposure_s, extra_charge_e):
+        e = np.asarray(electrons)
+        if e.shape != self.shape:
+            raise SensorInputError(f"electrons has shape {e.shape}; this sensor is {self.shape}")
+        if not (isinstance(exposure_s, (int, float, np.floating, np.integer)) and math.isfinite(exposure_s) and exposure_s >= 0):
+            raise SensorInputError(f"exposure_s = {exposure_s!r}; expected a finite number >= 0 (seconds)")
+        if not np.all(np.isfinite(e)) or (e.size and e.min() < 0):
+            raise SensorInputError("electrons must be finite and >= 0 everywhere")
+        x = None
+        if extra_charge_e is not None:
+            x = np.asarray(extra_charge_e)
+            if x.shape != self.shape:
+                raise SensorInputError(f"extra_charge_e has shape {x.shape}; this sensor is {self.shape}")
+            if not np.all(np.isfinite(x)) or (x.size and x.min() < 0):
+                raise SensorInputError("extra_charge_e must be finite and >= 0 everywhere")
+        return e, float(exposure_s), x
+
+    def _run(self, electrons, exposure_s, rng, backend, extra_charge_e, *, details):
+        if not isinstance(rng, np.random.Generator):
+            raise SensorInputError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
+        if backend == "auto":
+            backend = "llvm" if jit_backend.llvm_available() else "numpy"
+        if backend == "numpy":
+            return self._expose_numpy(e, t, rng, x)
+        if backend == "llvm":
+            status = jit_backend.configure_llvm()
+            if not status.available:
+                raise jit_backend.BackendUnavailableError(f"backend='llvm' requested but Dr.Jit's LLVM backend is unavailable: {status.reason}; use backend='numpy' or 'auto'")
+            return self._expose_llvm(e, t, rng, x, details=details)
+        raise SensorInputError(f"backend = {backend!r}; expected one of 'auto', 'llvm', 'numpy'")
+
+    def _quantise_numpy(self, v_e: np.ndarray) -> np.ndarray:
+        p = self.params
+        y = np.floor(p.gain_dn_per_e * v_e + (p.offset_dn + 0.5))
+        np.clip(y, 0, p.max_dn, out=y)
+        return y.astype(self.dtype)
+
+    def _expose_numpy(self, e, t, rng, x) -> ExposureDetails:
+        p = self.params
+        gain, dark = fixed_patterns(p, self.shape)
+        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        n = rng.poisson(mean).astype(np.float64)
+        if x is not None:
+            n += x
+        n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e)
+        v = n + rng.normal(0.0, self.dark_noise_e, self.shape) if self.dark_noise_e > 0 else n
+        return ExposureDetails(dn=self._quantise_numpy(v), mean_e=mean, charge_e=n, backend="numpy")
+
+    # ----------------------------------------------------------------- Dr.Jit LLVM path
+    def _patterns_llvm(self):
+        if self._jit_patterns is None:
+            from drjit.llvm import Float
+
+            gain, dark = fixed_patterns(self.params, self.shape)
+            self._jit_patterns = (Float(gain.ravel()), Float(dark.ravel()))
+        return self._jit_patterns
+
+    def _expose_llvm(self, e, t, rng, x, *, details) -> ExposureDetails:
+        import drjit as dr
+        from drjit.llvm import Float, UInt64
+
+        p = self.params
+        gain, dark = self._patterns_llvm()
+        seeds = rng.integers(0, 2**64, size=2, dtype=np.uint64, endpoint=False)
+        sig = Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
+        extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
+        op = functools.partial(dr.opaque, Float)
+        mean = dr.fma(sig, gain, dark * op(t))
+        state = dr.opaque(UInt64, int(seeds[0])), dr.opaque(UInt64, int(seeds[1]))
+        n, pcg = _jit_charge(mean, extra, state)
+        if p.blooming:
+            dr.eval(n, pcg)
+            n = Float(bloom_columns(n.numpy().reshape(self.shape), p.full_well_e).astype(np.float32).ravel())
+        else:
+            n = dr.minimum(n, op(p.full_well_e))
+        dn = _jit_readout(n, pcg, op(self.dark_noise_e), op(p.gain_dn_per_e), op(p.offset_dn + 0.5), op(float(p.max_dn)))
+        if details:
+            dr.eval(dn, n, mean)
+            mean_np = mean.numpy().reshape(self.shape).astype(np.float64)
+            n_np = n.numpy().reshape(self.shape).astype(np.float64)
+        else:
+            dr.eval(dn)
+            mean_np = n_np = None
+        out = dn.numpy().reshape(self.shape).astype(self.dtype)
+        return ExposureDetails(dn=out, mean_e=mean_np, charge_e=n_np, backend="llvm")
+
+
+# --------------------------------------------------------------------------- Dr.Jit kernels
+def _jit_charge(mean, extra, state):
+    """Poisson(mean) (+ extra) as a lazy Dr.Jit Float, and the advanced PCG32 streams."""
+    import drjit as dr
+    from drjit.llvm import PCG32, Bool, Float
+
+    pcg = PCG32(dr.width(mean), state[0], state[1])
+    lam = dr.maximum(mean, 0.0)
+    small = lam < POISSON_INVERSION_MAX_MEAN
+
+    # -- sequential inversion (means < 10): smallest k with F(k) >= u.
+    u = pcg.next_float32()
+    p0 = dr.exp(-lam)
+    k0 = Float(0.0)
+
+    def inv_cond(k, p, f):
+        return small & (u > f) & (k < _INVERSION_MAX_K)
+
+    def inv_body(k, p, f):
+        k = k + 1.0
+        p = p * lam / k
+        return k, p, f + p
+
+    k_small, _, _ = dr.while_loop((k0, p0, p0), inv_cond, inv_body, labels=("k", "p", "f"), label="poisson_inversion")
+
+    # -- PTRS transformed rejection (means >= 10), Hoermann (1993), as in numpy's random_poisson_ptrs.
+    big_lam = dr.select(small, POISSON_INVERSION_MAX_MEAN, lam)
+    slam = dr.sqrt(big_lam)
+    log_lam = dr.log(big_lam)
+    b = 0.931 + 2.53 * slam
+    a = -0.059 + 0.02483 * b
+    log_inv_alpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
+    vr = 0.9277 - 3.6224 / (b - 2.0)
+    half_log_2pi_lam = 0.5 * (log_lam + math.log(2.0 * math.pi))
+
+    def ptrs_cond(rng, k, done):
+        return ~done
+
+    def ptrs_body(rng, k, done):
+        uu = rng.next_float32() - 0.5
+        v = rng.next_float32()
+        us = 0.5 - dr.abs(uu)
+        kk = dr.floor((2.0 * a / us + b) * uu + big_lam + 0.43)
+        fast = (us >= 0.07) & (v <= vr)
+        reject = (kk < 0.0) | ((us < 0.013) & (v > us)) | ~dr.isfinite(kk)
+        # log pmf(kk) = -lam + kk log(lam) - lgamma(kk + 1), with lgamma by Stirling's series at
+        # x = kk + 1 written around (x - lam) to avoid cancelling two ~kk log kk terms in float32.
+        xk = dr.maximum(kk, 0.0) + 1.0
+        rx = dr.rcp(xk)
+        rx2 = rx * rx
+        log_pmf = -(xk - 0.5) * dr.log(xk / big_lam) + (xk - big_lam) - half_log_2pi_lam - rx * (1.0 / 12.0 - rx2 * (1.0 / 360.0 - rx2 * (1.0 / 1260.0)))
+        log_lhs = dr.log(v) + log_inv_alpha - dr.log(a / (us * us) + b)
+        accept = fast | (~reject & (log_lhs <= log_pmf))
+        return rng, dr.select(accept, kk, k), done | accept
+
+    pcg, k_big, _ = dr.while_loop((pcg, Float(0.0), Bool(small)), ptrs_cond, ptrs_body, labels=("rng", "k", "done"), label="poisson_ptrs")
+    n = dr.select(small, k_small, k_big)
+    if extra is not None:
+        n = n + extra
+    return n, pcg
+
+
+def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn):
+    """Read + reset noise, gain, offset, ADC (round half up), saturation -> UInt32 DN (lazy)."""
+    import drjit as dr
+    from drjit.llvm import UInt32
+
+    u = pcg.next_float32() + 2.0**-25  # in (0, 1): erfinv(+-1) would be infinite
+    z = math.sqrt(2.0) * dr.erfinv(2.0 * u - 1.0)
+    y = dr.floor(dr.fma(gain, dr.fma(sigma_e, z, n), offset_plus_half))
+    return UInt32(dr.clip(y, 0.0, max_dn))
