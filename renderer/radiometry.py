@@ -119,7 +119,8 @@ class Radiometry:
     def _v0_scale(self, shape_on_v_grid):
         """Factor that brings a spectral shape (sampled on the V grid) to V = 0."""
         n = spectra.photon_weighted_v_flux(self._wl_v, shape_on_v_grid)
-        return self._n_vega * 10.0 ** (-0.4 * spectra.VEGA_V_MAG) / n
+        # V = -2.5 log10(n / n_vega) + V_vega = 0  =>  n = n_vega 10^(0.4 V_vega)
+        return self._n_vega * 10.0 ** (0.4 * spectra.VEGA_V_MAG) / n
 
     @staticmethod
     def _mag_factor(v_mag):
