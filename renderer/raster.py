@@ -1,0 +1,155 @@
+"""Analytic rasteriser of point sources (stars, unresolved bodies) with streaks.
+
+Each source moves along a piecewise-linear path sampled at S equally spaced instants over the
+exposure; its flux is spread uniformly in time along the path, convolved with the PSF and
+integrated over the pixels.
+
+Method: every path segment (equal time, so equal flux ``electrons / (S - 1)``) is cut into
+``K = ceil(length / d)`` equal panels and each panel is integrated in time with the 2-point
+Gauss-Legendre rule (two points at ``0.5 -+ 0.5/sqrt(3)`` of the panel, half the panel's flux
+each; error O(d^4), no end-point error unlike the midpoint rule). This conserves the flux
+exactly and the nodes are symmetric in each panel, so the centroid of each segment is exactly
+its mid-time position and the centroid of the streak is the time-mean position of the path.
+The panel length ``d`` comes from the PSF (``psf.quadrature_step_px()``: ``sigma`` for a
+Gaussian, capped at 0.5 px). Every point is drawn with the PSF's exact
+pixel-integrated stamp (erf differences for the Gaussian), sized so that less than
+``flux_fraction_lost`` of the flux falls outside it. Flux falling off the image is lost.
+
+The points of all the sources are drawn in one batched computation (stamps as an array
+(M, 2h+1, 2h+1), then ``np.bincount`` into the image), in chunks to bound memory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skynav.scenes.errors import ConfigValueError
+
+from .psf import PSF, stamp_origin
+
+__all__ = ["rasterize", "streak_subsamples"]
+
+_CHUNK_ENTRIES = 1 << 22
+_GL2 = 0.5 / np.sqrt(3.0)  # 2-point Gauss-Legendre nodes on a unit panel: 0.5 -+ _GL2  # stamp pixels per batch (~32 MB of float64 per array)
+
+
+def streak_subsamples(paths_xy, electrons, step_px: float):
+    """Cut piecewise-linear paths into midpoint sub-samples of equal time.
+
+    Parameters
+    ----------
+    paths_xy : ndarray, shape (N, S, 2), px
+        Position of each source at S >= 2 equally spaced instants of the exposure.
+    electrons : ndarray, shape (N,), e-
+        Total charge of each source over the exposure.
+    step_px : float
+        Largest panel length along a segment, px.
+
+    Returns
+    -------
+    xy : ndarray, shape (M, 2), px (static segments: one point; moving ones: 2 Gauss-Legendre
+        nodes per panel of length <= ``step_px``)
+    flux_e : ndarray, shape (M,), e- (sums to ``electrons`` per source)
+    source : ndarray, shape (M,), int (index of the source of each sub-sample)
+    """
+    p = np.asarray(paths_xy, dtype=float)
+    e = np.asarray(electrons, dtype=float)
+    n, s = p.shape[0], p.shape[1]
+    p0 = p[:, :-1, :].reshape(-1, 2)
+    dp = (p[:, 1:, :] - p[:, :-1, :]).reshape(-1, 2)
+    seg_flux = np.repeat(e / (s - 1), s - 1)
+    seg_source = np.repeat(np.arange(n), s - 1)
+    length = np.hypot(dp[:, 0], dp[:, 1])
+    k = np.maximum(1, np.ceil(length / step_px - 1e-9)).astype(np.int64)
+    # points per segment: 1 for a static segment, else 2 Gauss-Legendre nodes per panel
+    npts = np.where(length > 0.0, 2 * k, 1)
+    if np.all(npts == 1):  # static sources: no expansion needed
+        return p0 + 0.5 * dp, seg_flux, seg_source
+    seg = np.repeat(np.arange(k.size), npts)
+    start = np.cumsum(npts) - npts
+    local = np.arange(seg.size) - start[seg]
+    moving = npts[seg] > 1
+    panel = local // 2
+    node = np.where(local % 2 == 0, -_GL2, _GL2)
+    t = np.where(moving, (panel + 0.5 + node) / k[seg], 0.5)
+    xy = p0[seg] + t[:, None] * dp[seg]
+    return xy, seg_flux[seg] / npts[seg], seg_source[seg]
+
+
+def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None) -> np.ndarray:
+    """Noise-free image (e-) of point sources moving along sampled paths.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(H, W)`` of the image, px.
+    paths_xy : ndarray, shape (N, S, 2), px
+        Pixel position ``(x, y)`` of each source at S >= 2 equally spaced instants over the
+        exposure (S = 2 with equal points: a static source; S = 2: a straight streak; more
+        points for curved paths). Sources with any non-finite position are skipped.
+    electrons : ndarray, shape (N,), e-
+        Total charge of each source over the exposure.
+    psf : PSF
+        Kernel (e.g. ``GaussianPSF(camera.defocus_sigma_px)``).
+    flux_fraction_lost : float
+        Largest fraction of a point's flux allowed outside its stamp.
+    step_px : float, optional
+        Panel length of the streak quadrature, px (default ``psf.quadrature_step_px()`` or 0.05).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float64, e- per pixel
+
+    Examples
+    --------
+    >>> from skynav.renderer.psf import GaussianPSF
+    >>> img = rasterize((16, 16), [[[7.3, 8.1], [7.3, 8.1]]], [1000.0], GaussianPSF(0.5))
+    >>> round(float(img.sum()), 3)
+    1000.0
+    """
+    h_img, w_img = (int(v) for v in shape)
+    if h_img <= 0 or w_img <= 0:
+        raise ConfigValueError("raster.shape", shape, "(H, W) with H, W > 0")
+    p = np.asarray(paths_xy, dtype=float)
+    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
+        raise ConfigValueError("raster.paths_xy", p.shape, "an array of shape (N, S, 2) with S >= 2")
+    e = np.asarray(electrons, dtype=float).reshape(-1)
+    if e.shape[0] != p.shape[0]:
+        raise ConfigValueError("raster.electrons", e.shape, f"shape ({p.shape[0]},) to match paths_xy")
+    image = np.zeros(h_img * w_img, dtype=float)
+    if p.shape[0] == 0:
+        return image.reshape(h_img, w_img)
+
+    half = int(psf.half_size_px(flux_fraction_lost))
+    # drop sources that cannot touch the image (their whole path plus the stamp is outside)
+    ok = np.all(np.isfinite(p), axis=(1, 2)) & np.isfinite(e) & (e != 0)
+    lo = np.min(p, axis=1)
+    hi = np.max(p, axis=1)
+    margin = half + 1.0
+    ok &= (hi[:, 0] >= -0.5 - margin) & (lo[:, 0] <= w_img - 0.5 + margin)
+    ok &= (hi[:, 1] >= -0.5 - margin) & (lo[:, 1] <= h_img - 0.5 + margin)
+    if not np.any(ok):
+        return image.reshape(h_img, w_img)
+    if step_px is None:
+        step_px = psf.quadrature_step_px() if hasattr(psf, "quadrature_step_px") else 0.05
+    xy, flux, _ = streak_subsamples(p[ok], e[ok], float(step_px))
+
+    n_side = 2 * half + 1
+    per_point = n_side * n_side
+    chunk = max(1, _CHUNK_ENTRIES // per_point)
+    k = np.arange(n_side)
+    for a in range(0, xy.shape[0], chunk):
+        pts = xy[a : a + chunk]
+        w = psf.stamps(pts, half) * flux[a : a + chunk, None, None]  # (M, n, n)
+        origin = stamp_origin(pts, half)
+        cols = origin[:, 0:1] + k[None, :]  # (M, n)
+        rows = origin[:, 1:2] + k[None, :]
+        cin = (cols >= 0) & (cols < w_img)
+        rin = (rows >= 0) & (rows < h_img)
+        inside = rin[:, :, None] & cin[:, None, :]
+        flat = rows[:, :, None] * w_img + cols[:, None, :]
+        if inside.all():
+            image += np.bincount(flat.ravel(), weights=w.ravel(), minlength=image.size)
+        else:
+            image += np.bincount(flat[inside], weights=w[inside], minlength=image.size)
+    return image.reshape(h_img, w_img)
