@@ -377,7 +377,9 @@ def _parse_columns(fobj) -> dict:
                                 dtype=np.uint8).reshape(len(lines), _RECORD_BYTES)
         cols = {k: _column(records, a, b) for k, (a, b) in _COLUMNS.items()}
     except ValueError as exc:
-        raise DataFileError(f"Hipparcos catalog is not in the CDS I/311 hip2.dat layout: {exc}") from exc
+        raise DataFileError(
+            f"Hipparcos catalog is not in the CDS I/311 hip2.dat layout: {exc}"
+        ) from exc
     e_b_v = cols.pop("e_b_v")
     missing = np.isnan(cols["b_v"]) | ((cols["b_v"] == 0.0) & (np.nan_to_num(e_b_v) == 0.0))
     cols["b_v"] = np.where(missing, DEFAULT_B_V, cols["b_v"])
