@@ -113,6 +113,12 @@ class Ephemeris:
     def __repr__(self) -> str:
         return f"Ephemeris(path={self._path!r})"
 
+    def __eq__(self, other):
+        return isinstance(other, Ephemeris) and self._path == other._path
+
+    def __hash__(self):
+        return hash((Ephemeris, self._path))
+
     def __getstate__(self):
         return {"_path": self._path}
 

@@ -137,3 +137,34 @@ def test_deflection_switch_against_skyfield_sun_free(sky, cases):
     apparent = _skyfield_observer(sky, t, pos, vel).observe(planets["mars"]).apparent(deflectors=())
     u_app = np.array([o.u_apparent for o in _skynav("mars", t, pos, vel, deflection=False)])
     assert (_sep_rad(u_app, apparent.xyz.km.T) / ARCSEC_RAD).max() <= 0.01
+
+
+def test_apparent_star_directions_against_skyfield(sky, cases, rng):
+    """Stars (zero parallax and proper motion, so skyfield places them at 'infinity'):
+    Sun deflection with the source at infinity, then relativistic aberration."""
+    from skyfield.api import Star
+
+    from skynav.scenes.apparent import apparent_star_directions
+
+    t, pos, vel = cases
+    ts, planets = sky
+    n = 200
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    ra_h = np.rad2deg(np.arctan2(u[:, 1], u[:, 0])) % 360.0 / 15.0
+    dec_deg = np.rad2deg(np.arcsin(u[:, 2]))
+    eph = default_ephemeris()
+    worst = 0.0
+    for k in range(20):  # 20 observers x 200 stars
+        obs = _skyfield_observer(sky, t[k : k + 1], pos[k : k + 1], vel[k : k + 1])
+        obs = Barycentric(obs.xyz.au[:, 0], obs.velocity.au_per_d[:, 0], obs.t[0])
+        obs._ephemeris = planets
+        star = Star(ra_hours=ra_h, dec_degrees=dec_deg)
+        theirs = obs.observe(star).apparent(deflectors=(10,)).xyz.au.T
+        ours = apparent_star_directions(u, pos[k], vel[k], eph.position("sun", t[k]))
+        worst = max(worst, (_sep_rad(ours, theirs) / ARCSEC_RAD).max())
+        assert _sep_rad(ours, u).max() / ARCSEC_RAD > 1.0  # aberration is really applied
+    print(f"\nstars: max apparent {worst:.2e} as")
+    # skyfield takes the Sun when the ray passed it, we take it at the observation epoch:
+    # <= 40 km of solar motion, ~1e-4 of the deflection; 1e-5 arcsec as above.
+    assert worst <= 1e-5

@@ -52,6 +52,8 @@ def test_pickle_round_trip_reopens_lazily():
     clone = pickle.loads(pickle.dumps(eph))
     assert clone._kernel is None
     np.testing.assert_array_equal(clone.position("moon", 1.0e8), before)
+    assert clone == eph and hash(clone) == hash(eph) and eval(repr(eph)) == eph
+    assert Ephemeris(path="/x/de430.bsp") != eph
     assert default_ephemeris() is default_ephemeris()
 
 
