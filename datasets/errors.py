@@ -1,0 +1,62 @@
+"""Errors of the datasets room.
+
+Every class subclasses :class:`skynav.scenes.errors.SkynavError` (so the command line prints one
+line and exits with code 2) and the builtin exception a caller would expect.
+"""
+
+from __future__ import annotations
+
+from skynav.scenes.errors import ConfigValueError, SkynavError
+
+__all__ = [
+    "SkynavError",
+    "ConfigValueError",
+    "DatasetError",
+    "RecipeError",
+    "IncompleteDatasetError",
+    "DatasetMismatchError",
+    "FrameIndexError",
+    "SceneSamplingError",
+    "LambertError",
+]
+
+
+class DatasetError(SkynavError, OSError):
+    """A dataset folder cannot be read or written as asked."""
+
+
+class RecipeError(ConfigValueError):
+    """A recipe key holds a value outside what is allowed (names the key and the range)."""
+
+
+class IncompleteDatasetError(DatasetError):
+    """The folder holds a dataset whose manifest does not say ``"complete": true``.
+
+    Attributes
+    ----------
+    path : str
+    done, total : int or None
+        Frames present and frames planned, when the manifest says so.
+    """
+
+    def __init__(self, message: str, *, path=None, done=None, total=None):
+        self.path = path
+        self.done = done
+        self.total = total
+        super().__init__(message)
+
+
+class DatasetMismatchError(DatasetError):
+    """A resumed run was asked for a different recipe/seed/version than the folder holds."""
+
+
+class FrameIndexError(SkynavError, IndexError):
+    """A frame index outside ``0 .. len(dataset) - 1``."""
+
+
+class SceneSamplingError(SkynavError, RuntimeError):
+    """A sampler could not draw a scene that passes the recipe's keep-filters."""
+
+
+class LambertError(SkynavError, ValueError):
+    """A Lambert problem with no solution for the inputs (or a solver failure)."""

@@ -1,0 +1,301 @@
+"""Scene samplers: what frame k of a dataset looks at, drawn from frame k's random stream.
+
+Core module (imports the scene model only). Each recipe kind has a *plan* (deterministic,
+computed once from the recipe: for a sequence, the trajectory and the leg timeline) and a
+per-frame draw ``plan.frame_request(k, rng)`` that returns a :class:`FrameRequest` (epoch,
+state, attitude, rate, metadata). The stream of frame k is
+``np.random.default_rng(np.random.SeedSequence([master_seed, k]))`` (:func:`frame_seed`), used in
+this documented order:
+
+1. the sampler's draws (below, per kind), then
+2. everything the renderer draws (``render(scene, rng=...)``: cosmic rays, then sensor noise).
+
+Monte Carlo draws per attempt, in this order (paper 000 sec. V.A):
+``epoch ~ U[start, end)`` (TDB s); ``position_ecl ~ N(0, diag(sigma)^2)`` AU (3 normals, x y z);
+``ra ~ U[0, 2 pi)``; ``dec ~ N(0, (dec_3sigma/3)^2)``; ``twist ~ U[0, 2 pi)``; attempts repeat
+until the keep-filters pass (the number of attempts is recorded as ``draws``).
+
+Sequence draws per frame: pointing error ``N(0, sigma^2)`` about the camera x, y, z axes (3
+normals), then the jitter rate ``N(0, sigma^2)`` about x, y, z (3 normals).
+
+Free-form scenes draw nothing before the renderer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skynav.scenes import frames
+from skynav.scenes.timescales import tdb_seconds, time_from_tdb_seconds
+
+from .dynamics import AU_KM, GM_KM3_S2
+from .errors import SceneSamplingError
+
+__all__ = [
+    "OBLIQUITY_J2000_RAD",
+    "R_ECL_ICRS",
+    "FrameRequest",
+    "frame_seed",
+    "frame_rng",
+    "MonteCarloPlan",
+    "ScenesPlan",
+    "keep_filters_pass",
+    "make_plan",
+]
+
+# Obliquity of the ecliptic at J2000, IAU 2006 (84381.406 arcsec). Ecliptic J2000 axes are ICRS
+# turned about x by it; the 23 mas ICRS frame bias is ignored (the sampler is statistical).
+OBLIQUITY_J2000_RAD = math.radians(84381.406 / 3600.0)
+R_ECL_ICRS = frames.rot1(OBLIQUITY_J2000_RAD)  # passive: v_ecl = R_ECL_ICRS @ v_icrs
+
+
+def frame_seed(master_seed: int, k: int) -> np.random.SeedSequence:
+    """The seed sequence of frame k: ``SeedSequence([master_seed, k])`` (CONVENTIONS.md)."""
+    return np.random.SeedSequence([int(master_seed), int(k)])
+
+
+def frame_rng(master_seed: int, k: int) -> np.random.Generator:
+    """Frame k's generator, ``default_rng(SeedSequence([master_seed, k]))``."""
+    return np.random.default_rng(frame_seed(master_seed, k))
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FrameRequest:
+    """What one frame looks at, before the sky is computed.
+
+    Attributes
+    ----------
+    epoch_tdb_s : float
+        Mid-exposure, TDB s past J2000.
+    position_km, velocity_km_s : ndarray, shape (3,)
+        Barycentric ICRS observer state.
+    R_cam_icrs : ndarray, shape (3, 3)
+    angular_velocity_rad_s : ndarray, shape (3,)
+        Camera frame.
+    meta : dict
+        Recorded in the ground truth under ``"dataset"`` and in ``index.csv``
+        (``draws``, ``leg``, ``phase``, ``target``...).
+    sky : object or None
+        ``sky_bodies(...)`` already computed for this epoch/observer (reused by ``build_scene``).
+    """
+
+    epoch_tdb_s: float
+    position_km: np.ndarray
+    velocity_km_s: np.ndarray
+    R_cam_icrs: np.ndarray
+    angular_velocity_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    meta: dict = field(default_factory=dict)
+    sky: object = None
+
+
+def keep_filters_pass(filters, sky, R_cam_icrs, camera) -> tuple[bool, dict]:
+    """Evaluate keep-filters on the bodies of ``sky_bodies(...)`` for a pointing.
+
+    ``visible_planet``: at least one body in the field of view with ``V <= limiting_v_mag`` and
+    an angle from the Sun larger than the camera's Sun exclusion angle (the ``visible`` flag of
+    :func:`skynav.scenes.scene.build_scene`, same formula); ``body_in_fov``: at least one body
+    in the field whatever its brightness; ``sun_outside_exclusion``: the boresight is farther
+    than the exclusion angle from the Sun.
+
+    Returns
+    -------
+    ok : bool
+    facts : dict
+        ``bodies_in_fov``, ``visible_bodies`` (lists of names), ``sun_angle_deg``.
+    """
+    bodies, sun_u = sky
+    in_fov, visible = [], []
+    R = np.asarray(R_cam_icrs)
+    for b in bodies:
+        p = camera.project((R @ b.directions.u_apparent)[None])[0]
+        if bool(camera.in_image(p[None])[0]):
+            in_fov.append(b.name)
+            if np.isfinite(b.v_mag) and b.v_mag <= camera.limiting_v_mag and b.sun_angle_rad > camera.sun_exclusion_rad:
+                visible.append(b.name)
+    sun_angle = float(np.arccos(np.clip(R[2] @ sun_u, -1.0, 1.0)))
+    ok = True
+    for f in filters:
+        if f == "visible_planet":
+            ok &= bool(visible)
+        elif f == "body_in_fov":
+            ok &= bool(in_fov)
+        elif f == "sun_outside_exclusion":
+            ok &= sun_angle > camera.sun_exclusion_rad
+    return bool(ok), {"bodies_in_fov": in_fov, "visible_bodies": visible, "sun_angle_deg": math.degrees(sun_angle)}
+
+
+class MonteCarloPlan:
+    """Paper 000 sec. V.A scene distribution (see the module docstring for the draw order).
+
+    Position: Gaussian about the solar-system barycentre with ``sigma = (3, 3, 0.07) AU`` in
+    ecliptic J2000 axes (the paper's N frame: "the spacecraft is supposed to lie close to the
+    ecliptic plane"), rotated to ICRS. Attitude: ``ra ~ U[0, 2 pi)``, ``dec`` normal with
+    3-sigma ``dec_3sigma`` (0.6 rad), ``twist ~ U[0, 2 pi)``, by default in the same ecliptic
+    axes (``attitude_frame: ecliptic``: "planets are distributed close to the ecliptic plane"),
+    or in ICRS. Velocity (the paper does not give one; it only matters for aberration):
+    ``circular``: the circular heliocentric speed ``sqrt(GM_sun / r)`` at that distance, in the
+    ecliptic plane, prograde (direction ``z_ecl x r``), plus the Sun's barycentric velocity;
+    ``zero``: at rest with respect to the Sun. Positions closer than ``min_sun_distance_au`` to
+    the Sun or inside a body are redrawn (counted in ``draws``).
+    """
+
+    kind = "montecarlo"
+
+    def __init__(self, recipe: dict, camera, *, ephemeris=None):
+        self.recipe = recipe
+        self.camera = camera
+        self.s = recipe["montecarlo"]
+        self.n_frames = int(recipe["frames"])
+        self.t0 = float(tdb_seconds(self.s["epoch_start_tdb"]))
+        self.t1 = float(tdb_seconds(self.s["epoch_end_tdb"]))
+        self._eph = ephemeris
+
+    @property
+    def ephemeris(self):
+        if self._eph is None:
+            from skynav.scenes.ephemeris_jpl import default_ephemeris
+
+            self._eph = default_ephemeris()
+        return self._eph
+
+    def draw_pose(self, rng: np.random.Generator):
+        """One attempt: (t_tdb_s, position_km (3,), R_cam_icrs (3, 3)) in the documented order."""
+        s = self.s
+        t = self.t0 + (self.t1 - self.t0) * rng.random() if self.t1 > self.t0 else self.t0
+        p_ecl = rng.normal(0.0, 1.0, 3) * np.asarray(s["position_sigma_au"]) * AU_KM
+        ra = rng.uniform(0.0, 2.0 * math.pi)
+        dec = rng.normal(0.0, math.radians(s["dec_3sigma_deg"]) / 3.0)
+        twist = rng.uniform(0.0, 2.0 * math.pi)
+        # a normal dec may leave [-pi/2, pi/2] for huge sigmas: fold it back onto the sphere
+        u = frames.radec_to_unit(ra, dec)
+        ra_f, dec_f = frames.unit_to_radec(u)
+        R_frame = frames.radec_twist_to_dcm(float(ra_f), float(dec_f), twist)
+        if s["attitude_frame"] == "ecliptic":
+            R = R_frame @ R_ECL_ICRS
+        else:
+            R = R_frame
+        return t, R_ECL_ICRS.T @ p_ecl, R
+
+    def velocity(self, t, r_km):
+        """Barycentric velocity of the ``velocity`` model at a barycentric position."""
+        sun_r, sun_v = self.ephemeris.position_velocity("sun", t)
+        if self.s["velocity"] == "zero":
+            return np.asarray(sun_v, dtype=float)
+        rel = R_ECL_ICRS @ (r_km - sun_r)
+        direction = np.cross([0.0, 0.0, 1.0], rel)
+        n = np.linalg.norm(direction)
+        if n == 0.0:
+            return np.asarray(sun_v, dtype=float)
+        speed = math.sqrt(GM_KM3_S2["sun"] / np.linalg.norm(rel))
+        return R_ECL_ICRS.T @ (speed * direction / n) + sun_v
+
+    def _maybe_in_fov(self, t, r, R) -> bool:
+        """Cheap conservative pre-check for the body filters: some body's geometric direction
+        within the half-diagonal field of view + 1 deg of the boresight (aberration and
+        light-time move a planet by < 0.01 deg, so nothing the exact test keeps is dropped)."""
+        if not {"visible_planet", "body_in_fov"} & set(self.s["keep"]):
+            return True
+        from skynav.scenes.scene import SCENE_BODIES
+
+        limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
+        for name in SCENE_BODIES:
+            d = self.ephemeris.position(name, t) - r
+            if R[2] @ d > limit * np.linalg.norm(d):
+                return True
+        return False
+
+    def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
+        from skynav.scenes.errors import ConfigValueError
+        from skynav.scenes.scene import sky_bodies
+
+        s = self.s
+        for draws in range(1, s["max_draws_per_frame"] + 1):
+            t, r, R = self.draw_pose(rng)
+            sun_r = self.ephemeris.position("sun", t)
+            if np.linalg.norm(r - sun_r) < s["min_sun_distance_au"] * AU_KM:
+                continue
+            if not self._maybe_in_fov(t, r, R):
+                continue
+            v = self.velocity(t, r)
+            try:
+                sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
+            except ConfigValueError:  # inside a body
+                continue
+            ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera)
+            if ok:
+                meta = {"kind": "montecarlo", "frame": int(k), "draws": draws,
+                        "visible_bodies": facts["visible_bodies"], "bodies_in_fov": facts["bodies_in_fov"]}
+                return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R, meta=meta, sky=sky)
+        raise SceneSamplingError(
+            f"frame {k}: no scene passed the keep-filters {s['keep']} in {s['max_draws_per_frame']} draws;"
+            " raise montecarlo.max_draws_per_frame or relax montecarlo.keep")
+
+    def describe(self) -> dict:
+        return {}
+
+
+class ScenesPlan:
+    """Free-form recipe: an explicit list of scenes (same keys as scene files)."""
+
+    kind = "scenes"
+
+    def __init__(self, recipe: dict, camera, *, ephemeris=None):
+        from skynav.scenes.config import scene_spec_from_mapping
+
+        self.recipe = recipe
+        self.camera = camera
+        self.specs = [scene_spec_from_mapping({**sc, "camera": sc.get("camera", recipe["camera"])})
+                      for sc in recipe["scenes"]]
+        self.n_frames = len(self.specs)
+        self._eph = ephemeris
+
+    def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
+        from skynav.scenes.ephemeris_jpl import default_ephemeris
+        from skynav.scenes.scene import brightest_visible_body, sky_bodies
+
+        spec = self.specs[k]
+        eph = self._eph or default_ephemeris()
+        t = float(tdb_seconds(spec.epoch_tdb_iso))
+        r = np.asarray(spec.position_km, dtype=float)
+        v = np.asarray(spec.velocity_km_s, dtype=float)
+        if spec.relative_to:
+            rb, vb = eph.position_velocity(spec.relative_to, t)
+            r, v = r + rb, v + vb
+        sky = sky_bodies(t, r, v, ephemeris=eph)
+        a = spec.attitude
+        if a.point_at is not None:
+            target = (brightest_visible_body(sky[0], spec.camera) if a.point_at == "auto"
+                      else next(b for b in sky[0] if b.name == a.point_at))
+            R = frames.point_boresight(target.directions.u_apparent, a.twist_rad)
+        elif a.q_cam_icrs is not None:
+            R = frames.quat_to_dcm(np.asarray(a.q_cam_icrs))
+        else:
+            R = frames.radec_twist_to_dcm(a.ra_rad, a.dec_rad, a.twist_rad)
+        meta = {"kind": "scenes", "frame": int(k)}
+        return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R,
+                            angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky)
+
+    def describe(self) -> dict:
+        return {}
+
+
+def make_plan(recipe: dict, *, ephemeris=None):
+    """The plan of a validated recipe (for a sequence: computes the trajectory and legs)."""
+    from .recipes import recipe_camera
+
+    camera = recipe_camera(recipe)
+    if recipe["kind"] == "montecarlo":
+        return MonteCarloPlan(recipe, camera, ephemeris=ephemeris)
+    if recipe["kind"] == "scenes":
+        return ScenesPlan(recipe, camera, ephemeris=ephemeris)
+    from .sequence import SequencePlan
+
+    return SequencePlan(recipe, camera, ephemeris=ephemeris)
+
+
+def epoch_iso(t_tdb_s: float) -> str:
+    """ISO date (TDB) of TDB seconds past J2000, millisecond precision, for tables."""
+    return time_from_tdb_seconds(t_tdb_s).tdb.isot

@@ -1,0 +1,300 @@
+"""Navigation sequences: an Earth-Mars ballistic cruise and the navigation legs of papers 001/002.
+
+Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``):
+
+1. **Transfer.** A grid search over the departure window and the time of flight for the
+   zero-revolution Lambert arc (:func:`skynav.datasets.lambert.solve_lambert`, Sun-centred,
+   DE421 Earth and Mars centres) with the smallest ``v_inf(departure) + v_inf(arrival)``.
+2. **Cruise.** The Lambert arc is followed on the two-body problem for ``start_offset_days``
+   (leaving the Earth's sphere of influence), then the state is propagated with the
+   high-fidelity model of :mod:`skynav.datasets.dynamics` (Sun + 9 bodies from DE421, SRP,
+   1PN Sun; DOP853 at ``rtol``) over the whole timeline. The high-fidelity arc is a ballistic
+   cruise initialised on the Lambert solution, not a targeted arrival at Mars.
+3. **Legs** (paper 002 sec. 4.2, paper 001 sec. IV, Fig. 5): track planet A for ``track_s``
+   (1 h) at ``1 / cadence_s`` (0.01 Hz), slew for ``slew_s`` (30 min, no frames), track planet B
+   for ``track_s``, propagate for ``propagate_s`` (10 days); ``legs`` times (10).
+4. **Pair.** At the start of each leg, among the planets with ``V < pair_v_mag_max`` (7) and an
+   angle from the Sun larger than ``pair_sun_angle_min_deg`` (20 deg), the pair maximising the
+   smallest eigenvalue of the line-of-sight information matrix
+   ``J = sum_i (I - u_i u_i^T) / d_i^2`` (two directions u at distances d; a stand-in for the
+   optimal-pair strategy of Franzese & Topputo that papers 001/002 cite). A is the brighter.
+   With one eligible planet, A = B.
+
+Per frame (drawn from frame k's stream, see :mod:`skynav.datasets.samplers`): the boresight
+points at the target's apparent direction with twist ``twist_deg``, turned by a pointing error
+``N(0, pointing_error_deg^2)`` about each camera axis; the camera rate is
+``angular_velocity_deg_s`` plus a jitter ``N(0, jitter_rate_deg_s^2)`` per axis (streaks).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from skynav.scenes import frames
+
+from .dynamics import GM_KM3_S2, ForceModel, SpacecraftSRP, propagate
+from .errors import LambertError, SceneSamplingError
+from .lambert import solve_lambert
+from .recipes import PLANETS
+from .samplers import FrameRequest
+
+__all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
+
+DAY_S = 86400.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class Transfer:
+    """The chosen Lambert transfer (heliocentric ICRS)."""
+
+    departure_tdb_s: float
+    tof_s: float
+    v1_km_s: tuple          # heliocentric velocity at departure
+    v_inf_departure_km_s: float
+    v_inf_arrival_km_s: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class LegWindow:
+    """One window of the leg timeline."""
+
+    leg: int
+    phase: str              # track_A, slew, track_B, propagate
+    target: str | None
+    start_tdb_s: float
+    end_tdb_s: float
+
+
+def search_transfer(ephemeris, window_tdb_s, tof_range_s, step_s: float) -> Transfer:
+    """Grid search of the Earth-Mars Lambert transfer with the smallest total v_inf.
+
+    Parameters
+    ----------
+    ephemeris : object
+        ``position_velocity(body, t_tdb_s)``.
+    window_tdb_s : (float, float)
+        Departure window, TDB s past J2000.
+    tof_range_s : (float, float)
+        Time-of-flight range, s.
+    step_s : float
+        Grid step for both, s.
+    """
+    deps = np.arange(window_tdb_s[0], window_tdb_s[1] + 0.5 * step_s, step_s)
+    tofs = np.arange(tof_range_s[0], tof_range_s[1] + 0.5 * step_s, step_s)
+    re, ve = ephemeris.position_velocity("earth", deps)
+    rs, vs = ephemeris.position_velocity("sun", deps)
+    arr = (deps[:, None] + tofs[None, :]).ravel()
+    rm, vm = ephemeris.position_velocity("mars", arr)
+    rs2, vs2 = ephemeris.position_velocity("sun", arr)
+    best = None
+    mu = GM_KM3_S2["sun"]
+    for i, td in enumerate(deps):
+        for j, tof in enumerate(tofs):
+            n = i * len(tofs) + j
+            try:
+                sol = solve_lambert(re[i] - rs[i], rm[n] - rs2[n], float(tof), mu)
+            except LambertError:
+                continue
+            vinf1 = float(np.linalg.norm(sol.v1_km_s - (ve[i] - vs[i])))
+            vinf2 = float(np.linalg.norm(sol.v2_km_s - (vm[n] - vs2[n])))
+            if best is None or vinf1 + vinf2 < best[0]:
+                best = (vinf1 + vinf2, td, tof, sol.v1_km_s, vinf1, vinf2)
+    if best is None:
+        raise SceneSamplingError("no Lambert transfer found in the departure window")
+    _, td, tof, v1, vinf1, vinf2 = best
+    return Transfer(departure_tdb_s=float(td), tof_s=float(tof), v1_km_s=tuple(float(x) for x in v1),
+                    v_inf_departure_km_s=vinf1, v_inf_arrival_km_s=vinf2)
+
+
+def leg_timeline(t_start_tdb_s: float, *, legs: int, track_s: float, slew_s: float, propagate_s: float,
+                 targets=None) -> list:
+    """The windows of ``legs`` navigation legs from ``t_start_tdb_s`` (papers 001/002 CONOPS).
+
+    ``targets``: a list of ``(A, B)`` per leg (None for a timeline without targets).
+    """
+    out = []
+    t = float(t_start_tdb_s)
+    for i in range(legs):
+        a, b = targets[i] if targets is not None else (None, None)
+        for phase, dur, tgt in (("track_A", track_s, a), ("slew", slew_s, None), ("track_B", track_s, b),
+                                ("propagate", propagate_s, None)):
+            out.append(LegWindow(leg=i, phase=phase, target=tgt, start_tdb_s=t, end_tdb_s=t + dur))
+            t += dur
+    return out
+
+
+def choose_pair(sky_list, *, v_mag_max: float, sun_angle_min_rad: float, planets=PLANETS):
+    """(A, B) names of the best pair of ``sky_bodies`` entries (see the module docstring)."""
+    elig = [b for b in sky_list if b.name in planets and np.isfinite(b.v_mag) and b.v_mag < v_mag_max
+            and b.sun_angle_rad > sun_angle_min_rad]
+    if not elig:
+        return None
+    if len(elig) == 1:
+        return elig[0].name, elig[0].name
+    best = None
+    for i in range(len(elig)):
+        for j in range(i + 1, len(elig)):
+            J = np.zeros((3, 3))
+            for b in (elig[i], elig[j]):
+                u = np.asarray(b.directions.u_apparent)
+                J += (np.eye(3) - np.outer(u, u)) / b.directions.distance_km**2
+            score = float(np.linalg.eigvalsh(J)[0])
+            if best is None or score > best[0]:
+                best = (score, elig[i], elig[j])
+    a, b = sorted(best[1:], key=lambda x: x.v_mag)
+    return a.name, b.name
+
+
+class SequencePlan:
+    """Deterministic plan of a ``sequence`` recipe: transfer, trajectory, legs, frame epochs."""
+
+    kind = "sequence"
+
+    def __init__(self, recipe: dict, camera, *, ephemeris=None):
+        from skynav.scenes.ephemeris_jpl import default_ephemeris
+        from skynav.scenes.scene import sky_bodies
+        from skynav.scenes.timescales import tdb_seconds
+
+        self.recipe = recipe
+        self.camera = camera
+        s = self.s = recipe["sequence"]
+        eph = self.ephemeris = ephemeris or default_ephemeris()
+        window = (float(tdb_seconds(s["departure_window_tdb"][0])), float(tdb_seconds(s["departure_window_tdb"][1])))
+        self.transfer = search_transfer(eph, window, (s["tof_days"][0] * DAY_S, s["tof_days"][1] * DAY_S),
+                                        s["grid_days"] * DAY_S)
+        td = self.transfer.departure_tdb_s
+        t_start = td + s["start_offset_days"] * DAY_S
+        r0, v0 = self._two_body_start(td, t_start)
+        leg_s = 2 * s["track_s"] + s["slew_s"] + s["propagate_s"]
+        t_end = t_start + s["legs"] * leg_s
+        model = ForceModel(srp=SpacecraftSRP(**s["spacecraft"]), relativity=s["relativity"])
+        self.trajectory = propagate(eph, r0, v0, t_start, t_end, model=model, rtol=s["rtol"])
+        self.t_start, self.t_end = t_start, t_end
+
+        # pairs at the start of each leg
+        targets = []
+        for i in range(s["legs"]):
+            t = t_start + i * leg_s
+            r, v = self.trajectory.state(t)
+            pair = choose_pair(sky_bodies(t, r, v, ephemeris=eph)[0], v_mag_max=s["pair_v_mag_max"],
+                               sun_angle_min_rad=math.radians(s["pair_sun_angle_min_deg"]))
+            if pair is None:
+                raise SceneSamplingError(f"leg {i}: no planet with V < {s['pair_v_mag_max']} outside "
+                                         f"{s['pair_sun_angle_min_deg']} deg of the Sun")
+            targets.append(pair)
+        self.windows = leg_timeline(t_start, legs=s["legs"], track_s=s["track_s"], slew_s=s["slew_s"],
+                                    propagate_s=s["propagate_s"], targets=targets)
+        # frames: every cadence_s inside the tracking windows, [start, end)
+        n_track = int(math.floor(s["track_s"] / s["cadence_s"] + 1e-9))
+        rows = []
+        for w in self.windows:
+            if w.phase.startswith("track"):
+                for j in range(n_track):
+                    rows.append((w.start_tdb_s + j * s["cadence_s"], w.leg, w.phase, w.target, j))
+        total = len(rows)
+        n = recipe.get("frames") or total
+        if n > total:
+            from .errors import RecipeError
+
+            raise RecipeError("frames", n, f"at most {total} (frames planned by the legs)")
+        rows = rows[:n]
+        self.n_frames = n
+        self.n_planned = total
+        self.frame_t = np.array([r[0] for r in rows])
+        self.frame_info = [r[1:] for r in rows]
+        self.frame_r, self.frame_v = self.trajectory.state(self.frame_t)
+        self.frame_r = np.atleast_2d(self.frame_r)
+        self.frame_v = np.atleast_2d(self.frame_v)
+
+    def _two_body_start(self, td: float, t_start: float):
+        """Barycentric state at ``t_start`` on the Sun-only Lambert arc from the Earth at ``td``."""
+        eph = self.ephemeris
+        re = eph.position("earth", td)
+        rs = eph.position("sun", td)
+        mu = GM_KM3_S2["sun"]
+
+        def f(_t, y):
+            r = y[:3]
+            return np.concatenate([y[3:], -mu * r / np.linalg.norm(r) ** 3])
+
+        y0 = np.concatenate([re - rs, np.asarray(self.transfer.v1_km_s)])
+        sol = solve_ivp(f, (td, t_start), y0, method="DOP853", rtol=1e-13, atol=1e-9)
+        rs1, vs1 = eph.position_velocity("sun", t_start)
+        return sol.y[:3, -1] + rs1, sol.y[3:, -1] + vs1
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d.pop("trajectory", None)  # workers use the per-frame states; keeps pickles small
+        return d
+
+    def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
+        from skynav.scenes.scene import sky_bodies
+
+        s = self.s
+        t = float(self.frame_t[k])
+        leg, phase, target, j = self.frame_info[k]
+        r, v = self.frame_r[k], self.frame_v[k]
+        sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
+        body = next(b for b in sky[0] if b.name == target)
+        R_nominal = frames.point_boresight(body.directions.u_apparent, math.radians(s["twist_deg"]))
+        err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
+        jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
+        # the camera turned by the small rotation vector err (camera axes): R = exp(-[err x]) R0
+        R = frames.rotation_vector_to_dcm(-err) @ R_nominal
+        w = np.radians(np.asarray(s["angular_velocity_deg_s"], dtype=float)) + jitter
+        meta = {"kind": "sequence", "frame": int(k), "leg": int(leg), "phase": phase, "target": target,
+                "window_frame": int(j), "pointing_error_rad": [float(x) for x in err]}
+        return FrameRequest(epoch_tdb_s=t, position_km=np.array(r), velocity_km_s=np.array(v), R_cam_icrs=R,
+                            angular_velocity_rad_s=w, meta=meta, sky=sky)
+
+    # ------------------------------------------------------------------ dataset side files
+    def describe(self) -> dict:
+        """Plan summary for the manifest."""
+        from .samplers import epoch_iso
+
+        tr = self.transfer
+        return {
+            "transfer": {
+                "departure_tdb": epoch_iso(tr.departure_tdb_s),
+                "tof_days": tr.tof_s / DAY_S,
+                "arrival_tdb": epoch_iso(tr.departure_tdb_s + tr.tof_s),
+                "v_inf_departure_km_s": tr.v_inf_departure_km_s,
+                "v_inf_arrival_km_s": tr.v_inf_arrival_km_s,
+            },
+            "cruise_start_tdb": epoch_iso(self.t_start),
+            "cruise_end_tdb": epoch_iso(self.t_end),
+            "frames_planned": self.n_planned,
+            "pairs": [[w.target for w in self.windows if w.leg == i and w.phase.startswith("track")]
+                      for i in range(self.s["legs"])],
+        }
+
+    def trajectory_csv(self) -> str:
+        """``trajectory.csv``: the cruise every ``trajectory_step_s``, barycentric ICRS, km and km/s."""
+        from .samplers import epoch_iso
+
+        step = self.s["trajectory_step_s"]
+        t = np.arange(self.t_start, self.t_end + 0.5 * step, step)
+        t = t[t <= self.t_end]
+        r, v = self.trajectory.state(t)
+        lines = ["epoch_tdb,t_tdb_s,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s"]
+        for ti, ri, vi in zip(t, np.atleast_2d(r), np.atleast_2d(v)):
+            lines.append(f"{epoch_iso(ti)},{ti!r},{ri[0]!r},{ri[1]!r},{ri[2]!r},{vi[0]!r},{vi[1]!r},{vi[2]!r}")
+        return "\n".join(lines) + "\n"
+
+    def legs_csv(self) -> str:
+        """``legs.csv``: the leg timeline (one row per window)."""
+        from .samplers import epoch_iso
+
+        lines = ["leg,phase,target,start_tdb,end_tdb,start_tdb_s,end_tdb_s,duration_s"]
+        for w in self.windows:
+            lines.append(f"{w.leg},{w.phase},{w.target or ''},{epoch_iso(w.start_tdb_s)},{epoch_iso(w.end_tdb_s)},"
+                         f"{w.start_tdb_s!r},{w.end_tdb_s!r},{w.end_tdb_s - w.start_tdb_s!r}")
+        return "\n".join(lines) + "\n"
+
+    def side_files(self) -> dict:
+        """Extra dataset files ``{name: bytes}`` (trajectory and leg timeline)."""
+        return {"trajectory.csv": self.trajectory_csv().encode("ascii"), "legs.csv": self.legs_csv().encode("ascii")}
