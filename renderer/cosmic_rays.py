@@ -1,0 +1,272 @@
+"""Cosmic-ray hits on the detector: how many, where, how much charge, which pixels.
+
+Model
+-----
+- **Count per frame**: ``mode="poisson"``: ``N ~ Poisson(rate_per_frame)`` (independent arrivals);
+  ``mode="fixed"``: exactly ``rate_per_frame`` hits (paper 002, table 4: "1" single pixel turned
+  on per image).
+- **Where**: uniform over the sensor area (pixel edges at -0.5 and W - 0.5, CONVENTIONS.md).
+- **Shape**: by default a single pixel (paper 002 and paper 000 Sect. on spikes: "cosmic rays ...
+  hit only single pixels" in under-sampled images). With probability ``track_prob`` a hit is a
+  short straight track (an oblique particle): uniform direction, projected length uniform in
+  ``[1, max_track_length_px]``; its charge is spread over the pixels the segment crosses, in
+  proportion to the length of segment inside each pixel (sampled on a fine grid along the
+  segment), and the parts outside the sensor are lost (only charge on the sensor is recorded).
+- **Charge**: energy loss of a minimum-ionising particle in a thin silicon layer follows a
+  Landau distribution; :class:`ChargeModel` ``kind="moyal"`` uses Moyal's closed-form
+  approximation of it (J. E. Moyal 1955, Phil. Mag. 46, 263), sampled exactly as
+  ``X = -ln(Z^2)``, ``Z ~ N(0, 1)``, charge ``= mpv_e + width_e X`` (mode at ``mpv_e``, long
+  high-energy tail), floored at 0; ``kind="lognormal"``: median ``mpv_e``, log-standard deviation
+  ``width_e / mpv_e``. The default ``mpv_e = 1600`` e- is ~80 e-h pairs per um of silicon
+  (3.6 eV per pair, ~290 eV/um for a MIP) over a ~20 um sensitive depth. A track's charge is the
+  draw times its projected length in px (>= 1).
+
+Where the charge goes in the chain
+----------------------------------
+:func:`deposit` adds the charge to an electrons image. Hand that image to the sensor as
+``extra_charge_e`` (``Sensor.expose(..., extra_charge_e=deposit(np.zeros(shape), hits))``): it
+is added AFTER the shot noise and before the full-well clipping, because a particle's charge has
+its own (Landau) statistics and is not Poisson-scaled with the optical signal, while it does
+saturate and bloom like any other charge.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skynav.scenes.errors import ConfigValueError
+
+_SUBSAMPLES_PER_PX = 32  # points per px of track length used to share charge between pixels
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChargeModel:
+    """Distribution of the charge one cosmic ray deposits (per px of projected track length).
+
+    Parameters
+    ----------
+    kind : {"moyal", "lognormal"}
+        ``moyal``: Moyal (1955) approximation of the Landau distribution; ``lognormal``.
+    mpv_e : float
+        Most probable value (moyal) or median (lognormal), e-.
+    width_e : float
+        Moyal scale, or ``mpv_e`` x log-standard deviation for the lognormal, e-.
+    """
+
+    kind: str = "moyal"
+    mpv_e: float = 1600.0
+    width_e: float = 250.0
+
+    def __post_init__(self):
+        if self.kind not in ("moyal", "lognormal"):
+            raise ConfigValueError("cosmic_rays.charge_model.kind", self.kind, "one of: moyal, lognormal")
+        if not (math.isfinite(self.mpv_e) and self.mpv_e > 0):
+            raise ConfigValueError("cosmic_rays.charge_model.mpv_e", self.mpv_e, "> 0 (electrons)")
+        if not (math.isfinite(self.width_e) and self.width_e >= 0):
+            raise ConfigValueError("cosmic_rays.charge_model.width_e", self.width_e, ">= 0 (electrons)")
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` charges, e-, shape (n,)."""
+        if self.kind == "moyal":
+            z = rng.standard_normal(n)
+            x = -np.log(z * z)  # Moyal variate: pdf exp(-(x + e^-x)/2) / sqrt(2 pi)
+            return np.maximum(self.mpv_e + self.width_e * x, 0.0)
+        return self.mpv_e * np.exp((self.width_e / self.mpv_e) * rng.standard_normal(n))
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class CosmicRayHits:
+    """The hits of one frame and the pixels they charge.
+
+    Attributes
+    ----------
+    shape : tuple (H, W)
+    xy : ndarray, shape (N, 2), px
+        Impact point of each hit (x = column, y = row, pixel centres at integers); the pixel
+        centre for single-pixel hits, the track midpoint for tracks.
+    electrons : ndarray, shape (N,), e-
+        Charge each hit deposits on the sensor (sum of its pixels).
+    track_start_xy, track_end_xy : ndarray, shape (N, 2), px
+        Track endpoints (both equal ``xy`` for a single-pixel hit).
+    is_track : ndarray, shape (N,), bool
+    pixel_hit : ndarray, shape (M,), int
+        Index of the hit each charged pixel belongs to.
+    pixel_rows, pixel_cols : ndarray, shape (M,), int
+    pixel_electrons : ndarray, shape (M,), e-
+    """
+
+    shape: tuple
+    xy: np.ndarray
+    electrons: np.ndarray
+    track_start_xy: np.ndarray
+    track_end_xy: np.ndarray
+    is_track: np.ndarray
+    pixel_hit: np.ndarray
+    pixel_rows: np.ndarray
+    pixel_cols: np.ndarray
+    pixel_electrons: np.ndarray = field(repr=False)
+
+    def __len__(self) -> int:
+        return len(self.electrons)
+
+    def _fields(self):
+        return (self.xy, self.electrons, self.track_start_xy, self.track_end_xy, self.is_track, self.pixel_hit, self.pixel_rows, self.pixel_cols, self.pixel_electrons)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, CosmicRayHits) and tuple(self.shape) == tuple(other.shape) and all(np.array_equal(a, b) for a, b in zip(self._fields(), other._fields()))
+
+    def __hash__(self) -> int:
+        return hash((tuple(self.shape),) + tuple(np.ascontiguousarray(a).tobytes() for a in self._fields()))
+
+    def to_ground_truth(self) -> list[dict]:
+        """The ``cosmic_rays`` list of the frame ground truth (CONVENTIONS.md): ``xy``,
+        ``electrons``, and the track endpoints."""
+        return [
+            {
+                "xy": [float(v) for v in self.xy[i]],
+                "electrons": float(self.electrons[i]),
+                "track": bool(self.is_track[i]),
+                "track_start_xy": [float(v) for v in self.track_start_xy[i]],
+                "track_end_xy": [float(v) for v in self.track_end_xy[i]],
+            }
+            for i in range(len(self))
+        ]
+
+
+def _track_pixels(start, end, shape):
+    """Pixels crossed by the segment and the fraction of its length in each (on-sensor only)."""
+    length = float(np.hypot(*(end - start)))
+    m = max(int(math.ceil(length * _SUBSAMPLES_PER_PX)), 1)
+    s = (np.arange(m) + 0.5) / m  # midpoints of m equal sub-segments
+    pts = start[None, :] + s[:, None] * (end - start)[None, :]
+    cols = np.floor(pts[:, 0] + 0.5).astype(np.int64)
+    rows = np.floor(pts[:, 1] + 0.5).astype(np.int64)
+    inside = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
+    lin = rows[inside] * shape[1] + cols[inside]
+    uniq, counts = np.unique(lin, return_counts=True)
+    return uniq // shape[1], uniq % shape[1], counts / m
+
+
+def draw_cosmic_rays(
+    shape,
+    rate_per_frame: float,
+    rng: np.random.Generator,
+    *,
+    mode: str = "poisson",
+    charge_model: ChargeModel | None = None,
+    track_prob: float = 0.0,
+    max_track_length_px: float = 8.0,
+) -> CosmicRayHits:
+    """Cosmic-ray hits of one frame.
+
+    Parameters
+    ----------
+    shape : tuple (H, W)
+        Sensor size, px.
+    rate_per_frame : float
+        Mean number of hits (``mode="poisson"``) or the exact number (``mode="fixed"``, an
+        integer).
+    rng : numpy.random.Generator
+    mode : {"poisson", "fixed"}
+    charge_model : ChargeModel, optional
+        Default ``ChargeModel()`` (Moyal, mpv 1600 e-).
+    track_prob : float
+        Probability that a hit is a short track rather than a single pixel (default 0).
+    max_track_length_px : float
+        Longest projected track, px (>= 1).
+
+    Returns
+    -------
+    CosmicRayHits
+
+    Examples
+    --------
+    >>> hits = draw_cosmic_rays((64, 64), 1, np.random.default_rng(0), mode="fixed")
+    >>> len(hits), hits.pixel_rows.size
+    (1, 1)
+    """
+    shape = tuple(int(s) for s in shape)
+    if len(shape) != 2 or min(shape) < 1:
+        raise ConfigValueError("cosmic_rays.shape", shape, "(H, W) with H, W >= 1")
+    if not (math.isfinite(rate_per_frame) and rate_per_frame >= 0):
+        raise ConfigValueError("camera.cosmic_rays_per_frame", rate_per_frame, ">= 0")
+    if not 0.0 <= track_prob <= 1.0:
+        raise ConfigValueError("cosmic_rays.track_prob", track_prob, "in [0, 1]")
+    if not max_track_length_px >= 1.0:
+        raise ConfigValueError("cosmic_rays.max_track_length_px", max_track_length_px, ">= 1")
+    if mode == "poisson":
+        n = int(rng.poisson(rate_per_frame))
+    elif mode == "fixed":
+        if float(rate_per_frame) != int(rate_per_frame):
+            raise ConfigValueError("camera.cosmic_rays_per_frame", rate_per_frame, "an integer when mode='fixed'")
+        n = int(rate_per_frame)
+    else:
+        raise ConfigValueError("cosmic_rays.mode", mode, "one of: poisson, fixed")
+    model = charge_model or ChargeModel()
+    H, W = shape
+
+    # Draw order is fixed (positions, shapes, charges) so a seed always gives the same hits.
+    pos = np.column_stack([rng.uniform(-0.5, W - 0.5, n), rng.uniform(-0.5, H - 0.5, n)])
+    is_track = rng.random(n) < track_prob
+    angle = rng.uniform(0.0, 2.0 * math.pi, n)
+    length = rng.uniform(1.0, max_track_length_px, n)
+    charge_per_px = model.sample(n, rng)
+
+    xy = np.floor(pos + 0.5)  # single pixel: the centre of the struck pixel
+    start = xy.copy()
+    end = xy.copy()
+    electrons = np.zeros(n)
+    pr, pc, pe, ph = [], [], [], []
+    for i in range(n):
+        if is_track[i]:
+            half = 0.5 * length[i] * np.array([math.cos(angle[i]), math.sin(angle[i])])
+            start[i], end[i], xy[i] = pos[i] - half, pos[i] + half, pos[i]
+            rows, cols, frac = _track_pixels(start[i], end[i], shape)
+            q = charge_per_px[i] * length[i] * frac
+        else:
+            rows = np.array([int(xy[i, 1])])
+            cols = np.array([int(xy[i, 0])])
+            q = np.array([charge_per_px[i]])
+        electrons[i] = float(np.sum(q))
+        pr.append(rows)
+        pc.append(cols)
+        pe.append(q)
+        ph.append(np.full(len(rows), i))
+    cat = lambda parts, dt: np.concatenate(parts).astype(dt) if parts else np.zeros(0, dt)  # noqa: E731
+    return CosmicRayHits(
+        shape=shape,
+        xy=xy,
+        electrons=electrons,
+        track_start_xy=start,
+        track_end_xy=end,
+        is_track=is_track,
+        pixel_hit=cat(ph, np.int64),
+        pixel_rows=cat(pr, np.int64),
+        pixel_cols=cat(pc, np.int64),
+        pixel_electrons=cat(pe, np.float64),
+    )
+
+
+def deposit(image_e, hits: CosmicRayHits) -> np.ndarray:
+    """Electrons image plus the cosmic-ray charge (a new float64 array).
+
+    Use the result as ``extra_charge_e`` of ``Sensor.expose`` (added after the shot noise; see
+    the module notes), e.g. ``deposit(np.zeros(shape), hits)``.
+
+    Parameters
+    ----------
+    image_e : array_like, shape (H, W), e-
+    hits : CosmicRayHits
+
+    Returns
+    -------
+    ndarray, shape (H, W), float64, e-
+    """
+    img = np.array(image_e, dtype=np.float64, copy=True)
+    if img.shape != tuple(hits.shape):
+        raise ConfigValueError("cosmic_rays.image_shape", img.shape, f"the hits' sensor shape {tuple(hits.shape)}")
+    np.add.at(img, (hits.pixel_rows, hits.pixel_cols), hits.pixel_electrons)
+    return img
