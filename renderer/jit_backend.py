@@ -87,7 +87,7 @@ class BackendStatus:
 
 
 _lock = threading.RLock()
-_memo: dict[str, BackendStatus] = {}
+_memo: dict[tuple, BackendStatus] = {}
 _variant_notice_done = False
 
 
@@ -108,7 +108,17 @@ def llvm_major_version(path: str) -> int | None:
     return None
 
 
+_candidates_memo: list[str] | None = None
+
+
 def _candidates() -> list[str]:
+    global _candidates_memo
+    if _candidates_memo is None:
+        _candidates_memo = _search_candidates()
+    return list(_candidates_memo)
+
+
+def _search_candidates() -> list[str]:
     paths: set[str] = set()
     for pattern in _SEARCH_GLOBS:
         paths.update(glob.glob(pattern))
@@ -275,20 +285,20 @@ def probe_llvm(*, timeout_s: float = DEFAULT_TIMEOUT_S, use_cache: bool = True) 
     lib = find_libllvm()
     if lib is None:
         return BackendStatus(available=False, reason=f"no libLLVM >= {MIN_LLVM_MAJOR} found (apt-get install libllvm{MIN_LLVM_MAJOR}, or set DRJIT_LIBLLVM_PATH)", libllvm=None)
-    key = _cache_key("llvm", lib)
     with _lock:
-        if use_cache and key in _memo:
-            return _memo[key]
+        if use_cache and ("llvm", lib) in _memo:  # cheap in-process check first (every expose() asks)
+            return _memo[("llvm", lib)]
+        key = _cache_key("llvm", lib)
         if use_cache:
             entry = _cache_read().get(key)
             if entry is not None:
                 status = BackendStatus(available=bool(entry["available"]), reason=str(entry["reason"]) + " (cached)", libllvm=entry.get("libllvm"))
-                _memo[key] = status
+                _memo[("llvm", lib)] = status
                 return status
         ok, why = _run_probe("llvm_ad_spectral", {"DRJIT_LIBLLVM_PATH": lib}, timeout_s)
         status = BackendStatus(available=ok, reason=f"{why} with {lib}", libllvm=lib)
         _cache_write(key, status)
-        _memo[key] = status
+        _memo[("llvm", lib)] = status
         return status
 
 
@@ -297,15 +307,15 @@ def probe_cuda(*, timeout_s: float = DEFAULT_TIMEOUT_S, use_cache: bool = True) 
     cached like :func:`probe_llvm`). ``SKYNAV_DISABLE_CUDA=1`` forces unavailable."""
     if _truthy("SKYNAV_DISABLE_CUDA"):
         return BackendStatus(available=False, reason="disabled by SKYNAV_DISABLE_CUDA")
-    key = _cache_key("cuda", None)
     with _lock:
-        if use_cache and key in _memo:
-            return _memo[key]
+        if use_cache and ("cuda", None) in _memo:
+            return _memo[("cuda", None)]
+        key = _cache_key("cuda", None)
         if use_cache:
             entry = _cache_read().get(key)
             if entry is not None:
                 status = BackendStatus(available=bool(entry["available"]), reason=str(entry["reason"]) + " (cached)")
-                _memo[key] = status
+                _memo[("cuda", None)] = status
                 return status
         env = {}
         lib = find_libllvm()
@@ -314,7 +324,7 @@ def probe_cuda(*, timeout_s: float = DEFAULT_TIMEOUT_S, use_cache: bool = True) 
         ok, why = _run_probe("cuda_ad_spectral", env, timeout_s)
         status = BackendStatus(available=ok, reason=why)
         _cache_write(key, status)
-        _memo[key] = status
+        _memo[("cuda", None)] = status
         return status
 
 
@@ -366,7 +376,8 @@ def select_mitsuba_variant() -> tuple[str, str]:
 
 def _clear_memo() -> None:
     """Forget in-process verdicts (tests)."""
-    global _variant_notice_done
+    global _variant_notice_done, _candidates_memo
     with _lock:
         _memo.clear()
+        _candidates_memo = None
         _variant_notice_done = False

@@ -98,3 +98,17 @@ def test_select_variant_is_consistent(fresh_probe):
     assert reason
     if variant == "llvm_ad_spectral":
         assert jb.probe_llvm().available
+
+
+def test_disable_switch_sends_sensor_to_numpy(fresh_probe, monkeypatch):
+    import numpy as np
+
+    from skynav.renderer.detector import Sensor
+    from skynav.scenes.camera import SensorParams
+
+    monkeypatch.setenv("SKYNAV_DISABLE_LLVM", "1")
+    s = Sensor(SensorParams(), (8, 8))
+    d = s.expose_details(np.full((8, 8), 100.0), 0.1, np.random.default_rng(0))
+    assert d.backend == "numpy"
+    with pytest.raises(jb.BackendUnavailableError, match="SKYNAV_DISABLE_LLVM"):
+        s.expose(np.full((8, 8), 100.0), 0.1, np.random.default_rng(0), backend="llvm")
