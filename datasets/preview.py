@@ -1,0 +1,119 @@
+"""Contact sheet of a dataset with ground-truth overlays: :func:`preview`.
+
+Driver module (``skynav dataset preview``). Each tile is a frame's DN, stretched for display
+(``asinh`` of the DN above the median, so faint stars show next to saturated planets), resized
+to ``tile_px``; stars in the field get a circle (scikit-image ``circle_perimeter``), bodies in the
+field a square and a label (Pillow), and each tile its frame number and epoch. Written as an 8-bit
+RGB PNG, atomically.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["preview", "contact_sheet"]
+
+_STAR_RGB = (80, 200, 255)
+_BODY_RGB = (255, 170, 40)
+_TEXT_RGB = (255, 255, 255)
+
+
+def _stretch(dn: np.ndarray, max_dn: int) -> np.ndarray:
+    d = dn.astype(np.float64)
+    base = float(np.median(d))
+    span = max(float(max_dn) - base, 1.0)
+    x = np.clip((d - base) / span, 0.0, 1.0)
+    y = np.arcsinh(200.0 * x) / np.arcsinh(200.0)
+    return (255.0 * y + 0.5).astype(np.uint8)
+
+
+def _tile(record, tile_px: int, label: str, star_v_max: float = 7.0):
+    from PIL import Image, ImageDraw
+    from skimage.draw import circle_perimeter
+
+    truth = record.truth
+    cam = truth["camera"]
+    h, w = int(cam["height"]), int(cam["width"])
+    img = _stretch(np.asarray(record.dn), (1 << int(cam["bit_depth"])) - 1)
+    small = np.asarray(Image.fromarray(img).resize((tile_px, tile_px), Image.BILINEAR))
+    rgb = np.repeat(small[:, :, None], 3, axis=2)
+    sx, sy = tile_px / w, tile_px / h
+    for s in truth.get("stars", []):
+        if s.get("v_mag", 0.0) > star_v_max:  # fainter stars would hide the image
+            continue
+        x, y = s["xy"]
+        # pixel centres at integers: scaled centre is (x + 0.5) * s - 0.5
+        cx, cy = (x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5
+        r = max(2, int(round(4 - 0.4 * (s.get("v_mag", 6) - 2))))
+        rr, cc = circle_perimeter(int(round(cy)), int(round(cx)), r, shape=rgb.shape[:2])
+        rgb[rr, cc] = _STAR_RGB
+    labels = []
+    for b in truth.get("bodies", []):
+        if not b.get("in_fov"):
+            continue
+        x, y = b["xy"]
+        cx, cy = (x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5
+        vm = b.get("v_mag")
+        labels.append((cx, cy, f"{b['name']} V={vm:.1f}" if isinstance(vm, (int, float)) and math.isfinite(vm) else b["name"]))
+    im = Image.fromarray(rgb)
+    draw = ImageDraw.Draw(im)
+    for x, y, text in labels:  # Pillow squares: skimage's rectangle_perimeter needs matplotlib
+        draw.rectangle((x - 6, y - 6, x + 6, y + 6), outline=_BODY_RGB)
+        draw.text((x + 8, y - 6), text, fill=_BODY_RGB)
+    draw.text((3, 2), label, fill=_TEXT_RGB)
+    return im
+
+
+def contact_sheet(records, *, columns: int = 4, tile_px: int = 256, star_v_max: float = 7.0):
+    """A Pillow RGB image of frames (records with ``dn``, ``truth``, ``index``) in a grid."""
+    from PIL import Image
+
+    records = list(records)
+    if not records:
+        raise ValueError("no frames to show")
+    cols = max(1, min(columns, len(records)))
+    rows = int(math.ceil(len(records) / cols))
+    gap = 4
+    sheet = Image.new("RGB", (cols * tile_px + (cols + 1) * gap, rows * tile_px + (rows + 1) * gap), (40, 40, 40))
+    for i, rec in enumerate(records):
+        label = f"#{rec.index} {rec.truth['epoch']['tdb_iso'][:16]}"
+        tile = _tile(rec, tile_px, label, star_v_max)
+        r, c = divmod(i, cols)
+        sheet.paste(tile, (gap + c * (tile_px + gap), gap + r * (tile_px + gap)))
+    return sheet
+
+
+def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, tile_px: int = 256,
+            star_v_max: float = 7.0) -> Path:
+    """Write a contact sheet PNG of a dataset with star circles and body labels.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A complete dataset.
+    out_png : str or os.PathLike
+        Output PNG.
+    frames : sequence of int, optional
+        Frames to show (default: ``count`` frames evenly spread over the dataset).
+    star_v_max : float
+        Circle the stars brighter than this V magnitude.
+    """
+    import io
+
+    from skynav.renderer.outputs import atomic_write_bytes
+
+    from .reader import open_dataset
+
+    ds = open_dataset(path)
+    n = len(ds)
+    if frames is None:
+        frames = sorted(set(np.linspace(0, n - 1, min(count, n)).round().astype(int).tolist()))
+    sheet = contact_sheet([ds[int(k)] for k in frames], columns=columns, tile_px=tile_px, star_v_max=star_v_max)
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG")
+    out = Path(out_png)
+    atomic_write_bytes(out, buf.getvalue())
+    return out

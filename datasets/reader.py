@@ -1,0 +1,153 @@
+"""Reading datasets: ``skynav.datasets.open(path)``.
+
+Adapter module. :func:`open_dataset` validates the manifest and refuses a folder whose manifest
+does not say ``"complete": true`` (a half-written or interrupted dataset) with a message saying
+how far it got and how to finish it. Frames are read lazily: ``len(ds)``, ``ds[k]`` (negative
+indices allowed) and iteration give :class:`FrameRecord` objects whose ``dn`` and ``truth`` are
+read at once and whose float images (``electrons``, ``irradiance_w_m2``) are read from the EXR
+on first access.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import layout
+from .errors import DatasetError, FrameIndexError, IncompleteDatasetError
+
+__all__ = ["Dataset", "FrameRecord", "open_dataset"]
+
+
+class FrameRecord:
+    """One frame of a dataset (immutable): ``dn``, ``truth``, lazy ``electrons``.
+
+    Attributes
+    ----------
+    index : int
+    dn : ndarray, shape (H, W), uint8 or uint16
+    truth : dict
+        Ground truth, schema ``skynav.frame/1``.
+    electrons, irradiance_w_m2 : ndarray, shape (H, W), float32
+        Read from the frame's EXR on first access (None if the dataset has no EXR).
+    """
+
+    __slots__ = ("index", "dn", "truth", "_exr_path", "_exr")
+
+    def __init__(self, *, index: int, dn: np.ndarray, truth: dict, exr_path=None):
+        if dn is not None:
+            dn.setflags(write=False)
+        object.__setattr__(self, "index", int(index))
+        object.__setattr__(self, "dn", dn)
+        object.__setattr__(self, "truth", truth)
+        object.__setattr__(self, "_exr_path", exr_path)
+        object.__setattr__(self, "_exr", None)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"FrameRecord is immutable; cannot set {name!r}")
+
+    def _channels(self):
+        if self._exr is None and self._exr_path is not None:
+            from skynav.renderer.outputs import read_exr
+
+            ch = read_exr(self._exr_path)
+            for a in ch.values():
+                if isinstance(a, np.ndarray):
+                    a.setflags(write=False)
+            object.__setattr__(self, "_exr", ch)
+        return self._exr
+
+    @property
+    def electrons(self):
+        ch = self._channels()
+        return None if ch is None else ch["electrons"]
+
+    @property
+    def irradiance_w_m2(self):
+        ch = self._channels()
+        return None if ch is None else ch.get("irradiance_w_m2")
+
+    def __iter__(self):  # (image, truth) unpacking
+        return iter((self.dn, self.truth))
+
+    def __repr__(self) -> str:
+        return f"FrameRecord(index={self.index}, dn={self.dn.dtype}{self.dn.shape}, epoch={self.truth['epoch']['tdb_iso']!r})"
+
+
+class Dataset:
+    """A complete dataset folder, read lazily (see :func:`open_dataset`)."""
+
+    def __init__(self, root, manifest: dict):
+        self.root = Path(root)
+        self.manifest = manifest
+        self.recipe = manifest["recipe"]
+        self.formats = tuple(manifest["formats"])
+        self._n = int(manifest["counts"]["frames"])
+        self._index = None
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, k) -> FrameRecord:
+        from skynav.renderer.outputs import read_png, read_truth_json
+
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._n))]
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
+            raise FrameIndexError(f"frame index must be an integer, got {type(k).__name__}")
+        i = int(k) + self._n if k < 0 else int(k)
+        if not 0 <= i < self._n:
+            raise FrameIndexError(f"frame {k} out of range; the dataset has {self._n} frames (0..{self._n - 1})")
+        rel = layout.frame_relpaths(i, self.formats)
+        try:
+            truth = read_truth_json(self.root / rel["json"])
+            dn = read_png(self.root / rel["png"]) if "png" in rel else None
+        except FileNotFoundError as exc:
+            raise DatasetError(f"{self.root}: frame {i} is missing ({Path(exc.filename).name}); run verify()") from None
+        exr = self.root / rel["exr"] if "exr" in rel else None
+        return FrameRecord(index=i, dn=dn, truth=truth, exr_path=exr)
+
+    def __iter__(self):
+        for i in range(self._n):
+            yield self[i]
+
+    @property
+    def index(self) -> list:
+        """Rows of ``index.csv`` (dicts of strings)."""
+        if self._index is None:
+            self._index = layout.read_index(self.root)
+        return self._index
+
+    @property
+    def camera(self):
+        from skynav.scenes.camera import Camera
+
+        return Camera.from_dict(self.manifest["camera"])
+
+    def __repr__(self) -> str:
+        return f"Dataset({str(self.root)!r}, kind={self.recipe['kind']!r}, frames={self._n})"
+
+
+def open_dataset(path) -> Dataset:
+    """Open a complete dataset folder.
+
+    Raises
+    ------
+    DatasetError
+        Not a dataset folder, unreadable manifest.
+    IncompleteDatasetError
+        The manifest does not say ``"complete": true``.
+    """
+    root = Path(path)
+    m = layout.read_manifest(root)
+    if m.get("complete") is not True:
+        c = m.get("counts", {})
+        done, total = c.get("frames_done"), c.get("frames")
+        raise IncompleteDatasetError(
+            f"{root} is an incomplete dataset ({done} of {total} frames written, manifest not complete); "
+            "finish it by running generate again on the same folder", path=str(root), done=done, total=total)
+    for key in ("recipe", "formats", "counts", "files"):
+        if key not in m:
+            raise DatasetError(f"{root / layout.MANIFEST_NAME}: missing key {key!r}")
+    return Dataset(root, m)

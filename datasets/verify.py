@@ -1,0 +1,176 @@
+"""Checking and summarising dataset folders: :func:`verify` and :func:`info`.
+
+Driver module (``skynav dataset verify`` / ``skynav dataset info``). :func:`verify` re-reads every
+file: SHA-256 against the manifest, every frame's files present, ground truth parsed and checked
+against the ``skynav.frame/1`` schema (:func:`skynav.renderer.outputs.validate_truth`), counts
+(manifest, recipe, index rows, files on disk). Each problem is one line naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import layout
+
+__all__ = ["VerifyReport", "verify", "info"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class VerifyReport:
+    """Outcome of :func:`verify`.
+
+    Attributes
+    ----------
+    ok : bool
+        No problem found.
+    problems : list of str
+        One line each, e.g. ``frames/000003.png: SHA-256 mismatch (file altered or corrupt)``.
+    files_checked : int
+    frames : int
+    """
+
+    path: str
+    ok: bool
+    problems: list = field(default_factory=list)
+    files_checked: int = 0
+    frames: int = 0
+
+    def lines(self) -> list:
+        head = f"{self.path}: {'OK' if self.ok else 'FAILED'} ({self.frames} frames, {self.files_checked} files checked"
+        head += ")" if self.ok else f", {len(self.problems)} problem(s))"
+        return [head] + self.problems
+
+
+def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
+    """Check a dataset folder against its manifest; never raises for a damaged dataset.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    check_schema : bool
+        Parse every ground-truth JSON and validate it (slower; on by default).
+    progress : bool
+        Show a tqdm bar over the files.
+    """
+    from skynav.renderer.outputs import sha256_file, validate_truth
+
+    from .errors import DatasetError
+
+    root = Path(path)
+    problems: list = []
+    try:
+        m = layout.read_manifest(root)
+    except DatasetError as exc:
+        return VerifyReport(path=str(root), ok=False, problems=[str(exc)])
+    if m.get("complete") is not True:
+        c = m.get("counts", {})
+        problems.append(f"{layout.MANIFEST_NAME}: not complete ({c.get('frames_done')} of {c.get('frames')} frames)")
+    files = m.get("files", {})
+    formats = m.get("formats", [])
+    n = int(m.get("counts", {}).get("frames", 0))
+    recipe = m.get("recipe", {})
+    if recipe.get("kind") == "montecarlo" and recipe.get("frames") != n:
+        problems.append(f"{layout.MANIFEST_NAME}: counts.frames = {n} but the recipe asks for {recipe.get('frames')}")
+
+    expected = set()
+    for k in range(n):
+        expected.update(layout.frame_relpaths(k, formats).values())
+    for rel in sorted(expected - set(files)):
+        if (root / rel).is_file():
+            problems.append(f"{rel}: not recorded in the manifest")
+        else:
+            problems.append(f"{rel}: missing")
+    names = sorted(files)
+    it = names
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(names, unit="file", desc="verify")
+    checked = 0
+    for rel in it:
+        p = root / rel
+        if not p.is_file():
+            problems.append(f"{rel}: missing")
+            continue
+        checked += 1
+        sha_ok = sha256_file(p) == files[rel]
+        if rel.endswith(".json") and check_schema:
+            try:
+                truth = json.loads(p.read_bytes().decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+                problems.append(f"{rel}: truncated or invalid JSON ({exc.__class__.__name__} at byte {getattr(exc, 'pos', '?')})")
+                continue
+            bad = validate_truth(truth)
+            if bad:
+                problems.append(f"{rel}: ground truth does not follow skynav.frame/1 ({'; '.join(bad[:3])})")
+                continue
+        if not sha_ok:
+            problems.append(f"{rel}: SHA-256 mismatch (file altered or corrupt)")
+    # stray frame files (e.g. from a different run) are reported, not fatal
+    fdir = root / layout.FRAMES_DIR
+    if fdir.is_dir():
+        for p in sorted(fdir.iterdir()):
+            rel = f"{layout.FRAMES_DIR}/{p.name}"
+            if rel not in expected and not p.name.startswith("."):
+                problems.append(f"{rel}: unexpected file (not part of the dataset)")
+    if (root / layout.INDEX_NAME).is_file():
+        try:
+            rows = layout.read_index(root)
+            if len(rows) != n:
+                problems.append(f"{layout.INDEX_NAME}: {len(rows)} rows, expected {n}")
+        except Exception as exc:  # noqa: BLE001 - any parse failure is a problem line
+            problems.append(f"{layout.INDEX_NAME}: unreadable ({exc.__class__.__name__})")
+    elif m.get("complete") is True:
+        problems.append(f"{layout.INDEX_NAME}: missing")
+    return VerifyReport(path=str(root), ok=not problems, problems=problems, files_checked=checked, frames=n)
+
+
+def info(path) -> dict:
+    """Summary of a dataset for a table: ``{"rows": [(field, value), ...], ...}``.
+
+    Works on incomplete datasets too (it says so). Values are strings ready to print.
+    """
+    from skynav.scenes.camera import Camera
+
+    root = Path(path)
+    m = layout.read_manifest(root)
+    r = m["recipe"]
+    cam = Camera.from_dict(m["camera"])
+    c = m.get("counts", {})
+    size = sum((root / rel).stat().st_size for rel in m.get("files", {}) if (root / rel).is_file())
+    rows = [
+        ("path", str(root)),
+        ("kind", r["kind"] + (f" ({r['name']})" if r.get("name") else "")),
+        ("complete", "yes" if m.get("complete") else f"no ({c.get('frames_done')} of {c.get('frames')} frames)"),
+        ("frames", str(c.get("frames"))),
+        ("master seed", str(m.get("master_seed"))),
+        ("skynav version", str(m.get("version"))),
+        ("camera", f"{cam.width} x {cam.height} px, FOV {math.degrees(cam.fov_x_rad):.2f} deg, "
+                   f"f/{cam.f_number:g}, {cam.exposure_s:g} s, {cam.sensor.bit_depth}-bit"),
+        ("formats", ", ".join(m.get("formats", []))),
+        ("size", f"{size / 1e6:.1f} MB in {len(m.get('files', {}))} files"),
+    ]
+    if "scenes_drawn" in c:
+        frac = c["scenes_kept"] / c["scenes_drawn"] if c["scenes_drawn"] else math.nan
+        rows.append(("scenes drawn / kept", f"{c['scenes_drawn']} / {c['scenes_kept']} ({100 * frac:.1f} % kept)"))
+    plan = m.get("plan", {})
+    if "transfer" in plan:
+        t = plan["transfer"]
+        rows.append(("transfer", f"Earth {t['departure_tdb'][:10]} -> Mars {t['arrival_tdb'][:10]} "
+                                 f"({t['tof_days']:.0f} d, v_inf {t['v_inf_departure_km_s']:.2f} / {t['v_inf_arrival_km_s']:.2f} km/s)"))
+        rows.append(("cruise", f"{plan['cruise_start_tdb'][:16]} .. {plan['cruise_end_tdb'][:16]} TDB"))
+        rows.append(("pairs", ", ".join("/".join(p) for p in plan.get("pairs", []))))
+    visible = {}
+    epochs = []
+    if (root / layout.INDEX_NAME).is_file():
+        for row in layout.read_index(root):
+            epochs.append(row["epoch_tdb"])
+            for name in filter(None, row["visible_bodies"].split(";")):
+                visible[name] = visible.get(name, 0) + 1
+    if epochs:
+        rows.append(("epochs (TDB)", f"{min(epochs)} .. {max(epochs)}"))
+        rows.append(("frames with a visible body", ", ".join(f"{k} {v}" for k, v in sorted(visible.items(), key=lambda x: -x[1])) or "none"))
+    return {"rows": rows, "manifest": m}
