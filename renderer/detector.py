@@ -41,7 +41,10 @@ Two interchangeable implementations with identical statistics (not identical bit
   per pixel, seeded from two 64-bit words drawn from the caller's ``numpy.random.Generator``, so
   the same Generator state gives bit-identical frames on the same backend. Every per-frame
   number (gain, seeds, exposure ...) enters the kernel as an opaque variable, so the kernel is
-  compiled once and reused across frames, sensors and exposures.
+  compiled once and reused across frames, sensors and exposures. The inversion runs in float64
+  (the rest in float32): float32 pmf sums stall a few ulp below 1 and would return a spurious
+  far-tail value about once per 10^7 pixels. A normal approximation above a threshold was not
+  needed: PTRS costs a constant ~2 draws per pixel whatever the mean, and is exact.
 """
 
 from __future__ import annotations
@@ -90,7 +93,7 @@ class ExposureDetails:
 
 
 # --------------------------------------------------------------------------- fixed patterns
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=4)
 def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """PRNU gain map and dark-current map of a sensor, drawn once from ``params.pattern_seed``.
 
@@ -361,23 +364,27 @@ class Sensor:
 def _jit_charge(mean, extra, state):
     """Poisson(mean) (+ extra) as a lazy Dr.Jit Float, and the advanced PCG32 streams."""
     import drjit as dr
-    from drjit.llvm import PCG32, Bool, Float
+    from drjit.llvm import PCG32, Bool, Float, Float64
 
     pcg = PCG32(dr.width(mean), state[0], state[1])
     lam = dr.maximum(mean, 0.0)
     small = lam < POISSON_INVERSION_MAX_MEAN
 
     # -- sequential inversion (means < 10): smallest k with F(k) >= u.
-    u = pcg.next_float32()
-    p0 = dr.exp(-lam)
-    k0 = Float(0.0)
+    # In float64: float32 sums of the pmf can stall a few ulp below 1 and leave the rare u above
+    # them stuck until the cap (a spurious tail value ~1e-7 of the time); float64 with a 53-bit u
+    # resolves tail probabilities down to ~1e-15.
+    u = pcg.next_float64()
+    lam64 = Float64(lam)
+    p0 = dr.exp(-lam64)
+    k0 = Float64(0.0)
 
     def inv_cond(k, p, f):
         return small & (u > f) & (k < _INVERSION_MAX_K)
 
     def inv_body(k, p, f):
         k = k + 1.0
-        p = p * lam / k
+        p = p * lam64 / k
         return k, p, f + p
 
     k_small, _, _ = dr.while_loop((k0, p0, p0), inv_cond, inv_body, labels=("k", "p", "f"), label="poisson_inversion")
@@ -413,7 +420,7 @@ def _jit_charge(mean, extra, state):
         return rng, dr.select(accept, kk, k), done | accept
 
     pcg, k_big, _ = dr.while_loop((pcg, Float(0.0), Bool(small)), ptrs_cond, ptrs_body, labels=("rng", "k", "done"), label="poisson_ptrs")
-    n = dr.select(small, k_small, k_big)
+    n = dr.select(small, Float(k_small), k_big)
     if extra is not None:
         n = n + extra
     return n, pcg
