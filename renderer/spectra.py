@@ -257,7 +257,10 @@ def blackbody_w_m2_nm_shape(teff_k, wl) -> np.ndarray:
     ndarray, shape (M,) for scalar ``teff_k`` else (N, M); W m^-2 sr^-1 nm^-1 (the absolute
     scale is meaningless for a star: callers normalise it to a magnitude).
     """
-    from colour.colorimetry import planck_law
+    with warnings.catch_warnings():
+        # colour-science warns at import that matplotlib (plotting only) is absent
+        warnings.simplefilter("ignore")
+        from colour.colorimetry import planck_law
 
     wl = np.asarray(wl, dtype=float)
     t = np.asarray(teff_k, dtype=float)

@@ -2,8 +2,9 @@
 
 ``default``: the paper camera (paper 002 table 4) on an Earth-Mars cruise, 2027-02-01 TDB,
 1.2 AU from the Sun between the Earth and Mars (Mars is near opposition, 2027-02-19), moving at
-1.05 x the local circular speed in the ecliptic; the camera points at the brightest planet
-outside the Sun exclusion angle (Mars, V about -0.8 from there).
+1.05 x the local circular speed in the ecliptic; the camera points at Mars (V about -1.7 from
+there, 157 deg from the Sun). ``point_at: auto`` would pick the brightest planet outside the Sun
+exclusion angle instead (Venus, that day).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ DEFAULT_SCENE = {
         "position_km": [-128731399.4, 113269566.7, 51647643.2],
         "velocity_km_s": [-19.9093, -18.773, -8.1391],
     },
-    "attitude": {"point_at": "auto", "twist_deg": 0.0},
+    "attitude": {"point_at": "mars", "twist_deg": 0.0},
     "camera": {"preset": "paper"},
     "render": {"star_mag_limit": 9.0, "seed": 1},
 }

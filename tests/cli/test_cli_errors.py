@@ -1,0 +1,68 @@
+"""The command line: one clear line and exit code 2 for a user's mistake, never a traceback."""
+
+import subprocess
+import sys
+
+import pytest
+
+from skynav.cli import main
+
+GOOD = """
+epoch: "2027-02-01T00:00:00"
+observer:
+  position_km: [-128731399.4, 113269566.7, 51647643.2]
+  velocity_km_s: [-19.9093, -18.773, -8.1391]
+attitude: {point_at: mars}
+camera: {preset: paper}
+"""
+
+
+def run(argv, capsys):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (GOOD.replace("2027-02-01", "2100-01-01"), "de421.bsp covers"),
+        (GOOD.replace("point_at: mars", "point_at: pluto"), "unknown body 'pluto'"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, exposure_s: -0.1}"), "camera.exposure_s"),
+        (GOOD.replace("attitude: {point_at: mars}", "attitude: {point_at: mars"), "malformed YAML"),
+        (GOOD.replace("epoch:", "epcoh:"), "epcoh"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, sensor: {bit_depth: 24}}"), "sensor.bit_depth"),
+    ],
+    ids=["epoch-outside-de421", "unknown-body", "negative-exposure", "malformed-yaml", "unknown-key", "bit-depth"],
+)
+def test_bad_input_gives_one_line_and_exit_2(tmp_path, capsys, text, expected):
+    f = tmp_path / "scene.yaml"
+    f.write_text(text)
+    code, out, err = run(["scene", str(f)], capsys)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("skynav: error:"), err
+    assert expected in lines[0]
+    assert "Traceback" not in err
+
+
+def test_missing_file(capsys):
+    code, _, err = run(["scene", "no/such/file.yaml"], capsys)
+    assert code == 2 and "no such scene file" in err
+
+
+def test_entry_point_exit_code_and_version(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.replace("point_at: mars", "point_at: vulcan"))
+    p = subprocess.run([sys.executable, "-m", "skynav", "scene", str(bad)], capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "vulcan" in p.stderr
+    v = subprocess.run([sys.executable, "-m", "skynav", "--version"], capture_output=True, text=True)
+    assert v.returncode == 0 and v.stdout.startswith("skynav ")
+
+
+def test_help_on_every_command(capsys):
+    for argv in (["--help"], ["scene", "--help"], ["render", "--help"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 0
+    assert "render" in capsys.readouterr().out
