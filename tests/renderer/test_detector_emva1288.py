@@ -266,3 +266,13 @@ def test_bad_inputs():
         s.expose(np.zeros((4, 4)), 0.1, rng, backend="cuda")
     with pytest.raises(SensorInputError, match="Generator"):
         s.expose(np.zeros((4, 4)), 0.1, 42)
+
+
+def test_sensor_value_semantics():
+    import pickle
+
+    s = Sensor(PTC, (4, 6))
+    assert eval(repr(s), {"Sensor": Sensor, "SensorParams": SensorParams}) == s
+    t = pickle.loads(pickle.dumps(s))
+    assert t == s and hash(t) == hash(s)
+    assert s != Sensor(PTC, (6, 4))

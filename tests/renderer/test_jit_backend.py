@@ -112,3 +112,31 @@ def test_disable_switch_sends_sensor_to_numpy(fresh_probe, monkeypatch):
     assert d.backend == "numpy"
     with pytest.raises(jb.BackendUnavailableError, match="SKYNAV_DISABLE_LLVM"):
         s.expose(np.full((8, 8), 100.0), 0.1, np.random.default_rng(0), backend="llvm")
+
+
+def test_importing_renderer_does_not_initialise_llvm(tmp_path):
+    # A fresh interpreter imports every skynav.renderer module, THEN configure_llvm() points
+    # Dr.Jit at the good libLLVM, and an LLVM exposure runs: this only works if no import
+    # initialised the LLVM backend (with whatever default library) before.
+    import subprocess
+    import sys
+
+    status = jb.configure_llvm()
+    if not status.available:
+        pytest.skip(f"LLVM backend unavailable: {status.reason}")
+    code = (
+        "import importlib, pkgutil, os, sys\n"
+        "import skynav.renderer as R\n"
+        "for m in pkgutil.iter_modules(R.__path__):\n"
+        "    importlib.import_module('skynav.renderer.' + m.name)\n"
+        "from skynav.renderer import jit_backend, detector\n"
+        "from skynav.scenes.camera import SensorParams\n"
+        "import numpy as np\n"
+        "assert jit_backend.configure_llvm().available\n"
+        "d = detector.Sensor(SensorParams(), (8, 8)).expose_details(np.full((8, 8), 50.0), 0.1, np.random.default_rng(0), backend='llvm')\n"
+        "print('OK', d.backend)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    env["SKYNAV_CACHE_DIR"] = str(tmp_path)
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "OK llvm" in proc.stdout, proc.stderr[-2000:]
