@@ -1,0 +1,82 @@
+"""Speed of one default frame: 1024^2, stars to V = 9, full noise chain, no disk writes.
+
+Prints the median time of ``render`` (scene already built: catalog, ephemeris and radiometry
+tables warm) for the Dr.Jit LLVM sensor path and the numpy path, numpy's bare variate cost for
+one Poisson + one Gaussian per pixel measured in the same run, and the ratios. One thread:
+the CI machine's single core is the reference (``DRJIT_NUM_THREADS=1`` is set below).
+
+    python benchmarks/render_bench.py [--repeat 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("DRJIT_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+
+def median_ms(fn, repeat):
+    fn()  # warm-up (tables, kernels)
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(ts))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=15)
+    args = ap.parse_args()
+
+    from skynav.renderer import jit_backend
+    from skynav.renderer.render import RenderOptions, render
+    from skynav.scenes import presets
+    from skynav.scenes.scene import build_from_spec
+
+    status = jit_backend.configure_llvm()
+    try:
+        import drjit as dr
+
+        dr.set_thread_count(1)
+    except Exception:
+        pass
+    t0 = time.perf_counter()
+    scene = build_from_spec(presets.default_scene_spec())
+    t_scene = time.perf_counter() - t0
+    n_stars = int(scene.stars.in_fov.sum())
+    rng = np.random.default_rng(1)
+
+    results = {}
+    for backend in ("llvm", "numpy"):
+        if backend == "llvm" and not status.available:
+            print(f"llvm path: unavailable ({status.reason})")
+            continue
+        opts = RenderOptions(backend=backend)
+        results[backend] = median_ms(lambda: render(scene, rng=rng, options=opts), args.repeat)
+
+    n = scene.camera.width * scene.camera.height
+    lam = np.full(n, 20.0)
+
+    def variates():
+        rng.poisson(lam)
+        rng.standard_normal(n)
+
+    numpy_variates = median_ms(variates, args.repeat)
+    print(f"default frame: {scene.camera.width}x{scene.camera.height}, {n_stars} stars in view (V <= {scene.star_mag_limit:g}), "
+          f"full noise, no disk writes; scene build {1e3 * t_scene:.0f} ms (not counted)")
+    print(f"numpy variates (1 Poisson + 1 Gaussian per pixel): {numpy_variates:8.1f} ms")
+    for k, v in results.items():
+        print(f"render, {k:5s} sensor path:                     {v:8.1f} ms   ratio to numpy variates {v / numpy_variates:5.2f}")
+    if "llvm" in results and "numpy" in results:
+        print(f"llvm path speed-up over numpy path: {results['numpy'] / results['llvm']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
