@@ -78,11 +78,12 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     expected = set()
     for k in range(n):
         expected.update(layout.frame_relpaths(k, formats).values())
+    missing: dict = {}  # frame stem -> missing file names (one line per frame)
     for rel in sorted(expected - set(files)):
         if (root / rel).is_file():
             problems.append(f"{rel}: not recorded in the manifest")
         else:
-            problems.append(f"{rel}: missing")
+            missing.setdefault(rel.rsplit(".", 1)[0], []).append(rel)
     names = sorted(files)
     it = names
     if progress:
@@ -93,7 +94,7 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     for rel in it:
         p = root / rel
         if not p.is_file():
-            problems.append(f"{rel}: missing")
+            missing.setdefault(rel.rsplit(".", 1)[0], []).append(rel)
             continue
         checked += 1
         sha_ok = sha256_file(p) == files[rel]
@@ -109,6 +110,13 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
                 continue
         if not sha_ok:
             problems.append(f"{rel}: SHA-256 mismatch (file altered or corrupt)")
+    for stem, rels in sorted(missing.items()):
+        if stem.startswith(layout.FRAMES_DIR + "/"):
+            k = int(stem.split("/")[-1])
+            what = "frame missing" if len(rels) == len(formats) else "missing " + ", ".join(r.rsplit("/", 1)[-1] for r in rels)
+            problems.append(f"frame {k} ({stem}.*): {what}")
+        else:
+            problems.extend(f"{r}: missing" for r in rels)
     # stray frame files (e.g. from a different run) are reported, not fatal
     fdir = root / layout.FRAMES_DIR
     if fdir.is_dir():
