@@ -23,7 +23,7 @@ Model
 
 Where the charge goes in the chain
 ----------------------------------
-:func:`deposit` adds the charge to an electrons image. Hand that image to the sensor as
+:func:`deposit` adds the charge to an electrons image (in place). Hand that image to the sensor as
 ``extra_charge_e`` (``Sensor.expose(..., extra_charge_e=deposit(np.zeros(shape), hits))``): it
 is added AFTER the shot noise and before the full-well clipping, because a particle's charge has
 its own (Landau) statistics and is not Poisson-scaled with the optical signal, while it does
@@ -250,23 +250,26 @@ def draw_cosmic_rays(
     )
 
 
-def deposit(image_e, hits: CosmicRayHits) -> np.ndarray:
-    """Electrons image plus the cosmic-ray charge (a new float64 array).
+def deposit(image_e: np.ndarray, hits: CosmicRayHits) -> np.ndarray:
+    """Add the cosmic-ray charge to an electrons image, IN PLACE, and return that image.
 
-    Use the result as ``extra_charge_e`` of ``Sensor.expose`` (added after the shot noise; see
-    the module notes), e.g. ``deposit(np.zeros(shape), hits)``.
+    The intended use is the sensor's ``extra_charge_e`` (added after the shot noise; see the
+    module notes): ``Sensor.expose(signal, t, rng, extra_charge_e=deposit(np.zeros(shape), hits))``.
 
     Parameters
     ----------
-    image_e : array_like, shape (H, W), e-
+    image_e : ndarray, shape (H, W), float, e-
+        Modified in place (pass a copy to keep the original).
     hits : CosmicRayHits
 
     Returns
     -------
-    ndarray, shape (H, W), float64, e-
+    ndarray, shape (H, W), e-
+        ``image_e`` itself.
     """
-    img = np.array(image_e, dtype=np.float64, copy=True)
-    if img.shape != tuple(hits.shape):
-        raise ConfigValueError("cosmic_rays.image_shape", img.shape, f"the hits' sensor shape {tuple(hits.shape)}")
-    np.add.at(img, (hits.pixel_rows, hits.pixel_cols), hits.pixel_electrons)
-    return img
+    if not isinstance(image_e, np.ndarray) or image_e.dtype.kind != "f" or not image_e.flags.writeable:
+        raise ConfigValueError("cosmic_rays.image", type(image_e).__name__, "a writeable float numpy array (charge is added in place)")
+    if image_e.shape != tuple(hits.shape):
+        raise ConfigValueError("cosmic_rays.image_shape", image_e.shape, f"the hits' sensor shape {tuple(hits.shape)}")
+    np.add.at(image_e, (hits.pixel_rows, hits.pixel_cols), hits.pixel_electrons)
+    return image_e

@@ -271,6 +271,26 @@ class Sensor:
         """
         return self._run(electrons, exposure_s, rng, backend, extra_charge_e, details=True)
 
+    def expected_dn(self, electrons, exposure_s: float, *, extra_charge_e=None) -> np.ndarray:
+        """Noise-free digital numbers: the same chain with every noise term at its mean.
+
+        ``mean_e = electrons * PRNU + dark * exposure_s (+ extra)``, full well (or blooming),
+        ``floor(K mean_e + offset + 0.5)`` clipped to ``[0, 2^bits - 1]``. Fixed patterns are
+        included (they are not noise from frame to frame).
+
+        Returns
+        -------
+        ndarray, shape (H, W), uint8 (bit depth <= 8) or uint16
+        """
+        e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
+        p = self.params
+        gain, dark = fixed_patterns(p, self.shape)
+        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        if x is not None:
+            mean = mean + x
+        mean = bloom_columns(mean, p.full_well_e) if p.blooming else np.minimum(mean, p.full_well_e)
+        return self._quantise_numpy(mean)
+
     # ----------------------------------------------------------------- plumbing
     def _check_inputs(self, electrons, exposure_s, extra_charge_e):
         e = np.asarray(electrons)

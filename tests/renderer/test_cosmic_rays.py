@@ -55,7 +55,7 @@ def test_charge_conserved_and_every_hit_recorded(track_prob):
     hits = draw_cosmic_rays(shape, 30, rng, mode="fixed", track_prob=track_prob, max_track_length_px=12.0)
     assert len(hits) == 30
     base = rng.uniform(0, 10, shape)
-    out = deposit(base, hits)
+    out = deposit(base.copy(), hits)
     assert out.sum() - base.sum() == pytest.approx(hits.electrons.sum(), rel=1e-12)
     # every hit has charged pixels, and its recorded charge is the sum of them
     for i in range(len(hits)):
@@ -86,6 +86,8 @@ def test_deterministic_and_value_semantics():
     assert isinstance(a, CosmicRayHits)
     empty = draw_cosmic_rays((8, 8), 0.0, np.random.default_rng(0))
     assert len(empty) == 0 and np.array_equal(deposit(np.ones((8, 8)), empty), np.ones((8, 8)))
+    img = np.zeros((32, 32))
+    assert deposit(img, a) is img and img.sum() == pytest.approx(a.electrons.sum())  # in place
 
 
 def test_deposit_through_sensor_is_not_poisson_scaled():
@@ -108,3 +110,5 @@ def test_bad_config():
         ChargeModel(kind="gauss")
     with pytest.raises(ConfigValueError, match="shape"):
         deposit(np.zeros((4, 4)), draw_cosmic_rays((8, 8), 1, rng))
+    with pytest.raises(ConfigValueError, match="in place"):
+        deposit(np.zeros((8, 8), dtype=np.uint16), draw_cosmic_rays((8, 8), 1, rng))

@@ -276,3 +276,17 @@ def test_sensor_value_semantics():
     t = pickle.loads(pickle.dumps(s))
     assert t == s and hash(t) == hash(s)
     assert s != Sensor(PTC, (6, 4))
+
+
+def test_expected_dn_is_the_mean_of_the_noisy_chain():
+    s = Sensor(PTC, (32, 32))
+    e = np.random.default_rng(1).uniform(0, 40000, s.shape)
+    e[0, :4] = 1e6  # above the full well
+    exp_dn = s.expected_dn(e, 0.2)
+    assert exp_dn.dtype == np.uint16
+    frames = np.stack([s.expose(e, 0.2, np.random.default_rng(k), backend="numpy").astype(float) for k in range(40)])
+    K = PTC.gain_dn_per_e
+    mean_e = np.minimum(e * s.prnu_gain + s.dark_e_per_s * 0.2, PTC.full_well_e)
+    sd = np.sqrt((K * K * (mean_e + s.dark_noise_e**2) + 1 / 12) / 40)  # standard error of the mean
+    assert np.all(np.abs(frames.mean(axis=0) - exp_dn) < 5 * sd + 0.5)  # +0.5: expected_dn is rounded
+    assert np.all(exp_dn[0, :4] == np.floor(K * PTC.full_well_e + PTC.offset_dn + 0.5))
