@@ -1,0 +1,103 @@
+"""``skynav dataset``: generate, verify, info, preview (thin wrappers over skynav.datasets)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def _recipe(arg: str, count, seed):
+    from skynav import datasets
+
+    if arg in datasets.PRESETS:
+        recipe = datasets.preset_recipe(arg)
+    else:
+        path = Path(arg)
+        if not path.is_file():
+            from skynav.datasets.errors import RecipeError
+
+            raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
+        recipe = datasets.load_recipe_file(path)
+    if count is not None:
+        recipe["frames"] = count
+    if seed is not None:
+        recipe["seed"] = seed
+    return recipe
+
+
+def cmd_generate(args) -> int:
+    from skynav import datasets
+
+    if args.count is not None and args.count < 1:
+        print(f"skynav: error: --count {args.count}: expected a positive integer", file=sys.stderr)
+        return 2
+    if args.workers is not None and args.workers < 1:
+        print(f"skynav: error: --workers {args.workers}: expected a positive integer", file=sys.stderr)
+        return 2
+    recipe = _recipe(args.recipe, args.count, args.seed)
+    summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
+                                progress=not args.quiet)
+    for line in summary.lines():
+        print(line)
+    return 0
+
+
+def cmd_verify(args) -> int:
+    from skynav import datasets
+
+    report = datasets.verify(args.path, progress=not args.quiet)
+    for line in report.lines():
+        print(line)
+    return 0 if report.ok else 1
+
+
+def cmd_info(args) -> int:
+    from skynav import datasets
+
+    rows = datasets.info(args.path)["rows"]
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{width}}  {v}")
+    return 0
+
+
+def cmd_preview(args) -> int:
+    from skynav import datasets
+
+    out = args.output or str(Path(args.path) / "preview.png")
+    path = datasets.preview(args.path, out, count=args.count, columns=args.columns)
+    print(f"contact sheet: {path}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    d = sub.add_parser("dataset", help="generate, verify, inspect and preview datasets",
+                       description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
+    dsub = d.add_subparsers(dest="dataset_command", metavar="ACTION")
+    g = dsub.add_parser("generate", help="render a recipe into a dataset folder (resumes a partial one)",
+                        description="Render a recipe (YAML file, or a preset: montecarlo, sequence, scenes) into a "
+                        "dataset folder. Re-running the same command on a partly written folder renders only what is missing.")
+    g.add_argument("recipe", help="recipe YAML file or preset name")
+    g.add_argument("-o", "--output", required=True, help="dataset folder")
+    g.add_argument("--count", type=int, default=None, help="number of frames (overrides the recipe)")
+    g.add_argument("--seed", type=int, default=None, help="master seed (overrides the recipe)")
+    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    g.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    g.set_defaults(func=cmd_generate)
+    v = dsub.add_parser("verify", help="check checksums, schema and counts", description="Verify a dataset: "
+                        "SHA-256 of every file, ground-truth schema, frame counts. Exit code 1 if a problem is found.")
+    v.add_argument("path")
+    v.add_argument("-q", "--quiet", action="store_true")
+    v.set_defaults(func=cmd_verify)
+    i = dsub.add_parser("info", help="print a summary table", description="Print a summary of a dataset.")
+    i.add_argument("path")
+    i.set_defaults(func=cmd_info)
+    p = dsub.add_parser("preview", help="write a contact sheet PNG with ground-truth overlays",
+                        description="Write a contact sheet PNG of a dataset with star circles and body labels.")
+    p.add_argument("path")
+    p.add_argument("-o", "--output", default=None, help="PNG path (default: DATASET/preview.png)")
+    p.add_argument("--count", type=int, default=16)
+    p.add_argument("--columns", type=int, default=4)
+    p.set_defaults(func=cmd_preview)
+    d.set_defaults(func=lambda args: (d.print_help(), 2)[1])
