@@ -22,7 +22,21 @@ DEFAULT_SCENE = {
     "render": {"star_mag_limit": 9.0, "seed": 1},
 }
 
-PRESETS = {"default": DEFAULT_SCENE}
+#: Ten days after an Earth departure, 1.2 million km out, looking back: the Earth (~31 px across)
+#: at 58 deg phase and the Moon (~8 px) 6 deg from it, both resolved and ray-traced by Mitsuba.
+EARTH_DEPARTURE_SCENE = {
+    "epoch": "2026-12-05T00:00:00",
+    "observer": {
+        "relative_to": "earth",
+        "position_km": [-1161280.1, -240597.3, -183143.3],
+        "velocity_km_s": [-1.2, -0.25, -0.19],
+    },
+    "attitude": {"point_at": "earth", "twist_deg": 0.0},
+    "camera": {"preset": "paper", "exposure_s": 0.01},
+    "render": {"star_mag_limit": 9.0, "seed": 2},
+}
+
+PRESETS = {"default": DEFAULT_SCENE, "earth_departure": EARTH_DEPARTURE_SCENE}
 
 
 def preset_mapping(name: str = "default") -> dict:

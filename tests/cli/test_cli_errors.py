@@ -66,3 +66,19 @@ def test_help_on_every_command(capsys):
             main(argv)
         assert exc.value.code == 0
     assert "render" in capsys.readouterr().out
+
+
+def test_render_default_writes_viewable_png_with_a_visible_planet(tmp_path, capsys):
+    from skynav.renderer.outputs import read_png, read_truth_json, validate_truth
+
+    code = main(["render", "-o", str(tmp_path), "--backend", "numpy"])
+    out = capsys.readouterr().out
+    assert code == 0 and "mars" in out
+    dn = read_png(tmp_path / "frame.png")
+    truth = read_truth_json(tmp_path / "frame.json")
+    assert validate_truth(truth) == []
+    mars = next(b for b in truth["bodies"] if b["name"] == "mars")
+    assert mars["visible"] and mars["in_fov"]
+    x, y = (int(round(c)) for c in mars["xy"])
+    assert dn[y, x] > 100  # the planet stands out of the dark sky (8-bit DN)
+    assert (tmp_path / "frame.exr").is_file()
