@@ -7,8 +7,10 @@ Order of operations (all in expected electrons until the detector):
 2. the pixel-integrated PSF is integrated along each path (:mod:`raster`);
 3. resolved bodies are ray-traced by Mitsuba (:mod:`mitsuba_backend`) in crop windows, blurred by
    the same PSF and added;
-4. a uniform sky background, then cosmic-ray charge;
-5. the sensor (:mod:`detector`) turns expected electrons into digital counts.
+4. a uniform sky background;
+5. the sensor (:mod:`detector`) turns expected electrons into digital counts; cosmic-ray charge
+   joins after shot noise and PRNU, before the full-well limit. The ``electrons`` EXR channel
+   holds sources + background + cosmic-ray charge (no noise).
 
 The random stream is one ``numpy.random.Generator``: cosmic rays draw from it first, then the
 sensor; so a frame is reproduced bit for bit from its seed (per backend).
@@ -185,16 +187,16 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     if options.background_e_per_px_s > 0:
         electrons += options.background_e_per_px_s * T
 
-    # --- cosmic rays: charge deposited in the expected-electron image (not Poisson-scaled)
+    # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
     hits = cr.draw_cosmic_rays(shape, cam.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode)
-    signal = electrons.copy()
-    cr.deposit(signal, hits)
+    cr_charge = cr.deposit(np.zeros(shape), hits)
 
     sensor = Sensor(cam.sensor, shape)
     if options.noise:
-        dn = sensor.expose(signal, T, rng, backend=options.backend)
+        dn = sensor.expose(electrons, T, rng, backend=options.backend, extra_charge_e=cr_charge)
     else:
-        dn = sensor.expected_dn(signal, T)
+        dn = sensor.expected_dn(electrons + cr_charge, T)
+    signal = electrons + cr_charge
     truth = frame_truth(scene, star_electrons=star_e, body_electrons=body_e, resolved=resolved_truth,
                         hits=hits, seed=seed, options=options)
     return Frame(dn=dn, electrons=signal.astype(np.float32), irradiance_w_m2=irradiance.astype(np.float32), truth=truth)
