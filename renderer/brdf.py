@@ -55,6 +55,7 @@ __all__ = [
     "far_field_disk",
     "lambert_phase_function",
     "lambert_photocentre_offset",
+    "photocentre_offset_xy",
 ]
 
 #: V-band geometric albedos. Planets: Mallama, Krobusek & Pavlov (2017), Icarus 282, 19, table 8
@@ -232,3 +233,42 @@ def lambert_photocentre_offset(phase_angle_rad) -> np.ndarray:
     """
     g = np.asarray(phase_angle_rad, dtype=float)
     return 3.0 * np.pi / 16.0 * np.sin(g) * (1.0 + np.cos(g)) / (np.sin(g) + (np.pi - g) * np.cos(g))
+
+
+def photocentre_offset_xy(camera, R_cam_icrs, body, brdf: BRDF | None = None, *, n: int = 200) -> np.ndarray:
+    """Far-field photocentre minus centre of figure of a body on the image, px.
+
+    What the point-source path must add to ``body.xy`` so that an unresolved body's centroid
+    continues the resolved rendering's photocentre across the resolved threshold: the
+    :func:`far_field_disk` offset (in radii) of ``brdf`` at the body's phase angle, times the
+    apparent radius ``f tan(asin(R / d))``, along the image direction of the Sun's projection.
+
+    Parameters
+    ----------
+    camera : skynav.scenes.camera.Camera
+    R_cam_icrs : ndarray, shape (3, 3)
+    body : skynav.scenes.scene.BodyInView
+    brdf : BRDF, optional (default :func:`default_brdf` of the body)
+
+    Returns
+    -------
+    ndarray, shape (2,), px
+    """
+    brdf = brdf or default_brdf(body.name)
+    u = np.asarray(body.u_icrs, dtype=float)
+    u = u / np.linalg.norm(u)
+    s = np.asarray(body.sun_position_km, dtype=float) - np.asarray(body.position_km, dtype=float)
+    s = s / np.linalg.norm(s)
+    e = s - (s @ u) * u
+    ne = float(np.linalg.norm(e))
+    if ne < 1e-12:
+        return np.zeros(2)
+    e /= ne
+    alpha = math.acos(float(np.clip(-(u @ s), -1.0, 1.0)))
+    R = np.asarray(R_cam_icrs, dtype=float)
+    eps = 1e-6
+    xy = camera.project(np.stack([R @ u, R @ (u + eps * e)]))
+    d = xy[1] - xy[0]
+    d /= np.linalg.norm(d)
+    radius_px = camera.focal_length_px * math.tan(math.asin(body.radius_km / body.distance_km))
+    return d * far_field_disk(brdf, alpha, n=n)[1] * radius_px

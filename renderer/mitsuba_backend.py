@@ -424,6 +424,11 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
     return entry
 
 
+def _set(params, key: str, value) -> None:
+    """Assign a NumPy value to a traversed parameter, in the parameter's own (variant) type."""
+    params[key] = type(params[key])(value)
+
+
 # ------------------------------------------------------------------------------ public API
 def render_resolved_body(
     scene,
@@ -495,21 +500,21 @@ def render_resolved_body(
     params = entry.params
 
     # body: sphere radius sin_r at the origin (world unit = observer-body distance)
-    params["body.to_world"] = mi.Transform4f(np.diag([sin_r, sin_r, sin_r, 1.0]))
+    _set(params, "body.to_world", np.diag([sin_r, sin_r, sin_r, 1.0]))
     # Sun: light travels from the Sun to the body; 1/r^2 from 1 AU
     body_pos = np.asarray(body.position_km, dtype=float)
     sun_vec = body_pos - np.asarray(body.sun_position_km, dtype=float)
     r_sun_km = float(np.linalg.norm(sun_vec))
-    params["sun.to_world"] = mi.Transform4f(_frame_z(sun_vec))
+    _set(params, "sun.to_world", _frame_z(sun_vec))
     sun_e = spectra.solar_irradiance_1au_w_m2_nm(spectra.WAVELENGTHS_NM) * (AU_KM / r_sun_km) ** 2
-    params["sun.irradiance.values"] = mi.Float(np.asarray(sun_e, dtype=np.float32))
+    _set(params, "sun.irradiance.values", np.asarray(sun_e, dtype=np.float32))
 
     acc = np.zeros((h, w))
     for k in range(len(dt)):
         shift = xy_dist[k] - xy_pin[k]  # distortion as a local translation
-        params["sensor.to_world"] = mi.Transform4f(_to_world(R_t[k], -u))
-        params["sensor.principal_point_offset_x"] = ((w - 1) / 2.0 - (cam.cx + shift[0] - x0)) / w
-        params["sensor.principal_point_offset_y"] = ((h - 1) / 2.0 - (cam.cy + shift[1] - y0)) / h
+        _set(params, "sensor.to_world", _to_world(R_t[k], -u))
+        _set(params, "sensor.principal_point_offset_x", float(((w - 1) / 2.0 - (cam.cx + shift[0] - x0)) / w))
+        _set(params, "sensor.principal_point_offset_y", float(((h - 1) / 2.0 - (cam.cy + shift[1] - y0)) / h))
         params.update()
         seed = int(rng.integers(0, 2**31 - 1))
         img = mi.render(entry.scene, spp=entry.spp, seed=seed)
