@@ -118,7 +118,7 @@ def _fmt(x) -> str:
     if x is None:
         return ""
     if isinstance(x, float):
-        return repr(x) if math.isfinite(x) else ""
+        return repr(float(x)) if math.isfinite(x) else ""
     return str(x)
 
 

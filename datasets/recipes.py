@@ -304,7 +304,7 @@ def load_recipe_file(path) -> dict:
 
     import yaml
 
-    if isinstance(path, str) and path in PRESETS and not os.path.exists(path):
+    if isinstance(path, str) and path in PRESETS and not os.path.isfile(path):
         return validate_recipe(preset_recipe(path))
     try:
         with open(path, "rb") as f:

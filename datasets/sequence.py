@@ -281,7 +281,7 @@ class SequencePlan:
         t = t[t <= self.t_end]
         r, v = self.trajectory.state(t)
         lines = ["epoch_tdb,t_tdb_s,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s"]
-        for ti, ri, vi in zip(t, np.atleast_2d(r), np.atleast_2d(v)):
+        for ti, ri, vi in zip(t.tolist(), np.atleast_2d(r).tolist(), np.atleast_2d(v).tolist()):
             lines.append(f"{epoch_iso(ti)},{ti!r},{ri[0]!r},{ri[1]!r},{ri[2]!r},{vi[0]!r},{vi[1]!r},{vi[2]!r}")
         return "\n".join(lines) + "\n"
 
@@ -291,8 +291,8 @@ class SequencePlan:
 
         lines = ["leg,phase,target,start_tdb,end_tdb,start_tdb_s,end_tdb_s,duration_s"]
         for w in self.windows:
-            lines.append(f"{w.leg},{w.phase},{w.target or ''},{epoch_iso(w.start_tdb_s)},{epoch_iso(w.end_tdb_s)},"
-                         f"{w.start_tdb_s!r},{w.end_tdb_s!r},{w.end_tdb_s - w.start_tdb_s!r}")
+            t0, t1 = float(w.start_tdb_s), float(w.end_tdb_s)
+            lines.append(f"{w.leg},{w.phase},{w.target or ''},{epoch_iso(t0)},{epoch_iso(t1)},{t0!r},{t1!r},{t1 - t0!r}")
         return "\n".join(lines) + "\n"
 
     def side_files(self) -> dict:
