@@ -254,8 +254,13 @@ def test_other_brdfs_against_far_field_disk_quadrature(mitsuba_variant, body_sce
                              distance_km=1.0e8, camera=cam)
     law = BRDF(kind=kind, reflectance_550=0.5)
     ref = BRDF(kind="lambert", reflectance_550=0.5)
-    a = render_resolved_body(scene, body, spp=16, brdf=law, normalize="none")
-    b = render_resolved_body(scene, body, spp=16, brdf=ref, normalize="none")
+    # 256 spp: the bright Lommel-Seeliger limb makes the 16-spp centroid noise ~0.015 px (measured
+    # over seeds); at 256 spp it is < 0.007 px. The scalar fallback runs the Python BSDFs per ray,
+    # so it renders 16 spp and gets a noise-sized tolerance.
+    jit = not mitsuba_variant.startswith("scalar")
+    spp = 256 if jit else 16
+    a = render_resolved_body(scene, body, spp=spp, brdf=law, normalize="none")
+    b = render_resolved_body(scene, body, spp=spp, brdf=ref, normalize="none")
     g = body.phase_angle_rad
     i_law, x_law = far_field_disk(law, g)
     i_ref, _ = far_field_disk(ref, g)
@@ -268,7 +273,7 @@ def test_other_brdfs_against_far_field_disk_quadrature(mitsuba_variant, body_sce
     # 2e-3: limb/terminator MC noise of a 100 px disk at 16 spp plus the far-field quadrature
     # (n = 400 Gauss-Legendre, ~1e-5) and O(R/D) = 2e-4 terms
     assert abs(ratio) < 2e-3
-    assert err < 0.02  # px (radius 50 px: 4e-4 of the radius)
+    assert err < (0.02 if jit else 0.06)  # px (radius 50 px: 4e-4 of the radius)
 
 
 def test_streak_time_samples_average_the_attitude_path(mitsuba_variant, body_scene):
