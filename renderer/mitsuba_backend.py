@@ -34,6 +34,9 @@ Sun: ``directional`` emitter, EXPLICIT ``irregular`` spectrum on
 :data:`skynav.renderer.spectra.WAVELENGTHS_NM`: ``E(lambda) = E_1AU(lambda) (1 AU / r)^2``
 (W m^-2 nm^-1) with ``r`` the body-Sun distance at emission; travelling from
 ``sun_position_km`` to ``position_km``. (A plain number would silently become a D65 shape.)
+The node values are the CALSPEC solar spectrum AVERAGED over each node's 5 nm cell
+(:func:`solar_irradiance_nodes_w_m2_nm`): point samples of a spectrum full of Fraunhofer lines
+put the in-band integral 1.2-1.5e-3 off the full-resolution one; cell averages, 5-8e-5.
 
 BSDF: reflectance ``k(lambda) = reflectance_550 * reflectance_shape(body, lambda)``.
 
@@ -77,6 +80,7 @@ animated transforms: ``time_samples`` sub-frames each update the sensor transfor
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections import OrderedDict
@@ -99,6 +103,7 @@ __all__ = [
     "crop_window",
     "current_variant",
     "clear_cache",
+    "solar_irradiance_nodes_w_m2_nm",
 ]
 
 #: Default angular diameter (px) above which a body is ray-traced (the scene sets the
@@ -257,6 +262,26 @@ def _pixel_solid_angle(camera, x0: int, y0: int, w: int, h: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ Mitsuba scene
+@functools.lru_cache(maxsize=4)
+def _solar_cells_1au(wl_key: tuple) -> np.ndarray:
+    wl = np.asarray(wl_key)
+    edges = np.concatenate([[wl[0]], 0.5 * (wl[1:] + wl[:-1]), [wl[-1]]])
+    out = np.empty_like(wl)
+    for i in range(wl.size):
+        lo, hi = edges[i], edges[i + 1]
+        # cells are half-open at the ends of the grid; widen them symmetrically there
+        half = max(wl[i] - lo, hi - wl[i])
+        x = np.linspace(wl[i] - half, wl[i] + half, 401)
+        out[i] = np.trapezoid(spectra.solar_irradiance_1au_w_m2_nm(x), x) / (2.0 * half)
+    return out
+
+
+def solar_irradiance_nodes_w_m2_nm(r_sun_km: float) -> np.ndarray:
+    """The Sun's spectral irradiance at ``r_sun_km`` on :data:`spectra.WAVELENGTHS_NM`, each node
+    the average over its cell (half-way to the neighbours), W m^-2 nm^-1; shape (M,)."""
+    return _solar_cells_1au(tuple(float(x) for x in spectra.WAVELENGTHS_NM)) * (AU_KM / float(r_sun_km)) ** 2
+
+
 def _spectrum_dict(wl, values) -> dict:
     return {
         "type": "irregular",
@@ -380,7 +405,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
 
     _register_bsdfs(variant)
     fov_x_deg = math.degrees(2.0 * math.atan(0.5 * w / camera.focal_length_px))
-    sun = spectra.solar_irradiance_1au_w_m2_nm(wl)
+    sun = solar_irradiance_nodes_w_m2_nm(AU_KM)
     scene = mi.load_dict({
         "type": "scene",
         "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
@@ -506,7 +531,7 @@ def render_resolved_body(
     sun_vec = body_pos - np.asarray(body.sun_position_km, dtype=float)
     r_sun_km = float(np.linalg.norm(sun_vec))
     _set(params, "sun.to_world", _frame_z(sun_vec))
-    sun_e = spectra.solar_irradiance_1au_w_m2_nm(spectra.WAVELENGTHS_NM) * (AU_KM / r_sun_km) ** 2
+    sun_e = solar_irradiance_nodes_w_m2_nm(r_sun_km)
     _set(params, "sun.irradiance.values", np.asarray(sun_e, dtype=np.float32))
 
     acc = np.zeros((h, w))
