@@ -38,7 +38,7 @@ def _independent_fraction(n: int, seed: int, camera) -> float:
     for _ in range(n):
         t = rng.uniform(t0, t1)
         r = R_icrs_ecl @ (rng.normal(size=3) * np.array([3.0, 3.0, 0.07]) * au)
-        R = radec_twist_to_dcm(rng.uniform(0, 2 * math.pi), rng.normal(0, 0.2), rng.uniform(0, 2 * math.pi)) @ R_icrs_ecl
+        R = radec_twist_to_dcm(rng.uniform(0, 2 * math.pi), rng.normal(0, 0.2), rng.uniform(0, 2 * math.pi)) @ R_icrs_ecl.T
         for name in SCENE_BODIES:
             xy = camera.project((R @ (eph.position(name, t) - r))[None])
             if camera.in_image(xy)[0]:
