@@ -51,8 +51,8 @@ def test_dask_local_cluster_identical(reference_dataset, tmp_path):
     _, _, ref = reference_dataset
     # real distributed: scheduler + 2 worker processes (spawned), one thread each
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        with distributed.Client(cluster) as client:
-            s = generate(small_recipe(), tmp_path / "ds", client=client, progress=False)
+        # by address, as a remote scheduler would be given (generate opens and closes its Client)
+        s = generate(small_recipe(), tmp_path / "ds", dask_scheduler=cluster.scheduler_address, progress=False)
     assert s.executor == "dask" and s.workers == 2
     assert tree_sha256(tmp_path / "ds") == ref
 
