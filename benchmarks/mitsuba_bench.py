@@ -40,7 +40,8 @@ _WORKER = textwrap.dedent(
     times, kernels, hits, seen = [], [], [], set()
     for k in range(n_frames):
         scene, body = make_body_scene(xy=(400.0 + 7.3 * k, 500.0 - 3.1 * k), diameter_px=80.0,
-                                      phase_deg=30.0 + 5.0 * k, distance_km=3.844e5, name="moon")
+                                      phase_deg=30.0 + 5.0 * k, distance_km=3.844e5 + 1e3 * k, name="moon",
+                                      sun_distance_km=1.5e8 + 1e5 * k)
         t = time.perf_counter()
         img = mb.render_resolved_body(scene, body, spp=16, rng=k, variant=variant)
         times.append(time.perf_counter() - t)

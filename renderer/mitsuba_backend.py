@@ -71,7 +71,9 @@ Kernel reuse
 ------------
 One Mitsuba scene per (variant, crop size, fov, BRDF, body reflectance); a frame only updates
 parameters through ``mi.traverse``: sensor ``to_world`` and principal point, sphere
-``to_world``, Sun ``to_world`` and irradiance. Crop sizes are rounded up to multiples of
+``to_world``, Sun ``to_world``. The Sun's spectrum stays at 1 AU in the scene and the
+``(1 AU / r)^2`` factor multiplies the film values (the rendering is linear in it): updating a
+141-node spectrum every frame would launch (and, at first, compile) extra kernels. Crop sizes are rounded up to multiples of
 :data:`CROP_QUANTUM_PX` so a moving, slowly growing body keeps hitting the same scene, and the
 compiled kernels are reused (``benchmarks/mitsuba_bench.py`` counts them). Mitsuba 3.9 has no
 animated transforms: ``time_samples`` sub-frames each update the sensor transform from
@@ -531,8 +533,9 @@ def render_resolved_body(
     sun_vec = body_pos - np.asarray(body.sun_position_km, dtype=float)
     r_sun_km = float(np.linalg.norm(sun_vec))
     _set(params, "sun.to_world", _frame_z(sun_vec))
-    sun_e = solar_irradiance_nodes_w_m2_nm(r_sun_km)
-    _set(params, "sun.irradiance.values", np.asarray(sun_e, dtype=np.float32))
+    # The emitter keeps its 1 AU spectrum (no per-frame spectral update, no recompilation); the
+    # rendering is linear in the irradiance, so the 1/r^2 factor is applied to the film values.
+    inv_r2 = (AU_KM / r_sun_km) ** 2
 
     acc = np.zeros((h, w))
     for k in range(len(dt)):
@@ -544,7 +547,7 @@ def render_resolved_body(
         seed = int(rng.integers(0, 2**31 - 1))
         img = mi.render(entry.scene, spp=entry.spp, seed=seed)
         acc += np.asarray(img, dtype=np.float64).reshape(h, w)
-    value = acc / len(dt)  # time-averaged film value, W m^-2 sr^-1 (SRF-weighted)
+    value = acc * (inv_r2 / len(dt))  # time-averaged film value at r_sun, W m^-2 sr^-1 (SRF-weighted)
 
     e_per_s = value * _pixel_solid_angle(cam, x0, y0, w, h) * (cam.aperture_area_m2 * LAMBDA_REF_NM * 1e-9 / (_H_J_S * _C_M_S))
     electrons = e_per_s * cam.exposure_s
