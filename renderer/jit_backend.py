@@ -364,13 +364,14 @@ def select_mitsuba_variant() -> tuple[str, str]:
     else:
         llvm = configure_llvm()
         if llvm.available:
-            variant, reason = "llvm_ad_spectral", f"{llvm.reason}; CUDA: {cuda.reason}"
+            variant, reason = "llvm_ad_spectral", f"{llvm.reason}; no usable CUDA GPU"
         else:
-            variant, reason = "scalar_spectral", f"LLVM: {llvm.reason}; CUDA: {cuda.reason}"
+            variant, reason = "scalar_spectral", f"LLVM: {llvm.reason}; no usable CUDA GPU"
     with _lock:
         if not _variant_notice_done:
             _variant_notice_done = True
             log.warning("skynav: Mitsuba variant %s (%s)", variant, reason)
+            log.debug("CUDA probe: %s", cuda.reason)
     return variant, reason
 
 

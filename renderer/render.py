@@ -168,6 +168,16 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     e_pts = np.concatenate([star_e, np.array([body_e[b.name] for b in points])])
     irr_pts = np.concatenate([star_irr, np.array([body_irr[b.name] for b in points])])
     paths = source_paths(scene, u_pts, options)
+    # unresolved bodies are drawn at their photocentre (far-field BRDF offset along the Sun's
+    # projection), so the centroid is continuous across the resolved threshold
+    from .brdf import photocentre_offset_xy
+
+    body_photocentre = {}
+    for j, b in enumerate(points):
+        off = np.asarray(photocentre_offset_xy(cam, scene.R_cam_icrs, b), dtype=float)
+        if np.all(np.isfinite(off)):
+            paths[len(star_e) + j] += off
+            body_photocentre[b.name] = np.asarray(b.xy, dtype=float) + off
     electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
     irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
 
@@ -177,10 +187,10 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
         from .mitsuba_backend import render_resolved_body
 
         img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples)
-        crop = psf.blur(img.electrons) if hasattr(psf, "blur") else img.electrons
-        _add_crop(electrons, crop, img.x0, img.y0)
+        crop, pad = blur_crop(img.electrons, psf, options.flux_fraction_lost)
+        _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad)
         scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
-        _add_crop(irradiance, crop * scale, img.x0, img.y0)
+        _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
         body_e[b.name] = float(img.electrons_total)
         resolved_truth[b.name] = img
 
@@ -198,8 +208,27 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
         dn = sensor.expected_dn(electrons + cr_charge, T)
     signal = electrons + cr_charge
     truth = frame_truth(scene, star_electrons=star_e, body_electrons=body_e, resolved=resolved_truth,
-                        hits=hits, seed=seed, options=options)
+                        hits=hits, seed=seed, options=options, body_photocentre=body_photocentre)
     return Frame(dn=dn, electrons=signal.astype(np.float32), irradiance_w_m2=irradiance.astype(np.float32), truth=truth)
+
+
+def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float):
+    """Convolve a pixel-binned crop with the PSF, padded so no flux is lost.
+
+    The kernel is the PSF integrated over one pixel centred on each integer offset (separable),
+    normalised to 1 so the crop's total is conserved. Returns (blurred crop, pad in px).
+    """
+    sigma = float(getattr(psf, "sigma_px", 0.0))
+    if sigma <= 0.0:
+        return crop, 0
+    h = int(psf.half_size_px(flux_fraction_lost))
+    k = np.asarray(psf.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
+    k /= k.sum()
+    padded = np.pad(np.asarray(crop, dtype=float), h)
+    from scipy.ndimage import convolve1d
+
+    out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
+    return out, h
 
 
 def _near_image(cam, body, margin_px: float = 50.0) -> bool:

@@ -29,7 +29,7 @@ def _seed_record(seed):
     return int(seed)
 
 
-def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, options) -> dict:
+def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, options, body_photocentre=None) -> dict:
     """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays)."""
     from skynav import renderer  # noqa: F401  (package version below)
 
@@ -90,6 +90,9 @@ def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, 
             d["mitsuba_variant"] = img.variant
         else:
             d["rendered_as"] = "point" if b.in_fov else "none"
+            pc = (body_photocentre or {}).get(b.name)
+            if pc is not None:
+                d["photocentre_xy"] = [float(pc[0]), float(pc[1])]
         body_list.append(d)
     cr_list = [{"xy": [float(x), float(y)], "electrons": float(e), **({"pixels": p} if p is not None else {})}
                for (x, y), e, p in _hit_records(hits)]
