@@ -253,27 +253,11 @@ class ScenesPlan:
         self._eph = ephemeris
 
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
-        from skynav.scenes.ephemeris_jpl import default_ephemeris
-        from skynav.scenes.scene import brightest_visible_body, sky_bodies
+        from skynav.scenes.scene import resolve_spec
 
         spec = self.specs[k]
-        eph = self._eph or default_ephemeris()
-        t = float(tdb_seconds(spec.epoch_tdb_iso))
-        r = np.asarray(spec.position_km, dtype=float)
-        v = np.asarray(spec.velocity_km_s, dtype=float)
-        if spec.relative_to:
-            rb, vb = eph.position_velocity(spec.relative_to, t)
-            r, v = r + rb, v + vb
-        sky = sky_bodies(t, r, v, ephemeris=eph)
         a = spec.attitude
-        if a.point_at is not None:
-            target = (brightest_visible_body(sky[0], spec.camera) if a.point_at == "auto"
-                      else next(b for b in sky[0] if b.name == a.point_at))
-            R = frames.point_boresight(target.directions.u_apparent, a.twist_rad)
-        elif a.q_cam_icrs is not None:
-            R = frames.quat_to_dcm(np.asarray(a.q_cam_icrs))
-        else:
-            R = frames.radec_twist_to_dcm(a.ra_rad, a.dec_rad, a.twist_rad)
+        t, r, v, R, sky = resolve_spec(spec, ephemeris=self._eph)
         meta = {"kind": "scenes", "frame": int(k)}
         return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R,
                             angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky)

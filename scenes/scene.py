@@ -302,8 +302,12 @@ def build_scene(
                  star_mag_limit=float(star_mag_limit))
 
 
-def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
-    """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
+def resolve_spec(spec, *, ephemeris=None):
+    """Observer state, attitude and sky of a :class:`skynav.scenes.config.SceneSpec`.
+
+    Returns ``(t_tdb_s, position_km, velocity_km_s, R_cam_icrs, sky)`` where ``sky`` is the
+    :func:`sky_bodies` result (reused by :func:`build_scene`).
+    """
     from . import frames
     from .ephemeris_jpl import default_ephemeris
     from .timescales import tdb_seconds
@@ -327,6 +331,16 @@ def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
         R = frames.quat_to_dcm(np.asarray(a.q_cam_icrs))
     else:
         R = frames.radec_twist_to_dcm(a.ra_rad, a.dec_rad, a.twist_rad)
+    return t, r, v, R, sky
+
+
+def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
+    """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
+    from .ephemeris_jpl import default_ephemeris
+
+    eph = ephemeris or default_ephemeris()
+    t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
+    a = spec.attitude
     return build_scene(t, position_km=r, velocity_km_s=v, R_cam_icrs=R, camera=spec.camera,
                        angular_velocity_rad_s=a.angular_velocity_rad_s, star_mag_limit=spec.star_mag_limit,
                        resolved_threshold_px=spec.resolved_threshold_px, ephemeris=eph, catalog=catalog, sky=sky)
