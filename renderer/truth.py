@@ -31,7 +31,6 @@ def _seed_record(seed):
 
 def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, options, body_photocentre=None) -> dict:
     """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays)."""
-    from skynav import renderer  # noqa: F401  (package version below)
 
     cam = scene.camera
     t = time_from_tdb_seconds(scene.epoch_tdb_s)
