@@ -190,6 +190,17 @@ class Ephemeris:
         EphemerisRangeError
             An epoch is outside the kernel (``.time_mask`` marks which).
         """
+        return self._states(body, t_tdb_s, offset_s, velocity=True)
+
+    def position(self, body: str, t_tdb_s, *, offset_s=0.0):
+        """Barycentric ICRS position, km; shape (3,) or (N, 3). See :meth:`position_velocity`.
+
+        Evaluates the Chebyshev series only (no derivative): about half the cost, the same bits
+        as ``position_velocity(...)[0]``.
+        """
+        return self._states(body, t_tdb_s, offset_s, velocity=False)
+
+    def _states(self, body, t_tdb_s, offset_s, *, velocity: bool):
         key = body.lower() if isinstance(body, str) else body
         if key not in _CHAINS:
             raise UnknownBodyError(body, BODIES)
@@ -212,20 +223,24 @@ class Ephemeris:
                 end_jd=self._end_jd,
             )
         pos = np.zeros((3, t.size))
-        vel = np.zeros((3, t.size))
+        vel = np.zeros((3, t.size)) if velocity else None
         for pair in _CHAINS[key]:
-            p, v = self._segments[pair].compute_and_differentiate(jd1, jd2)
+            seg = self._segments[pair]
+            if velocity:
+                p, v = seg.compute_and_differentiate(jd1, jd2)
+                vel += v
+            else:
+                p = seg.compute(jd1, jd2)
             pos += p
-            vel += v
         pos = pos.T
-        vel = vel.T / SECONDS_PER_DAY  # jplephem gives km/day
         if scalar:
-            return pos[0], vel[0]
-        return pos.reshape(t.shape + (3,)), vel.reshape(t.shape + (3,))
-
-    def position(self, body: str, t_tdb_s, *, offset_s=0.0):
-        """Barycentric ICRS position, km; shape (3,) or (N, 3). See :meth:`position_velocity`."""
-        return self.position_velocity(body, t_tdb_s, offset_s=offset_s)[0]
+            pos = pos[0]
+        else:
+            pos = pos.reshape(t.shape + (3,))
+        if not velocity:
+            return pos
+        vel = vel.T / SECONDS_PER_DAY  # jplephem gives km/day
+        return pos, (vel[0] if scalar else vel.reshape(t.shape + (3,)))
 
     def _name(self) -> str:
         return self.path.replace("\\", "/").rsplit("/", 1)[-1]

@@ -90,3 +90,11 @@ def test_offset_is_exact_two_part_time():
     # a 0.1 us offset must move the Moon by v * 1e-7 s (~3e-6 km), not by 0 or v * 2.4e-7 s;
     # 6e-8 km = two ulps of a 1.5e8 km coordinate
     assert np.all(np.abs((r1 - r0) - v * 1e-7) <= 6e-8)
+
+
+@pytest.mark.parametrize("body", BODIES)
+def test_position_equals_position_velocity_bit_for_bit(body, rng):
+    eph = default_ephemeris()
+    t = rng.uniform(-50, 50, 5) * YEAR_S
+    np.testing.assert_array_equal(eph.position(body, t), eph.position_velocity(body, t)[0])
+    np.testing.assert_array_equal(eph.position(body, t[0], offset_s=-123.4), eph.position_velocity(body, t[0], offset_s=-123.4)[0])
