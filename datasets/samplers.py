@@ -192,39 +192,66 @@ class MonteCarloPlan:
         speed = math.sqrt(GM_KM3_S2["sun"] / np.linalg.norm(rel))
         return R_ECL_ICRS.T @ (speed * direction / n) + sun_v
 
-    def _maybe_in_fov(self, t, r, R) -> bool:
-        """Cheap conservative pre-check for the body filters: some body's geometric direction
-        within the half-diagonal field of view + 1 deg of the boresight (aberration and
-        light-time move a planet by < 0.01 deg, so nothing the exact test keeps is dropped)."""
+    def _fov_candidates(self, t, r, R):
+        """Bodies that may be in the field: those whose geometric direction is within the
+        half-diagonal field of view + 1 deg of the boresight (aberration and light-time move a
+        planet by < 0.01 deg, so no body the exact test finds in the image is left out).
+        None when no keep-filter looks at bodies (every body is then computed)."""
         if not {"visible_planet", "body_in_fov"} & set(self.s["keep"]):
-            return True
+            return None
         from skynav.scenes.scene import SCENE_BODIES
 
         limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
+        out = []
         for name in SCENE_BODIES:
             d = self.ephemeris.position(name, t) - r
             if R[2] @ d > limit * np.linalg.norm(d):
-                return True
-        return False
+                out.append(name)
+        return tuple(out)
+
+    def _sky(self, t, r, v, R, candidates):
+        """``(ok, facts, sky)`` of one drawn pose; ``ok`` False when it is rejected.
+
+        The keep-filters only look at bodies in the image, so they are first evaluated on the
+        candidates of :meth:`_fov_candidates` alone; the other bodies (needed for the ground
+        truth) are computed only for a pose that passes. Each body's :class:`SkyBody` depends on
+        (t, r, v, name) only, so the merged result equals ``sky_bodies`` on all bodies, and the
+        decision equals evaluating the filters on all of them. A pose inside any body is rejected.
+        """
+        from skynav.scenes.errors import ConfigValueError
+        from skynav.scenes.scene import SCENE_BODIES, sky_bodies
+
+        s = self.s
+        try:
+            if candidates is None:
+                sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
+                ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera)
+                return ok, facts, sky
+            if not candidates:
+                return False, None, None
+            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates)
+            ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera)
+            if not ok:
+                return False, None, None
+            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris,
+                                 names=tuple(n for n in SCENE_BODIES if n not in candidates))
+        except ConfigValueError:  # inside a body
+            return False, None, None
+        by_name = {b.name: b for b in part + rest}
+        return True, facts, (tuple(by_name[n] for n in SCENE_BODIES), sun_u)
 
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
-        from skynav.scenes.errors import ConfigValueError
-        from skynav.scenes.scene import sky_bodies
-
         s = self.s
         for draws in range(1, s["max_draws_per_frame"] + 1):
             t, r, R = self.draw_pose(rng)
             sun_r = self.ephemeris.position("sun", t)
             if np.linalg.norm(r - sun_r) < s["min_sun_distance_au"] * AU_KM:
                 continue
-            if not self._maybe_in_fov(t, r, R):
+            candidates = self._fov_candidates(t, r, R)
+            if candidates == ():
                 continue
             v = self.velocity(t, r)
-            try:
-                sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
-            except ConfigValueError:  # inside a body
-                continue
-            ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera)
+            ok, facts, sky = self._sky(t, r, v, R, candidates)
             if ok:
                 meta = {"kind": "montecarlo", "frame": int(k), "draws": draws,
                         "visible_bodies": facts["visible_bodies"], "bodies_in_fov": facts["bodies_in_fov"]}

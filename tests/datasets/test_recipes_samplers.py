@@ -115,3 +115,37 @@ def test_frame_request_depends_only_on_its_own_stream():
     b = plan.frame_request(7, frame_rng(99, 7))
     assert a.epoch_tdb_s == b.epoch_tdb_s and np.array_equal(a.R_cam_icrs, b.R_cam_icrs)
     assert a.meta["draws"] >= 1 and a.meta["visible_bodies"]
+
+
+def test_montecarlo_keep_decision_equals_brute_force_on_all_bodies():
+    # Oracle: replay frame k's stream with draw_pose and evaluate the keep-filters on the full
+    # sky_bodies of every drawn pose (no candidate pre-selection). The sampler must keep the same
+    # draw, with the same facts and the same sky.
+    from skynav.datasets.samplers import keep_filters_pass
+    from skynav.scenes.scene import sky_bodies
+
+    rec = validate_recipe(dict(preset_recipe("montecarlo"), frames=12))
+    plan = make_plan(rec)
+    s = rec["montecarlo"]
+    for k in range(12):
+        got = plan.frame_request(k, frame_rng(rec["seed"], k))
+        rng = frame_rng(rec["seed"], k)
+        for draws in range(1, s["max_draws_per_frame"] + 1):
+            t, r, R = plan.draw_pose(rng)
+            if np.linalg.norm(r - plan.ephemeris.position("sun", t)) < s["min_sun_distance_au"] * AU_KM:
+                continue
+            v = plan.velocity(t, r)
+            try:
+                sky = sky_bodies(t, r, v, ephemeris=plan.ephemeris)
+            except ConfigValueError:
+                continue
+            ok, facts = keep_filters_pass(s["keep"], sky, R, plan.camera)
+            if ok:
+                break
+        assert got.meta["draws"] == draws and got.epoch_tdb_s == t
+        assert got.meta["visible_bodies"] == facts["visible_bodies"] and got.meta["bodies_in_fov"] == facts["bodies_in_fov"]
+        assert [b.name for b in got.sky[0]] == [b.name for b in sky[0]]
+        for a, b in zip(got.sky[0], sky[0]):
+            np.testing.assert_array_equal(a.directions.u_apparent, b.directions.u_apparent)
+            assert a.v_mag == b.v_mag or (np.isnan(a.v_mag) and np.isnan(b.v_mag))  # NaN: no phase law there
+        np.testing.assert_array_equal(got.sky[1], sky[1])
