@@ -38,6 +38,7 @@ The wavelength dependence multiplies ``k`` by :func:`skynav.renderer.spectra.ref
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -160,8 +161,10 @@ def brdf_value(brdf: BRDF, mu0, mu, cos_psi) -> np.ndarray:
     return np.where(ok, f, 0.0)
 
 
+@functools.lru_cache(maxsize=8)
 def _disk_grid(n: int):
-    """Gauss-Legendre nodes on the unit disk in polar coordinates (r, t) with weights r dr dt."""
+    """Gauss-Legendre nodes on the unit disk in polar coordinates (r, t) with weights r dr dt
+    (cached: the nodes cost an eigenvalue problem; the arrays are read-only)."""
     x, w = np.polynomial.legendre.leggauss(n)
     r = 0.5 * (x + 1.0)
     wr = 0.5 * w
@@ -169,6 +172,8 @@ def _disk_grid(n: int):
     wt = np.pi * w
     R, T = np.meshgrid(r, t, indexing="ij")
     W = (wr * r)[:, None] * wt[None, :]
+    for a in (R, T, W):
+        a.flags.writeable = False
     return R, T, W
 
 
