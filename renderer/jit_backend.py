@@ -22,6 +22,11 @@ Environment
     Same for CUDA.
 ``DRJIT_LIBLLVM_PATH``
     Honoured if already set (the probe then tests exactly that library).
+``SKYNAV_THREADS=N``
+    Threads this process may use: the size of Dr.Jit's CPU thread pool and of OpenEXR's
+    (default: one per core). The dataset runner sets it to ``cores // workers`` in its worker
+    processes so that N processes do not each start pools as wide as the machine and fight over
+    the cores.
 """
 
 from __future__ import annotations
@@ -89,6 +94,7 @@ class BackendStatus:
 _lock = threading.RLock()
 _memo: dict[tuple, BackendStatus] = {}
 _variant_notice_done = False
+_threads_applied: int | None = None
 
 
 def _truthy(name: str) -> bool:
@@ -340,7 +346,43 @@ def configure_llvm() -> BackendStatus:
         current = os.environ.get("DRJIT_LIBLLVM_PATH")
         if current != status.libllvm:
             os.environ["DRJIT_LIBLLVM_PATH"] = status.libllvm
+    if status.available:
+        _apply_thread_count()
     return status
+
+
+def thread_budget() -> int | None:
+    """``SKYNAV_THREADS`` as an int (threads this process may use), or None when unset.
+
+    Raises
+    ------
+    SkynavError
+        The variable is not a whole number >= 1.
+    """
+    raw = os.environ.get("SKYNAV_THREADS", "").strip()
+    if not raw:
+        return None
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise SkynavError(f"SKYNAV_THREADS={raw!r}: expected a whole number of threads >= 1")
+    return n
+
+
+def _apply_thread_count() -> None:
+    """Apply ``SKYNAV_THREADS`` to Dr.Jit's thread pool, once per value (after a good probe)."""
+    global _threads_applied
+    n = thread_budget()
+    if n is None:
+        return
+    with _lock:
+        if _threads_applied != n:
+            import drjit as dr
+
+            dr.set_thread_count(n)
+            _threads_applied = n
 
 
 def llvm_available() -> bool:

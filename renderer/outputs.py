@@ -205,8 +205,25 @@ def _exr_channel(name, array, shape):
     raise OutputFormatError(f"EXR channel {name!r} has dtype {a.dtype}; expected float or unsigned integer")
 
 
+_exr_threads_set = False
+
+
+def _exr_threads(OpenEXR) -> None:
+    """OpenEXR's global pool: ``SKYNAV_THREADS`` (default: the cores) when >= 2, else none (a
+    single helper thread is slower than compressing in the caller)."""
+    global _exr_threads_set
+    if not _exr_threads_set:
+        from .jit_backend import thread_budget
+
+        n = thread_budget() or (os.cpu_count() or 1)
+        OpenEXR.set_global_thread_count(n if n >= 2 else 0)
+        _exr_threads_set = True
+
+
 def _exr_bytes(channels: Mapping, header: Mapping | None) -> bytes:
     import OpenEXR  # adapter-local import: the library is heavy and only needed here
+
+    _exr_threads(OpenEXR)
 
     if not channels:
         raise OutputFormatError("write_exr needs at least one channel")
@@ -466,6 +483,37 @@ def read_fits(source):
 
 
 # ----------------------------------------------------------------------------- ground truth
+class _Slow(Exception):
+    """Internal: the fast conversion met something it leaves to the checked one."""
+
+
+def _fast_jsonable(obj):
+    tp = type(obj)
+    if tp is float:
+        if obj != obj:
+            return None
+        if obj - obj != 0.0:  # inf - inf is NaN
+            raise _Slow
+        return obj
+    if tp is int or tp is str or tp is bool or obj is None:
+        return obj
+    if tp is dict:
+        out = {}
+        for k, v in obj.items():
+            if type(k) is not str:
+                raise _Slow
+            out[k] = _fast_jsonable(v)
+        return out
+    if tp is np.ndarray:
+        kind = obj.dtype.kind
+        if kind in "iub" or (kind == "f" and np.isfinite(obj).all()):
+            return obj.tolist()  # Python numbers in nested lists: nothing left to convert
+        return _fast_jsonable(obj.tolist())
+    if tp is list or tp is tuple:
+        return [_fast_jsonable(v) for v in obj]
+    raise _Slow
+
+
 def truth_to_jsonable(obj, _where: str = "truth"):
     """Plain-JSON copy of ground truth: numpy arrays/scalars to lists/numbers, NaN to None.
 
@@ -477,22 +525,30 @@ def truth_to_jsonable(obj, _where: str = "truth"):
     TruthSchemaError
         Non-string keys, infinities or types JSON cannot hold, naming where.
     """
+    try:  # plain dicts, lists, Python and numpy numbers: no per-item bookkeeping
+        return _fast_jsonable(obj)
+    except _Slow:
+        return _checked_jsonable(obj, _where)
+
+
+def _checked_jsonable(obj, _where: str):
     if isinstance(obj, Mapping):
         out = {}
         for k, v in obj.items():
             if not isinstance(k, str):
                 raise TruthSchemaError(f"{_where}: key {k!r} is not a string")
-            out[k] = truth_to_jsonable(v, f"{_where}.{k}")
+            out[k] = _checked_jsonable(v, f"{_where}.{k}")
         return out
     if isinstance(obj, np.ndarray):
-        return truth_to_jsonable(obj.tolist(), _where)
+        return _checked_jsonable(obj.tolist(), _where)
     if isinstance(obj, (list, tuple)):
-        return [truth_to_jsonable(v, f"{_where}[{i}]") for i, v in enumerate(obj)]
+        return [_checked_jsonable(v, f"{_where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, np.generic):
         obj = obj.item()
     if obj is None or isinstance(obj, (bool, str, int)):
         return obj
     if isinstance(obj, float):
+        obj = float(obj)
         if math.isnan(obj):
             return None
         if math.isinf(obj):
@@ -503,14 +559,66 @@ def truth_to_jsonable(obj, _where: str = "truth"):
     raise TruthSchemaError(f"{_where}: value of type {type(obj).__name__} cannot be written to JSON")
 
 
+_ENCODE = json.JSONEncoder(ensure_ascii=True, allow_nan=False, separators=(", ", ": ")).encode
+
+
+def _is_leaf(value) -> bool:
+    """True for what goes on one line: scalars and lists of scalars or of lists (truth lists are
+    homogeneous, so the first item stands for all)."""
+    while type(value) is list and value:
+        value = value[0]
+    return type(value) is not dict
+
+
+def _is_flat_record(value) -> bool:
+    return type(value) is dict and all(_is_leaf(v) for v in value.values())
+
+
+def _emit(value, indent: str, out: list) -> None:
+    """Canonical layout: a mapping has one key per line (2-space indent); lists of numbers,
+    matrices and flat records (a star, a body) are written on one line each."""
+    if _is_leaf(value):
+        out.append(_ENCODE(value))
+        return
+    inner = indent + "  "
+    if type(value) is dict:
+        if not value:
+            out.append("{}")
+            return
+        out.append("{\n")
+        last = len(value) - 1
+        for i, (k, v) in enumerate(value.items()):
+            out.append(inner + _ENCODE(k) + ": ")
+            _emit(v, inner, out)
+            out.append(",\n" if i < last else "\n")
+        out.append(indent + "}")
+        return
+    # a list holding mappings: one item per line, flat records on one line
+    out.append("[\n")
+    last = len(value) - 1
+    for i, v in enumerate(value):
+        out.append(inner)
+        if _is_flat_record(v):
+            out.append(_ENCODE(v))
+        else:
+            _emit(v, inner, out)
+        out.append(",\n" if i < last else "\n")
+    out.append(indent + "]")
+
+
 def truth_json_bytes(truth: Mapping) -> bytes:
-    """Canonical bytes of ground truth: insertion order, 2-space indent, ASCII, ``repr`` floats."""
+    """Canonical bytes of ground truth: insertion order, ASCII, ``repr`` floats; one key per
+    line (2-space indent), and each list of numbers and each flat record (one star, one body) on
+    one line, so that a frame with 700 stars is 700 readable lines, not 20 000."""
     if not isinstance(truth, Mapping) or truth.get("schema") != FRAME_SCHEMA:
         got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
         raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
-    # json writes floats with float.__repr__: the shortest string that reads back bit-exact.
-    text = json.dumps(truth_to_jsonable(truth), indent=2, ensure_ascii=True, allow_nan=False)
-    return (text + "\n").encode("ascii")
+    # json writes floats with float.__repr__: the shortest string that reads back bit-exact;
+    # the C encoder does every line (json's indent mode would use the pure-Python one).
+    out: list = []
+    _emit(truth_to_jsonable(truth), "", out)
+    out.append("\n")
+    return "".join(out).encode("ascii")
 
 
 def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:

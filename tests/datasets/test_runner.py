@@ -175,3 +175,18 @@ def test_info_and_preview(reference_dataset, tmp_path):
     png = D.preview(out, tmp_path / "sheet.png", count=6, columns=3, tile_px=128)
     with Image.open(png) as im:
         assert im.mode == "RGB" and im.size == (3 * 128 + 4 * 4, 2 * 128 + 3 * 4)
+
+
+def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
+    from skynav.datasets.runner import _THREAD_VARS, _worker_threads
+
+    for name in _THREAD_VARS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")  # the user's choice is kept
+    with _worker_threads(2) as ctx:
+        assert ctx.threads == max(1, (os.cpu_count() or 1) // 2)
+        assert os.environ["SKYNAV_THREADS"] == str(ctx.threads)
+        assert os.environ["OPENBLAS_NUM_THREADS"] == str(ctx.threads)
+        assert os.environ["OMP_NUM_THREADS"] == "7"
+    assert "SKYNAV_THREADS" not in os.environ and "OPENBLAS_NUM_THREADS" not in os.environ
+    assert os.environ["OMP_NUM_THREADS"] == "7"

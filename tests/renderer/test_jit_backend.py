@@ -140,3 +140,43 @@ def test_importing_renderer_does_not_initialise_llvm(tmp_path):
     env["SKYNAV_CACHE_DIR"] = str(tmp_path)
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "OK llvm" in proc.stdout, proc.stderr[-2000:]
+
+
+def test_thread_budget_parses_and_refuses_bad_values(monkeypatch):
+    monkeypatch.delenv("SKYNAV_THREADS", raising=False)
+    assert jb.thread_budget() is None
+    monkeypatch.setenv("SKYNAV_THREADS", "3")
+    assert jb.thread_budget() == 3
+    for bad in ("0", "-2", "two", "1.5"):
+        monkeypatch.setenv("SKYNAV_THREADS", bad)
+        with pytest.raises(jb.SkynavError, match="SKYNAV_THREADS"):
+            jb.thread_budget()
+
+
+def test_thread_budget_sizes_drjit_and_openexr_pools(tmp_path):
+    # In a fresh interpreter (the pools are process-wide): SKYNAV_THREADS=1 gives Dr.Jit one
+    # thread and OpenEXR none (compression in the caller); unset, OpenEXR gets the cores.
+    import subprocess
+    import sys
+
+    status = jb.configure_llvm()
+    code = (
+        "import io, numpy as np, OpenEXR\n"
+        "from skynav.renderer import jit_backend, outputs\n"
+        "ok = jit_backend.configure_llvm().available\n"
+        "import drjit as dr\n"
+        "outputs.write_exr(io.BytesIO() if False else r'%s', {'a': np.zeros((4, 4), np.float32)})\n"
+        "print(dr.thread_count() if ok else -1, OpenEXR.global_thread_count())\n" % (tmp_path / "a.exr")
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "SKYNAV_THREADS": "1"}, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    jit, exr = map(int, out.stdout.split())
+    assert exr == 0
+    if status.available:
+        assert jit == 1
+    env = {k: v for k, v in os.environ.items() if k != "SKYNAV_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    cores = os.cpu_count() or 1
+    assert int(out.stdout.split()[1]) == (cores if cores >= 2 else 0)

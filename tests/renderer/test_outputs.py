@@ -375,3 +375,34 @@ def test_every_required_key_of_conventions_is_checked():
             probs = validate_truth(t)
             assert len(probs) == 1 and key in probs[0], (section, key, probs)
     assert validate_truth(base) == []
+
+
+def test_truth_layout_parses_like_stdlib_json_and_one_record_per_line(tmp_path):
+    # Oracle: the standard library's own encoder (pure-Python, indent mode) on the same plain data;
+    # the canonical layout must decode to exactly the same object, and write each star on one line.
+    import json
+
+    from skynav.renderer.outputs import truth_json_bytes, truth_to_jsonable
+
+    truth = _truth()
+    truth["stars"] = truth["stars"] * 50
+    text = truth_json_bytes(truth).decode("ascii")
+    reference = json.loads(json.dumps(truth_to_jsonable(truth), indent=2))
+    assert json.loads(text) == reference
+    star_lines = [ln for ln in text.splitlines() if ln.lstrip().startswith('{"hip"')]
+    assert len(star_lines) == 50
+    assert text.endswith("}\n") and "NaN" not in text and "Infinity" not in text
+
+
+def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):
+    from skynav.renderer.outputs import truth_to_jsonable
+
+    assert truth_to_jsonable({"a": np.array([1.0, np.nan])}) == {"a": [1.0, None]}
+    assert truth_to_jsonable({"a": np.array([[1, 2]], dtype=np.uint16)}) == {"a": [[1, 2]]}
+    assert truth_to_jsonable({"a": (np.float32(0.5), np.int64(3), np.bool_(False))}) == {"a": [0.5, 3, False]}
+    with pytest.raises(TruthSchemaError, match=r"truth\.a\[1\]"):
+        truth_to_jsonable({"a": np.array([1.0, -np.inf])})
+    with pytest.raises(TruthSchemaError, match="key 3"):
+        truth_to_jsonable({"a": {3: 1.0}})
+    with pytest.raises(TruthSchemaError, match=r"truth\.a: value of type set"):
+        truth_to_jsonable({"a": {1, 2}})
