@@ -117,3 +117,26 @@ def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, ti
     out = Path(out_png)
     atomic_write_bytes(out, buf.getvalue())
     return out
+
+
+def leg_plot(path, out_png, *, step_s: float = 6 * 3600.0) -> Path:
+    """Write the planets' apparent V along the cruise of a ``sequence`` dataset (legs shaded).
+
+    The plan is rebuilt from the manifest's recipe (the trajectory is recomputed, about 1 s).
+
+    Raises
+    ------
+    DatasetError
+        The dataset is not a ``sequence``.
+    """
+    from . import layout
+    from .errors import DatasetError
+    from .plots import plot_leg_magnitudes
+    from .samplers import make_plan
+
+    recipe = layout.read_manifest(path)["recipe"]
+    if recipe.get("kind") != "sequence":
+        raise DatasetError(f"{path}: a {recipe.get('kind')!r} dataset has no navigation legs to plot; only 'sequence' has")
+    out = Path(out_png)
+    plot_leg_magnitudes(make_plan(recipe), out, step_s=step_s)
+    return out

@@ -67,6 +67,9 @@ def cmd_preview(args) -> int:
     out = args.output or str(Path(args.path) / "preview.png")
     path = datasets.preview(args.path, out, count=args.count, columns=args.columns)
     print(f"contact sheet: {path}")
+    if datasets.open(args.path).manifest["recipe"]["kind"] == "sequence":
+        legs = datasets.leg_plot(args.path, Path(out).with_name(Path(out).stem + "_legs_vmag.png"))
+        print(f"planets' V along the legs: {legs}")
     return 0
 
 
@@ -94,7 +97,8 @@ def add_parser(sub) -> None:
     i.add_argument("path")
     i.set_defaults(func=cmd_info)
     p = dsub.add_parser("preview", help="write a contact sheet PNG with ground-truth overlays",
-                        description="Write a contact sheet PNG of a dataset with star circles and body labels.")
+                        description="Write a contact sheet PNG of a dataset with star circles and body labels; for a"
+                                    " sequence, also the planets' V along the legs (PREVIEW_legs_vmag.png).")
     p.add_argument("path")
     p.add_argument("-o", "--output", default=None, help="PNG path (default: DATASET/preview.png)")
     p.add_argument("--count", type=int, default=16)

@@ -118,3 +118,21 @@ def test_small_sequence_dataset(tmp_path):
         # boresight on the target: within 5 sigma of pointing error (0.01 deg ~ 0.13 px here)
         assert np.hypot(target["xy"][0] - 127.5, target["xy"][1] - 127.5) < 1.0
     assert D.verify(tmp_path / "seq").ok
+    # the leg plot of a sequence (the CLI's preview writes it beside the contact sheet)
+    from PIL import Image
+
+    from skynav.cli import main
+
+    assert main(["dataset", "preview", str(tmp_path / "seq"), "-o", str(tmp_path / "sheet.png")]) == 0
+    with Image.open(tmp_path / "sheet_legs_vmag.png") as im:
+        assert im.size == (900, 520)
+        colours = np.unique(np.asarray(im.convert("RGB")).reshape(-1, 3), axis=0)
+        assert len(colours) > 6  # axes, legs and one colour per planet
+
+
+def test_leg_plot_refuses_a_montecarlo_dataset(reference_dataset, tmp_path):
+    import skynav.datasets as D
+
+    with pytest.raises(D.DatasetError, match="'montecarlo' dataset has no navigation legs"):
+        D.leg_plot(reference_dataset[0], tmp_path / "x.png")
+    assert not (tmp_path / "x.png").exists()
