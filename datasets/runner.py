@@ -148,6 +148,12 @@ def _produce_job(job):
 
 
 def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
+    # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
+    # 1); size skynav's pools to that unless the cluster's environment says otherwise.
+    if "SKYNAV_THREADS" not in os.environ:
+        from distributed import get_worker
+
+        os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
     return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, star_mag_limit=mag,
                          render_options=options)
 
