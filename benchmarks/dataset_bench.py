@@ -54,17 +54,21 @@ n = s.frames_rendered
 skip = max(1, n // 10)
 t_skip = next(t for d, t in marks if d >= skip)
 t_end = marks[-1][1]
-print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": s.elapsed_s and (time.perf_counter() - t0 - s.elapsed_s),
+print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": time.perf_counter() - t0 - s.elapsed_s,
                   "steady_fps": (n - skip) / (t_end - t_skip) if t_end > t_skip else float("nan"),
                   "executor": s.executor, "mean": s.mean_timings_s}))
 """
 
-_ONE_THREAD = {"SKYNAV_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+def _one_thread() -> dict:
+    """The runner's thread-count variables, all at 1."""
+    from skynav.datasets.runner import _THREAD_VARS
+
+    return {name: "1" for name in _THREAD_VARS}
 
 
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict) -> dict:
     """One fresh ``python`` running ``generate`` (what the CLI calls); wall clock of it all."""
-    env = {k: v for k, v in os.environ.items() if k not in _ONE_THREAD}
+    env = {k: v for k, v in os.environ.items() if k not in _one_thread()}
     env.update(env_extra)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", _CHILD, str(frames), str(out), str(workers), "small" if small else "full"],
@@ -143,7 +147,7 @@ def main(argv=None) -> int:
         generate(dict(rec, frames=2), tmp / "warm", workers=1, progress=False)
         setups = [("1 worker", 1, {}), ("2 workers", 2, {})]
         if a.single_thread:
-            setups.insert(0, ("1 worker, 1 thread", 1, _ONE_THREAD))
+            setups.insert(0, ("1 worker, 1 thread", 1, _one_thread()))
         res = {}
         for i, (label, workers, env) in enumerate(setups):
             r = res[label] = run_cold(a.frames, tmp / f"run{i}", workers, a.small, env)

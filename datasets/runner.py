@@ -172,17 +172,16 @@ class _worker_threads:
 
     def __init__(self, n_workers: int):
         self.threads = max(1, (os.cpu_count() or 1) // max(1, n_workers))
-        self.saved: dict = {}
+        self.set_here: list = []
 
     def __enter__(self):
-        for name in _THREAD_VARS:
-            if name not in os.environ:
-                self.saved[name] = None
-                os.environ[name] = str(self.threads)
+        self.set_here = [name for name in _THREAD_VARS if name not in os.environ]
+        for name in self.set_here:
+            os.environ[name] = str(self.threads)
         return self
 
     def __exit__(self, *exc):
-        for name in self.saved:
+        for name in self.set_here:
             os.environ.pop(name, None)
         return False
 

@@ -217,6 +217,7 @@ class MonteCarloPlan:
         truth) are computed only for a pose that passes. Each body's :class:`SkyBody` depends on
         (t, r, v, name) only, so the merged result equals ``sky_bodies`` on all bodies, and the
         decision equals evaluating the filters on all of them. A pose inside any body is rejected.
+        ``candidates`` is None or non-empty (:meth:`frame_request` skips a pose with none).
         """
         from skynav.scenes.errors import ConfigValueError
         from skynav.scenes.scene import SCENE_BODIES, sky_bodies
@@ -227,8 +228,6 @@ class MonteCarloPlan:
                 sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
                 ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera)
                 return ok, facts, sky
-            if not candidates:
-                return False, None, None
             part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates)
             ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera)
             if not ok:
