@@ -285,6 +285,11 @@ class Camera:
         v = np.stack([xn, yn, np.ones_like(xn)], -1)
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
+    def line_of_sight(self, xy_px):
+        """Unit camera-frame directions (N, 3) seen at pixel coordinates (N, 2), through the lens
+        distortion: the :class:`~skynav.scenes.projection.Projection` inverse of :meth:`project`."""
+        return self.back_project(xy_px, distorted=True)
+
     def in_image(self, xy_px, margin_px: float = 0.0):
         """True where pixel coordinates fall on the sensor (pixel edges at -0.5 and W-0.5)."""
         xy = np.asarray(xy_px, dtype=float)

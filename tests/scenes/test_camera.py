@@ -73,3 +73,17 @@ def test_camera_value_semantics():
     from skynav.scenes.camera import SensorParams  # noqa: F401  (names for eval)
 
     assert eval(repr(cam)) == cam
+
+
+def test_camera_is_a_projection_and_line_of_sight_inverts_project():
+    """The pinhole + Brown-Conrady camera satisfies the Projection protocol; round trip < 1e-6 px."""
+    from skynav.scenes.camera import BrownConrady, paper_camera
+    from skynav.scenes.projection import Projection
+
+    cam = paper_camera(distortion=BrownConrady(k1=-0.05, p1=1e-4))
+    assert isinstance(cam, Projection)
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.5, 1023.5, size=(500, 2))
+    v = cam.line_of_sight(xy)
+    assert np.allclose(np.linalg.norm(v, axis=-1), 1.0, atol=1e-14)
+    assert np.max(np.abs(cam.project(v) - xy)) < 1e-6  # px: Newton undistortion converges to 1e-15
