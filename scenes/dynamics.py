@@ -192,7 +192,7 @@ def acceleration_jacobian(r_km, v_km_s, body_pos_km, body_gm, sun_pos_km=None, s
     ``h = (r . v) / r^3``, ``a = s (g r + 4 h v)``:
     ``da/dr = s (g I + r dg/dr^T + 4 v dh/dr^T)`` with ``dg/dr = (-16 GM / r^6 + 3 v^2 / r^5) r``,
     ``dh/dr = v / r^3 - 3 (r . v) r / r^5``; ``da/dv = s (-2 r v^T / r^3 + 4 h I + 4 v r^T / r^3)``.
-    Checked against central differences in ``tests/scenes/test_dynamics_jacobians.py``.
+    Checked against central differences in ``tests/scenes/test_dynamics_against_finite_differences.py``.
     """
     eye = np.eye(3)
     d = np.asarray(r_km, dtype=float) - np.asarray(body_pos_km, dtype=float)
