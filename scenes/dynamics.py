@@ -260,6 +260,9 @@ class ForceField:
             raise ValueError("the force model needs 'sun' among its bodies for SRP or relativity")
 
     def _bodies(self, t):
+        lo, hi = self.table.span_tdb_s
+        if not lo <= t <= hi:  # the spline would extrapolate silently
+            raise ValueError(f"epoch {t} TDB s outside the force field's body table [{lo}, {hi}]")
         pos = self.table.positions(t)
         i_sun = self._i_sun
         if i_sun is not None and self.model.relativity:
@@ -277,7 +280,7 @@ class ForceField:
         return np.concatenate([v, a])
 
     def jacobian(self, t_tdb_s: float, state) -> np.ndarray:
-        """``A(x, t) = df/dx``, shape (6, 6): ``[[0, I], [da/dr, da/dv]]`` (s^-1 blocks s^-2 / s^-1)."""
+        """``A(x, t) = df/dx``, shape (6, 6): ``[[0, I], [da/dr, da/dv]]``; units ``[[s^-1, 1], [s^-2, s^-1]]``."""
         state = np.asarray(state, dtype=float)
         pos, sun_p, sun_v = self._bodies(t_tdb_s)
         da_dr, da_dv = acceleration_jacobian(state[:3], state[3:], pos, self.gm, sun_p, sun_v,

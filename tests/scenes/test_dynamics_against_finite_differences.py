@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from skynav.scenes.constants import GM_KM3_S2
-from skynav.scenes.dynamics import ForceField, ForceModel, SpacecraftSRP, acceleration, acceleration_jacobian, propagate, propagate_stm
+from skynav.scenes.dynamics import (ForceField, ForceModel, SpacecraftSRP, acceleration, acceleration_jacobian, propagate,
+                                    propagate_stm)
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.timescales import tdb_seconds
 
@@ -87,6 +88,12 @@ def test_srp_and_1pn_jacobians_alone_against_central_differences(eph, x0, term):
         assert np.abs(fd[:, 3:] - da_dv).max() / np.abs(da_dv).max() < 1e-9
     else:
         np.testing.assert_array_equal(da_dv, 0.0)  # SRP does not depend on velocity
+
+
+def test_force_field_refuses_epochs_outside_its_table(eph):
+    ff = ForceField(eph, T0, T0 + DAY)
+    with pytest.raises(ValueError, match="outside the force field"):
+        ff.jacobian(T0 + 30 * DAY, np.ones(6))
 
 
 def test_point_mass_jacobian_is_the_gravity_gradient():
