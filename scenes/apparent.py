@@ -34,10 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import AU_KM, C_KM_S, GM_SUN_KM3_S2  # noqa: F401  (AU_KM, C_KM_S: public names here)
+from .constants import AU_KM, C_KM_S, GM_SUN_KM3_S2
 
 SCHWARZSCHILD_RADIUS_SUN_KM = 2.0 * GM_SUN_KM3_S2 / C_KM_S**2
-"""2 GM_sun / c^2, km (ERFA ``ERFA_SRS`` x au)."""
+"""2 GM_sun / c^2, km, with the DE421 GM_sun of :mod:`skynav.scenes.constants` (ERFA ``ERFA_SRS`` x au
+to 1.5e-12, its rounding)."""
 
 LIGHT_TIME_TOL_S = 1e-10
 """Newton step below which the light-time iteration stops, s."""
