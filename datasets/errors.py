@@ -6,7 +6,7 @@ line and exits with code 2) and the builtin exception a caller would expect.
 
 from __future__ import annotations
 
-from skynav.scenes.errors import ConfigValueError, SkynavError
+from skynav.scenes.errors import ConfigValueError, LambertError, SkynavError
 
 __all__ = [
     "SkynavError",
@@ -56,7 +56,3 @@ class FrameIndexError(SkynavError, IndexError):
 
 class SceneSamplingError(SkynavError, RuntimeError):
     """A sampler could not draw a scene that passes the recipe's keep-filters."""
-
-
-class LambertError(SkynavError, ValueError):
-    """A Lambert problem with no solution for the inputs (or a solver failure)."""

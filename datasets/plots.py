@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 
+from skynav.scenes.constants import SECONDS_PER_DAY
+
 __all__ = ["plot_lines_png", "leg_magnitudes", "plot_leg_magnitudes"]
 
 _COLOURS = {"mercury": (150, 150, 150), "venus": (230, 200, 80), "earth": (60, 130, 255), "moon": (200, 200, 200),
@@ -104,7 +106,7 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
         for b in sky_bodies(float(ti), r, v, ephemeris=plan.ephemeris, names=planets)[0]:
             mags[b.name][i] = b.v_mag
             sun[b.name][i] = math.degrees(b.sun_angle_rad)
-    return (t - plan.t_start) / 86400.0, mags, sun
+    return (t - plan.t_start) / SECONDS_PER_DAY, mags, sun
 
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
@@ -115,7 +117,7 @@ def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
     # hide a planet while it is inside the pair Sun-angle limit (not trackable)
     limit = plan.s["pair_sun_angle_min_deg"]
     shown = {p: np.where(sun[p] > limit, m, np.nan) for p, m in mags.items()}
-    spans = [((w.start_tdb_s - plan.t_start) / 86400.0, (w.end_tdb_s - plan.t_start) / 86400.0 + 0.6, w.phase)
+    spans = [((w.start_tdb_s - plan.t_start) / SECONDS_PER_DAY, (w.end_tdb_s - plan.t_start) / SECONDS_PER_DAY + 0.6, w.phase)
              for w in plan.windows if w.phase.startswith("track")]
     pairs = "; ".join("/".join(p) for p in plan.describe()["pairs"][:3])
     png = plot_lines_png(days, shown, title=f"Apparent V magnitude of the planets along the cruise (legs shaded; pairs {pairs} ...)",

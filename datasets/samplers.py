@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from skynav.scenes import frames
+from skynav.scenes.constants import AU_KM, GM_KM3_S2, OBLIQUITY_J2000_RAD
 from skynav.scenes.timescales import tdb_seconds, time_from_tdb_seconds
 
-from .dynamics import AU_KM, GM_KM3_S2
 from .errors import SceneSamplingError
 
 __all__ = [
@@ -46,9 +46,8 @@ __all__ = [
     "make_plan",
 ]
 
-# Obliquity of the ecliptic at J2000, IAU 2006 (84381.406 arcsec). Ecliptic J2000 axes are ICRS
-# turned about x by it; the 23 mas ICRS frame bias is ignored (the sampler is statistical).
-OBLIQUITY_J2000_RAD = math.radians(84381.406 / 3600.0)
+# Ecliptic J2000 axes are ICRS turned about x by the obliquity (scenes.constants); the 23 mas ICRS
+# frame bias is ignored (the sampler is statistical).
 R_ECL_ICRS = frames.rot1(OBLIQUITY_J2000_RAD)  # passive: v_ecl = R_ECL_ICRS @ v_icrs
 
 

@@ -7,7 +7,7 @@ Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``)
    DE421 Earth and Mars centres) with the smallest ``v_inf(departure) + v_inf(arrival)``.
 2. **Cruise.** The Lambert arc is followed on the two-body problem for ``start_offset_days``
    (leaving the Earth's sphere of influence), then the state is propagated with the
-   high-fidelity model of :mod:`skynav.datasets.dynamics` (Sun + 9 bodies from DE421, SRP,
+   high-fidelity model of :mod:`skynav.scenes.dynamics` (Sun + 9 bodies from DE421, SRP,
    1PN Sun; DOP853 at ``rtol``) over the whole timeline. The high-fidelity arc is a ballistic
    cruise initialised on the Lambert solution, not a targeted arrival at Mars.
 3. **Legs** (paper 002 sec. 4.2, paper 001 sec. IV, Fig. 5): track planet A for ``track_s``
@@ -35,16 +35,18 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from skynav.scenes import frames
+from skynav.scenes.constants import GM_KM3_S2, SECONDS_PER_DAY
+from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
+from skynav.scenes.errors import LambertError
+from skynav.scenes.lambert import solve_lambert
 
-from .dynamics import GM_KM3_S2, ForceModel, SpacecraftSRP, propagate
-from .errors import LambertError, SceneSamplingError
-from .lambert import solve_lambert
+from .errors import SceneSamplingError
 from .recipes import PLANETS
 from .samplers import FrameRequest
 
 __all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
 
-DAY_S = 86400.0
+DAY_S = SECONDS_PER_DAY
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -89,9 +89,10 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.constants import c as _C_M_S
-from scipy.constants import h as _H_J_S
 
+from skynav.scenes.constants import AU_KM
+from skynav.scenes.constants import C_M_S as _C_M_S
+from skynav.scenes.constants import PLANCK_J_S as _H_J_S
 from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.frames import propagate_attitude
 
@@ -121,7 +122,6 @@ CROP_QUANTUM_PX = 8
 #: Largest crop side, px (a body larger than this is clipped to a window around the frame).
 MAX_CROP_PX = 4096
 
-AU_KM = 149_597_870.7
 LAMBDA_REF_NM = 550.0
 _NEAR_CLIP = 1e-5  # world units (observer-body distance); the body surface is at >= 1 - r
 _FAR_CLIP = 4.0

@@ -26,9 +26,10 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.constants import c as _C_M_S
-from scipy.constants import h as _H_J_S
 from scipy.interpolate import CubicSpline
+
+from skynav.scenes.constants import C_M_S as _C_M_S
+from skynav.scenes.constants import PLANCK_J_S as _H_J_S
 
 from . import spectra
 

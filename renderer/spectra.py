@@ -13,7 +13,7 @@ Data sources (installed packages only, nothing downloads):
 * Sun at 1 AU: HST CALSPEC ``sun_reference_stis_001`` (Bohlin, Dickinson & Calzetti 2001,
   AJ 122, 2118), 119.5-2695.7 nm, shipped by ``pyphot``. It integrates to 1326 W m^-2 over its
   span; the missing infrared tail (a 5772 K blackbody beyond 2.7 um) brings it to the solar
-  constant 1361 W m^-2 (Kopp & Lean 2011) within 0.3 %.
+  constant 1361 W m^-2 (IAU 2015 B3 nominal; Kopp & Lean 2011) within 0.3 %.
 * Blackbodies: colour-science ``planck_law``.
 
 The data files are read lazily (first call), from file objects, and cached.
@@ -29,6 +29,7 @@ import warnings
 
 import numpy as np
 
+from skynav.scenes.constants import SOLAR_CONSTANT_W_M2
 from skynav.scenes.errors import DataFileError
 
 __all__ = [
@@ -57,8 +58,8 @@ WAVELENGTHS_NM.setflags(write=False)
 #: in-band signal (see :func:`photon_weighted_v_flux`).
 VEGA_V_MAG = 0.03
 
-#: Total solar irradiance at 1 AU, W m^-2 (Kopp & Lean 2011, GRL 38, L01706: 1360.8 +- 0.5).
-SOLAR_CONSTANT_W_M2 = 1360.8
+#: Total solar irradiance at 1 AU, W m^-2: :data:`skynav.scenes.constants.SOLAR_CONSTANT_W_M2`
+#: (IAU 2015 B3 nominal 1361; a reference figure only, the solar spectrum is the CALSPEC table).
 
 #: How the library tabulates the V curve: ``"energy"`` (response per unit energy). A
 #: photon-counting detector with this energy response has a photon response ``S_E / lambda``.

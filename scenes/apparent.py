@@ -34,18 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-C_KM_S = 299792.458
-"""Speed of light, km/s (exact, SI)."""
-
-GM_SUN_KM3_S2 = 1.32712440041e11
-"""Heliocentric gravitational constant, TDB-compatible (IERS Conventions 2010 table 1.1; DE421
-uses 1.32712440040944e11, the same to 4e-13)."""
-
-AU_KM = 149597870.7
-"""Astronomical unit, km (IAU 2012 Resolution B2)."""
+from .constants import AU_KM, C_KM_S, GM_SUN_KM3_S2
 
 SCHWARZSCHILD_RADIUS_SUN_KM = 2.0 * GM_SUN_KM3_S2 / C_KM_S**2
-"""2 GM_sun / c^2, km (ERFA ``ERFA_SRS`` x au)."""
+"""2 GM_sun / c^2, km, with the DE421 GM_sun of :mod:`skynav.scenes.constants` (ERFA ``ERFA_SRS`` x au
+to 1.5e-12, its rounding)."""
 
 LIGHT_TIME_TOL_S = 1e-10
 """Newton step below which the light-time iteration stops, s."""

@@ -57,17 +57,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .constants import AU_KM, JULIAN_YEAR_S
 from .data_files import cache_dir, hip2_path
 from .errors import DataFileError
 
-AU_KM = 149597870.7
-"""Astronomical unit, km (IAU 2012 Resolution B2)."""
-
 MAS_TO_RAD = np.pi / (180.0 * 3600.0 * 1000.0)
 """Milliarcseconds to radians."""
-
-JULIAN_YEAR_S = 365.25 * 86400.0
-"""Julian year, s (the time unit of Hipparcos proper motions)."""
 
 EPOCH_J1991_25_TDB_S = (1991.25 - 2000.0) * JULIAN_YEAR_S
 """Catalog epoch J1991.25 (JD 2448349.0625), TDB seconds past J2000 = -276129000.0."""

@@ -25,6 +25,7 @@ import threading
 
 import numpy as np
 
+from .constants import J2000_JD, SECONDS_PER_DAY
 from .data_files import de421_path
 from .errors import DataFileError, EphemerisRangeError, UnknownBodyError
 
@@ -72,9 +73,6 @@ _CHAINS = {
     "uranus": ((0, 7),),
     "neptune": ((0, 8),),
 }
-
-J2000_JD = 2451545.0
-SECONDS_PER_DAY = 86400.0
 
 
 def _jd_to_date(jd: float) -> str:

@@ -66,3 +66,7 @@ class UnknownBodyError(SkynavError, KeyError):
 
 class DataFileError(SkynavError, OSError):
     """An installed data file (ephemeris, catalog) is missing or unreadable."""
+
+
+class LambertError(SkynavError, ValueError):
+    """A Lambert problem with no solution for the inputs (or a solver failure)."""

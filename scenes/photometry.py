@@ -38,10 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .constants import AU_KM
 from .errors import UnknownBodyError
-
-AU_KM = 149597870.7
-"""Astronomical unit, km (IAU 2012 Resolution B2)."""
 
 MOON_MEAN_DISTANCE_KM = 384400.0
 """Mean Earth-Moon distance, km, at which Allen's full-Moon V = -12.73 is quoted."""

@@ -10,11 +10,10 @@ import numpy as np
 from astropy.time import Time
 from astropy.utils import iers
 
+from .constants import J2000_JD, SECONDS_PER_DAY
+
 iers.conf.auto_download = False
 iers.conf.auto_max_age = None
-
-J2000_JD = 2451545.0
-SECONDS_PER_DAY = 86400.0
 
 
 def to_time(epoch) -> Time:

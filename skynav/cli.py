@@ -42,6 +42,7 @@ def _fmt(x, spec="8.2f"):
 def cmd_scene(args) -> int:
     import numpy as np
 
+    from skynav.scenes.constants import AU_KM
     from skynav.scenes.scene import build_from_spec
 
     spec = _load_spec(args.scene)
@@ -50,7 +51,7 @@ def cmd_scene(args) -> int:
     ra, dec = (math.degrees(a) for a in __import__("skynav.scenes.frames", fromlist=["x"]).unit_to_radec(scene.R_cam_icrs[2]))
     print(f"epoch {spec.epoch_tdb_iso} TDB   boresight RA {ra:.4f} deg  Dec {dec:.4f} deg   "
           f"camera {cam.width}x{cam.height}, FOV {math.degrees(cam.fov_x_rad):.2f} deg, {cam.exposure_s * 1e3:.0f} ms")
-    r_au = np.linalg.norm(scene.position_km) / 149597870.7
+    r_au = np.linalg.norm(scene.position_km) / AU_KM
     print(f"observer {r_au:.4f} AU from the barycentre, {np.linalg.norm(scene.velocity_km_s):.3f} km/s;  "
           f"Sun {math.degrees(scene.sun_angle_rad):.2f} deg from the boresight (exclusion {math.degrees(cam.sun_exclusion_rad):.0f} deg)")
     print()

@@ -10,10 +10,10 @@ import yaml
 from scipy import stats
 
 from skynav.datasets import preset_recipe, validate_recipe
-from skynav.datasets.dynamics import AU_KM, GM_KM3_S2
 from skynav.datasets.errors import RecipeError
 from skynav.datasets.recipes import KINDS, PRESETS, load_recipe_file
 from skynav.datasets.samplers import R_ECL_ICRS, frame_rng, make_plan
+from skynav.scenes.constants import AU_KM, GM_KM3_S2
 from skynav.scenes.errors import ConfigValueError, SkynavError
 
 

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from skynav.datasets.dynamics import AU_KM, C_KM_S, GM_KM3_S2, BodyTable, ForceModel, SpacecraftSRP, acceleration, propagate
+from skynav.scenes.constants import AU_KM, C_KM_S, GM_KM3_S2
+from skynav.scenes.dynamics import BodyTable, ForceModel, SpacecraftSRP, acceleration, propagate
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.timescales import tdb_seconds
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from skynav.datasets.errors import LambertError
-from skynav.datasets.lambert import solve_lambert
+from skynav.scenes.errors import LambertError
+from skynav.scenes.lambert import solve_lambert
 
 MU_SUN = 1.32712440040944e11  # km^3/s^2
 

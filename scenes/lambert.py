@@ -15,7 +15,7 @@ derivatives). Only the zero-revolution solution is computed (enough for an Earth
 of less than one orbit); ``revolutions > 0`` is refused.
 
 Tests check the arc by propagating ``(r1, v1)`` for the time of flight with SciPy's DOP853 on
-the two-body problem and comparing with ``r2`` (``tests/datasets/test_lambert.py``).
+the two-body problem and comparing with ``r2`` (``tests/scenes/test_lambert.py``).
 """
 
 from __future__ import annotations
