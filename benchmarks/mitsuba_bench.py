@@ -10,8 +10,15 @@ median of the next frames, and, for JIT variants, the number of kernels Dr.Jit c
 frame of a 5-frame sequence where the Moon moves and its phase changes (read from
 ``dr.kernel_history()`` with ``JitFlag.KernelHistory``: "new" = distinct kernel hashes the
 process had not launched before (compiled now or loaded from Dr.Jit's on-disk kernel cache),
-"launched" = kernel launches in the frame): "new" must be 0 after the first frame, because the backend reuses one Mitsuba scene and only updates its
-parameters.
+"launched" = kernel launches in the frame): "new" must be 0 after the first frame, because the
+backend reuses one Mitsuba scene and only updates its parameters (the crop's line-of-sight table
+is a Dr.Jit array, the sensor rotation and origin opaque variables: never literals in a kernel).
+
+The rays come from the camera as a Projection (``skynav_projection`` sensor: a per-pixel-corner
+line-of-sight table); the same run with the old built-in ``perspective`` sensor measured, on
+llvm_ad_spectral, first frame 2.30 s, median later frame 30.7 ms, new kernels [10, 0, ...],
+9 launches per frame; the projection sensor: 0.87 s, 11.0 ms, [7, 0, ...], 6 launches (2 busy
+cores shared with other jobs, one run each).
 """
 
 from __future__ import annotations

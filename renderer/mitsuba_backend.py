@@ -445,8 +445,8 @@ def _register_plugins(variant: str) -> None:
     class ProjectionSensor(mi.Sensor):
         """Rays along a table of lines of sight at the film's pixel corners (module notes).
 
-        Parameters (set per frame, never literals in a kernel): ``ab``, the ``(h+1) x (w+1)``
-        corner table of tangent-plane coordinates, flattened (a, b) pairs; ``basis``, the
+        Parameters (set per frame, never literals in a kernel): ``a``, ``b``, the ``(h+1) x (w+1)``
+        corner table of tangent-plane coordinates, each flattened row-major; ``basis``, the
         crop-to-world rotation (columns ``R^T e1, R^T e2, R^T c``); ``origin``, the observer.
         """
 
@@ -465,13 +465,17 @@ def _register_plugins(variant: str) -> None:
 
         def set_table(self, ab) -> None:
             """Corner table, ndarray (h + 1, w + 1, 2)."""
-            flat = np.ascontiguousarray(ab, dtype=np.float32).ravel()
-            self.ab = mi.Float(flat) if self._jit else flat
+            # two flat arrays gathered with the pixel index itself (a gather of (a, b) pairs from
+            # one interleaved array let Dr.Jit emit two forms of the index arithmetic, i.e. two
+            # kernels, from one frame to the next)
+            a = np.ascontiguousarray(np.asarray(ab)[..., 0], dtype=np.float32).ravel()
+            b = np.ascontiguousarray(np.asarray(ab)[..., 1], dtype=np.float32).ravel()
+            self.a, self.b = (mi.Float(a), mi.Float(b)) if self._jit else (a, b)
 
         def _corner(self, k, active):
             if self._jit:
-                return dr.gather(mi.Point2f, self.ab, k, active)
-            return mi.Point2f(float(self.ab[2 * k]), float(self.ab[2 * k + 1]))
+                return mi.Point2f(dr.gather(mi.Float, self.a, k, active), dr.gather(mi.Float, self.b, k, active))
+            return mi.Point2f(float(self.a[k]), float(self.b[k]))
 
         def set_view(self, basis, origin) -> None:
             """Crop-to-world rotation (3, 3) and observer position (3,), world units."""
@@ -503,7 +507,8 @@ def _register_plugins(variant: str) -> None:
         def traverse(self, callback):
             super().traverse(callback)
             if self._jit:
-                callback.put("ab", self.ab, mi.ParamFlags.NonDifferentiable)
+                callback.put("table_a", self.a, mi.ParamFlags.NonDifferentiable)
+                callback.put("table_b", self.b, mi.ParamFlags.NonDifferentiable)
 
         def parameters_changed(self, keys):
             pass
