@@ -10,8 +10,15 @@ median of the next frames, and, for JIT variants, the number of kernels Dr.Jit c
 frame of a 5-frame sequence where the Moon moves and its phase changes (read from
 ``dr.kernel_history()`` with ``JitFlag.KernelHistory``: "new" = distinct kernel hashes the
 process had not launched before (compiled now or loaded from Dr.Jit's on-disk kernel cache),
-"launched" = kernel launches in the frame): "new" must be 0 after the first frame, because the backend reuses one Mitsuba scene and only updates its
-parameters.
+"launched" = kernel launches in the frame): "new" must be 0 after the first frame, because the
+backend reuses one Mitsuba scene and only updates its parameters (the crop's line-of-sight table
+is a Dr.Jit array, the sensor rotation and origin opaque variables: never literals in a kernel).
+
+The rays come from the camera as a Projection (``skynav_projection`` sensor: a per-pixel-corner
+line-of-sight table). Three alternating runs of 10 frames against the built-in ``perspective``
+sensor it replaced (llvm_ad_spectral, 2 cores shared with other jobs, so the spread is load):
+median later frame 24-36 ms (perspective: 27-45 ms); first frame 1.0-1.3 s (0.9-1.1 s); new
+kernels [9, 0, 0, ...] ([10, 0, 0, ...]); 6 kernel launches per frame (9).
 """
 
 from __future__ import annotations

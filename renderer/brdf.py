@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.scenes.camera import Camera
 from skynav.scenes.errors import ConfigValueError
 
 __all__ = [
@@ -240,17 +241,21 @@ def lambert_photocentre_offset(phase_angle_rad) -> np.ndarray:
     return 3.0 * np.pi / 16.0 * np.sin(g) * (1.0 + np.cos(g)) / (np.sin(g) + (np.pi - g) * np.cos(g))
 
 
-def photocentre_offset_xy(camera, R_cam_icrs, body, brdf: BRDF | None = None, *, n: int = 200) -> np.ndarray:
+def photocentre_offset_xy(projection, R_cam_icrs, body, brdf: BRDF | None = None, *, n: int = 200) -> np.ndarray:
     """Far-field photocentre minus centre of figure of a body on the image, px.
 
     What the point-source path must add to ``body.xy`` so that an unresolved body's centroid
     continues the resolved rendering's photocentre across the resolved threshold: the
     :func:`far_field_disk` offset (in radii) of ``brdf`` at the body's phase angle, times the
-    apparent radius ``f tan(asin(R / d))``, along the image direction of the Sun's projection.
+    apparent radius, along the image direction of the Sun's projection. The apparent radius is
+    ``f tan(asin(R / d))`` for a :class:`~skynav.scenes.camera.Camera` (its on-axis value; the
+    offset is under a pixel where the resolved threshold puts it), and for another projection the
+    local image scale along that direction (a finite difference of ``projection.project``) times
+    ``tan(asin(R / d))``.
 
     Parameters
     ----------
-    camera : skynav.scenes.camera.Camera
+    projection : skynav.scenes.camera.Camera or skynav.scenes.projection.Projection
     R_cam_icrs : ndarray, shape (3, 3)
     body : skynav.scenes.scene.BodyInView
     brdf : BRDF, optional (default :func:`default_brdf` of the body)
@@ -272,8 +277,10 @@ def photocentre_offset_xy(camera, R_cam_icrs, body, brdf: BRDF | None = None, *,
     alpha = math.acos(float(np.clip(-(u @ s), -1.0, 1.0)))
     R = np.asarray(R_cam_icrs, dtype=float)
     eps = 1e-6
-    xy = camera.project(np.stack([R @ u, R @ (u + eps * e)]))
+    xy = projection.project(np.stack([R @ u, R @ (u + eps * e)]))
     d = xy[1] - xy[0]
-    d /= np.linalg.norm(d)
-    radius_px = camera.focal_length_px * math.tan(math.asin(body.radius_km / body.distance_km))
+    step = np.linalg.norm(d)
+    d /= step
+    scale = projection.focal_length_px if isinstance(projection, Camera) else step / eps  # px per rad
+    radius_px = scale * math.tan(math.asin(body.radius_km / body.distance_km))
     return d * far_field_disk(brdf, alpha, n=n)[1] * radius_px

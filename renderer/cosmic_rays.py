@@ -122,8 +122,29 @@ class CosmicRayHits:
         return hash((tuple(self.shape),) + tuple(np.ascontiguousarray(a).tobytes() for a in self._fields()))
 
     def to_ground_truth(self) -> list[dict]:
-        """The ``cosmic_rays`` list of the frame ground truth (CONVENTIONS.md): ``xy``,
-        ``electrons``, and the track endpoints."""
+        """The ``cosmic_rays`` list of the frame ground truth (CONVENTIONS.md), one record per hit.
+
+        Each record holds ``xy`` and ``electrons`` (the fixed names) and the whole track:
+        ``track`` (bool), ``track_start_xy``, ``track_end_xy``, ``length_px`` (projected track
+        length, 0 for a single-pixel hit) and ``pixels``: ``[row, col, electrons]`` of every
+        charged pixel on the sensor, whose electrons sum to the hit's ``electrons``.
+
+        Returns
+        -------
+        list of dict
+
+        Examples
+        --------
+        >>> hits = draw_cosmic_rays((8, 8), 1, np.random.default_rng(0), mode="fixed")
+        >>> sorted(hits.to_ground_truth()[0])
+        ['electrons', 'length_px', 'pixels', 'track', 'track_end_xy', 'track_start_xy', 'xy']
+        """
+        order = np.argsort(self.pixel_hit, kind="stable")
+        bounds = np.searchsorted(self.pixel_hit[order], np.arange(len(self) + 1))
+        rows = self.pixel_rows[order].tolist()
+        cols = self.pixel_cols[order].tolist()
+        charge = self.pixel_electrons[order].tolist()
+        length = np.hypot(*(self.track_end_xy - self.track_start_xy).T) if len(self) else np.zeros(0)
         return [
             {
                 "xy": [float(v) for v in self.xy[i]],
@@ -131,6 +152,8 @@ class CosmicRayHits:
                 "track": bool(self.is_track[i]),
                 "track_start_xy": [float(v) for v in self.track_start_xy[i]],
                 "track_end_xy": [float(v) for v in self.track_end_xy[i]],
+                "length_px": float(length[i]),
+                "pixels": [[rows[m], cols[m], charge[m]] for m in range(bounds[i], bounds[i + 1])],
             }
             for i in range(len(self))
         ]

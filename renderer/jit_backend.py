@@ -48,6 +48,8 @@ from pathlib import Path
 from skynav.scenes.data_files import cache_dir
 from skynav.scenes.errors import SkynavError
 
+from .errors import BackendUnavailableError  # noqa: F401  (its home is renderer/errors.py; re-exported)
+
 log = logging.getLogger(__name__)
 
 MIN_LLVM_MAJOR = 19
@@ -66,10 +68,6 @@ _SEARCH_GLOBS = (
     "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
     "/usr/local/opt/llvm/lib/libLLVM*.dylib",
 )
-
-
-class BackendUnavailableError(SkynavError, RuntimeError):
-    """A Dr.Jit backend was requested explicitly but does not work on this machine."""
 
 
 @dataclass(frozen=True, kw_only=True)

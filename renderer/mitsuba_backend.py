@@ -4,29 +4,30 @@ The one module that holds Mitsuba's global state (``mi.set_variant``); the varia
 :func:`skynav.renderer.jit_backend.select_mitsuba_variant` (CUDA, else LLVM with a libLLVM that
 a subprocess probe proved safe, else scalar), so a bad libLLVM can never abort the process.
 
-Geometry (skynav's float64 camera is the master)
-------------------------------------------------
+Geometry (skynav's float64 projection is the master)
+----------------------------------------------------
 Mitsuba works in float32, so the scene is BODY-CENTRED and scaled: one world unit is the
 observer-body distance ``body.distance_km``; the body is a sphere of radius
-``radius_km / distance_km`` at the origin; the pinhole sits at ``-u_icrs`` (the apparent,
+``radius_km / distance_km`` at the origin; the observer sits at ``-u_icrs`` (the apparent,
 light-time corrected and aberrated direction); world axes are ICRS axes. A 1e8 km position in
 float32 would carry 10 km of rounding; here every coordinate is O(1).
 
-Mitsuba's ``perspective`` sensor looks along local +z with +x to the LEFT and +y UP of the image;
-the skynav camera frame has +x right, +y down. So ``to_world`` has the columns
-``(-x_cam, -y_cam, +z_cam)`` (ICRS components, the rows of ``R_cam_icrs``) and the pinhole
-position. The Mitsuba film IS the crop (``w x h`` pixels, no crop offset); its horizontal field
-of view is ``2 atan(w / (2 f))``. Mitsuba maps the film sample ``u`` (continuous, 0 at the left
-edge) to the ray through the point ``u + ppo_x w`` of a centred pinhole film
-(``principal_point_offset_x`` is in units of the film width, see ``perspective.cpp``
-``sample_ray``). A skynav pixel coordinate is ``x = x0 + u - 0.5``; the principal point
-``cx`` must sit at ``u = cx - x0 + 0.5 = w / 2 - ppo_x w``, hence
+Rays come from the :class:`~skynav.scenes.projection.Projection` (the camera by default, or a
+bench's per-pixel table), not from a built-in pinhole: a Python sensor plugin
+(``skynav_projection``) whose ``sample_ray`` interpolates a table of lines of sight. The table is
+computed in float64 with ``projection.line_of_sight`` at the ``(w + 1) x (h + 1)`` pixel CORNERS
+of the crop, ``x = x0 - 0.5 + i``, ``y = y0 - 0.5 + j``, and stored as coordinates ``(a, b)`` on
+the plane tangent to the crop's central line of sight ``c`` (``v ~ a e1 + b e2 + c``: small
+numbers, so float32 keeps them to ~1e-9 rad). A film sample at ``(u, v)`` (Mitsuba film units,
+0 at the crop's left/top edge, so ``x = x0 - 0.5 + u``) takes the bilinear interpolation of its
+pixel's four corners; for a pinhole the tangent-plane coordinates are a homography of the
+pixel coordinates and the interpolation is exact to ~1e-5 px. The ray leaves the observer along
+``R_cam_icrs^T [e1 e2 c] (a, b, 1)``. The Mitsuba film IS the crop (``w x h`` pixels, box
+filter), so lens distortion, fx != fy or a bench's table need nothing else.
 
-    ppo_x = ((w - 1) / 2 - (cx - x0)) / w,    ppo_y = ((h - 1) / 2 - (cy - y0)) / h.
-
-Lens distortion is applied as the local translation of the body's centre: the principal point
-is moved by ``xy_distorted - xy_pinhole`` (the distortion's local scale/shear across a body of a
-few tens of pixels is neglected).
+Each pixel's solid angle ``Omega`` is that of the spherical quadrilateral of its four corner
+lines of sight (two triangles, Van Oosterom & Strackee 1983, IEEE Trans. Biomed. Eng. 30, 125);
+for a pinhole it equals ``cos^3(theta) / f^2`` at the pixel centre to < 1e-7.
 
 Radiometry
 ----------
@@ -53,8 +54,7 @@ Photo-electrons per second in a pixel of solid angle ``Omega`` through an apertu
 
 the same kernel as :meth:`Radiometry.electrons_per_s_from_spectral_irradiance` (photon counting,
 aperture area, no cosine at the pupil), because ``sum_pixels L Omega = integral L dOmega`` is the
-irradiance the point-source path uses. ``Omega = cos^3(theta) / f^2`` at the pixel centre
-(pinhole, flat sensor; the variation across one pixel is < 1e-7 relative).
+irradiance the point-source path uses (``Omega`` from the corner lines of sight, see Geometry).
 
 ``normalize="phase_law"`` (default) rescales the crop so its total equals the point-source
 electrons of the body at its catalogued V (``Radiometry.body_electrons_per_s``): the BRDF gives
@@ -65,19 +65,22 @@ Sampling and noise
 ------------------
 ``stratified`` sampler (jittered strata per pixel in every dimension, including the wavelength
 sample), ``direct`` integrator with one emitter sample and no BSDF sample (the Sun is a delta
-light: emitter sampling is exact, BSDF sampling can never hit it).
+light: emitter sampling is exact, BSDF sampling can never hit it). The Mitsuba seed of each
+sub-frame is drawn from the caller's generator (the renderer passes a child of the frame's
+stream, so every frame samples its disks differently); the seeds are returned.
 
 Kernel reuse
 ------------
-One Mitsuba scene per (variant, crop size, fov, BRDF, body reflectance); a frame only updates
-parameters through ``mi.traverse``: sensor ``to_world`` and principal point, sphere
-``to_world``, Sun ``to_world``. The Sun's spectrum stays at 1 AU in the scene and the
+One Mitsuba scene per (variant, crop size, BRDF, body reflectance, spectral response, spp); a
+frame only updates parameters: the sensor's line-of-sight table (a Dr.Jit array, never a
+literal), its opaque crop-to-world rotation and origin, and, through ``mi.traverse``, the
+sphere's and the Sun's ``to_world``. The Sun's spectrum stays at 1 AU in the scene and the
 ``(1 AU / r)^2`` factor multiplies the film values (the rendering is linear in it): updating a
 141-node spectrum every frame would launch (and, at first, compile) extra kernels. Crop sizes are rounded up to multiples of
 :data:`CROP_QUANTUM_PX` so a moving, slowly growing body keeps hitting the same scene, and the
 compiled kernels are reused (``benchmarks/mitsuba_bench.py`` counts them). Mitsuba 3.9 has no
-animated transforms: ``time_samples`` sub-frames each update the sensor transform from
-:func:`skynav.scenes.frames.propagate_attitude` and are averaged.
+animated transforms: ``time_samples`` sub-frames each update the sensor rotation from
+:func:`skynav.scenes.frames.propagate_attitude` (the camera-frame table stays) and are averaged.
 """
 
 from __future__ import annotations
@@ -98,12 +101,14 @@ from skynav.scenes.frames import propagate_attitude
 
 from . import spectra
 from .brdf import BRDF, default_brdf
+from .errors import ProjectionCropError
 
 __all__ = [
     "RESOLVED_THRESHOLD_PX",
     "ResolvedBodyImage",
     "render_resolved_body",
     "crop_window",
+    "crop_lines_of_sight",
     "current_variant",
     "clear_cache",
     "solar_irradiance_nodes_w_m2_nm",
@@ -123,8 +128,6 @@ CROP_QUANTUM_PX = 8
 MAX_CROP_PX = 4096
 
 LAMBDA_REF_NM = 550.0
-_NEAR_CLIP = 1e-5  # world units (observer-body distance); the body surface is at >= 1 - r
-_FAR_CLIP = 4.0
 
 _lock = threading.RLock()
 _cache: "OrderedDict[tuple, _Entry]" = OrderedDict()
@@ -146,9 +149,11 @@ class ResolvedBodyImage:
     photocentre_xy : tuple of float
         Electron-weighted centroid, full-image pixel coordinates (pixel centres at integers).
     centre_of_figure_xy : tuple of float
-        Apparent position of the body's centre at mid-exposure (``body.xy``), px.
+        Projection of the body's apparent centre at mid-exposure, px (``body.xy`` for the
+        scene's camera).
     radius_px : float
-        Apparent radius, px.
+        Apparent radius: the largest distance from the projected centre to the projected limb
+        at mid-exposure, px (``f tan(asin(R / d))`` on the axis of a pinhole).
     electrons_total, electrons_raw_total : float
         Sum of ``electrons``; and the physical BRDF rendering's sum before normalisation, e-.
     variant : str
@@ -156,6 +161,8 @@ class ResolvedBodyImage:
     spp, time_samples : int
     brdf : BRDF
     normalize : str
+    seeds : tuple of int
+        Mitsuba seed of each sub-frame.
     """
 
     x0: int
@@ -171,6 +178,7 @@ class ResolvedBodyImage:
     time_samples: int
     brdf: BRDF
     normalize: str
+    seeds: tuple = ()
 
 
 # ------------------------------------------------------------------------------ variant
@@ -197,12 +205,6 @@ def clear_cache() -> None:
 
 
 # ------------------------------------------------------------------------------ geometry
-def _body_xy(camera, R_cam_icrs, u_icrs):
-    """(distorted, pinhole) pixel positions of a direction under attitudes (T, 3, 3)."""
-    v = np.einsum("...ij,j->...i", R_cam_icrs, u_icrs)
-    return camera.project(v), camera.project(v, distort=False)
-
-
 def _sample_times(exposure_s: float, n: int) -> np.ndarray:
     """Sub-frame instants relative to mid-exposure: midpoints of n equal sub-intervals, s."""
     return ((np.arange(n) + 0.5) / n - 0.5) * exposure_s
@@ -231,16 +233,6 @@ def crop_window(centres_xy, radius_px: float, *, margin_px: float = CROP_MARGIN_
     return int(lo[0]), int(lo[1]), int(qsize[0]), int(qsize[1])
 
 
-def _to_world(R_cam_icrs: np.ndarray, position) -> np.ndarray:
-    """Mitsuba camera-to-world 4x4: columns (-x_cam, -y_cam, z_cam) in ICRS, and the origin."""
-    M = np.eye(4)
-    M[:3, 0] = -R_cam_icrs[0]
-    M[:3, 1] = -R_cam_icrs[1]
-    M[:3, 2] = R_cam_icrs[2]
-    M[:3, 3] = position
-    return M
-
-
 def _frame_z(direction) -> np.ndarray:
     """A rotation 4x4 whose +z column is ``direction`` (unit)."""
     z = np.asarray(direction, dtype=float)
@@ -254,13 +246,92 @@ def _frame_z(direction) -> np.ndarray:
     return M
 
 
-def _pixel_solid_angle(camera, x0: int, y0: int, w: int, h: int) -> np.ndarray:
-    """Solid angle of each crop pixel, ``cos^3(theta) / f^2`` at its centre, sr; shape (h, w)."""
-    f = camera.focal_length_px
-    xn = (np.arange(x0, x0 + w) - camera.cx) / f
-    yn = (np.arange(y0, y0 + h) - camera.cy) / f
-    r2 = yn[:, None] ** 2 + xn[None, :] ** 2
-    return (1.0 + r2) ** -1.5 / (f * f)
+def _perpendicular_basis(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors e1, e2 with (e1, e2, c) right-handed; e1 near the camera's +x."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(c[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = a - (a @ c) * c
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(c, e1)
+
+
+def limb_radius_px(projection, R_cam_icrs, u_icrs, sin_r: float, *, n: int = 64) -> float:
+    """Largest distance from a body's projected centre to its projected limb, px.
+
+    Parameters
+    ----------
+    projection : Projection
+    R_cam_icrs : ndarray, shape (3, 3)
+    u_icrs : ndarray, shape (3,)
+        Unit vector to the body's centre.
+    sin_r : float
+        ``radius_km / distance_km``: the limb is the cone of half-angle ``asin(sin_r)``.
+    n : int
+        Limb points.
+
+    Returns
+    -------
+    float, px (NaN where the limb does not project)
+    """
+    u = np.asarray(u_icrs, dtype=float)
+    p, q = _perpendicular_basis(u)
+    rho = math.asin(sin_r)
+    phi = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    limb = math.cos(rho) * u + math.sin(rho) * (np.cos(phi)[:, None] * p + np.sin(phi)[:, None] * q)
+    R = np.asarray(R_cam_icrs, dtype=float)
+    xy = projection.project(np.concatenate([(R @ u)[None], limb @ R.T]))
+    return float(np.max(np.hypot(*(xy[1:] - xy[0]).T)))
+
+
+def _triangle_solid_angle(a, b, c) -> np.ndarray:
+    """Solid angle of spherical triangles of unit vectors (..., 3), sr (Van Oosterom & Strackee
+    1983); the triple product from differences, so tiny triangles keep their precision."""
+    num = np.abs(np.einsum("...i,...i->...", a, np.cross(b - a, c - a)))
+    den = 1.0 + np.einsum("...i,...i->...", a, b) + np.einsum("...i,...i->...", b, c) + np.einsum("...i,...i->...", c, a)
+    return 2.0 * np.arctan2(num, den)
+
+
+def crop_lines_of_sight(projection, x0: int, y0: int, w: int, h: int, *, body: str = "body"):
+    """The line-of-sight table of a crop, as the ``skynav_projection`` sensor takes it.
+
+    Parameters
+    ----------
+    projection : Projection
+    x0, y0, w, h : int
+        Crop: top-left pixel (column, row) and size, px.
+    body : str
+        Named in the error.
+
+    Returns
+    -------
+    basis : ndarray, shape (3, 3)
+        Columns ``e1, e2, c`` in the camera frame; ``c`` is the line of sight at the crop centre.
+    ab : ndarray, shape (h + 1, w + 1, 2)
+        Tangent-plane coordinates of the pixel-corner lines of sight: ``v ~ a e1 + b e2 + c``.
+    omega_sr : ndarray, shape (h, w)
+        Solid angle of each pixel, sr.
+
+    Raises
+    ------
+    ProjectionCropError
+        A line of sight is not finite, or 89.9 deg or more from the crop centre's.
+    """
+    xs = x0 - 0.5 + np.arange(w + 1, dtype=float)
+    ys = y0 - 0.5 + np.arange(h + 1, dtype=float)
+    corners = np.stack(np.meshgrid(xs, ys), axis=-1)
+    los = np.asarray(projection.line_of_sight(corners), dtype=float)
+    c = np.asarray(projection.line_of_sight(np.array([x0 + 0.5 * (w - 1), y0 + 0.5 * (h - 1)])), dtype=float)
+    if not (np.all(np.isfinite(los)) and np.all(np.isfinite(c))):
+        raise ProjectionCropError(body, (x0, y0, w, h), "has pixels without a finite line of sight")
+    los = los / np.linalg.norm(los, axis=-1, keepdims=True)
+    c = c / np.linalg.norm(c)
+    e1, e2 = _perpendicular_basis(c)
+    dots = los @ c
+    if float(dots.min()) < 1.7e-3:  # cos(89.9 deg)
+        raise ProjectionCropError(body, (x0, y0, w, h), "spans 90 deg or more from its central line of sight")
+    ab = np.stack([(los @ e1) / dots, (los @ e2) / dots], axis=-1)
+    c00, c10, c01, c11 = los[:-1, :-1], los[:-1, 1:], los[1:, :-1], los[1:, 1:]
+    omega = _triangle_solid_angle(c00, c10, c11) + _triangle_solid_angle(c00, c11, c01)
+    return np.column_stack([e1, e2, c]), ab, omega
 
 
 # ------------------------------------------------------------------------------ Mitsuba scene
@@ -292,8 +363,9 @@ def _spectrum_dict(wl, values) -> dict:
     }
 
 
-def _register_bsdfs(variant: str) -> None:
-    """Register the Python BSDFs (Lommel-Seeliger, Oren-Nayar) for the current variant."""
+def _register_plugins(variant: str) -> None:
+    """Register the Python plugins for the current variant: the BSDFs (Lommel-Seeliger,
+    Oren-Nayar) and the ``skynav_projection`` sensor."""
     if variant in _registered:
         return
     import drjit as dr
@@ -370,8 +442,83 @@ def _register_bsdfs(variant: str) -> None:
             k = self.reflectance.eval(si, active)
             return k * (dr.inv_pi * (self.a + self.b * dr.maximum(cos_psi, 0.0) * sin_a * tan_b) * c0)
 
+    class ProjectionSensor(mi.Sensor):
+        """Rays along a table of lines of sight at the film's pixel corners (module notes).
+
+        Parameters (set per frame, never literals in a kernel): ``a``, ``b``, the ``(h+1) x (w+1)``
+        corner table of tangent-plane coordinates, each flattened row-major; ``basis``, the
+        crop-to-world rotation (columns ``R^T e1, R^T e2, R^T c``); ``origin``, the observer.
+        """
+
+        def __init__(self, props):
+            mi.Sensor.__init__(self, props)
+            w, h = self.film().crop_size()
+            self.w, self.h = int(w), int(h)
+            self.m_needs_sample_3 = False  # a pinhole-like sensor: no aperture sample
+            # a Dr.Jit array in the JIT variants; in the scalar ones (one ray per call, mi.Float is
+            # a float) a NumPy array read by index
+            self._jit = dr.is_jit_v(mi.Float)
+            self.set_table(np.zeros((self.h + 1, self.w + 1, 2)))
+            self.basis = mi.Matrix3f(mi.ScalarMatrix3f(np.eye(3)))
+            self.origin = mi.Point3f(0.0, 0.0, -1.0)
+            dr.make_opaque(self.basis, self.origin)
+
+        def set_table(self, ab) -> None:
+            """Corner table, ndarray (h + 1, w + 1, 2)."""
+            # two flat arrays gathered with the pixel index itself (a gather of (a, b) pairs from
+            # one interleaved array let Dr.Jit emit two forms of the index arithmetic, i.e. two
+            # kernels, from one frame to the next)
+            a = np.ascontiguousarray(np.asarray(ab)[..., 0], dtype=np.float32).ravel()
+            b = np.ascontiguousarray(np.asarray(ab)[..., 1], dtype=np.float32).ravel()
+            self.a, self.b = (mi.Float(a), mi.Float(b)) if self._jit else (a, b)
+
+        def _corner(self, k, active):
+            if self._jit:
+                return mi.Point2f(dr.gather(mi.Float, self.a, k, active), dr.gather(mi.Float, self.b, k, active))
+            return mi.Point2f(float(self.a[k]), float(self.b[k]))
+
+        def set_view(self, basis, origin) -> None:
+            """Crop-to-world rotation (3, 3) and observer position (3,), world units."""
+            self.basis = mi.Matrix3f(mi.ScalarMatrix3f(np.asarray(basis, dtype=np.float64)))
+            self.origin = mi.Point3f(*(float(v) for v in origin))
+            dr.make_opaque(self.basis, self.origin)
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
+            wavelengths, weight = self.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f), wavelength_sample, active)
+            u = position_sample.x * self.w
+            v = position_sample.y * self.h
+            i = dr.clip(mi.Int32(dr.floor(u)), 0, self.w - 1)
+            j = dr.clip(mi.Int32(dr.floor(v)), 0, self.h - 1)
+            fu = u - mi.Float(i)
+            fv = v - mi.Float(j)
+            k = mi.UInt32(j * (self.w + 1) + i)
+            c00 = self._corner(k, active)
+            c10 = self._corner(k + 1, active)
+            c01 = self._corner(k + (self.w + 1), active)
+            c11 = self._corner(k + (self.w + 2), active)
+            p = dr.lerp(dr.lerp(c00, c10, fu), dr.lerp(c01, c11, fu), fv)
+            d = dr.normalize(self.basis @ mi.Vector3f(p.x, p.y, 1.0))
+            return mi.Ray3f(self.origin, d, time, wavelengths), weight
+
+        def sample_ray_differential(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
+            ray, weight = self.sample_ray(time, wavelength_sample, position_sample, aperture_sample, active)
+            return mi.RayDifferential3f(ray), weight
+
+        def traverse(self, callback):
+            super().traverse(callback)
+            if self._jit:
+                callback.put("table_a", self.a, mi.ParamFlags.NonDifferentiable)
+                callback.put("table_b", self.b, mi.ParamFlags.NonDifferentiable)
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            return f"ProjectionSensor[{self.w} x {self.h}]"
+
     mi.register_bsdf("skynav_lommel_seeliger", lambda props: LommelSeeliger(props))
     mi.register_bsdf("skynav_oren_nayar", lambda props: OrenNayar(props))
+    mi.register_sensor("skynav_projection", lambda props: ProjectionSensor(props))
     _registered.add(variant)
 
 
@@ -397,7 +544,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
     wl = spectra.WAVELENGTHS_NM
     refl = brdf.reflectance_550 * spectra.reflectance_shape(body_name, wl)
     srf = spectra.response_on_grid(camera, wl) * wl / LAMBDA_REF_NM
-    key = (variant, w, h, float(camera.focal_length_px), brdf, tuple(np.round(refl, 12)), tuple(np.round(srf, 12)), int(spp))
+    key = (variant, w, h, brdf, tuple(np.round(refl, 12)), tuple(np.round(srf, 12)), int(spp))
     with _lock:
         hit = _cache.get(key)
         if hit is not None:
@@ -405,19 +552,13 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
             return hit
     import mitsuba as mi
 
-    _register_bsdfs(variant)
-    fov_x_deg = math.degrees(2.0 * math.atan(0.5 * w / camera.focal_length_px))
+    _register_plugins(variant)
     sun = solar_irradiance_nodes_w_m2_nm(AU_KM)
     scene = mi.load_dict({
         "type": "scene",
         "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
         "sensor": {
-            "type": "perspective",
-            "fov_axis": "x",
-            "fov": fov_x_deg,
-            "near_clip": _NEAR_CLIP,
-            "far_clip": _FAR_CLIP,
-            "to_world": mi.ScalarTransform4f(_to_world(np.eye(3), [0.0, 0.0, -1.0])),
+            "type": "skynav_projection",
             "film": {
                 "type": "specfilm",
                 "width": int(w),
@@ -468,12 +609,14 @@ def render_resolved_body(
     rng: np.random.Generator | int | None = None,
     variant: str | None = None,
     margin_px: float = CROP_MARGIN_PX,
+    projection=None,
 ) -> ResolvedBodyImage:
     """Ray-trace one resolved body with Mitsuba 3 in a crop window around it.
 
     Parameters
     ----------
     scene : skynav.scenes.scene.Scene
+        Attitude, body rate and the camera's optics (aperture, spectral response, exposure).
     body : skynav.scenes.scene.BodyInView
     spp : int
         Samples per pixel (the stratified sampler rounds up to a square).
@@ -487,11 +630,15 @@ def render_resolved_body(
         ``"phase_law"``: total = point-source electrons of the body's V magnitude;
         ``"none"``: the physical rendering of the BRDF and albedo.
     rng : numpy.random.Generator, int or None
-        Draws the Mitsuba seed of each sub-frame (None: seed 0, reproducible).
+        Draws the Mitsuba seed of each sub-frame (None: ``default_rng(0)``, the same seeds on
+        every call; :func:`~skynav.renderer.render.render` passes a child of the frame's stream).
     variant : str or None
         Mitsuba variant (None: :func:`jit_backend.select_mitsuba_variant`).
     margin_px : float
         Extra pixels around the disk in the crop.
+    projection : Projection, optional
+        Where the rays come from: ``projection.line_of_sight`` at the crop's pixel corners
+        (default ``scene.camera``: its pinhole and lens distortion).
 
     Returns
     -------
@@ -510,21 +657,28 @@ def render_resolved_body(
     rng = np.random.default_rng(0 if rng is None else rng)
 
     cam = scene.camera
+    proj = cam if projection is None else projection
     variant = current_variant(variant)
     import mitsuba as mi
 
     u = np.asarray(body.u_icrs, dtype=float)
     u = u / np.linalg.norm(u)
     sin_r = body.radius_km / body.distance_km
-    radius_px = cam.focal_length_px * math.tan(math.asin(sin_r))
 
     dt = _sample_times(cam.exposure_s, int(time_samples))
-    R_t = propagate_attitude(np.asarray(scene.R_cam_icrs, dtype=float), scene.angular_velocity_rad_s, dt)
-    xy_dist, xy_pin = _body_xy(cam, R_t, u)
-    x0, y0, w, h = crop_window(xy_dist, radius_px, margin_px=margin_px)
+    R_mid = np.asarray(scene.R_cam_icrs, dtype=float)
+    R_t = propagate_attitude(R_mid, scene.angular_velocity_rad_s, dt)
+    centres = proj.project(np.einsum("tij,j->ti", R_t, u))
+    radius_px = limb_radius_px(proj, R_mid, u, sin_r)
+    if not (np.all(np.isfinite(centres)) and math.isfinite(radius_px)):
+        raise ProjectionCropError(body.name, (0, 0, 0, 0), "cannot be placed: its centre or limb does not project")
+    x0, y0, w, h = crop_window(centres, radius_px, margin_px=margin_px)
+    basis, ab, omega_sr = crop_lines_of_sight(proj, x0, y0, w, h, body=body.name)
 
     entry = _scene_for(variant, cam, w, h, brdf, body.name, int(spp))
     params = entry.params
+    sensor = entry.scene.sensors()[0]
+    sensor.set_table(ab)
 
     # body: sphere radius sin_r at the origin (world unit = observer-body distance)
     _set(params, "body.to_world", np.diag([sin_r, sin_r, sin_r, 1.0]))
@@ -533,23 +687,22 @@ def render_resolved_body(
     sun_vec = body_pos - np.asarray(body.sun_position_km, dtype=float)
     r_sun_km = float(np.linalg.norm(sun_vec))
     _set(params, "sun.to_world", _frame_z(sun_vec))
+    params.update()
     # The emitter keeps its 1 AU spectrum (no per-frame spectral update, no recompilation); the
     # rendering is linear in the irradiance, so the 1/r^2 factor is applied to the film values.
     inv_r2 = (AU_KM / r_sun_km) ** 2
 
     acc = np.zeros((h, w))
+    seeds = []
     for k in range(len(dt)):
-        shift = xy_dist[k] - xy_pin[k]  # distortion as a local translation
-        _set(params, "sensor.to_world", _to_world(R_t[k], -u))
-        _set(params, "sensor.principal_point_offset_x", float(((w - 1) / 2.0 - (cam.cx + shift[0] - x0)) / w))
-        _set(params, "sensor.principal_point_offset_y", float(((h - 1) / 2.0 - (cam.cy + shift[1] - y0)) / h))
-        params.update()
+        sensor.set_view(R_t[k].T @ basis, -u)  # crop frame -> camera frame -> ICRS
         seed = int(rng.integers(0, 2**31 - 1))
+        seeds.append(seed)
         img = mi.render(entry.scene, spp=entry.spp, seed=seed)
         acc += np.asarray(img, dtype=np.float64).reshape(h, w)
     value = acc * (inv_r2 / len(dt))  # time-averaged film value at r_sun, W m^-2 sr^-1 (SRF-weighted)
 
-    e_per_s = value * _pixel_solid_angle(cam, x0, y0, w, h) * (cam.aperture_area_m2 * LAMBDA_REF_NM * 1e-9 / (_H_J_S * _C_M_S))
+    e_per_s = value * omega_sr * (cam.aperture_area_m2 * LAMBDA_REF_NM * 1e-9 / (_H_J_S * _C_M_S))
     electrons = e_per_s * cam.exposure_s
     raw_total = float(electrons.sum())
     if normalize == "phase_law":
@@ -561,15 +714,16 @@ def render_resolved_body(
         else:
             electrons = np.zeros_like(electrons)
     total = float(electrons.sum())
+    centre = proj.project(R_mid @ u)
     if total > 0:
         ys = np.arange(y0, y0 + h, dtype=float)
         xs = np.arange(x0, x0 + w, dtype=float)
         photocentre = (float(electrons.sum(0) @ xs / total), float(electrons.sum(1) @ ys / total))
     else:
-        photocentre = (float(body.xy[0]), float(body.xy[1]))
+        photocentre = (float(centre[0]), float(centre[1]))
     return ResolvedBodyImage(
         x0=x0, y0=y0, electrons=electrons, photocentre_xy=photocentre,
-        centre_of_figure_xy=(float(body.xy[0]), float(body.xy[1])), radius_px=float(radius_px),
+        centre_of_figure_xy=(float(centre[0]), float(centre[1])), radius_px=float(radius_px),
         electrons_total=total, electrons_raw_total=raw_total, variant=variant, spp=entry.spp,
-        time_samples=int(time_samples), brdf=brdf, normalize=normalize,
+        time_samples=int(time_samples), brdf=brdf, normalize=normalize, seeds=tuple(seeds),
     )

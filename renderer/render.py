@@ -1,29 +1,39 @@
-"""Scene -> image: the software-mode render driver.
+"""Scene -> image: the software-mode render driver, in two steps a bench can separate.
 
-Order of operations (all in expected electrons until the detector):
+:func:`expected_image` (the optics): sources -> noise-free electrons and in-band pupil irradiance
+per pixel, through any :class:`~skynav.scenes.projection.Projection` (default: the scene's camera):
 
 1. every point source (stars, unresolved bodies) gets electrons and in-band pupil irradiance from
-   :mod:`radiometry`; its pixel path over the exposure is sampled from the attitude kinematics;
+   :mod:`radiometry`; its pixel path over the exposure is the projection of its apparent
+   direction under the attitude kinematics (:func:`source_paths`);
 2. the pixel-integrated PSF is integrated along each path (:mod:`raster`);
-3. resolved bodies are ray-traced by Mitsuba (:mod:`mitsuba_backend`) in crop windows, blurred by
-   the same PSF and added;
-4. a uniform sky background;
-5. the sensor (:mod:`detector`) turns expected electrons into digital counts; cosmic-ray charge
-   joins after shot noise and PRNU, before the full-well limit. The ``electrons`` EXR channel
-   holds sources + background + cosmic-ray charge (no noise).
+3. resolved bodies are ray-traced by Mitsuba (:mod:`mitsuba_backend`) in crop windows, with rays
+   from the projection's lines of sight, blurred by the same PSF and added;
+4. a uniform sky background.
 
-The random stream is one ``numpy.random.Generator``: cosmic rays draw from it first, then the
-sensor; so a frame is reproduced bit for bit from its seed (per backend).
+:func:`detect` (the sensor): cosmic-ray charge and the sensor chain (:mod:`detector`: PRNU, dark
+current, shot noise, full well, read noise, gain, quantisation) turn expected electrons into
+digital counts. Cosmic-ray charge joins after shot noise and PRNU, before the full-well limit.
+A hardware-in-the-loop bench puts its display model where :func:`detect` is.
+
+:func:`render` composes the two and writes the ground truth (:mod:`truth`).
+
+Randomness: the frame's ``numpy.random.Generator`` feeds the detection: cosmic rays draw from it
+first, then the sensor, so a frame is reproduced bit for bit from its seed (per backend). The
+Mitsuba seeds of resolved bodies come from a child stream, ``rng.spawn(1)[0]``, which leaves the
+frame's stream untouched: every frame samples its disks differently, and the cosmic rays and
+sensor noise are the draws they were before.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from skynav.scenes import frames
+from skynav.scenes.camera import Camera
 from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.scene import Scene
 
@@ -42,6 +52,10 @@ class RenderOptions:
         Uniform sky background (zodiacal + galactic), e-/px/s.
     cosmic_ray_mode : str
         ``"poisson"``: Poisson count with mean ``camera.cosmic_rays_per_frame``; ``"fixed"``.
+    cosmic_ray_track_prob : float
+        Probability that a cosmic-ray hit is a short track rather than a single pixel
+        (:func:`~skynav.renderer.cosmic_rays.draw_cosmic_rays`; the draws do not depend on it,
+        so 0 and 0.3 give the same hit positions and charges).
     mitsuba_spp, mitsuba_time_samples : int
         Samples per pixel and sub-frame instants for resolved bodies.
     resolved : bool
@@ -56,6 +70,7 @@ class RenderOptions:
     path_step_px: float = 0.5
     background_e_per_px_s: float = 0.0
     cosmic_ray_mode: str = "poisson"
+    cosmic_ray_track_prob: float = 0.0
     mitsuba_spp: int = 16
     mitsuba_time_samples: int = 1
     resolved: bool = True
@@ -71,6 +86,8 @@ class RenderOptions:
             raise ConfigValueError("render.background_e_per_px_s", self.background_e_per_px_s, ">= 0")
         if self.cosmic_ray_mode not in ("poisson", "fixed"):
             raise ConfigValueError("render.cosmic_ray_mode", self.cosmic_ray_mode, "poisson or fixed")
+        if not 0.0 <= self.cosmic_ray_track_prob <= 1.0:
+            raise ConfigValueError("render.cosmic_ray_track_prob", self.cosmic_ray_track_prob, "in [0, 1]")
         if self.backend not in ("auto", "llvm", "numpy"):
             raise ConfigValueError("render.backend", self.backend, "auto, llvm or numpy")
         if self.mitsuba_spp < 1 or self.mitsuba_time_samples < 1:
@@ -99,55 +116,177 @@ class Frame:
     truth: dict
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ExpectedImage:
+    """The noise-free image of a scene through a projection, before any detector.
+
+    Attributes
+    ----------
+    electrons : ndarray, shape (H, W), float64
+        Expected photo-electrons per pixel over the exposure (sources + background), e-.
+    irradiance_w_m2 : ndarray, shape (H, W), float64
+        In-band irradiance at the pupil per pixel from the sources, W/m^2.
+    exposure_s : float
+        Exposure the electrons are integrated over, s.
+    star_electrons : ndarray, shape (N,), e-
+        Electrons of each star of ``scene.stars`` (whether on the image or not).
+    body_electrons : dict of str -> float
+        Electrons of each body, e- (a resolved body: its rendered crop's total).
+    body_photocentre : dict of str -> ndarray, shape (2,)
+        Where each body drawn as a point was drawn (centre + far-field photocentre offset), px.
+    resolved : dict of str -> ResolvedBodyImage
+        The Mitsuba crops of the ray-traced bodies.
+    mitsuba_variant : str or None
+        The Mitsuba variant that ray-traced them (None: no body was ray-traced).
+    projection : Projection
+        The projection the image was made through.
+    """
+
+    electrons: np.ndarray
+    irradiance_w_m2: np.ndarray
+    exposure_s: float
+    star_electrons: np.ndarray
+    body_electrons: dict
+    body_photocentre: dict
+    resolved: dict
+    mitsuba_variant: str | None
+    projection: object
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Detection:
+    """What the sensor made of an expected image.
+
+    Attributes
+    ----------
+    dn : ndarray, shape (H, W), uint8 or uint16
+        Digital counts.
+    electrons : ndarray, shape (H, W), float64
+        Expected electrons plus the cosmic-ray charge (no noise), e-.
+    hits : CosmicRayHits
+        The cosmic-ray hits of the frame.
+    backend : str
+        The sensor backend that ran: ``"llvm"`` or ``"numpy"`` (the noise-free chain,
+        ``RenderOptions(noise=False)``, is numpy).
+    """
+
+    dn: np.ndarray
+    electrons: np.ndarray
+    hits: object
+    backend: str
+
+
 def sample_times(exposure_s: float, n: int) -> np.ndarray:
     """``n`` instants spread evenly over the exposure, relative to mid-exposure, s."""
     return np.linspace(-0.5 * exposure_s, 0.5 * exposure_s, n)
 
 
-def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions) -> np.ndarray:
-    """Pixel paths (N, S, 2) of apparent directions (N, 3) over the exposure.
+def _max_sweep_px(scene: Scene, projection, w: np.ndarray) -> float:
+    """Upper bound of how far a source moves on the image over the exposure, px.
+
+    A :class:`Camera`: cross-boresight rate x focal length, plus twist rate x the tangent of the
+    corner angle (the closed form of a pinhole). Another projection: the largest local scale
+    (px/rad) at the image centre and corners, from finite differences of its line of sight, times
+    the cross-boresight rate plus the twist rate x the sine of the largest corner angle.
+    """
+    T = scene.camera.exposure_s
+    if isinstance(projection, Camera):
+        return T * projection.focal_length_px * (math.hypot(w[0], w[1]) + abs(w[2]) * math.tan(projection.half_diagonal_fov_rad))
+    W, H = projection.width, projection.height
+    pts = np.array([[(W - 1) / 2, (H - 1) / 2], [-0.5, -0.5], [W - 1.5, -0.5], [-0.5, H - 1.5], [W - 1.5, H - 1.5]])
+    los = projection.line_of_sight(pts)
+    dx = projection.line_of_sight(pts + [1.0, 0.0])
+    dy = projection.line_of_sight(pts + [0.0, 1.0])
+    step = np.concatenate([np.linalg.norm(dx - los, axis=-1), np.linalg.norm(dy - los, axis=-1)])
+    scale = 1.0 / float(np.min(step))  # px per rad (chord = angle to 1e-8 over one pixel)
+    sin_corner = float(np.max(np.linalg.norm(los[:, :2], axis=-1)))
+    return T * scale * (math.hypot(w[0], w[1]) + abs(w[2]) * sin_corner)
+
+
+def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, projection=None) -> np.ndarray:
+    """Pixel paths of apparent directions over the exposure.
 
     Without rotation every path is two equal points. With a body rate the path is sampled every
     ``options.path_step_px`` along the largest sweep (rotation about the boresight makes arcs).
-    """
-    cam = scene.camera
-    u = np.atleast_2d(np.asarray(u_icrs, dtype=float))
-    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
-    rate = float(np.linalg.norm(w))
-    if rate == 0.0 or len(u) == 0:
-        xy = cam.project(u @ scene.R_cam_icrs.T)
-        return np.stack([xy, xy], axis=1)
-    # largest sweep in px: cross-boresight rate x focal length, plus twist rate x corner radius
-    sweep_px = cam.exposure_s * cam.focal_length_px * (
-        math.hypot(w[0], w[1]) + abs(w[2]) * math.tan(cam.half_diagonal_fov_rad))
-    n = int(min(512, max(2, math.ceil(sweep_px / options.path_step_px) + 1)))
-    Rs = frames.propagate_attitude(scene.R_cam_icrs, w, sample_times(cam.exposure_s, n))
-    v = np.einsum("sij,nj->nsi", Rs, u)
-    return cam.project(v)
-
-
-def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
-           options: RenderOptions = RenderOptions()) -> Frame:
-    """Render one frame of a scene.
 
     Parameters
     ----------
     scene : Scene
-    seed : int or numpy.random.SeedSequence, optional
-        Seed of the frame's random stream (recorded in the ground truth).
-    rng : numpy.random.Generator, optional
-        The random stream itself (used if given; ``seed`` is then only recorded).
+    u_icrs : ndarray, shape (N, 3)
+        Apparent unit vectors, ICRS.
     options : RenderOptions
+    projection : Projection, optional
+        Camera-frame direction -> pixel (default ``scene.camera``).
+
+    Returns
+    -------
+    ndarray, shape (N, S, 2), px
     """
-    from . import cosmic_rays as cr
-    from .detector import Sensor
+    proj = scene.camera if projection is None else projection
+    u = np.atleast_2d(np.asarray(u_icrs, dtype=float))
+    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
+    rate = float(np.linalg.norm(w))
+    if rate == 0.0 or len(u) == 0:
+        xy = proj.project(u @ scene.R_cam_icrs.T)
+        return np.stack([xy, xy], axis=1)
+    sweep_px = _max_sweep_px(scene, proj, w)
+    n = int(min(512, max(2, math.ceil(sweep_px / options.path_step_px) + 1)))
+    Rs = frames.propagate_attitude(scene.R_cam_icrs, w, sample_times(scene.camera.exposure_s, n))
+    v = np.einsum("sij,nj->nsi", Rs, u)
+    return proj.project(v)
+
+
+def _check_projection(scene: Scene, projection):
+    from skynav.scenes.projection import Projection
+
+    if projection is None:
+        return scene.camera
+    if not isinstance(projection, Projection):
+        raise ConfigValueError("projection", type(projection).__name__, "an object with width, height, project() and line_of_sight()")
+    cam = scene.camera
+    if (int(projection.width), int(projection.height)) != (cam.width, cam.height):
+        raise ConfigValueError("projection.size", (projection.width, projection.height),
+                               f"the camera's image size ({cam.width}, {cam.height})")
+    return projection
+
+
+def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
+    """A body's apparent pixel positions at mid-exposure, start and end; shape (3, 2), px."""
+    if projection is scene.camera:  # the scene computed them with this camera
+        return np.array([body.xy, body.xy_start, body.xy_end], dtype=float)
+    half = 0.5 * scene.camera.exposure_s
+    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
+    Rs = np.stack([scene.R_cam_icrs, frames.propagate_attitude(scene.R_cam_icrs, w, -half),
+                   frames.propagate_attitude(scene.R_cam_icrs, w, half)])
+    return projection.project(np.einsum("sij,j->si", Rs, np.asarray(body.u_icrs, dtype=float)))
+
+
+def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions()) -> ExpectedImage:
+    """Noise-free electrons and pupil irradiance of a scene through a projection.
+
+    Parameters
+    ----------
+    scene : Scene
+        Sources, attitude and the camera's optics (aperture, spectral response, exposure, PSF).
+    projection : Projection, optional
+        Camera-frame line of sight <-> pixel of the image (default ``scene.camera``); its size
+        must be the camera's. Point sources are placed with ``projection.project``; resolved
+        bodies are ray-traced along ``projection.line_of_sight``.
+    rng : numpy.random.Generator
+        The frame's stream. Only resolved bodies use it, through ``rng.spawn(1)[0]`` (the Mitsuba
+        seeds), so ``rng``'s own draws are left for :func:`detect`.
+    options : RenderOptions
+
+    Returns
+    -------
+    ExpectedImage
+    """
+    from .brdf import photocentre_offset_xy
     from .psf import GaussianPSF
     from .radiometry import Radiometry
     from .raster import rasterize
-    from .truth import frame_truth
 
-    if rng is None:
-        rng = np.random.default_rng(seed)
+    proj = _check_projection(scene, projection)
     cam = scene.camera
     shape = (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
@@ -158,8 +297,10 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     stars = scene.stars
     star_e = np.asarray(rad.star_electrons_per_s(stars.v_mag, stars.teff_k), dtype=float) * T
     star_irr = np.asarray(rad.star_irradiance_w_m2(stars.v_mag, stars.teff_k), dtype=float)
-    traced = [b for b in scene.bodies if b.resolved and options.resolved and _near_image(cam, b)]
-    points = [b for b in scene.bodies if b not in traced and np.all(np.isfinite(b.xy)) and _near_image(cam, b)]
+    track = {b.name: _body_track_xy(scene, proj, b) for b in scene.bodies}
+    near = {b.name: _near_image(proj, track[b.name], b) for b in scene.bodies}
+    traced = [b for b in scene.bodies if b.resolved and options.resolved and near[b.name]]
+    points = [b for b in scene.bodies if b not in traced and np.all(np.isfinite(track[b.name][0])) and near[b.name]]
     body_e = {b.name: float(rad.body_electrons_per_s(b.name, b.v_mag)) * T if np.isfinite(b.v_mag) else 0.0
               for b in scene.bodies}
     body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
@@ -167,49 +308,119 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     u_pts = np.concatenate([stars.u_icrs.reshape(-1, 3), np.array([b.u_icrs for b in points]).reshape(-1, 3)])
     e_pts = np.concatenate([star_e, np.array([body_e[b.name] for b in points])])
     irr_pts = np.concatenate([star_irr, np.array([body_irr[b.name] for b in points])])
-    paths = source_paths(scene, u_pts, options)
+    paths = source_paths(scene, u_pts, options, proj)
     # unresolved bodies are drawn at their photocentre (far-field BRDF offset along the Sun's
     # projection), so the centroid is continuous across the resolved threshold
-    from .brdf import photocentre_offset_xy
-
     body_photocentre = {}
     for j, b in enumerate(points):
-        off = np.asarray(photocentre_offset_xy(cam, scene.R_cam_icrs, b), dtype=float)
+        off = np.asarray(photocentre_offset_xy(proj, scene.R_cam_icrs, b), dtype=float)
         if np.all(np.isfinite(off)):
             paths[len(star_e) + j] += off
-            body_photocentre[b.name] = np.asarray(b.xy, dtype=float) + off
+            body_photocentre[b.name] = track[b.name][0] + off
     electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
     irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
 
-    # --- resolved bodies (Mitsuba), blurred by the same PSF
-    resolved_truth = {}
-    for b in traced:
+    # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
+    resolved = {}
+    variant = None
+    if traced:
         from .mitsuba_backend import render_resolved_body
 
-        img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples)
-        crop, pad = blur_crop(img.electrons, psf, options.flux_fraction_lost)
-        _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad)
-        scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
-        _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
-        body_e[b.name] = float(img.electrons_total)
-        resolved_truth[b.name] = img
+        body_rng = rng.spawn(1)[0]
+        for b in traced:
+            img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
+                                       rng=body_rng, projection=proj)
+            crop, pad = blur_crop(img.electrons, psf, options.flux_fraction_lost)
+            _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad)
+            scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
+            _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
+            body_e[b.name] = float(img.electrons_total)
+            resolved[b.name] = img
+            variant = img.variant
 
     if options.background_e_per_px_s > 0:
         electrons += options.background_e_per_px_s * T
+    return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
+                         body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
+                         mitsuba_variant=variant, projection=proj)
 
+
+def sensor_backend(requested: str) -> str:
+    """The sensor backend a request resolves to here: ``"auto"`` is ``"llvm"`` where
+    :func:`~skynav.renderer.jit_backend.llvm_available`, else ``"numpy"``."""
+    from . import jit_backend
+
+    if requested == "auto":
+        return "llvm" if jit_backend.llvm_available() else "numpy"
+    return requested
+
+
+def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, options: RenderOptions = RenderOptions()) -> Detection:
+    """The camera sensor's reading of an expected image: cosmic rays, noise, quantisation.
+
+    Parameters
+    ----------
+    expected : ExpectedImage
+        From :func:`expected_image` (or any image of the camera's size in ``electrons``).
+    camera : Camera
+        Sensor parameters (``camera.sensor``), exposure (dark current) and cosmic-ray rate.
+    rng : numpy.random.Generator
+        The frame's stream: cosmic rays draw first, then the sensor.
+    options : RenderOptions
+        ``cosmic_ray_mode``, ``cosmic_ray_track_prob``, ``noise`` and ``backend``.
+
+    Returns
+    -------
+    Detection
+    """
+    from . import cosmic_rays as cr
+    from .detector import Sensor
+
+    cam = camera
+    electrons = expected.electrons
+    shape = (cam.height, cam.width)
+    if electrons.shape != shape:
+        raise ConfigValueError("expected.electrons.shape", electrons.shape, f"the camera's (H, W) = {shape}")
+    T = cam.exposure_s
     # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
-    hits = cr.draw_cosmic_rays(shape, cam.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode)
+    hits = cr.draw_cosmic_rays(shape, cam.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
+                               track_prob=options.cosmic_ray_track_prob)
     cr_charge = cr.deposit(np.zeros(shape), hits)
 
     sensor = Sensor(cam.sensor, shape)
     if options.noise:
-        dn = sensor.expose(electrons, T, rng, backend=options.backend, extra_charge_e=cr_charge)
+        backend = sensor_backend(options.backend)
+        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=cr_charge)
     else:
+        backend = "numpy"
         dn = sensor.expected_dn(electrons + cr_charge, T)
-    signal = electrons + cr_charge
-    truth = frame_truth(scene, star_electrons=star_e, body_electrons=body_e, resolved=resolved_truth,
-                        hits=hits, seed=seed, options=options, body_photocentre=body_photocentre)
-    return Frame(dn=dn, electrons=signal.astype(np.float32), irradiance_w_m2=irradiance.astype(np.float32), truth=truth)
+    return Detection(dn=dn, electrons=electrons + cr_charge, hits=hits, backend=backend)
+
+
+def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
+           options: RenderOptions = RenderOptions(), projection=None) -> Frame:
+    """Render one frame of a scene: :func:`expected_image`, then :func:`detect`, then the truth.
+
+    Parameters
+    ----------
+    scene : Scene
+    seed : int or numpy.random.SeedSequence, optional
+        Seed of the frame's random stream (recorded in the ground truth).
+    rng : numpy.random.Generator, optional
+        The random stream itself (used if given; ``seed`` is then only recorded).
+    options : RenderOptions
+    projection : Projection, optional
+        Pixel <-> line of sight (default ``scene.camera``).
+    """
+    from .truth import frame_truth
+
+    if rng is None:
+        rng = np.random.default_rng(seed)
+    expected = expected_image(scene, projection=projection, rng=rng, options=options)
+    detection = detect(expected, scene.camera, rng, options)
+    truth = frame_truth(scene, expected, detection, seed=seed, options=options)
+    return Frame(dn=detection.dn, electrons=detection.electrons.astype(np.float32),
+                 irradiance_w_m2=expected.irradiance_w_m2.astype(np.float32), truth=truth)
 
 
 def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float):
@@ -231,13 +442,17 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float):
     return out, h
 
 
-def _near_image(cam, body, margin_px: float = 50.0) -> bool:
-    pts = np.array([body.xy, body.xy_start, body.xy_end], dtype=float)
+def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:
+    """True if any of a body's positions (mid-exposure, start, end; (3, 2) px) is within
+    ``margin_px`` plus its apparent radius of the image."""
+    pts = np.asarray(track_xy, dtype=float)
     ok = np.all(np.isfinite(pts), axis=1)
     if not ok.any():
         return False
     margin = margin_px + 0.5 * body.angular_diameter_px
-    return bool(cam.in_image(pts[ok], margin).any())
+    x, y = pts[ok, 0], pts[ok, 1]
+    W, H = projection.width, projection.height
+    return bool(((x >= -0.5 - margin) & (x < W - 0.5 + margin) & (y >= -0.5 - margin) & (y < H - 0.5 + margin)).any())
 
 
 def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int) -> None:

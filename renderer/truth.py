@@ -29,8 +29,31 @@ def _seed_record(seed):
     return int(seed)
 
 
-def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, options, body_photocentre=None) -> dict:
-    """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays)."""
+def frame_truth(scene, expected, detection, *, seed, options) -> dict:
+    """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays).
+
+    Parameters
+    ----------
+    scene : skynav.scenes.scene.Scene
+    expected : skynav.renderer.render.ExpectedImage
+        Electrons per source, the Mitsuba crops and the variant that made them.
+    detection : skynav.renderer.render.Detection
+        The cosmic-ray hits and the sensor backend that ran.
+    seed : int, sequence of int, numpy.random.SeedSequence or None
+        The frame's seed, as given to :func:`~skynav.renderer.render.render`.
+    options : skynav.renderer.render.RenderOptions
+
+    Returns
+    -------
+    dict
+        ``render`` holds the options as requested plus ``backend_used`` (``"llvm"`` or
+        ``"numpy"``) and ``mitsuba_variant`` (None when no body was ray-traced); each
+        ``cosmic_rays`` record the hit's whole track (:meth:`CosmicRayHits.to_ground_truth`).
+    """
+    star_electrons = expected.star_electrons
+    body_electrons = expected.body_electrons
+    resolved = expected.resolved
+    body_photocentre = expected.body_photocentre
 
     cam = scene.camera
     t = time_from_tdb_seconds(scene.epoch_tdb_s)
@@ -87,14 +110,19 @@ def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, 
             d["radius_px"] = float(img.radius_px)
             d["electrons_raw"] = float(img.electrons_raw_total)
             d["mitsuba_variant"] = img.variant
+            d["mitsuba_seeds"] = [int(v) for v in img.seeds]
         else:
             d["rendered_as"] = "point" if b.in_fov else "none"
             pc = (body_photocentre or {}).get(b.name)
             if pc is not None:
                 d["photocentre_xy"] = [float(pc[0]), float(pc[1])]
         body_list.append(d)
-    cr_list = [{"xy": [float(x), float(y)], "electrons": float(e), **({"pixels": p} if p is not None else {})}
-               for (x, y), e, p in _hit_records(hits)]
+    render = dataclasses.asdict(options)
+    render["backend_used"] = detection.backend
+    render["mitsuba_variant"] = expected.mitsuba_variant
+    projection = expected.projection
+    if projection is not cam:
+        render["projection"] = type(projection).__name__
     return {
         "schema": SCHEMA,
         "epoch": {"tdb_iso": t.isot, "jd_tdb": float(t.jd1 + t.jd2), "tdb_seconds_past_j2000": scene.epoch_tdb_s},
@@ -107,23 +135,13 @@ def frame_truth(scene, *, star_electrons, body_electrons, resolved, hits, seed, 
             "quaternion_convention": "scalar first, paper 000 Eq. 14, v_cam = A v_icrs",
         },
         "camera": cam.to_dict(),
-        "render": dataclasses.asdict(options),
+        "render": render,
         "sun": {"u_icrs": np.asarray(scene.sun_u_icrs).tolist(), "boresight_angle_deg": math.degrees(scene.sun_angle_rad)},
         "star_mag_limit": scene.star_mag_limit,
         "pixel_convention": "x = column, y = row, centre of the top-left pixel at (0, 0)",
         "stars": star_list,
         "bodies": body_list,
-        "cosmic_rays": cr_list,
+        "cosmic_rays": detection.hits.to_ground_truth(),
         "seeds": {"frame": _seed_record(seed), "sensor_pattern": cam.sensor.pattern_seed},
     }
 
-
-def _hit_records(hits):
-    """(xy, electrons, pixels-or-None) per cosmic-ray hit, whatever the hits container holds."""
-    if hits is None:
-        return []
-    if hasattr(hits, "records"):
-        return hits.records()
-    xy = np.asarray(getattr(hits, "xy", np.zeros((0, 2))), dtype=float).reshape(-1, 2)
-    e = np.asarray(getattr(hits, "electrons", np.zeros(len(xy))), dtype=float).reshape(-1)
-    return [((x, y), ee, None) for (x, y), ee in zip(xy, e)]

@@ -241,9 +241,8 @@ def test_position_with_distortion_and_offset_principal_point(mitsuba_variant, bo
     """Geometry: an off-axis full-phase body seen through a camera with an off-centre principal
     point and Brown-Conrady distortion lands where the exact quadrature, with every surface point
     projected through ``Camera.project`` (distortion included), puts it (< 0.02 px). The backend
-    applies the distortion as a translation of the body; the local scale change it neglects
-    (~3 k1 r^2 = 0.8 % here) moves a crescent's photocentre by that fraction of its offset
-    (0.02 px for a 5 px offset at 50 deg phase), so this check is at full phase."""
+    takes every ray from ``Camera.line_of_sight``, so the distortion's local scale and shear are
+    rendered too (a crescent under strong distortion: ``tests/renderer/test_mitsuba_projection.py``)."""
     from skynav.scenes.camera import BrownConrady, paper_camera
 
     cam = paper_camera(cx=530.25, cy=497.6, distortion=BrownConrady(k1=-0.08, k2=0.01, p1=2e-4, p2=-1e-4))
