@@ -103,7 +103,7 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
         r, v = plan.trajectory.state(ti)
         for b in sky_bodies(float(ti), r, v, ephemeris=plan.ephemeris, names=planets)[0]:
             mags[b.name][i] = b.v_mag
-            sun[b.name][i] = math.degrees(b.sun_angle_rad)
+            sun[b.name][i] = math.degrees(b.elongation_rad)
     return (t - plan.t_start) / 86400.0, mags, sun
 
 
@@ -113,7 +113,7 @@ def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
 
     days, mags, sun = leg_magnitudes(plan, step_s=step_s)
     # hide a planet while it is inside the pair Sun-angle limit (not trackable)
-    limit = plan.s["pair_sun_angle_min_deg"]
+    limit = plan.s["pair_elongation_min_deg"]
     shown = {p: np.where(sun[p] > limit, m, np.nan) for p, m in mags.items()}
     spans = [((w.start_tdb_s - plan.t_start) / 86400.0, (w.end_tdb_s - plan.t_start) / 86400.0 + 0.6, w.phase)
              for w in plan.windows if w.phase.startswith("track")]

@@ -13,8 +13,8 @@ Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``)
 3. **Legs** (paper 002 sec. 4.2, paper 001 sec. IV, Fig. 5): track planet A for ``track_s``
    (1 h) at ``1 / cadence_s`` (0.01 Hz), slew for ``slew_s`` (30 min, no frames), track planet B
    for ``track_s``, propagate for ``propagate_s`` (10 days); ``legs`` times (10).
-4. **Pair.** At the start of each leg, among the planets with ``V < pair_v_mag_max`` (7) and an
-   angle from the Sun larger than ``pair_sun_angle_min_deg`` (20 deg), the pair maximising the
+4. **Pair.** At the start of each leg, among the planets with ``V < pair_limiting_v_mag`` (7) and an
+   elongation (angle from the Sun) larger than ``pair_elongation_min_deg`` (20 deg), the pair maximising the
    smallest eigenvalue of the line-of-sight information matrix
    ``J = sum_i (I - u_i u_i^T) / d_i^2`` (two directions u at distances d; a stand-in for the
    optimal-pair strategy of Franzese & Topputo that papers 001/002 cite). A is the brighter.
@@ -127,10 +127,10 @@ def leg_timeline(t_start_tdb_s: float, *, legs: int, track_s: float, slew_s: flo
     return out
 
 
-def choose_pair(sky_list, *, v_mag_max: float, sun_angle_min_rad: float, planets=PLANETS):
+def choose_pair(sky_list, *, limiting_v_mag: float, elongation_min_rad: float, planets=PLANETS):
     """(A, B) names of the best pair of ``sky_bodies`` entries (see the module docstring)."""
-    elig = [b for b in sky_list if b.name in planets and np.isfinite(b.v_mag) and b.v_mag < v_mag_max
-            and b.sun_angle_rad > sun_angle_min_rad]
+    elig = [b for b in sky_list if b.name in planets and np.isfinite(b.v_mag) and b.v_mag < limiting_v_mag
+            and b.elongation_rad > elongation_min_rad]
     if not elig:
         return None
     if len(elig) == 1:
@@ -161,6 +161,9 @@ class SequencePlan:
 
         self.recipe = recipe
         self.camera = camera
+        from .recipes import recipe_visibility
+
+        self.visibility = recipe_visibility(recipe)
         s = self.s = recipe["sequence"]
         eph = self.ephemeris = ephemeris or default_ephemeris()
         window = (float(tdb_seconds(s["departure_window_tdb"][0])), float(tdb_seconds(s["departure_window_tdb"][1])))
@@ -180,11 +183,11 @@ class SequencePlan:
         for i in range(s["legs"]):
             t = t_start + i * leg_s
             r, v = self.trajectory.state(t)
-            pair = choose_pair(sky_bodies(t, r, v, ephemeris=eph)[0], v_mag_max=s["pair_v_mag_max"],
-                               sun_angle_min_rad=math.radians(s["pair_sun_angle_min_deg"]))
+            pair = choose_pair(sky_bodies(t, r, v, ephemeris=eph)[0], limiting_v_mag=s["pair_limiting_v_mag"],
+                               elongation_min_rad=math.radians(s["pair_elongation_min_deg"]))
             if pair is None:
-                raise SceneSamplingError(f"leg {i}: no planet with V < {s['pair_v_mag_max']} outside "
-                                         f"{s['pair_sun_angle_min_deg']} deg of the Sun")
+                raise SceneSamplingError(f"leg {i}: no planet with V < {s['pair_limiting_v_mag']} outside "
+                                         f"{s['pair_elongation_min_deg']} deg of the Sun")
             targets.append(pair)
         self.windows = leg_timeline(t_start, legs=s["legs"], track_s=s["track_s"], slew_s=s["slew_s"],
                                     propagate_s=s["propagate_s"], targets=targets)

@@ -32,8 +32,15 @@ def run(argv, capsys):
         (GOOD.replace("attitude: {point_at: mars}", "attitude: {point_at: mars"), "malformed YAML"),
         (GOOD.replace("epoch:", "epcoh:"), "epcoh"),
         (GOOD.replace("{preset: paper}", "{preset: paper, sensor: {bit_depth: 24}}"), "sensor.bit_depth"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, limiting_v_mag: 6}"), "write it as visibility.limiting_v_mag"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, sun_exclusion_deg: 30}"), "write it as visibility.sun_exclusion_deg"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, cosmic_rays_per_frame: 2}"), "write it as render.cosmic_rays_per_frame"),
+        (GOOD + "render: {star_mag_limit: 8}\n", "write it as render.catalog_limiting_v_mag"),
+        (GOOD.replace("position_km: [-128731399.4, 113269566.7, 51647643.2]",
+                      "relative_to: earth\n  position_km: [1000.0, 0.0, 0.0]"), "inside earth"),
     ],
-    ids=["epoch-outside-de421", "unknown-body", "negative-exposure", "malformed-yaml", "unknown-key", "bit-depth"],
+    ids=["epoch-outside-de421", "unknown-body", "negative-exposure", "malformed-yaml", "unknown-key", "bit-depth",
+         "moved-limiting-v-mag", "moved-sun-exclusion", "moved-cosmic-rays", "moved-star-mag-limit", "inside-earth"],
 )
 def test_bad_input_gives_one_line_and_exit_2(tmp_path, capsys, text, expected):
     f = tmp_path / "scene.yaml"

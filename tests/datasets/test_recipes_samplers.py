@@ -139,7 +139,7 @@ def test_montecarlo_keep_decision_equals_brute_force_on_all_bodies():
                 sky = sky_bodies(t, r, v, ephemeris=plan.ephemeris)
             except ConfigValueError:
                 continue
-            ok, facts = keep_filters_pass(s["keep"], sky, R, plan.camera)
+            ok, facts = keep_filters_pass(s["keep"], sky, R, plan.camera, plan.visibility)
             if ok:
                 break
         assert got.meta["draws"] == draws and got.epoch_tdb_s == t

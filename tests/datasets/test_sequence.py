@@ -58,7 +58,7 @@ def test_pairs_are_visible_planets_away_from_the_sun(plan):
         leg_start = plan.t_start + x.leg * (10 * DAY + 9000.0)
         r, v = plan.trajectory.state(leg_start)
         body = next(b for b in sky_bodies(leg_start, r, v)[0] if b.name == x.target)
-        assert body.v_mag < 7.0 and math.degrees(body.sun_angle_rad) > 20.0
+        assert body.v_mag < 7.0 and math.degrees(body.elongation_rad) > 20.0
 
 
 def test_transfer_is_a_late_2026_earth_mars_lambert_arc(plan):
@@ -106,7 +106,7 @@ def test_small_sequence_dataset(tmp_path):
     rec = preset_recipe("sequence")
     rec["frames"] = 3
     rec["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0}
-    rec["star_mag_limit"] = 7.0
+    rec["catalog_limiting_v_mag"] = 7.0
     D.generate(rec, tmp_path / "seq", workers=1, progress=False)
     ds = D.open(tmp_path / "seq")
     assert (tmp_path / "seq" / "trajectory.csv").is_file() and (tmp_path / "seq" / "legs.csv").is_file()
