@@ -255,12 +255,12 @@ def _frame_z(direction) -> np.ndarray:
 
 
 def _pixel_solid_angle(camera, x0: int, y0: int, w: int, h: int) -> np.ndarray:
-    """Solid angle of each crop pixel, ``cos^3(theta) / f^2`` at its centre, sr; shape (h, w)."""
-    f = camera.focal_length_px
-    xn = (np.arange(x0, x0 + w) - camera.cx) / f
-    yn = (np.arange(y0, y0 + h) - camera.cy) / f
+    """Solid angle of each crop pixel, ``cos^3(theta) / (fx fy)`` at its centre, sr; shape (h, w)."""
+    fx, fy = camera.fx_px, camera.fy_px
+    xn = (np.arange(x0, x0 + w) - camera.cx) / fx
+    yn = (np.arange(y0, y0 + h) - camera.cy) / fy
     r2 = yn[:, None] ** 2 + xn[None, :] ** 2
-    return (1.0 + r2) ** -1.5 / (f * f)
+    return (1.0 + r2) ** -1.5 / (fx * fy)
 
 
 # ------------------------------------------------------------------------------ Mitsuba scene
@@ -403,6 +403,9 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
         if hit is not None:
             _cache.move_to_end(key)
             return hit
+    if camera.fx_px != camera.fy_px:  # the perspective sensor below has square pixels
+        raise ConfigValueError("camera.pixel_pitch_y_um", camera.pixel_pitch_y_um,
+                               "absent (square pixels) for Mitsuba-rendered resolved bodies")
     import mitsuba as mi
 
     _register_bsdfs(variant)
