@@ -156,8 +156,8 @@ class MonteCarloPlan:
         self.visibility = recipe_visibility(recipe)
         self.s = recipe["montecarlo"]
         self.n_frames = int(recipe["frames"])
-        self.t0 = float(tdb_seconds(self.s["epoch_start_tdb"]))
-        self.t1 = float(tdb_seconds(self.s["epoch_end_tdb"]))
+        self.start_tdb_s = float(tdb_seconds(self.s["epoch_start_tdb"]))
+        self.end_tdb_s = float(tdb_seconds(self.s["epoch_end_tdb"]))
         self._eph = ephemeris
 
     @property
@@ -171,7 +171,8 @@ class MonteCarloPlan:
     def draw_pose(self, rng: np.random.Generator):
         """One attempt: (t_tdb_s, position_km (3,), R_cam_icrs (3, 3)) in the documented order."""
         s = self.s
-        t = self.t0 + (self.t1 - self.t0) * rng.random() if self.t1 > self.t0 else self.t0
+        t0, t1 = self.start_tdb_s, self.end_tdb_s
+        t = t0 + (t1 - t0) * rng.random() if t1 > t0 else t0
         p_ecl = rng.normal(0.0, 1.0, 3) * np.asarray(s["position_sigma_au"]) * AU_KM
         ra = rng.uniform(0.0, 2.0 * math.pi)
         dec = rng.normal(0.0, math.radians(s["dec_3sigma_deg"]) / 3.0)

@@ -176,7 +176,7 @@ class SequencePlan:
         t_end = t_start + s["legs"] * leg_s
         model = ForceModel(srp=SpacecraftSRP(**s["spacecraft"]), relativity=s["relativity"])
         self.trajectory = propagate(eph, r0, v0, t_start, t_end, model=model, rtol=s["rtol"])
-        self.t_start, self.t_end = t_start, t_end
+        self.start_tdb_s, self.end_tdb_s = t_start, t_end
 
         # pairs at the start of each leg
         targets = []
@@ -207,9 +207,9 @@ class SequencePlan:
         rows = rows[:n]
         self.n_frames = n
         self.n_planned = total
-        self.frame_t = np.array([r[0] for r in rows])
+        self.frame_tdb_s = np.array([r[0] for r in rows])
         self.frame_info = [r[1:] for r in rows]
-        self.frame_r, self.frame_v = self.trajectory.state(self.frame_t)
+        self.frame_r, self.frame_v = self.trajectory.state(self.frame_tdb_s)
         self.frame_r = np.atleast_2d(self.frame_r)
         self.frame_v = np.atleast_2d(self.frame_v)
 
@@ -238,7 +238,7 @@ class SequencePlan:
         from skynav.scenes.scene import sky_bodies
 
         s = self.s
-        t = float(self.frame_t[k])
+        t = float(self.frame_tdb_s[k])
         leg, phase, target, j = self.frame_info[k]
         r, v = self.frame_r[k], self.frame_v[k]
         sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
@@ -268,8 +268,8 @@ class SequencePlan:
                 "v_inf_departure_km_s": tr.v_inf_departure_km_s,
                 "v_inf_arrival_km_s": tr.v_inf_arrival_km_s,
             },
-            "cruise_start_tdb": epoch_iso(self.t_start),
-            "cruise_end_tdb": epoch_iso(self.t_end),
+            "cruise_start_tdb": epoch_iso(self.start_tdb_s),
+            "cruise_end_tdb": epoch_iso(self.end_tdb_s),
             "frames_planned": self.n_planned,
             "pairs": [[w.target for w in self.windows if w.leg == i and w.phase.startswith("track")]
                       for i in range(self.s["legs"])],
@@ -280,8 +280,8 @@ class SequencePlan:
         from .samplers import epoch_iso
 
         step = self.s["trajectory_step_s"]
-        t = np.arange(self.t_start, self.t_end + 0.5 * step, step)
-        t = t[t <= self.t_end]
+        t = np.arange(self.start_tdb_s, self.end_tdb_s + 0.5 * step, step)
+        t = t[t <= self.end_tdb_s]
         r, v = self.trajectory.state(t)
         lines = ["epoch_tdb,t_tdb_s,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s"]
         for ti, ri, vi in zip(t.tolist(), np.atleast_2d(r).tolist(), np.atleast_2d(v).tolist()):
