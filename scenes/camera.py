@@ -1,5 +1,13 @@
 """The camera: pinhole intrinsics, Brown-Conrady distortion, optics, sensor parameters.
 
+Optics and sensor only: what counts as *visible* (magnitude limit, Sun exclusion) is the
+mission's :class:`~skynav.scenes.visibility.VisibilityCriteria`, and the cosmic-ray rate is a
+render option (``RenderOptions.cosmic_rays_per_frame``). Pixels may be rectangular
+(``pixel_pitch_y_um``): ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` with
+``fx = focal_length_mm / pixel_pitch_mm`` and ``fy = focal_length_mm / pixel_pitch_y_mm``.
+This module imports no reader: :meth:`Camera.from_dict` inverts :meth:`Camera.to_dict`, and the
+YAML reader (:mod:`skynav.scenes.config`) builds on it, not the reverse.
+
 Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns and y along rows; the
 CENTRE of the top-left pixel is ``(0.0, 0.0)``; a centred principal point is
 ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. Projection ``[x, y, 1]^T ~ K v_cam``, with the lens
