@@ -55,8 +55,8 @@ def main() -> None:
         radius = np.radians(14.1)  # half-diagonal of a 20 deg x 20 deg field
         for label, vmax in (("V <= 9", 9.0), ("all magnitudes", None)):
             it = iter(np.tile(centres, (4, 1)))
-            counts = [cat.cone(c, radius, v_mag_max=vmax).size for c in centres]
-            t = _median_s(lambda: cat.cone(next(it), radius, v_mag_max=vmax), 2000)
+            counts = [cat.cone(c, radius, limiting_v_mag=vmax).size for c in centres]
+            t = _median_s(lambda: cat.cone(next(it), radius, limiting_v_mag=vmax), 2000)
             print(f"cone r=14.1 deg, {label:15s}: median {t * 1e6:7.1f} us over 2000 random "
                   f"centres (limit 5 ms), median {int(np.median(counts))} stars returned")
         for label, c in (("north pole", [0, 0, 1.0]), ("equator", [1.0, 0, 0])):

@@ -45,7 +45,7 @@ rec = preset_recipe("montecarlo")
 rec["frames"] = int(sys.argv[1])
 if sys.argv[4] == "small":
     rec["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0}
-    rec["star_mag_limit"] = 7.0
+    rec["catalog_limiting_v_mag"] = 7.0
 marks = []
 def progress(done, total):
     marks.append((done, time.perf_counter()))
@@ -105,7 +105,8 @@ def cost_split(recipe, n: int, disk_dir: Path):
         t0 = time.perf_counter()
         req = plan.frame_request(k, rng)
         scene = build_scene(req.epoch_tdb_s, position_km=req.position_km, velocity_km_s=req.velocity_km_s,
-                            R_cam_icrs=req.R_cam_icrs, camera=plan.camera, star_mag_limit=rec["star_mag_limit"], sky=req.sky)
+                            R_cam_icrs=req.R_cam_icrs, camera=plan.camera, catalog_limiting_v_mag=rec["catalog_limiting_v_mag"],
+                            visibility=plan.visibility, sky=req.sky)
         t1 = time.perf_counter()
         frame = render(scene, seed=ss, rng=rng)
         t2 = time.perf_counter()
@@ -138,9 +139,9 @@ def main(argv=None) -> int:
     rec["frames"] = a.frames
     if a.small:
         rec["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0}
-        rec["star_mag_limit"] = 7.0
+        rec["catalog_limiting_v_mag"] = 7.0
     print(f"recipe: montecarlo preset, {a.frames} frames, camera {'256 x 256' if a.small else '1024 x 1024'}, "
-          f"stars to V {rec['star_mag_limit']}, cpu_count {os.cpu_count()}")
+          f"stars to V {rec['catalog_limiting_v_mag']}, cpu_count {os.cpu_count()}")
     with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_DIR")) as tmp:
         tmp = Path(tmp)
         # fill the on-disk caches (catalog, JIT probe, Dr.Jit kernels) so that no run pays for them

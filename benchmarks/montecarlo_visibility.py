@@ -47,7 +47,7 @@ def campaign(n_scenes: int = 3000, seed: int = 20230214, attitude_frame: str = "
         it = tqdm(it, unit="scene", file=sys.stderr)
     for k in it:
         req = plan.frame_request(k, frame_rng(seed, k))
-        _, facts = keep_filters_pass([], req.sky, req.R_cam_icrs, cam)
+        _, facts = keep_filters_pass([], req.sky, req.R_cam_icrs, cam, plan.visibility)
         bodies = {b.name: b for b in req.sky[0]}
         in_fov = facts["bodies_in_fov"]
         vis = facts["visible_bodies"]
@@ -55,7 +55,8 @@ def campaign(n_scenes: int = 3000, seed: int = 20230214, attitude_frame: str = "
         counts["planet_in_fov_no_moon"] += bool([b for b in in_fov if b != "moon"])
         counts["visible_v7"] += bool(vis)
         counts["visible_v6"] += bool([b for b in vis if bodies[b].v_mag <= 6.0])
-        counts["visible_v7_and_boresight_sun_ok"] += bool(vis) and facts["sun_angle_deg"] > math.degrees(cam.sun_exclusion_rad)
+        counts["visible_v7_and_boresight_sun_ok"] += bool(vis) and bool(plan.visibility.outside_sun_exclusion(
+            math.radians(facts["boresight_sun_angle_deg"])))
         for b in vis:
             per_body[b] = per_body.get(b, 0) + 1
     return {"n": n_scenes, "counts": counts, "per_body_visible": per_body}

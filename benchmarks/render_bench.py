@@ -69,7 +69,7 @@ def main():
         rng.standard_normal(n)
 
     numpy_variates = median_ms(variates, args.repeat)
-    print(f"default frame: {scene.camera.width}x{scene.camera.height}, {n_stars} stars in view (V <= {scene.star_mag_limit:g}), "
+    print(f"default frame: {scene.camera.width}x{scene.camera.height}, {n_stars} stars in view (V <= {scene.catalog_limiting_v_mag:g}), "
           f"full noise, no disk writes; scene build {1e3 * t_scene:.0f} ms (not counted)")
     print(f"numpy variates (1 Poisson + 1 Gaussian per pixel): {numpy_variates:8.1f} ms")
     for k, v in results.items():

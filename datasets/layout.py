@@ -49,7 +49,7 @@ INDEX_NAME = "index.csv"
 FRAMES_DIR = "frames"
 INDEX_COLUMNS = [
     "frame", "epoch_tdb", "jd_tdb", "x_km", "y_km", "z_km", "vx_km_s", "vy_km_s", "vz_km_s",
-    "ra_deg", "dec_deg", "twist_deg", "sun_angle_deg", "stars_in_fov", "bodies_in_fov", "visible_bodies",
+    "ra_deg", "dec_deg", "twist_deg", "boresight_sun_angle_deg", "stars_in_fov", "bodies_in_fov", "visible_bodies",
     "draws", "leg", "phase", "target", "files",
 ]
 
@@ -147,7 +147,7 @@ def index_row(truth: dict, k: int, files: dict) -> dict:
         "vx_km_s": float(obs["velocity_km_s"][0]), "vy_km_s": float(obs["velocity_km_s"][1]),
         "vz_km_s": float(obs["velocity_km_s"][2]),
         "ra_deg": math.degrees(ra), "dec_deg": math.degrees(dec), "twist_deg": math.degrees(tw),
-        "sun_angle_deg": float(sun_angle) if sun_angle is not None else None,
+        "boresight_sun_angle_deg": float(sun_angle) if sun_angle is not None else None,
         "stars_in_fov": n_stars,
         "bodies_in_fov": ";".join(in_fov),
         "visible_bodies": ";".join(visible),

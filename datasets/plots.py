@@ -98,15 +98,15 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
     """(days since the cruise start (N,), {planet: V (N,)}, {planet: sun angle deg (N,)}) along a sequence plan."""
     from skynav.scenes.scene import sky_bodies
 
-    t = np.arange(plan.t_start, plan.t_end, step_s)
+    t = np.arange(plan.start_tdb_s, plan.end_tdb_s, step_s)
     mags = {p: np.empty(t.size) for p in planets}
     sun = {p: np.empty(t.size) for p in planets}
     for i, ti in enumerate(t):
         r, v = plan.trajectory.state(ti)
         for b in sky_bodies(float(ti), r, v, ephemeris=plan.ephemeris, names=planets)[0]:
             mags[b.name][i] = b.v_mag
-            sun[b.name][i] = math.degrees(b.sun_angle_rad)
-    return (t - plan.t_start) / SECONDS_PER_DAY, mags, sun
+            sun[b.name][i] = math.degrees(b.elongation_rad)
+    return (t - plan.start_tdb_s) / SECONDS_PER_DAY, mags, sun
 
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
@@ -115,9 +115,9 @@ def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
 
     days, mags, sun = leg_magnitudes(plan, step_s=step_s)
     # hide a planet while it is inside the pair Sun-angle limit (not trackable)
-    limit = plan.s["pair_sun_angle_min_deg"]
+    limit = plan.s["pair_elongation_min_deg"]
     shown = {p: np.where(sun[p] > limit, m, np.nan) for p, m in mags.items()}
-    spans = [((w.start_tdb_s - plan.t_start) / SECONDS_PER_DAY, (w.end_tdb_s - plan.t_start) / SECONDS_PER_DAY + 0.6, w.phase)
+    spans = [((w.start_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY, (w.end_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY + 0.6, w.phase)
              for w in plan.windows if w.phase.startswith("track")]
     pairs = "; ".join("/".join(p) for p in plan.describe()["pairs"][:3])
     png = plot_lines_png(days, shown, title=f"Apparent V magnitude of the planets along the cruise (legs shaded; pairs {pairs} ...)",

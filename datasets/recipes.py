@@ -11,7 +11,8 @@ Common keys::
     frames: 100              # montecarlo: required; sequence: optional (first N of the plan)
     seed: 20260101           # master seed (non-negative integer)
     camera: {preset: paper}  # as in scene files (skynav.scenes.config.camera_from_mapping)
-    star_mag_limit: 9.0
+    visibility: {limiting_v_mag: 7.0, sun_exclusion_deg: 20.0}   # detection rule (visible flag, filters)
+    catalog_limiting_v_mag: 9.0                                   # star catalogue cut
     formats: [png, exr, json]
 
 Kind-specific sections (``montecarlo:``, ``sequence:``, ``scenes:``) are documented in
@@ -23,11 +24,13 @@ from __future__ import annotations
 import copy
 import math
 
-from skynav.scenes.config import camera_from_mapping, scene_spec_from_mapping
+from skynav.scenes.config import camera_from_mapping, scene_spec_from_mapping, visibility_from_mapping
+
+from skynav.scenes.errors import MovedKeyError
 
 from .errors import RecipeError
 
-__all__ = ["KINDS", "PRESETS", "preset_recipe", "validate_recipe", "recipe_camera", "load_recipe_file"]
+__all__ = ["KINDS", "PRESETS", "preset_recipe", "validate_recipe", "recipe_camera", "recipe_visibility", "load_recipe_file"]
 
 KINDS = ("montecarlo", "sequence", "scenes")
 FORMATS = ("png", "exr", "json", "fits")
@@ -58,8 +61,8 @@ _SEQUENCE_DEFAULTS = {
     "cadence_s": 100.0,
     "slew_s": 1800.0,
     "propagate_s": 864000.0,
-    "pair_v_mag_max": 7.0,
-    "pair_sun_angle_min_deg": 20.0,
+    "pair_limiting_v_mag": 7.0,
+    "pair_elongation_min_deg": 20.0,
     "pointing_error_deg": 0.01,
     "jitter_rate_deg_s": 0.0,
     "angular_velocity_deg_s": [0.0, 0.0, 0.0],
@@ -76,7 +79,7 @@ PRESETS = {
         "frames": 3000,
         "seed": 20230214,
         "camera": {"preset": "paper"},
-        "star_mag_limit": 9.0,
+        "catalog_limiting_v_mag": 9.0,
         "formats": ["png", "exr", "json"],
         "montecarlo": copy.deepcopy(_MONTECARLO_DEFAULTS),
     },
@@ -84,7 +87,7 @@ PRESETS = {
         "kind": "sequence",
         "seed": 20240101,
         "camera": {"preset": "paper"},
-        "star_mag_limit": 9.0,
+        "catalog_limiting_v_mag": 9.0,
         "formats": ["png", "exr", "json"],
         "sequence": copy.deepcopy(_SEQUENCE_DEFAULTS),
     },
@@ -92,7 +95,7 @@ PRESETS = {
         "kind": "scenes",
         "seed": 1,
         "camera": {"preset": "paper"},
-        "star_mag_limit": 9.0,
+        "catalog_limiting_v_mag": 9.0,
         "formats": ["png", "exr", "json"],
         "scenes": [
             {"epoch": "2027-03-15T00:00:00",
@@ -208,8 +211,8 @@ def _validate_sequence(recipe) -> dict:
     s["cadence_s"] = _num(s, "cadence_s", w, lo=0.0, hi=s["track_s"], lo_open=True)
     s["slew_s"] = _num(s, "slew_s", w, lo=0.0, hi=1e6)
     s["propagate_s"] = _num(s, "propagate_s", w, lo=0.0, hi=1e9)
-    s["pair_v_mag_max"] = _num(s, "pair_v_mag_max", w, lo=-30.0, hi=30.0)
-    s["pair_sun_angle_min_deg"] = _num(s, "pair_sun_angle_min_deg", w, lo=0.0, hi=180.0)
+    s["pair_limiting_v_mag"] = _num(s, "pair_limiting_v_mag", w, lo=-30.0, hi=30.0)
+    s["pair_elongation_min_deg"] = _num(s, "pair_elongation_min_deg", w, lo=0.0, hi=180.0)
     s["pointing_error_deg"] = _num(s, "pointing_error_deg", w, lo=0.0, hi=10.0)
     s["jitter_rate_deg_s"] = _num(s, "jitter_rate_deg_s", w, lo=0.0, hi=10.0)
     s["angular_velocity_deg_s"] = _list(s, "angular_velocity_deg_s", w, 3, lo=-10.0, hi=10.0)
@@ -244,8 +247,10 @@ def validate_recipe(recipe) -> dict:
     kind = recipe.get("kind")
     if kind not in KINDS:
         raise RecipeError("kind", kind, "one of: " + ", ".join(KINDS))
-    allowed = {"kind", "frames", "seed", "camera", "star_mag_limit", "formats", "name", kind}
+    allowed = {"kind", "frames", "seed", "camera", "visibility", "catalog_limiting_v_mag", "formats", "name", kind}
     for k in recipe:
+        if k == "star_mag_limit":
+            raise MovedKeyError(k, recipe[k], "catalog_limiting_v_mag")
         if k not in allowed:
             raise RecipeError(k, recipe[k], "no such key; allowed keys: " + ", ".join(sorted(allowed)))
     out = {"kind": kind}
@@ -257,7 +262,12 @@ def validate_recipe(recipe) -> dict:
     cam = recipe.get("camera", {"preset": "paper"})
     camera_from_mapping(cam)  # raises ConfigValueError naming camera.<key>
     out["camera"] = copy.deepcopy(cam)
-    out["star_mag_limit"] = _num({"star_mag_limit": recipe.get("star_mag_limit", 9.0)}, "star_mag_limit", "", lo=-2.0, hi=14.0)
+    vis = recipe.get("visibility", {})
+    visibility_from_mapping(vis)  # raises ConfigValueError naming visibility.<key>
+    out["visibility"] = {"limiting_v_mag": float(vis.get("limiting_v_mag", 7.0)),
+                         "sun_exclusion_deg": float(vis.get("sun_exclusion_deg", 20.0))}
+    out["catalog_limiting_v_mag"] = _num({"catalog_limiting_v_mag": recipe.get("catalog_limiting_v_mag", 9.0)},
+                                         "catalog_limiting_v_mag", "", lo=-2.0, hi=14.0)
     fmts = recipe.get("formats", ["png", "exr", "json"])
     if isinstance(fmts, str):
         fmts = [fmts]
@@ -296,6 +306,11 @@ def validate_recipe(recipe) -> dict:
 def recipe_camera(recipe: dict):
     """The :class:`~skynav.scenes.camera.Camera` of a (validated) recipe."""
     return camera_from_mapping(recipe.get("camera", {"preset": "paper"}))
+
+
+def recipe_visibility(recipe: dict):
+    """The :class:`~skynav.scenes.visibility.VisibilityCriteria` of a (validated) recipe."""
+    return visibility_from_mapping(recipe.get("visibility", {}))
 
 
 def load_recipe_file(path) -> dict:

@@ -101,7 +101,7 @@ def _plan_from_bytes(blob: bytes):
     return plan
 
 
-def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, star_mag_limit: float,
+def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
                   render_options=None) -> FrameResult:
     """Sample, render and write frame ``k``; returns its checksums and index row.
 
@@ -123,8 +123,8 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, star_mag_
     req = plan.frame_request(k, rng)
     scene = build_scene(req.epoch_tdb_s, position_km=req.position_km, velocity_km_s=req.velocity_km_s,
                         R_cam_icrs=req.R_cam_icrs, camera=plan.camera,
-                        angular_velocity_rad_s=req.angular_velocity_rad_s, star_mag_limit=star_mag_limit,
-                        sky=req.sky)
+                        angular_velocity_rad_s=req.angular_velocity_rad_s, catalog_limiting_v_mag=catalog_limiting_v_mag,
+                        visibility=plan.visibility, sky=req.sky)
     t1 = time.perf_counter()
     frame = render(scene, seed=ss, rng=rng, options=render_options or RenderOptions())
     t2 = time.perf_counter()
@@ -143,7 +143,7 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, star_mag_
 
 def _produce_job(job):
     blob, k, out_dir, master_seed, formats, mag, options = job
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, star_mag_limit=mag,
+    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
                          render_options=options)
 
 
@@ -154,7 +154,7 @@ def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, star_mag_limit=mag,
+    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
                          render_options=options)
 
 
@@ -327,7 +327,7 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     layout.write_manifest(root, manifest)
 
     blob = pickle.dumps(plan)
-    mag = float(recipe["star_mag_limit"])
+    mag = float(recipe["catalog_limiting_v_mag"])
     seed = int(recipe["seed"])
     jobs = [(blob, k, str(root), seed, formats, mag, render_options) for k in todo]
     timings = {"sample": 0.0, "render": 0.0, "write": 0.0}
@@ -433,4 +433,4 @@ def regenerate_frame(path, k: int, out_dir, *, render_options=None):
     plan = make_plan(recipe)
     (Path(out_dir) / layout.FRAMES_DIR).mkdir(parents=True, exist_ok=True)
     return produce_frame(plan, k, out_dir, master_seed=int(recipe["seed"]), formats=recipe["formats"],
-                         star_mag_limit=float(recipe["star_mag_limit"]), render_options=render_options)
+                         catalog_limiting_v_mag=float(recipe["catalog_limiting_v_mag"]), render_options=render_options)

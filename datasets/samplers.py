@@ -90,20 +90,23 @@ class FrameRequest:
     sky: object = None
 
 
-def keep_filters_pass(filters, sky, R_cam_icrs, camera) -> tuple[bool, dict]:
+def keep_filters_pass(filters, sky, R_cam_icrs, camera, visibility) -> tuple[bool, dict]:
     """Evaluate keep-filters on the bodies of ``sky_bodies(...)`` for a pointing.
 
-    ``visible_planet``: at least one body in the field of view with ``V <= limiting_v_mag`` and
-    an angle from the Sun larger than the camera's Sun exclusion angle (the ``visible`` flag of
-    :func:`skynav.scenes.scene.build_scene`, same formula); ``body_in_fov``: at least one body
-    in the field whatever its brightness; ``sun_outside_exclusion``: the boresight is farther
-    than the exclusion angle from the Sun.
+    ``visible_planet``: at least one body in the field of view that ``visibility.body_visible``
+    accepts (the ``visible`` flag of :func:`skynav.scenes.scene.build_scene`, the same
+    predicate); ``body_in_fov``: at least one body in the field whatever its brightness;
+    ``sun_outside_exclusion``: the boresight's Sun angle exceeds the exclusion angle.
+
+    Parameters
+    ----------
+    visibility : skynav.scenes.visibility.VisibilityCriteria
 
     Returns
     -------
     ok : bool
     facts : dict
-        ``bodies_in_fov``, ``visible_bodies`` (lists of names), ``sun_angle_deg``.
+        ``bodies_in_fov``, ``visible_bodies`` (lists of names), ``boresight_sun_angle_deg``.
     """
     bodies, sun_u = sky
     in_fov, visible = [], []
@@ -112,9 +115,9 @@ def keep_filters_pass(filters, sky, R_cam_icrs, camera) -> tuple[bool, dict]:
         p = camera.project((R @ b.directions.u_apparent)[None])[0]
         if bool(camera.in_image(p[None])[0]):
             in_fov.append(b.name)
-            if np.isfinite(b.v_mag) and b.v_mag <= camera.limiting_v_mag and b.sun_angle_rad > camera.sun_exclusion_rad:
+            if visibility.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad):
                 visible.append(b.name)
-    sun_angle = float(np.arccos(np.clip(R[2] @ sun_u, -1.0, 1.0)))
+    boresight_sun_angle = float(np.arccos(np.clip(R[2] @ sun_u, -1.0, 1.0)))
     ok = True
     for f in filters:
         if f == "visible_planet":
@@ -122,8 +125,9 @@ def keep_filters_pass(filters, sky, R_cam_icrs, camera) -> tuple[bool, dict]:
         elif f == "body_in_fov":
             ok &= bool(in_fov)
         elif f == "sun_outside_exclusion":
-            ok &= sun_angle > camera.sun_exclusion_rad
-    return bool(ok), {"bodies_in_fov": in_fov, "visible_bodies": visible, "sun_angle_deg": math.degrees(sun_angle)}
+            ok &= bool(visibility.outside_sun_exclusion(boresight_sun_angle))
+    return bool(ok), {"bodies_in_fov": in_fov, "visible_bodies": visible,
+                      "boresight_sun_angle_deg": math.degrees(boresight_sun_angle)}
 
 
 class MonteCarloPlan:
@@ -146,10 +150,13 @@ class MonteCarloPlan:
     def __init__(self, recipe: dict, camera, *, ephemeris=None):
         self.recipe = recipe
         self.camera = camera
+        from .recipes import recipe_visibility
+
+        self.visibility = recipe_visibility(recipe)
         self.s = recipe["montecarlo"]
         self.n_frames = int(recipe["frames"])
-        self.t0 = float(tdb_seconds(self.s["epoch_start_tdb"]))
-        self.t1 = float(tdb_seconds(self.s["epoch_end_tdb"]))
+        self.start_tdb_s = float(tdb_seconds(self.s["epoch_start_tdb"]))
+        self.end_tdb_s = float(tdb_seconds(self.s["epoch_end_tdb"]))
         self._eph = ephemeris
 
     @property
@@ -163,7 +170,8 @@ class MonteCarloPlan:
     def draw_pose(self, rng: np.random.Generator):
         """One attempt: (t_tdb_s, position_km (3,), R_cam_icrs (3, 3)) in the documented order."""
         s = self.s
-        t = self.t0 + (self.t1 - self.t0) * rng.random() if self.t1 > self.t0 else self.t0
+        t0, t1 = self.start_tdb_s, self.end_tdb_s
+        t = t0 + (t1 - t0) * rng.random() if t1 > t0 else t0
         p_ecl = rng.normal(0.0, 1.0, 3) * np.asarray(s["position_sigma_au"]) * AU_KM
         ra = rng.uniform(0.0, 2.0 * math.pi)
         dec = rng.normal(0.0, math.radians(s["dec_3sigma_deg"]) / 3.0)
@@ -218,22 +226,22 @@ class MonteCarloPlan:
         decision equals evaluating the filters on all of them. A pose inside any body is rejected.
         ``candidates`` is None or non-empty (:meth:`frame_request` skips a pose with none).
         """
-        from skynav.scenes.errors import ConfigValueError
+        from skynav.scenes.errors import ObserverInsideBodyError
         from skynav.scenes.scene import SCENE_BODIES, sky_bodies
 
         s = self.s
         try:
             if candidates is None:
                 sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
-                ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera)
+                ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera, self.visibility)
                 return ok, facts, sky
             part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates)
-            ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera)
+            ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera, self.visibility)
             if not ok:
                 return False, None, None
             rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris,
                                  names=tuple(n for n in SCENE_BODIES if n not in candidates))
-        except ConfigValueError:  # inside a body
+        except ObserverInsideBodyError:
             return False, None, None
         by_name = {b.name: b for b in part + rest}
         return True, facts, (tuple(by_name[n] for n in SCENE_BODIES), sun_u)
@@ -270,9 +278,13 @@ class ScenesPlan:
     def __init__(self, recipe: dict, camera, *, ephemeris=None):
         from skynav.scenes.config import scene_spec_from_mapping
 
+        from .recipes import recipe_visibility
+
         self.recipe = recipe
         self.camera = camera
-        self.specs = [scene_spec_from_mapping({**sc, "camera": sc.get("camera", recipe["camera"])})
+        self.visibility = recipe_visibility(recipe)
+        self.specs = [scene_spec_from_mapping({**sc, "camera": sc.get("camera", recipe["camera"]),
+                                               "visibility": sc.get("visibility", recipe.get("visibility", {}))})
                       for sc in recipe["scenes"]]
         self.n_frames = len(self.specs)
         self._eph = ephemeris

@@ -13,8 +13,8 @@ Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``)
 3. **Legs** (paper 002 sec. 4.2, paper 001 sec. IV, Fig. 5): track planet A for ``track_s``
    (1 h) at ``1 / cadence_s`` (0.01 Hz), slew for ``slew_s`` (30 min, no frames), track planet B
    for ``track_s``, propagate for ``propagate_s`` (10 days); ``legs`` times (10).
-4. **Pair.** At the start of each leg, among the planets with ``V < pair_v_mag_max`` (7) and an
-   angle from the Sun larger than ``pair_sun_angle_min_deg`` (20 deg), the pair maximising the
+4. **Pair.** At the start of each leg, among the planets with ``V < pair_limiting_v_mag`` (7) and an
+   elongation (angle from the Sun) larger than ``pair_elongation_min_deg`` (20 deg), the pair maximising the
    smallest eigenvalue of the line-of-sight information matrix
    ``J = sum_i (I - u_i u_i^T) / d_i^2`` (two directions u at distances d; a stand-in for the
    optimal-pair strategy of Franzese & Topputo that papers 001/002 cite). A is the brighter.
@@ -129,10 +129,10 @@ def leg_timeline(t_start_tdb_s: float, *, legs: int, track_s: float, slew_s: flo
     return out
 
 
-def choose_pair(sky_list, *, v_mag_max: float, sun_angle_min_rad: float, planets=PLANETS):
+def choose_pair(sky_list, *, limiting_v_mag: float, elongation_min_rad: float, planets=PLANETS):
     """(A, B) names of the best pair of ``sky_bodies`` entries (see the module docstring)."""
-    elig = [b for b in sky_list if b.name in planets and np.isfinite(b.v_mag) and b.v_mag < v_mag_max
-            and b.sun_angle_rad > sun_angle_min_rad]
+    elig = [b for b in sky_list if b.name in planets and np.isfinite(b.v_mag) and b.v_mag < limiting_v_mag
+            and b.elongation_rad > elongation_min_rad]
     if not elig:
         return None
     if len(elig) == 1:
@@ -163,6 +163,9 @@ class SequencePlan:
 
         self.recipe = recipe
         self.camera = camera
+        from .recipes import recipe_visibility
+
+        self.visibility = recipe_visibility(recipe)
         s = self.s = recipe["sequence"]
         eph = self.ephemeris = ephemeris or default_ephemeris()
         window = (float(tdb_seconds(s["departure_window_tdb"][0])), float(tdb_seconds(s["departure_window_tdb"][1])))
@@ -175,18 +178,18 @@ class SequencePlan:
         t_end = t_start + s["legs"] * leg_s
         model = ForceModel(srp=SpacecraftSRP(**s["spacecraft"]), relativity=s["relativity"])
         self.trajectory = propagate(eph, r0, v0, t_start, t_end, model=model, rtol=s["rtol"])
-        self.t_start, self.t_end = t_start, t_end
+        self.start_tdb_s, self.end_tdb_s = t_start, t_end
 
         # pairs at the start of each leg
         targets = []
         for i in range(s["legs"]):
             t = t_start + i * leg_s
             r, v = self.trajectory.state(t)
-            pair = choose_pair(sky_bodies(t, r, v, ephemeris=eph)[0], v_mag_max=s["pair_v_mag_max"],
-                               sun_angle_min_rad=math.radians(s["pair_sun_angle_min_deg"]))
+            pair = choose_pair(sky_bodies(t, r, v, ephemeris=eph)[0], limiting_v_mag=s["pair_limiting_v_mag"],
+                               elongation_min_rad=math.radians(s["pair_elongation_min_deg"]))
             if pair is None:
-                raise SceneSamplingError(f"leg {i}: no planet with V < {s['pair_v_mag_max']} outside "
-                                         f"{s['pair_sun_angle_min_deg']} deg of the Sun")
+                raise SceneSamplingError(f"leg {i}: no planet with V < {s['pair_limiting_v_mag']} outside "
+                                         f"{s['pair_elongation_min_deg']} deg of the Sun")
             targets.append(pair)
         self.windows = leg_timeline(t_start, legs=s["legs"], track_s=s["track_s"], slew_s=s["slew_s"],
                                     propagate_s=s["propagate_s"], targets=targets)
@@ -206,9 +209,9 @@ class SequencePlan:
         rows = rows[:n]
         self.n_frames = n
         self.n_planned = total
-        self.frame_t = np.array([r[0] for r in rows])
+        self.frame_tdb_s = np.array([r[0] for r in rows])
         self.frame_info = [r[1:] for r in rows]
-        self.frame_r, self.frame_v = self.trajectory.state(self.frame_t)
+        self.frame_r, self.frame_v = self.trajectory.state(self.frame_tdb_s)
         self.frame_r = np.atleast_2d(self.frame_r)
         self.frame_v = np.atleast_2d(self.frame_v)
 
@@ -237,7 +240,7 @@ class SequencePlan:
         from skynav.scenes.scene import sky_bodies
 
         s = self.s
-        t = float(self.frame_t[k])
+        t = float(self.frame_tdb_s[k])
         leg, phase, target, j = self.frame_info[k]
         r, v = self.frame_r[k], self.frame_v[k]
         sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
@@ -267,8 +270,8 @@ class SequencePlan:
                 "v_inf_departure_km_s": tr.v_inf_departure_km_s,
                 "v_inf_arrival_km_s": tr.v_inf_arrival_km_s,
             },
-            "cruise_start_tdb": epoch_iso(self.t_start),
-            "cruise_end_tdb": epoch_iso(self.t_end),
+            "cruise_start_tdb": epoch_iso(self.start_tdb_s),
+            "cruise_end_tdb": epoch_iso(self.end_tdb_s),
             "frames_planned": self.n_planned,
             "pairs": [[w.target for w in self.windows if w.leg == i and w.phase.startswith("track")]
                       for i in range(self.s["legs"])],
@@ -279,8 +282,8 @@ class SequencePlan:
         from .samplers import epoch_iso
 
         step = self.s["trajectory_step_s"]
-        t = np.arange(self.t_start, self.t_end + 0.5 * step, step)
-        t = t[t <= self.t_end]
+        t = np.arange(self.start_tdb_s, self.end_tdb_s + 0.5 * step, step)
+        t = t[t <= self.end_tdb_s]
         r, v = self.trajectory.state(t)
         lines = ["epoch_tdb,t_tdb_s,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s"]
         for ti, ri, vi in zip(t.tolist(), np.atleast_2d(r).tolist(), np.atleast_2d(v).tolist()):

@@ -215,7 +215,7 @@ def draw_cosmic_rays(
     if len(shape) != 2 or min(shape) < 1:
         raise ConfigValueError("cosmic_rays.shape", shape, "(H, W) with H, W >= 1")
     if not (math.isfinite(rate_per_frame) and rate_per_frame >= 0):
-        raise ConfigValueError("camera.cosmic_rays_per_frame", rate_per_frame, ">= 0")
+        raise ConfigValueError("render.cosmic_rays_per_frame", rate_per_frame, ">= 0")
     if not 0.0 <= track_prob <= 1.0:
         raise ConfigValueError("cosmic_rays.track_prob", track_prob, "in [0, 1]")
     if not max_track_length_px >= 1.0:
@@ -224,7 +224,7 @@ def draw_cosmic_rays(
         n = int(rng.poisson(rate_per_frame))
     elif mode == "fixed":
         if float(rate_per_frame) != int(rate_per_frame):
-            raise ConfigValueError("camera.cosmic_rays_per_frame", rate_per_frame, "an integer when mode='fixed'")
+            raise ConfigValueError("render.cosmic_rays_per_frame", rate_per_frame, "an integer when mode='fixed'")
         n = int(rate_per_frame)
     else:
         raise ConfigValueError("cosmic_rays.mode", mode, "one of: poisson, fixed")

@@ -50,8 +50,10 @@ class RenderOptions:
         Spacing of the samples along a curved source path, px (straight paths use 2 samples).
     background_e_per_px_s : float
         Uniform sky background (zodiacal + galactic), e-/px/s.
+    cosmic_rays_per_frame : float
+        Mean number of cosmic-ray hits per frame (paper 002: 1).
     cosmic_ray_mode : str
-        ``"poisson"``: Poisson count with mean ``camera.cosmic_rays_per_frame``; ``"fixed"``.
+        ``"poisson"``: Poisson count with mean ``cosmic_rays_per_frame``; ``"fixed"``.
     cosmic_ray_track_prob : float
         Probability that a cosmic-ray hit is a short track rather than a single pixel
         (:func:`~skynav.renderer.cosmic_rays.draw_cosmic_rays`; the draws do not depend on it,
@@ -69,6 +71,7 @@ class RenderOptions:
     flux_fraction_lost: float = 1e-6
     path_step_px: float = 0.5
     background_e_per_px_s: float = 0.0
+    cosmic_rays_per_frame: float = 1.0
     cosmic_ray_mode: str = "poisson"
     cosmic_ray_track_prob: float = 0.0
     mitsuba_spp: int = 16
@@ -84,6 +87,8 @@ class RenderOptions:
             raise ConfigValueError("render.path_step_px", self.path_step_px, "> 0")
         if not self.background_e_per_px_s >= 0:
             raise ConfigValueError("render.background_e_per_px_s", self.background_e_per_px_s, ">= 0")
+        if not self.cosmic_rays_per_frame >= 0:
+            raise ConfigValueError("render.cosmic_rays_per_frame", self.cosmic_rays_per_frame, ">= 0")
         if self.cosmic_ray_mode not in ("poisson", "fixed"):
             raise ConfigValueError("render.cosmic_ray_mode", self.cosmic_ray_mode, "poisson or fixed")
         if not 0.0 <= self.cosmic_ray_track_prob <= 1.0:
@@ -383,7 +388,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         raise ConfigValueError("expected.electrons.shape", electrons.shape, f"the camera's (H, W) = {shape}")
     T = cam.exposure_s
     # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
-    hits = cr.draw_cosmic_rays(shape, cam.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
+    hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
     cr_charge = cr.deposit(np.zeros(shape), hits)
 

@@ -1,5 +1,13 @@
 """The camera: pinhole intrinsics, Brown-Conrady distortion, optics, sensor parameters.
 
+Optics and sensor only: what counts as *visible* (magnitude limit, Sun exclusion) is the
+mission's :class:`~skynav.scenes.visibility.VisibilityCriteria`, and the cosmic-ray rate is a
+render option (``RenderOptions.cosmic_rays_per_frame``). Pixels may be rectangular
+(``pixel_pitch_y_um``): ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` with
+``fx = focal_length_mm / pixel_pitch_mm`` and ``fy = focal_length_mm / pixel_pitch_y_mm``.
+This module imports no reader: :meth:`Camera.from_dict` inverts :meth:`Camera.to_dict`, and the
+YAML reader (:mod:`skynav.scenes.config`) builds on it, not the reverse.
+
 Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns and y along rows; the
 CENTRE of the top-left pixel is ``(0.0, 0.0)``; a centred principal point is
 ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. Projection ``[x, y, 1]^T ~ K v_cam``, with the lens
@@ -17,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigValueError
+from .errors import ConfigValueError, MovedKeyError
 
 
 def _check(cond: bool, key: str, value, allowed: str) -> None:
@@ -149,8 +157,13 @@ class Camera:
     ----------
     width, height : int
         Image size, px.
-    focal_length_mm, pixel_pitch_um : float
-        Focal length and (square) pixel pitch; ``fx = fy = focal_length_mm / pixel_pitch_mm``.
+    focal_length_mm : float
+        Focal length, mm (also sets the aperture with ``f_number``).
+    pixel_pitch_um : float
+        Pixel pitch along x (columns), um; ``fx_px = focal_length_mm / pixel_pitch_mm``.
+    pixel_pitch_y_um : float or None
+        Pixel pitch along y (rows), um, for rectangular pixels (``fy_px != fx_px``); None:
+        square pixels, ``fy_px == fx_px`` exactly.
     cx, cy : float or None
         Principal point, px (None: centred, ``(W-1)/2``, ``(H-1)/2``).
     f_number : float
@@ -159,12 +172,6 @@ class Camera:
         Exposure time, s.
     defocus_sigma_px : float
         Gaussian defocus PSF standard deviation, px (paper 002 table 4: 0.5 px).
-    cosmic_rays_per_frame : float
-        Mean number of cosmic-ray hits per frame (paper 002: 1).
-    sun_exclusion_rad : float
-        Solar exclusion angle (paper 002: 20 deg).
-    limiting_v_mag : float
-        Faintest V magnitude the camera detects (``visible`` flag); paper 002: V < 7.
     distortion : BrownConrady
         Lens distortion.
     response_wavelengths_nm, response_qe_t : tuple of float
@@ -176,14 +183,12 @@ class Camera:
     height: int
     focal_length_mm: float
     pixel_pitch_um: float
+    pixel_pitch_y_um: float | None = None
     cx: float | None = None
     cy: float | None = None
     f_number: float = 2.2
     exposure_s: float = 0.4
     defocus_sigma_px: float = 0.5
-    cosmic_rays_per_frame: float = 1.0
-    sun_exclusion_rad: float = math.radians(20.0)
-    limiting_v_mag: float = 7.0
     distortion: BrownConrady = field(default_factory=BrownConrady)
     response_wavelengths_nm: tuple = field(default_factory=lambda: default_response_curve()[0])
     response_qe_t: tuple = field(default_factory=lambda: default_response_curve()[1])
@@ -197,8 +202,8 @@ class Camera:
         _check(self.f_number > 0, "camera.f_number", self.f_number, "> 0")
         _check(self.exposure_s > 0, "camera.exposure_s", self.exposure_s, "> 0 (seconds)")
         _check(self.defocus_sigma_px >= 0, "camera.defocus_sigma_px", self.defocus_sigma_px, ">= 0")
-        _check(self.cosmic_rays_per_frame >= 0, "camera.cosmic_rays_per_frame", self.cosmic_rays_per_frame, ">= 0")
-        _check(0 <= self.sun_exclusion_rad < math.pi, "camera.sun_exclusion_deg", math.degrees(self.sun_exclusion_rad), "in [0, 180)")
+        if self.pixel_pitch_y_um is not None:
+            _check(self.pixel_pitch_y_um > 0, "camera.pixel_pitch_y_um", self.pixel_pitch_y_um, "> 0 (or absent: square pixels)")
         _check(len(self.response_wavelengths_nm) == len(self.response_qe_t) >= 2, "camera.response", len(self.response_qe_t), "matching wavelength and QE*T tables of >= 2 samples")
         if self.cx is None:
             object.__setattr__(self, "cx", (self.width - 1) / 2.0)
@@ -225,28 +230,49 @@ class Camera:
 
     # ----------------------------------------------------------------- derived values
     @property
-    def focal_length_px(self) -> float:
+    def fx_px(self) -> float:
+        """Focal length in pixels along x (columns), ``K[0, 0]``."""
         return self.focal_length_mm / (self.pixel_pitch_um * 1e-3)
 
     @property
+    def fy_px(self) -> float:
+        """Focal length in pixels along y (rows), ``K[1, 1]``; equal to :attr:`fx_px` for square
+        pixels."""
+        if self.pixel_pitch_y_um is None:
+            return self.fx_px
+        return self.focal_length_mm / (self.pixel_pitch_y_um * 1e-3)
+
+    @property
+    def focal_length_px(self) -> float:
+        """Mean focal length in pixels, ``sqrt(fx_px * fy_px)``, for isotropic uses (angular
+        sizes, sweep lengths); exactly ``fx_px`` for square pixels."""
+        if self.pixel_pitch_y_um is None:
+            return self.fx_px
+        return math.sqrt(self.fx_px * self.fy_px)
+
+    @property
     def K(self) -> np.ndarray:
-        f = self.focal_length_px
-        return np.array([[f, 0.0, self.cx], [0.0, f, self.cy], [0.0, 0.0, 1.0]])
+        """Intrinsic matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``, shape (3, 3), px."""
+        return np.array([[self.fx_px, 0.0, self.cx], [0.0, self.fy_px, self.cy], [0.0, 0.0, 1.0]])
 
     @property
     def fov_x_rad(self) -> float:
-        return 2.0 * math.atan(0.5 * self.width / self.focal_length_px)
+        """Horizontal field of view, edge to edge of the sensor (ignoring distortion), rad."""
+        return 2.0 * math.atan(0.5 * self.width / self.fx_px)
 
     @property
     def fov_y_rad(self) -> float:
-        return 2.0 * math.atan(0.5 * self.height / self.focal_length_px)
+        """Vertical field of view, edge to edge of the sensor (ignoring distortion), rad."""
+        return 2.0 * math.atan(0.5 * self.height / self.fy_px)
 
     @property
     def half_diagonal_fov_rad(self) -> float:
         """Largest angle from the boresight to a sensor corner (ignoring distortion), rad."""
+        fx, fy = self.fx_px, self.fy_px
         dx = max(self.cx + 0.5, self.width - 0.5 - self.cx)
         dy = max(self.cy + 0.5, self.height - 0.5 - self.cy)
-        return math.atan(math.hypot(dx, dy) / self.focal_length_px)
+        # dy in x-pixel units; the ratio is exactly 1.0 for square pixels (same bits as before)
+        return math.atan(math.hypot(dx, dy * (fx / fy)) / fx)
 
     @property
     def aperture_diameter_m(self) -> float:
@@ -258,8 +284,8 @@ class Camera:
 
     @property
     def ifov_rad(self) -> float:
-        """Angle subtended by one pixel at the principal point, rad."""
-        return 1.0 / self.focal_length_px
+        """Largest angle subtended by one pixel at the principal point (along x or y), rad."""
+        return 1.0 / min(self.fx_px, self.fy_px)
 
     # ----------------------------------------------------------------- geometry
     def project(self, v_cam, *, distort: bool = True):
@@ -271,15 +297,13 @@ class Camera:
             yn = np.where(z > 0, v[..., 1] / z, np.nan)
         if distort and not self.distortion.is_identity:
             xn, yn = self.distortion.distort(xn, yn)
-        f = self.focal_length_px
-        return np.stack([f * xn + self.cx, f * yn + self.cy], -1)
+        return np.stack([self.fx_px * xn + self.cx, self.fy_px * yn + self.cy], -1)
 
     def back_project(self, xy_px, *, distorted: bool = True):
         """Unit camera-frame directions (N, 3) of pixel coordinates (N, 2)."""
         xy = np.asarray(xy_px, dtype=float)
-        f = self.focal_length_px
-        xn = (xy[..., 0] - self.cx) / f
-        yn = (xy[..., 1] - self.cy) / f
+        xn = (xy[..., 0] - self.cx) / self.fx_px
+        yn = (xy[..., 1] - self.cy) / self.fy_px
         if distorted and not self.distortion.is_identity:
             xn, yn = self.distortion.undistort(xn, yn)
         v = np.stack([xn, yn, np.ones_like(xn)], -1)
@@ -298,46 +322,101 @@ class Camera:
 
     # ----------------------------------------------------------------- I/O
     def to_dict(self) -> dict:
-        """Plain dict for JSON/YAML (ground truth ``camera``); angles in degrees."""
+        """Plain dict for JSON/YAML (ground truth ``camera``); :meth:`from_dict` inverts it.
+
+        ``K`` and ``bit_depth`` are derived copies (CONVENTIONS.md fixed truth keys);
+        ``pixel_pitch_y_um`` appears only for rectangular pixels.
+        """
         d = {
             "K": self.K.tolist(),
             "width": self.width,
             "height": self.height,
             "focal_length_mm": self.focal_length_mm,
             "pixel_pitch_um": self.pixel_pitch_um,
+        }
+        if self.pixel_pitch_y_um is not None:
+            d["pixel_pitch_y_um"] = self.pixel_pitch_y_um
+        d.update({
             "cx": self.cx,
             "cy": self.cy,
             "f_number": self.f_number,
             "exposure_s": self.exposure_s,
             "bit_depth": self.sensor.bit_depth,
             "defocus_sigma_px": self.defocus_sigma_px,
-            "cosmic_rays_per_frame": self.cosmic_rays_per_frame,
-            "sun_exclusion_deg": math.degrees(self.sun_exclusion_rad),
-            "limiting_v_mag": self.limiting_v_mag,
             "distortion": dataclasses.asdict(self.distortion),
             "response": {"wavelengths_nm": list(self.response_wavelengths_nm), "qe_t": list(self.response_qe_t)},
             "sensor": dataclasses.asdict(self.sensor),
-        }
+        })
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Camera":
-        """Inverse of :meth:`to_dict` (also the reader of YAML camera sections).
+        """Inverse of :meth:`to_dict`: ``Camera.from_dict(cam.to_dict()) == cam``.
 
-        Accepts ``fov_deg`` instead of ``focal_length_mm``; ``K`` and ``bit_depth`` at the top
-        level are ignored/merged (``bit_depth`` goes to the sensor).
+        Reads exactly the keys :meth:`to_dict` writes (``K`` and ``bit_depth`` are checked
+        against the others, not used); for YAML camera sections with presets and ``fov_deg``
+        see :func:`skynav.scenes.config.camera_from_mapping`. A key that has moved out of the
+        camera (:data:`MOVED_CAMERA_KEYS`) raises :class:`~skynav.scenes.errors.MovedKeyError`.
         """
-        from .config import camera_from_mapping  # local import: config depends on this module
+        if not isinstance(d, dict):
+            raise ConfigValueError("camera", d, "a mapping (Camera.to_dict())")
+        for k in d:
+            if k in MOVED_CAMERA_KEYS:
+                raise MovedKeyError(f"camera.{k}", d[k], MOVED_CAMERA_KEYS[k])
+            if k not in _TO_DICT_KEYS:
+                raise ConfigValueError(f"camera.{k}", d[k], "no such key; allowed keys: " + ", ".join(sorted(_TO_DICT_KEYS)))
+        missing = [k for k in ("width", "height", "focal_length_mm", "pixel_pitch_um") if k not in d]
+        if missing:
+            raise ConfigValueError(f"camera.{missing[0]}", None, "a value")
+        kw = {k: d[k] for k in ("width", "height", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um",
+                                "cx", "cy", "f_number", "exposure_s", "defocus_sigma_px") if k in d}
+        if "distortion" in d:
+            kw["distortion"] = BrownConrady(**_sub_mapping(d["distortion"], "camera.distortion", _DISTORTION_KEYS))
+        if "response" in d:
+            r = _sub_mapping(d["response"], "camera.response", {"wavelengths_nm", "qe_t"})
+            kw["response_wavelengths_nm"] = tuple(r.get("wavelengths_nm", ()))
+            kw["response_qe_t"] = tuple(r.get("qe_t", ()))
+        if "sensor" in d:
+            kw["sensor"] = SensorParams(**_sub_mapping(d["sensor"], "camera.sensor", _SENSOR_KEYS))
+        cam = cls(**kw)
+        if "bit_depth" in d and d["bit_depth"] != cam.sensor.bit_depth:
+            raise ConfigValueError("camera.bit_depth", d["bit_depth"], f"equal to camera.sensor.bit_depth ({cam.sensor.bit_depth})")
+        if "K" in d and not np.allclose(np.asarray(d["K"], dtype=float), cam.K, rtol=1e-12, atol=1e-9):
+            raise ConfigValueError("camera.K", d["K"], "the K of focal_length_mm, pixel pitches, cx and cy")
+        return cam
 
-        return camera_from_mapping(d)
+
+#: Keys that have left the camera: old key -> where it lives now (scene files and dicts).
+MOVED_CAMERA_KEYS = {
+    "limiting_v_mag": "visibility.limiting_v_mag",
+    "sun_exclusion_deg": "visibility.sun_exclusion_deg",
+    "cosmic_rays_per_frame": "render.cosmic_rays_per_frame",
+}
+
+_TO_DICT_KEYS = {
+    "K", "width", "height", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um", "cx", "cy", "f_number",
+    "exposure_s", "bit_depth", "defocus_sigma_px", "distortion", "response", "sensor",
+}
+_SENSOR_KEYS = {f.name for f in dataclasses.fields(SensorParams)}
+_DISTORTION_KEYS = {f.name for f in dataclasses.fields(BrownConrady)}
+
+
+def _sub_mapping(value, key: str, allowed) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigValueError(key, value, "a mapping of keys to values")
+    for k in value:
+        if k not in allowed:
+            raise ConfigValueError(f"{key}.{k}", value[k], "no such key; allowed keys: " + ", ".join(sorted(allowed)))
+    return value
 
 
 def paper_camera(**overrides) -> Camera:
     """The camera of paper 002 table 4 (and paper 000 table 1).
 
     20 deg FOV, f/2.2, 400 ms, 1024 x 1024 px, f = 40 mm (so 13.78 um pixels), QE x T 0.49,
-    defocus 0.5 px, 1 cosmic ray per frame, 20 deg solar exclusion angle, 8-bit output
-    (paper 000 thresholds at "120 out of 255").
+    defocus 0.5 px, 8-bit output (paper 000 thresholds at "120 out of 255"). The paper's
+    1 cosmic ray per frame is ``RenderOptions.cosmic_rays_per_frame`` and its 20 deg solar
+    exclusion and V < 7 limit are :class:`~skynav.scenes.visibility.VisibilityCriteria`.
     """
     width = height = 1024
     focal_mm = 40.0

@@ -212,7 +212,7 @@ class StarCatalog:
         return f"StarCatalog(<{len(self)} stars, epoch_tdb_s={self.epoch_tdb_s!r}>)"
 
     # -- queries ------------------------------------------------------------------------------
-    def cone(self, center_u, radius_rad, *, v_mag_max=None, margin_rad=0.0) -> np.ndarray:
+    def cone(self, center_u, radius_rad, *, limiting_v_mag=None, margin_rad=0.0) -> np.ndarray:
         """Indices of the stars within a cone, at the catalog epoch.
 
         Parameters
@@ -222,8 +222,8 @@ class StarCatalog:
         radius_rad : float
             Cone half-angle, rad; a star is in when its angle to the axis is ``<= radius_rad +
             margin_rad`` (compared as cosines).
-        v_mag_max : float, optional
-            Keep only stars with ``v_mag <= v_mag_max``.
+        limiting_v_mag : float, optional
+            Keep only stars with ``v_mag <= limiting_v_mag`` (the catalogue cut).
         margin_rad : float
             Extra slack for proper motion, parallax and aberration between the catalog epoch and
             the observation (e.g. 30 arcsec of aberration + the largest proper motion x years).
@@ -254,8 +254,8 @@ class StarCatalog:
             else:
                 band = self._order[i0:i1]
                 idx = band[self.u_icrs[band] @ c >= np.cos(r)]
-        if v_mag_max is not None:
-            idx = idx[self.v_mag[idx] <= v_mag_max]
+        if limiting_v_mag is not None:
+            idx = idx[self.v_mag[idx] <= limiting_v_mag]
         return np.sort(idx) if self._order is not None else idx
 
     def directions(self, idx, t_tdb_s, observer_position_km) -> np.ndarray:

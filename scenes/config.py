@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import BrownConrady, Camera, SensorParams, paper_camera
-from .errors import ConfigValueError, SceneFileError
+from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
+from .errors import ConfigValueError, MovedKeyError, SceneFileError
+from .visibility import VisibilityCriteria
 
 CAMERA_PRESETS = {"paper": paper_camera}
 
@@ -52,9 +53,8 @@ def _check_keys(d: dict, key: str, allowed):
 _SENSOR_KEYS = {f.name for f in dataclasses.fields(SensorParams)}
 _DIST_KEYS = {f.name for f in dataclasses.fields(BrownConrady)}
 _CAMERA_KEYS = {
-    "preset", "width", "height", "fov_deg", "focal_length_mm", "pixel_pitch_um", "cx", "cy",
-    "f_number", "exposure_s", "defocus_sigma_px", "cosmic_rays_per_frame", "sun_exclusion_deg",
-    "limiting_v_mag", "distortion", "response", "sensor", "K", "bit_depth",
+    "preset", "width", "height", "fov_deg", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um", "cx", "cy",
+    "f_number", "exposure_s", "defocus_sigma_px", "distortion", "response", "sensor", "K", "bit_depth",
 }
 
 
@@ -62,9 +62,15 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
     """A :class:`Camera` from a mapping (a YAML ``camera:`` section or ``Camera.to_dict()``).
 
     ``preset: paper`` starts from :func:`paper_camera`; other keys override it. Either
-    ``fov_deg`` (horizontal, edge to edge) or ``focal_length_mm`` sets the focal length.
+    ``fov_deg`` (horizontal, edge to edge) or ``focal_length_mm`` sets the focal length;
+    ``pixel_pitch_y_um`` makes the pixels rectangular (``fy != fx``). The keys that left the
+    camera (``limiting_v_mag``, ``sun_exclusion_deg``, ``cosmic_rays_per_frame``) raise
+    :class:`~skynav.scenes.errors.MovedKeyError` naming their new place.
     """
     d = _mapping(d if d is not None else {}, key)
+    for k in d:
+        if k in MOVED_CAMERA_KEYS:
+            raise MovedKeyError(f"{key}.{k}", d[k], MOVED_CAMERA_KEYS[k])
     _check_keys(d, key, _CAMERA_KEYS)
     preset = d.get("preset", "paper" if "width" not in d else None)
     if preset is not None and preset not in CAMERA_PRESETS:
@@ -74,15 +80,12 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
     for name in ("width", "height"):
         if name in d:
             kw[name] = _number(d[name], f"{key}.{name}", allowed="a positive integer", integer=True)
-    for name in ("focal_length_mm", "pixel_pitch_um", "f_number", "exposure_s", "defocus_sigma_px",
-                 "cosmic_rays_per_frame", "limiting_v_mag"):
+    for name in ("focal_length_mm", "pixel_pitch_um", "f_number", "exposure_s", "defocus_sigma_px"):
         if name in d:
             kw[name] = _number(d[name], f"{key}.{name}")
-    for name in ("cx", "cy"):
+    for name in ("cx", "cy", "pixel_pitch_y_um"):
         if name in d and d[name] is not None:
             kw[name] = _number(d[name], f"{key}.{name}")
-    if "sun_exclusion_deg" in d:
-        kw["sun_exclusion_rad"] = math.radians(_number(d["sun_exclusion_deg"], f"{key}.sun_exclusion_deg"))
     if "distortion" in d:
         dd = _mapping(d["distortion"], f"{key}.distortion")
         _check_keys(dd, f"{key}.distortion", _DIST_KEYS)
@@ -150,7 +153,12 @@ class AttitudeSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class SceneSpec:
-    """A scene as written in a file, before the sky is computed (see :func:`build_from_spec`)."""
+    """A scene as written in a file, before the sky is computed (see :func:`build_from_spec`).
+
+    ``visibility`` is the file's ``visibility:`` section; ``catalog_limiting_v_mag`` (the star
+    catalogue cut), ``resolved_threshold_px``, ``cosmic_rays_per_frame`` (mean hits per frame,
+    for ``RenderOptions``) and ``seed`` come from its ``render:`` section.
+    """
 
     epoch_tdb_iso: str
     position_km: tuple | None = None
@@ -158,12 +166,32 @@ class SceneSpec:
     relative_to: str | None = None
     attitude: AttitudeSpec = field(default_factory=AttitudeSpec)
     camera: Camera = field(default_factory=paper_camera)
-    star_mag_limit: float = 9.0
+    visibility: VisibilityCriteria = field(default_factory=VisibilityCriteria)
+    catalog_limiting_v_mag: float = 9.0
     resolved_threshold_px: float = 2.0
+    cosmic_rays_per_frame: float = 1.0
     seed: int = 0
 
 
-_SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "render"}
+_SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render"}
+_RENDER_KEYS = {"catalog_limiting_v_mag", "resolved_threshold_px", "cosmic_rays_per_frame", "seed"}
+_MOVED_RENDER_KEYS = {"star_mag_limit": "render.catalog_limiting_v_mag"}
+
+
+def visibility_from_mapping(d, key: str = "visibility") -> VisibilityCriteria:
+    """A :class:`~skynav.scenes.visibility.VisibilityCriteria` from a ``visibility:`` mapping
+    (``limiting_v_mag``, ``sun_exclusion_deg``; missing keys take the defaults, V 7 and 20 deg)."""
+    d = _mapping(d if d is not None else {}, key)
+    _check_keys(d, key, {"limiting_v_mag", "sun_exclusion_deg"})
+    kw = {}
+    if "limiting_v_mag" in d:
+        kw["limiting_v_mag"] = _number(d["limiting_v_mag"], f"{key}.limiting_v_mag")
+    if "sun_exclusion_deg" in d:
+        deg = _number(d["sun_exclusion_deg"], f"{key}.sun_exclusion_deg")
+        if not 0 <= deg < 180:
+            raise ConfigValueError(f"{key}.sun_exclusion_deg", deg, "in [0, 180)")
+        kw["sun_exclusion_rad"] = math.radians(deg)
+    return VisibilityCriteria(**kw)
 
 
 def scene_spec_from_mapping(d) -> SceneSpec:
@@ -215,11 +243,18 @@ def scene_spec_from_mapping(d) -> SceneSpec:
                             twist_rad=math.radians(_number(att.get("twist_deg", 0.0), "attitude.twist_deg")),
                             angular_velocity_rad_s=tuple(float(x) for x in w))
     camera = camera_from_mapping(d.get("camera", {"preset": "paper"}))
+    visibility = visibility_from_mapping(d.get("visibility", {}))
     rd = _mapping(d.get("render", {}), "render")
-    _check_keys(rd, "render", {"star_mag_limit", "resolved_threshold_px", "seed"})
-    mag = _number(rd.get("star_mag_limit", 9.0), "render.star_mag_limit")
+    for k in rd:
+        if k in _MOVED_RENDER_KEYS:
+            raise MovedKeyError(f"render.{k}", rd[k], _MOVED_RENDER_KEYS[k])
+    _check_keys(rd, "render", _RENDER_KEYS)
+    mag = _number(rd.get("catalog_limiting_v_mag", 9.0), "render.catalog_limiting_v_mag")
     if not -2 <= mag <= 14:
-        raise ConfigValueError("render.star_mag_limit", mag, "in [-2, 14] (Hipparcos is complete to about V = 8)")
+        raise ConfigValueError("render.catalog_limiting_v_mag", mag, "in [-2, 14] (Hipparcos is complete to about V = 8)")
+    rays = _number(rd.get("cosmic_rays_per_frame", 1.0), "render.cosmic_rays_per_frame")
+    if rays < 0:
+        raise ConfigValueError("render.cosmic_rays_per_frame", rays, ">= 0")
     thr = _number(rd.get("resolved_threshold_px", 2.0), "render.resolved_threshold_px")
     if thr <= 0:
         raise ConfigValueError("render.resolved_threshold_px", thr, "> 0")
@@ -233,8 +268,10 @@ def scene_spec_from_mapping(d) -> SceneSpec:
         relative_to=rel,
         attitude=attitude,
         camera=camera,
-        star_mag_limit=mag,
+        visibility=visibility,
+        catalog_limiting_v_mag=mag,
         resolved_threshold_px=thr,
+        cosmic_rays_per_frame=rays,
         seed=seed,
     )
 

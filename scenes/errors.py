@@ -70,3 +70,47 @@ class DataFileError(SkynavError, OSError):
 
 class LambertError(SkynavError, ValueError):
     """A Lambert problem with no solution for the inputs (or a solver failure)."""
+
+
+class MovedKeyError(ConfigValueError):
+    """A configuration key that has moved elsewhere (names the new key).
+
+    Parameters
+    ----------
+    key : str
+        Dotted name of the old key, e.g. ``camera.limiting_v_mag``.
+    value : object
+        The value given.
+    new_key : str
+        Where it lives now, e.g. ``visibility.limiting_v_mag``.
+    """
+
+    def __init__(self, key: str, value, new_key: str):
+        super().__init__(key, value, f"it has moved to {new_key}")
+        self.new_key = new_key
+        self.args = (f"{key} has moved: write it as {new_key} (value given: {value!r})",)
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+class ObserverInsideBodyError(SkynavError, ValueError):
+    """The observer is inside a solar-system body (closer to its centre than its radius).
+
+    Attributes
+    ----------
+    body : str
+        The body's name.
+    distance_km, radius_km : float
+        Observer-to-centre distance and the body's mean radius, km.
+    position_km : tuple of float, shape (3,)
+        The observer's barycentric ICRS position, km.
+    """
+
+    def __init__(self, body: str, distance_km: float, radius_km: float, position_km=()):
+        self.body = body
+        self.distance_km = float(distance_km)
+        self.radius_km = float(radius_km)
+        self.position_km = tuple(float(x) for x in position_km)
+        super().__init__(f"observer.position_km = {[round(x, 3) for x in self.position_km]} is inside {body}: "
+                         f"{self.distance_km:.3f} km from its centre, radius {self.radius_km:g} km")

@@ -19,7 +19,8 @@ DEFAULT_SCENE = {
     },
     "attitude": {"point_at": "mars", "twist_deg": 0.0},
     "camera": {"preset": "paper"},
-    "render": {"star_mag_limit": 9.0, "seed": 1},
+    "visibility": {"limiting_v_mag": 7.0, "sun_exclusion_deg": 20.0},
+    "render": {"catalog_limiting_v_mag": 9.0, "cosmic_rays_per_frame": 1.0, "seed": 1},
 }
 
 #: Ten days after an Earth departure, 1.2 million km out, looking back: the Earth (~31 px across)
@@ -33,7 +34,7 @@ EARTH_DEPARTURE_SCENE = {
     },
     "attitude": {"point_at": "earth", "twist_deg": 0.0},
     "camera": {"preset": "paper", "exposure_s": 0.01},
-    "render": {"star_mag_limit": 9.0, "seed": 2},
+    "render": {"catalog_limiting_v_mag": 9.0, "seed": 2},
 }
 
 PRESETS = {"default": DEFAULT_SCENE, "earth_departure": EARTH_DEPARTURE_SCENE}

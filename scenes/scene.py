@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera
+from .visibility import VisibilityCriteria
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -77,7 +78,7 @@ class BodyInView:
     radius_km: float
     v_mag: float
     phase_angle_rad: float
-    sun_angle_rad: float     # elongation from the Sun seen from the spacecraft
+    elongation_rad: float    # angle Sun-spacecraft-body
     angular_diameter_px: float
     aberration_arcsec: float  # separation between light-time-only and apparent directions
     in_fov: bool
@@ -105,8 +106,10 @@ class Scene:
         Every body considered (Sun excluded), in or out of the field.
     sun_u_icrs : ndarray, shape (3,)
         Apparent direction of the Sun.
-    star_mag_limit : float
-        Faintest catalog V magnitude included.
+    catalog_limiting_v_mag : float
+        Faintest catalogue V magnitude included (the star catalogue cut).
+    visibility : VisibilityCriteria
+        The detection rule that set each body's ``visible`` flag.
     """
 
     epoch_tdb_s: float
@@ -118,10 +121,11 @@ class Scene:
     stars: StarsInView
     bodies: tuple = field(default_factory=tuple)
     sun_u_icrs: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    star_mag_limit: float = 9.0
+    catalog_limiting_v_mag: float = 9.0
+    visibility: VisibilityCriteria = field(default_factory=VisibilityCriteria)
 
     @property
-    def sun_angle_rad(self) -> float:
+    def boresight_sun_angle_rad(self) -> float:
         """Angle between the boresight and the Sun, rad."""
         return float(np.arccos(np.clip(self.R_cam_icrs[2] @ self.sun_u_icrs, -1.0, 1.0)))
 
@@ -151,7 +155,7 @@ class SkyBody:
     radius_km: float
     v_mag: float
     phase_angle_rad: float
-    sun_angle_rad: float
+    elongation_rad: float    # angle Sun-spacecraft-body
     angular_diameter_rad: float
 
 
@@ -159,10 +163,15 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     """Apparent directions, magnitudes and angles of solar-system bodies seen from the observer.
 
     Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun.
+
+    Raises
+    ------
+    ObserverInsideBodyError
+        When the observer is inside one of the bodies (geometric distance <= radius).
     """
     from . import apparent, photometry
     from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-    from .errors import ConfigValueError
+    from .errors import ObserverInsideBodyError
 
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
@@ -173,20 +182,21 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
         d = apparent.apparent_body(eph, name, r, v, t_tdb_s)
         radius = BODY_RADII_KM[name]
         if d.geometric_distance_km <= radius:
-            raise ConfigValueError("observer.position_km", list(np.round(r, 3)), f"a point outside {name} (radius {radius} km)")
+            raise ObserverInsideBodyError(name, d.geometric_distance_km, radius, r)
         phase = float(photometry.phase_angle_rad(d.position_km, d.sun_position_km, r))
         sun_dist = float(np.linalg.norm(d.position_km - d.sun_position_km))
         vmag = float(photometry.planet_v_mag(name, sun_dist, d.distance_km, phase))
         elong = float(np.arccos(np.clip(np.dot(d.u_apparent, sun.u_apparent), -1.0, 1.0)))
         out.append(SkyBody(name=name, directions=d, radius_km=radius, v_mag=vmag, phase_angle_rad=phase,
-                           sun_angle_rad=elong,
+                           elongation_rad=elong,
                            angular_diameter_rad=float(photometry.angular_diameter_rad(radius, d.distance_km))))
     return tuple(out), np.asarray(sun.u_apparent, dtype=float)
 
 
-def brightest_visible_body(bodies, camera) -> "SkyBody":
-    """The brightest body outside the camera's Sun exclusion angle (for ``point_at: auto``)."""
-    candidates = [b for b in bodies if b.sun_angle_rad > camera.sun_exclusion_rad and np.isfinite(b.v_mag)]
+def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
+    """The brightest body outside the Sun exclusion angle of ``visibility``, whatever its
+    magnitude (for ``point_at: auto``)."""
+    candidates = [b for b in bodies if visibility.outside_sun_exclusion(b.elongation_rad) and np.isfinite(b.v_mag)]
     if not candidates:
         from .errors import ConfigValueError
 
@@ -206,7 +216,8 @@ def build_scene(
     R_cam_icrs,
     camera: Camera,
     angular_velocity_rad_s=(0.0, 0.0, 0.0),
-    star_mag_limit: float = 9.0,
+    catalog_limiting_v_mag: float = 9.0,
+    visibility: VisibilityCriteria | None = None,
     resolved_threshold_px: float = RESOLVED_THRESHOLD_PX,
     ephemeris=None,
     catalog=None,
@@ -216,7 +227,8 @@ def build_scene(
 
     Parameters
     ----------
-    epoch : astropy.time.Time, str (ISO, TDB) or float (TDB seconds past J2000)
+    epoch : astropy.time.Time, str (ISO, TDB) or float
+        A float is TDB seconds past J2000 (the one meaning of a float epoch in skynav).
     position_km, velocity_km_s : array_like, shape (3,)
         Observer barycentric ICRS state.
     R_cam_icrs : array_like, shape (3, 3)
@@ -224,8 +236,10 @@ def build_scene(
     camera : Camera
     angular_velocity_rad_s : array_like, shape (3,)
         Camera-frame body rate; sources move along paths during the exposure.
-    star_mag_limit : float
-        Faintest catalog V included.
+    catalog_limiting_v_mag : float
+        Faintest catalogue V included (the star catalogue cut).
+    visibility : VisibilityCriteria, optional
+        The detection rule of the bodies' ``visible`` flag (default: V <= 7, 20 deg from the Sun).
     resolved_threshold_px : float
         Bodies whose angular diameter exceeds this are flagged ``resolved``.
     ephemeris, catalog : optional
@@ -238,6 +252,7 @@ def build_scene(
     from .ephemeris_jpl import default_ephemeris
     from .timescales import tdb_seconds
 
+    vis = VisibilityCriteria() if visibility is None else visibility
     t = float(epoch) if isinstance(epoch, (int, float, np.floating)) else float(tdb_seconds(epoch))
     eph = ephemeris or default_ephemeris()
     cat = catalog or load_catalog()
@@ -252,7 +267,7 @@ def build_scene(
     # --- stars: cone around the boresight wide enough for the whole exposure's sweep
     sweep = float(np.linalg.norm(w)) * half
     margin = sweep + np.radians(0.2) + 8.0 * camera.ifov_rad
-    idx = cat.cone(R[2], camera.half_diagonal_fov_rad + margin, v_mag_max=star_mag_limit)
+    idx = cat.cone(R[2], camera.half_diagonal_fov_rad + margin, limiting_v_mag=catalog_limiting_v_mag)
     sun_pos = eph.position("sun", t)
     u_astro = cat.directions(idx, t, r)
     u_star = apparent.apparent_star_directions(u_astro, r, v, sun_pos)
@@ -290,16 +305,15 @@ def build_scene(
             light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
-            sun_angle_rad=float(b.sun_angle_rad), angular_diameter_px=float(diam_px),
+            elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
             aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_apparent), -1, 1)) * ARCSEC_PER_RAD),
             in_fov=in_fov,
-            visible=bool(in_fov and np.isfinite(b.v_mag) and b.v_mag <= camera.limiting_v_mag
-                         and b.sun_angle_rad > camera.sun_exclusion_rad),
+            visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
             resolved=bool(diam_px > resolved_threshold_px),
         ))
     return Scene(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R, angular_velocity_rad_s=w,
                  camera=camera, stars=stars, bodies=tuple(bodies), sun_u_icrs=np.asarray(sun_u),
-                 star_mag_limit=float(star_mag_limit))
+                 catalog_limiting_v_mag=float(catalog_limiting_v_mag), visibility=vis)
 
 
 def resolve_spec(spec, *, ephemeris=None):
@@ -323,7 +337,7 @@ def resolve_spec(spec, *, ephemeris=None):
     a = spec.attitude
     if a.point_at is not None:
         if a.point_at == "auto":
-            target = brightest_visible_body(sky[0], spec.camera)
+            target = brightest_visible_body(sky[0], spec.visibility)
         else:
             target = next(b for b in sky[0] if b.name == a.point_at)
         R = frames.point_boresight(target.directions.u_apparent, a.twist_rad)
@@ -342,5 +356,6 @@ def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
     t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
     a = spec.attitude
     return build_scene(t, position_km=r, velocity_km_s=v, R_cam_icrs=R, camera=spec.camera,
-                       angular_velocity_rad_s=a.angular_velocity_rad_s, star_mag_limit=spec.star_mag_limit,
+                       angular_velocity_rad_s=a.angular_velocity_rad_s, catalog_limiting_v_mag=spec.catalog_limiting_v_mag,
+                       visibility=spec.visibility,
                        resolved_threshold_px=spec.resolved_threshold_px, ephemeris=eph, catalog=catalog, sky=sky)

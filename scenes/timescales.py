@@ -16,17 +16,30 @@ iers.conf.auto_download = False
 iers.conf.auto_max_age = None
 
 
+def _is_float_epoch(epoch) -> bool:
+    return not isinstance(epoch, (Time, str)) and np.issubdtype(np.asarray(epoch).dtype, np.number)
+
+
 def to_time(epoch) -> Time:
-    """Coerce an epoch (``Time``, ISO string in TDB, or Julian date TDB as float) to ``Time``."""
+    """Coerce an epoch to ``Time``: a ``Time``, an ISO string in TDB, or a float.
+
+    A float epoch (scalar or array) is always TDB seconds past J2000 (JD 2451545.0 TDB), the one
+    meaning of a float epoch in skynav (names end in ``_tdb_s``); a Julian date goes through
+    ``Time(jd, format="jd", scale="tdb")`` explicitly.
+    """
     if isinstance(epoch, Time):
         return epoch
     if isinstance(epoch, str):
         return Time(epoch, scale="tdb")
-    return Time(np.asarray(epoch, dtype=float), format="jd", scale="tdb")
+    return time_from_tdb_seconds(epoch)
 
 
 def tdb_seconds(epoch) -> np.ndarray | float:
-    """TDB seconds past J2000 (JD 2451545.0 TDB) of an epoch, as float64."""
+    """TDB seconds past J2000 (JD 2451545.0 TDB) of an epoch, as float64 (a float is returned
+    as it is: it already is TDB seconds past J2000)."""
+    if _is_float_epoch(epoch):
+        s = np.asarray(epoch, dtype=float)
+        return float(s) if np.ndim(s) == 0 else s
     t = to_time(epoch).tdb
     s = ((t.jd1 - J2000_JD) + t.jd2) * SECONDS_PER_DAY
     return float(s) if np.ndim(s) == 0 else s
@@ -38,7 +51,7 @@ def tdb_jd(epoch) -> tuple:
     return t.jd1, t.jd2
 
 
-def time_from_tdb_seconds(t_s) -> Time:
-    """Inverse of :func:`tdb_seconds`."""
-    t_s = np.asarray(t_s, dtype=float)
-    return Time(J2000_JD, t_s / SECONDS_PER_DAY, format="jd", scale="tdb")
+def time_from_tdb_seconds(t_tdb_s) -> Time:
+    """Inverse of :func:`tdb_seconds`: ``Time`` of TDB seconds past J2000."""
+    t_tdb_s = np.asarray(t_tdb_s, dtype=float)
+    return Time(J2000_JD, t_tdb_s / SECONDS_PER_DAY, format="jd", scale="tdb")

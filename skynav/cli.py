@@ -53,21 +53,22 @@ def cmd_scene(args) -> int:
           f"camera {cam.width}x{cam.height}, FOV {math.degrees(cam.fov_x_rad):.2f} deg, {cam.exposure_s * 1e3:.0f} ms")
     r_au = np.linalg.norm(scene.position_km) / AU_KM
     print(f"observer {r_au:.4f} AU from the barycentre, {np.linalg.norm(scene.velocity_km_s):.3f} km/s;  "
-          f"Sun {math.degrees(scene.sun_angle_rad):.2f} deg from the boresight (exclusion {math.degrees(cam.sun_exclusion_rad):.0f} deg)")
+          f"Sun {math.degrees(scene.boresight_sun_angle_rad):.2f} deg from the boresight "
+          f"(exclusion {math.degrees(scene.visibility.sun_exclusion_rad):.0f} deg; visible: V <= {scene.visibility.limiting_v_mag:g})")
     print()
     print(f"{'body':<9} {'V':>7} {'x px':>9} {'y px':>9} {'light-time s':>13} {'aberr. arcsec':>14} "
-          f"{'diam px':>8} {'phase deg':>9} {'Sun deg':>8}  flags")
+          f"{'diam px':>8} {'phase deg':>9} {'elong deg':>9}  flags")
     for b in sorted(scene.bodies, key=lambda b: (not b.in_fov, b.v_mag)):
         flags = ",".join(f for f, on in (("in_fov", b.in_fov), ("visible", b.visible), ("resolved", b.resolved)) if on)
         print(f"{b.name:<9} {_fmt(b.v_mag, '7.2f')} {_fmt(b.xy[0], '9.2f') if b.in_fov else '        -'} "
               f"{_fmt(b.xy[1], '9.2f') if b.in_fov else '        -'} {b.light_time_s:13.3f} {b.aberration_arcsec:14.3f} "
-              f"{b.angular_diameter_px:8.3f} {math.degrees(b.phase_angle_rad):9.2f} {math.degrees(b.sun_angle_rad):8.2f}  {flags}")
+              f"{b.angular_diameter_px:8.3f} {math.degrees(b.phase_angle_rad):9.2f} {math.degrees(b.elongation_rad):9.2f}  {flags}")
     print()
     vm = scene.stars.v_mag[scene.stars.in_fov]
-    edges = [-2, 3, 4, 5, 6, 7, 8, scene.star_mag_limit]
-    edges = sorted(set(e for e in edges if e <= scene.star_mag_limit))
+    edges = [-2, 3, 4, 5, 6, 7, 8, scene.catalog_limiting_v_mag]
+    edges = sorted(set(e for e in edges if e <= scene.catalog_limiting_v_mag))
     counts = [int(((vm > lo) & (vm <= hi)).sum()) for lo, hi in zip(edges[:-1], edges[1:])]
-    print(f"stars in view: {len(vm)} (V <= {scene.star_mag_limit:g})   " +
+    print(f"stars in view: {len(vm)} (V <= {scene.catalog_limiting_v_mag:g})   " +
           "  ".join(f"V {lo:g}..{hi:g}: {n}" for lo, hi, n in zip(edges[:-1], edges[1:], counts)))
     return 0
 
@@ -85,7 +86,8 @@ def cmd_render(args) -> int:
         return _fail(f"--seed {seed}: expected a non-negative integer")
     t0 = time.perf_counter()
     scene = build_from_spec(spec)
-    options = RenderOptions(noise=not args.no_noise, backend=args.backend)
+    options = RenderOptions(noise=not args.no_noise, backend=args.backend,
+                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame)
     frame = render(scene, seed=seed, options=options)
     t1 = time.perf_counter()
     out = Path(args.output)

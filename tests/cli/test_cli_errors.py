@@ -32,8 +32,15 @@ def run(argv, capsys):
         (GOOD.replace("attitude: {point_at: mars}", "attitude: {point_at: mars"), "malformed YAML"),
         (GOOD.replace("epoch:", "epcoh:"), "epcoh"),
         (GOOD.replace("{preset: paper}", "{preset: paper, sensor: {bit_depth: 24}}"), "sensor.bit_depth"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, limiting_v_mag: 6}"), "write it as visibility.limiting_v_mag"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, sun_exclusion_deg: 30}"), "write it as visibility.sun_exclusion_deg"),
+        (GOOD.replace("{preset: paper}", "{preset: paper, cosmic_rays_per_frame: 2}"), "write it as render.cosmic_rays_per_frame"),
+        (GOOD + "render: {star_mag_limit: 8}\n", "write it as render.catalog_limiting_v_mag"),
+        (GOOD.replace("position_km: [-128731399.4, 113269566.7, 51647643.2]",
+                      "relative_to: earth\n  position_km: [1000.0, 0.0, 0.0]"), "inside earth"),
     ],
-    ids=["epoch-outside-de421", "unknown-body", "negative-exposure", "malformed-yaml", "unknown-key", "bit-depth"],
+    ids=["epoch-outside-de421", "unknown-body", "negative-exposure", "malformed-yaml", "unknown-key", "bit-depth",
+         "moved-limiting-v-mag", "moved-sun-exclusion", "moved-cosmic-rays", "moved-star-mag-limit", "inside-earth"],
 )
 def test_bad_input_gives_one_line_and_exit_2(tmp_path, capsys, text, expected):
     f = tmp_path / "scene.yaml"
@@ -82,3 +89,33 @@ def test_render_default_writes_viewable_png_with_a_visible_planet(tmp_path, caps
     x, y = (int(round(c)) for c in mars["xy"])
     assert dn[y, x] > 100  # the planet stands out of the dark sky (8-bit DN)
     assert (tmp_path / "frame.exr").is_file()
+
+
+def test_scene_prints_elongation_and_the_visibility_rule(tmp_path, capsys):
+    """`skynav scene` names the two Sun angles apart and follows the file's visibility section."""
+    code, out, _ = run(["scene"], capsys)
+    assert code == 0
+    assert "deg from the boresight (exclusion 20 deg; visible: V <= 7)" in out
+    assert "elong deg" in out
+    mars = next(line for line in out.splitlines() if line.startswith("mars "))
+    assert "visible" in mars
+    f = tmp_path / "scene.yaml"
+    f.write_text(GOOD + "visibility: {limiting_v_mag: -3.0, sun_exclusion_deg: 25}\n")
+    code, out, _ = run(["scene", str(f)], capsys)
+    assert code == 0 and "exclusion 25 deg; visible: V <= -3" in out
+    mars = next(line for line in out.splitlines() if line.startswith("mars "))
+    assert "visible" not in mars and "in_fov" in mars
+
+
+def test_render_reads_cosmic_rays_per_frame_from_the_render_section(tmp_path, capsys):
+    import json
+
+    f = tmp_path / "scene.yaml"
+    f.write_text(GOOD.replace("{preset: paper}", "{preset: paper, width: 64, height: 64}")
+                 + "render: {cosmic_rays_per_frame: 0.0, seed: 3}\n")
+    code, out, _ = run(["render", str(f), "-o", str(tmp_path), "--backend", "numpy"], capsys)
+    assert code == 0 and "0 cosmic rays" in out
+    truth = json.loads((tmp_path / "frame.json").read_text())
+    assert truth["render"]["cosmic_rays_per_frame"] == 0.0 and truth["cosmic_rays"] == []
+    assert "cosmic_rays_per_frame" not in truth["camera"]
+    assert truth["visibility"] == {"limiting_v_mag": 7.0, "sun_exclusion_deg": 20.0}

@@ -16,7 +16,7 @@ def small_recipe(frames: int = 50, keep=()) -> dict:
     r["frames"] = frames
     r["seed"] = 424242
     r["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0}
-    r["star_mag_limit"] = 7.0
+    r["catalog_limiting_v_mag"] = 7.0
     r["montecarlo"]["keep"] = list(keep)
     return r
 

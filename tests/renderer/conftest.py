@@ -60,7 +60,7 @@ def make_body_scene(*, xy=(511.5, 511.5), diameter_px=40.0, phase_deg=60.0, sun_
         xy_start=tup(cam.project(frames.propagate_attitude(R, w, -half) @ u)),
         xy_end=tup(cam.project(frames.propagate_attitude(R, w, half) @ u)),
         light_time_s=distance_km / 299792.458, distance_km=float(distance_km), position_km=tup(body),
-        sun_position_km=tup(sun), radius_km=float(radius_km), v_mag=float(v_mag), phase_angle_rad=g, sun_angle_rad=1.0,
+        sun_position_km=tup(sun), radius_km=float(radius_km), v_mag=float(v_mag), phase_angle_rad=g, elongation_rad=1.0,
         angular_diameter_px=float(diameter_px), aberration_arcsec=0.0, in_fov=True, visible=True, resolved=True,
     )
     scene = Scene(epoch_tdb_s=0.0, position_km=obs, velocity_km_s=np.zeros(3), R_cam_icrs=R,

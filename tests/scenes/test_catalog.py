@@ -32,7 +32,7 @@ def _brute_cone(u, center, radius_rad):
 
 
 def _check_cone(catalog, center, radius, v_max):
-    got = catalog.cone(center, radius, v_mag_max=v_max)
+    got = catalog.cone(center, radius, limiting_v_mag=v_max)
     inside, boundary = _brute_cone(catalog.u_icrs, center, radius)
     if v_max is not None:
         inside &= catalog.v_mag <= v_max

@@ -31,7 +31,7 @@ def test_default_scene_points_at_a_visible_planet(default_scene):
     # point_at: mars centres Mars on the principal point
     target = next(b for b in vis if b.name == "mars")
     assert np.allclose(target.xy, centre, atol=1e-6)
-    assert default_scene.sun_angle_rad > default_scene.camera.sun_exclusion_rad
+    assert default_scene.boresight_sun_angle_rad > default_scene.visibility.sun_exclusion_rad
 
 
 def test_star_pixels_are_projections_of_apparent_directions(default_scene):
