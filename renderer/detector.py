@@ -47,10 +47,11 @@ Two interchangeable implementations with identical statistics (not identical bit
   ``PCG32(size, s, q)``: those streams are correlated, and the difference of two flat fields
   had an autocorrelation of +0.24 at lag 11 rows + 89 columns of a 512-px-wide image.) Every
   per-frame number (gain, frame key, exposure ...) enters the kernel as an opaque variable, so
-  the kernel is compiled once and reused across frames, sensors and exposures. The inversion runs in float64
-  (the rest in float32): float32 pmf sums stall a few ulp below 1 and would return a spurious
-  far-tail value about once per 10^7 pixels. A normal approximation above a threshold was not
-  needed: PTRS costs a constant ~2 draws per pixel whatever the mean, and is exact.
+  the kernel is compiled once and reused across frames, sensors and exposures. The inversion
+  runs in float64 (the rest in float32): float32 pmf sums stall a few ulp below 1 and would
+  return a spurious far-tail value about once per 10^7 pixels. A normal approximation above a
+  threshold was not needed: PTRS costs a constant ~2 draws per pixel whatever the mean, and is
+  exact.
 """
 
 from __future__ import annotations
@@ -465,7 +466,9 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     (``sample_tea_32(seed, lane index)`` seeds each lane's PCG32 state and sequence, 4 rounds),
     with the frame's 128 bits of randomness as the TEA key rather than in the plaintext. For one
     key TEA is a permutation of 64-bit blocks, so no two pixels of a frame share a (state,
-    sequence) pair; frames differ by their key. Seeding PCG32 with ``state + i`` and
+    sequence) pair; frames differ by their key. (With 32-bit sequences about a hundred pairs of
+    pixels in a megapixel share a sequence, at unrelated points of its 2^64-long cycle, far
+    further apart than the few hundred numbers a pixel draws.) Seeding PCG32 with ``state + i`` and
     ``sequence + i`` instead (Dr.Jit's ``PCG32(size, state, sequence)``) gives correlated
     streams: the old LLVM path had a +0.24 autocorrelation of the noise at one lag
     (``tests/renderer/test_noise_independence.py``).
