@@ -7,11 +7,13 @@ a difference of two frames). Under that hypothesis
 
 - the sample autocorrelation of N independent values has, at every lag k != 0, mean ~0 and
   standard deviation sqrt(N - k) / N <= 1 / sqrt(N) (Bartlett 1946; Box, Jenkins & Reinsel,
-  "Time Series Analysis", Sect. 2.1.6), and is close to normal for N = 2^18;
+  "Time Series Analysis", Sect. 2.1, standard errors of autocorrelation estimates), and is
+  close to normal for N = 2^18;
 - the periodogram ordinates of white noise of variance s^2 at the Fourier frequencies other than
   the self-conjugate ones are independent, exponentially distributed with mean s^2 (chi-square
-  with 2 degrees of freedom, times s^2 / 2; Brockwell & Davis, "Time Series: Theory and
-  Methods", Prop. 10.3.2), whatever the distribution of the noise for a sample this large.
+  with 2 degrees of freedom, times s^2 / 2): exactly for Gaussian noise, asymptotically for any
+  i.i.d. noise of finite variance (Brockwell & Davis 1991, "Time Series: Theory and Methods",
+  Sect. 10.3).
 
 These tests were written against a defect: up to package version 0.2 the Dr.Jit LLVM path gave
 pixel i the PCG32 stream (state s + i, sequence q + i), and the difference of two flat fields had
@@ -142,7 +144,8 @@ def test_noise_periodogram_is_exponential_and_flat(backend):
     y = ords / ords.mean()
 
     # Shape: Kolmogorov-Smirnov against Exp(1). The scale estimated from the same ordinates
-    # makes the test conservative (Lilliefors 1969): a correct generator fails with P < 1e-3.
+    # makes the test conservative (Lilliefors 1969, JASA 64, 387: KS for the exponential with
+    # unknown mean): a correct generator fails with P < 1e-3.
     ks = stats.kstest(y, "expon")
 
     # Flatness: Wiener entropy (geometric / arithmetic mean) of exponential ordinates tends to
