@@ -18,6 +18,8 @@ __all__ = [
     "FrameIndexError",
     "SceneSamplingError",
     "LambertError",
+    "OutputFormatError",
+    "TruthSchemaError",
 ]
 
 
@@ -60,3 +62,21 @@ class SceneSamplingError(SkynavError, RuntimeError):
 
 class LambertError(SkynavError, ValueError):
     """A Lambert problem with no solution for the inputs (or a solver failure)."""
+
+
+class OutputFormatError(SkynavError, ValueError):
+    """An image or header cannot be written in the requested file format (bad dtype, shape...)."""
+
+
+class TruthSchemaError(SkynavError, ValueError):
+    """Ground truth (or a manifest) that does not follow its published JSON Schema.
+
+    Attributes
+    ----------
+    problems : list of str
+        One line per problem, e.g. ``"$.attitude.q_cam_icrs: missing"``.
+    """
+
+    def __init__(self, message: str, problems=()):
+        self.problems = list(problems)
+        super().__init__(message)
