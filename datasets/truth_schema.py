@@ -251,9 +251,11 @@ def _validator(name: str):
 
 
 def _json_path(path) -> str:
+    """JSONPath of a location: ``$.stars[3].xy``; keys that are not identifiers in brackets,
+    ``$.files["frames/000000.png"]``."""
     out = "$"
     for p in path:
-        out += f"[{p}]" if isinstance(p, int) else f".{p}"
+        out += f"[{p}]" if isinstance(p, int) else f".{p}" if str(p).isidentifier() else f"[{json.dumps(p)}]"
     return out
 
 
@@ -283,8 +285,57 @@ def _problem_lines(error) -> list:
     return [f"{path}: {msg if len(msg) <= 100 else msg[:97] + '...'}"]
 
 
+# Keywords whose verdict depends only on a value's skeleton (see _skeleton): where the items of a
+# top-level list use no others, validating one item per distinct skeleton is exact.
+_STRUCTURAL = frozenset({"type", "required", "properties", "items", "minItems", "maxItems", "$ref", "description"})
+
+
+def _structural(node, defs) -> bool:
+    if isinstance(node, list):
+        return all(_structural(x, defs) for x in node)
+    if not isinstance(node, dict):
+        return True
+    if not set(node) <= _STRUCTURAL:
+        return False
+    if "$ref" in node and not _structural(defs[node["$ref"].rsplit("/", 1)[-1]], defs):
+        return False
+    return ("items" not in node or _structural(node["items"], defs)) and all(_structural(v, defs) for v in node.get("properties", {}).values())
+
+
+@functools.lru_cache(maxsize=None)
+def _dedupable_lists(name: str) -> frozenset:
+    """Top-level list keys of a schema whose item schema is purely structural."""
+    schema = load_schema(name)
+    defs = schema.get("$defs", {})
+    return frozenset(k for k, sub in schema.get("properties", {}).items()
+                     if isinstance(sub, dict) and sub.get("type") == "array" and _structural(sub.get("items"), defs))
+
+
+def _skeleton(v):
+    """What the structural keywords see of a JSON value: types, lengths and keys; numbers only as
+    integer-valued or not (``"integer"`` accepts 3.0)."""
+    tp = type(v)
+    if tp is dict:
+        return tuple((k, _skeleton(x)) for k, x in v.items())
+    if tp is list:
+        return tuple(_skeleton(x) for x in v)
+    if tp is float:
+        return 0.0 if v.is_integer() else 0.5
+    if tp is int:
+        return 0
+    if tp is str:
+        return ""
+    return v  # bool, None
+
+
 def schema_problems(instance, name: str = FRAME_SCHEMA) -> list:
     """Violations of a published schema by a JSON value, one line each, sorted by JSON path.
+
+    Validated with ``jsonschema`` against the schema file. For speed (a frame lists hundreds of
+    stars, and ``jsonschema`` takes about a millisecond per star), the items of a top-level list
+    whose item schema uses only structural keywords (``type``, ``required``, ``properties``,
+    ``items``, ``minItems``, ``maxItems``) are validated once per distinct skeleton (types, lengths,
+    keys): exact for such schemas; a violation is reported at the first item that has it.
 
     Parameters
     ----------
@@ -298,8 +349,27 @@ def schema_problems(instance, name: str = FRAME_SCHEMA) -> list:
     list of str
         Empty when it conforms, else e.g. ``["$.stars[2].xy: 3 items, expected at most 2"]``.
     """
+    first_index = {}  # (list key, index in the reduced list) -> index in the instance
+    if isinstance(instance, dict):
+        reduced = dict(instance)
+        for key in _dedupable_lists(name):
+            items = instance.get(key)
+            if type(items) is not list:
+                continue
+            seen, kept = {}, []
+            for i, item in enumerate(items):
+                sk = _skeleton(item)
+                if sk not in seen:
+                    seen[sk] = len(kept)
+                    first_index[(key, len(kept))] = i
+                    kept.append(item)
+            reduced[key] = kept
+        instance = reduced
     lines = []
     for error in _validator(name).iter_errors(instance):
+        p = error.absolute_path
+        if len(p) >= 2 and (p[0], p[1]) in first_index:
+            error.path[1] = first_index[(p[0], p[1])]  # relative == absolute at the top level
         lines.extend(_problem_lines(error))
     return sorted(set(lines))
 
