@@ -433,3 +433,39 @@ def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):
         truth_to_jsonable({"a": {3: 1.0}})
     with pytest.raises(TruthSchemaError, match=r"truth\.a: value of type set"):
         truth_to_jsonable({"a": {1, 2}})
+
+
+def test_thread_budget_reads_skynav_threads_without_the_renderer(monkeypatch):
+    # the file side reads SKYNAV_THREADS itself (it may not import the renderer); same meaning
+    from skynav.datasets.frame_files import thread_budget
+    from skynav.scenes.errors import ConfigValueError
+
+    monkeypatch.delenv("SKYNAV_THREADS", raising=False)
+    assert thread_budget() is None
+    monkeypatch.setenv("SKYNAV_THREADS", " 3 ")
+    assert thread_budget() == 3
+    for bad in ("0", "-2", "two", "1.5"):
+        monkeypatch.setenv("SKYNAV_THREADS", bad)
+        with pytest.raises(ConfigValueError, match="SKYNAV_THREADS"):
+            thread_budget()
+
+
+def test_write_frame_writes_each_format_and_refuses_unknown_ones(tmp_path, rng):
+    from types import SimpleNamespace
+
+    from skynav.datasets.frame_files import write_frame
+
+    truth = _truth()
+    cam = truth["camera"]
+    dn = rng.integers(0, 256, (cam["height"], cam["width"]), dtype=np.uint8)
+    e = rng.random(dn.shape).astype(np.float32)
+    frame = SimpleNamespace(dn=dn, electrons=e, irradiance_w_m2=e * 1e-12, truth=truth)
+    paths = write_frame(frame, tmp_path / "out", "f", formats=("png", "json"), fits=True)
+    assert list(paths) == ["png", "json", "fits"] and all(p.is_file() for p in paths.values())
+    np.testing.assert_array_equal(read_png(paths["png"]), dn)
+    assert read_truth_json(paths["json"])["stars"][0]["hip"] == 32349
+    data, header = read_fits(paths["fits"])
+    np.testing.assert_array_equal(data, dn)
+    assert header["CRPIX1"] == cam["K"][0][2] + 1.0
+    with pytest.raises(SkynavError, match="formats"):
+        write_frame(frame, tmp_path / "out", "g", formats=("tiff",))
