@@ -218,7 +218,8 @@ class FrameTruth:
         Parameters
         ----------
         truth : dict
-            What :func:`skynav.datasets.truth_schema.read_truth_json` returns.
+            What :func:`skynav.datasets.truth_schema.read_truth_json` returns (plain JSON; for an
+            in-memory dict with numpy values, pass it through ``truth_to_jsonable`` first).
         validate : bool
             Check it against ``frame.schema.json`` first.
         source : str
@@ -230,9 +231,9 @@ class FrameTruth:
             The dict violates the schema (one line: the source and the first JSON path).
         """
         if validate:
-            from .truth_schema import validate_truth
+            from .truth_schema import FRAME_SCHEMA, schema_problems
 
-            problems = validate_truth(truth)
+            problems = schema_problems(truth, FRAME_SCHEMA)
             if problems:
                 more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
                 raise TruthSchemaError(f"{source}: does not follow skynav.frame/1: {problems[0]}{more}", problems)

@@ -313,19 +313,19 @@ def _dedupable_lists(name: str) -> frozenset:
 
 def _skeleton(v):
     """What the structural keywords see of a JSON value: types, lengths and keys; numbers only as
-    integer-valued or not (``"integer"`` accepts 3.0)."""
+    integer-valued or not (``"integer"`` accepts 3.0). Leaves become tags, never values, so that
+    ``0``, ``0.0`` and ``False`` (equal in Python) stay apart."""
     tp = type(v)
     if tp is dict:
-        return tuple((k, _skeleton(x)) for k, x in v.items())
+        return ("{", *((k, _skeleton(x)) for k, x in v.items()))
     if tp is list:
-        return tuple(_skeleton(x) for x in v)
+        return ("[", *(_skeleton(x) for x in v))
     if tp is float:
-        return 0.0 if v.is_integer() else 0.5
-    if tp is int:
-        return 0
-    if tp is str:
-        return ""
-    return v  # bool, None
+        return "f.0" if v.is_integer() else "f"
+    return _TAGS.get(tp, "?")
+
+
+_TAGS = {int: "i", str: "s", bool: "b", type(None): "n"}
 
 
 def schema_problems(instance, name: str = FRAME_SCHEMA) -> list:

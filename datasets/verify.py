@@ -60,7 +60,7 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     """
     from .errors import DatasetError
     from .frame_files import sha256_file
-    from .truth_schema import FRAME_SCHEMA, validate_manifest, validate_truth
+    from .truth_schema import FRAME_SCHEMA, schema_problems, validate_manifest
 
     root = Path(path)
     problems: list = []
@@ -112,7 +112,7 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
             except (UnicodeDecodeError, json.JSONDecodeError) as exc:
                 problems.append(f"{rel}: truncated or invalid JSON ({exc.__class__.__name__} at byte {getattr(exc, 'pos', '?')})")
                 continue
-            bad = validate_truth(truth)
+            bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
             if bad:
                 more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
                 problems.append(f"{rel}: does not follow {FRAME_SCHEMA}: {bad[0]}{more}")

@@ -80,6 +80,8 @@ def test_shortcut_over_repeated_records_finds_what_jsonschema_finds(small_ds):
     bad["stars"][11]["u_icrs"] = None  # null vector: allowed (NaN written as null)
     bad["bodies"][2]["in_fov"] = None
     bad["cosmic_rays"].append({"xy": [1.0], "electrons": "many"})
+    bad["bodies"][3]["visible"] = 0  # equal to False in Python, not a JSON boolean
+    bad["bodies"][4]["electrons"] = True  # a boolean is not a number in JSON Schema
     got = schema_problems(bad, FRAME_SCHEMA)
     assert {line.split(": ")[0] for line in got} == _full_paths(bad, FRAME_SCHEMA)
     assert "$.stars[3].xy: 3 items, expected at most 2" in got and "$.stars[7].hip: missing" in got
