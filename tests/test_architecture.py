@@ -194,6 +194,40 @@ def test_pipeline_never_imports_renderer_or_calibration(graph):
     assert bad == []
 
 
+# What of skynav.datasets the pipeline may import: the reader and its observation view; the typed
+# truth only from scoring modules (ARCHITECTURE.md: ground truth enters only in scoring).
+PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors")
+PIPELINE_PACKAGE_MEMBERS = {"open", "open_dataset", "Dataset", "Observation", "CalibrationErrorModel", "DatasetError",
+                            "FrameIndexError", "IncompleteDatasetError", "reader", "observation", "errors"}
+PIPELINE_SCORING_ONLY = ("skynav.datasets.frame_truth", "skynav.datasets.FrameTruth", "skynav.datasets.BodyTruth")
+
+
+def pipeline_may_import(name: str, *, scoring: bool) -> bool:
+    """Whether a pipeline module (a scoring one if ``scoring``) may import ``name`` of datasets."""
+    if name == "skynav.datasets" or name in PIPELINE_DATASETS_MODULES:
+        return True
+    parent, _, member = name.rpartition(".")
+    if parent in PIPELINE_DATASETS_MODULES or (parent == "skynav.datasets" and member in PIPELINE_PACKAGE_MEMBERS):
+        return True
+    return scoring and any(_within(name, a) for a in PIPELINE_SCORING_ONLY)
+
+
+def test_the_pipeline_rule_itself():
+    assert pipeline_may_import("skynav.datasets.observation.Observation", scoring=False)
+    assert pipeline_may_import("skynav.datasets.open", scoring=False)
+    for internal in ("skynav.datasets.runner", "skynav.datasets.frame_files", "skynav.datasets.truth_schema",
+                     "skynav.datasets.generate", "skynav.datasets.frame_truth.FrameTruth"):
+        assert not pipeline_may_import(internal, scoring=False), internal
+    assert pipeline_may_import("skynav.datasets.frame_truth.FrameTruth", scoring=True)
+
+
+def test_pipeline_reads_datasets_only_through_the_reader(graph):
+    bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) == "pipeline"
+           for n in names if _room_of(n) == "datasets"
+           and not pipeline_may_import(n, scoring=m.rsplit(".", 1)[-1].startswith("scor"))]
+    assert bad == []
+
+
 def test_nothing_imports_the_command_line_package(graph):
     # ``import skynav.scenes`` runs skynav/__init__.py, which is only a version string; what is
     # refused is naming the CLI itself (skynav.cli, skynav.cli_dataset, skynav.__main__, skynav.__version__).
