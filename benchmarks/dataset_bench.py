@@ -92,7 +92,8 @@ def cost_split(recipe, n: int, disk_dir: Path):
 
     from skynav.datasets.samplers import frame_seed, make_plan
     from skynav.datasets.recipes import validate_recipe
-    from skynav.renderer.render import render, write_frame
+    from skynav.datasets.frame_files import write_frame
+    from skynav.renderer.render import render
     from skynav.scenes.scene import build_scene
 
     rec = validate_recipe(recipe)

@@ -4,22 +4,54 @@ Public API (each ``skynav dataset`` sub-command calls one of these):
 
 - :func:`generate` (``generate``): recipe -> dataset folder, local processes or Dask;
 - :func:`open` (the reader): ``ds = skynav.datasets.open(path); dn, truth = ds[0]``;
+  ``ds.observation(k)`` for the navigation pipeline (no truth), ``ds.truth(k)`` for scoring;
 - :func:`verify`, :func:`info`, :func:`preview` (and :func:`leg_plot` for sequences);
-- recipes: :func:`preset_recipe`, :func:`validate_recipe`, :func:`load_recipe_file`.
+- recipes: :func:`preset_recipe`, :func:`validate_recipe`, :func:`load_recipe_file`;
+- files: :func:`write_frame` (a rendered frame's PNG/EXR/JSON/FITS), the schemas
+  (:func:`load_schema`, :func:`validate_truth`, :func:`validate_manifest`).
+
+Only the reading path is imported with the package; the makers (runner, recipes, samplers,
+previews) load on first use (module ``__getattr__``), so that reading a dataset loads no
+renderer, Mitsuba or Dr.Jit code (ARCHITECTURE.md "Never").
 """
+
+import importlib as _importlib
 
 from .errors import (  # noqa: F401
     DatasetError,
     DatasetMismatchError,
     FrameIndexError,
     IncompleteDatasetError,
+    OutputFormatError,
     RecipeError,
     SceneSamplingError,
+    TruthSchemaError,
 )
-from .preview import leg_plot, preview  # noqa: F401
+from .frame_truth import BodyTruth, FrameTruth  # noqa: F401
+from .observation import CalibrationErrorModel, Observation  # noqa: F401
 from .reader import Dataset, FrameRecord, open_dataset  # noqa: F401
-from .recipes import PRESETS, load_recipe_file, preset_recipe, validate_recipe  # noqa: F401
-from .runner import GenerateSummary, generate, regenerate_frame  # noqa: F401
-from .verify import VerifyReport, info, verify  # noqa: F401
 
 open = open_dataset  # noqa: A001 - skynav.datasets.open(path), as asked by the room's issue
+
+# name -> module that defines it; imported on first access
+_LAZY = {
+    "leg_plot": "preview", "preview": "preview",
+    "PRESETS": "recipes", "load_recipe_file": "recipes", "preset_recipe": "recipes", "validate_recipe": "recipes",
+    "GenerateSummary": "runner", "generate": "runner", "regenerate_frame": "runner",
+    "VerifyReport": "verify", "info": "verify", "verify": "verify",
+    "write_frame": "frame_files",
+    "load_schema": "truth_schema", "validate_truth": "truth_schema", "validate_manifest": "truth_schema",
+}
+
+
+def __getattr__(name):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'skynav.datasets' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

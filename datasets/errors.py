@@ -18,6 +18,8 @@ __all__ = [
     "FrameIndexError",
     "SceneSamplingError",
     "LambertError",
+    "OutputFormatError",
+    "TruthSchemaError",
 ]
 
 
@@ -56,3 +58,21 @@ class FrameIndexError(SkynavError, IndexError):
 
 class SceneSamplingError(SkynavError, RuntimeError):
     """A sampler could not draw a scene that passes the recipe's keep-filters."""
+
+
+class OutputFormatError(SkynavError, ValueError):
+    """An image or header cannot be written in the requested file format (bad dtype, shape...)."""
+
+
+class TruthSchemaError(SkynavError, ValueError):
+    """Ground truth (or a manifest) that does not follow its published JSON Schema.
+
+    Attributes
+    ----------
+    problems : list of str
+        One line per problem, e.g. ``"$.attitude.q_cam_icrs: missing"``.
+    """
+
+    def __init__(self, message: str, problems=()):
+        self.problems = list(problems)
+        super().__init__(message)

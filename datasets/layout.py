@@ -24,9 +24,8 @@ import math
 import os
 from pathlib import Path
 
-from skynav.renderer.outputs import atomic_write_bytes, sha256_file
-
 from .errors import DatasetError, DatasetMismatchError, IncompleteDatasetError
+from .frame_files import atomic_write_bytes, sha256_file
 
 __all__ = [
     "MANIFEST_SCHEMA",

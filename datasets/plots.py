@@ -111,7 +111,7 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
     """PNG of the planets' V magnitudes along the cruise, tracking legs shaded (atomic write)."""
-    from skynav.renderer.outputs import atomic_write_bytes
+    from .frame_files import atomic_write_bytes
 
     days, mags, sun = leg_magnitudes(plan, step_s=step_s)
     # hide a planet while it is inside the pair Sun-angle limit (not trackable)

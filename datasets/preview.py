@@ -103,8 +103,7 @@ def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, ti
     """
     import io
 
-    from skynav.renderer.outputs import atomic_write_bytes
-
+    from .frame_files import atomic_write_bytes
     from .reader import open_dataset
 
     ds = open_dataset(path)

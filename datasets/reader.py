@@ -2,10 +2,18 @@
 
 Adapter module. :func:`open_dataset` validates the manifest and refuses a folder whose manifest
 does not say ``"complete": true`` (a half-written or interrupted dataset) with a message saying
-how far it got and how to finish it. Frames are read lazily: ``len(ds)``, ``ds[k]`` (negative
-indices allowed) and iteration give :class:`FrameRecord` objects whose ``dn`` and ``truth`` are
-read at once and whose float images (``electrons``, ``irradiance_w_m2``) are read from the EXR
-on first access.
+how far it got and how to finish it. Frames are read lazily, three ways:
+
+- ``ds[k]`` (negative indices allowed) and iteration give :class:`FrameRecord` objects whose
+  ``dn`` and ``truth`` (the JSON dict) are read at once and whose float images (``electrons``,
+  ``irradiance_w_m2``) are read from the EXR on first access;
+- ``ds.observation(k)``: what the navigation pipeline may see, an
+  :class:`~skynav.datasets.observation.Observation` (DN, epoch, exposure, calibrated camera) with
+  no ground truth;
+- ``ds.truth(k)``: the typed ground truth, :class:`~skynav.datasets.frame_truth.FrameTruth`,
+  for scoring code.
+
+Reading loads no renderer, Mitsuba or Dr.Jit code (``tests/test_architecture.py``).
 """
 
 from __future__ import annotations
@@ -49,7 +57,7 @@ class FrameRecord:
 
     def _channels(self):
         if self._exr is None and self._exr_path is not None:
-            from skynav.renderer.outputs import read_exr
+            from .frame_files import read_exr
 
             ch = read_exr(self._exr_path)
             for a in ch.values():
@@ -89,24 +97,68 @@ class Dataset:
     def __len__(self) -> int:
         return self._n
 
-    def __getitem__(self, k) -> FrameRecord:
-        from skynav.renderer.outputs import read_png, read_truth_json
-
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(self._n))]
+    def _frame_index(self, k) -> int:
         if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
             raise FrameIndexError(f"frame index must be an integer, got {type(k).__name__}")
         i = int(k) + self._n if k < 0 else int(k)
         if not 0 <= i < self._n:
             raise FrameIndexError(f"frame {k} out of range; the dataset has {self._n} frames (0..{self._n - 1})")
+        return i
+
+    def _read(self, i: int, *, dn: bool = True):
+        """(truth dict, DN or None, relative paths) of frame ``i``."""
+        from .frame_files import read_png
+        from .truth_schema import read_truth_json
+
         rel = layout.frame_relpaths(i, self.formats)
         try:
             truth = read_truth_json(self.root / rel["json"])
-            dn = read_png(self.root / rel["png"]) if "png" in rel else None
+            image = read_png(self.root / rel["png"]) if dn and "png" in rel else None
         except FileNotFoundError as exc:
             raise DatasetError(f"{self.root}: frame {i} is missing ({Path(exc.filename).name}); run verify()") from None
+        return truth, image, rel
+
+    def __getitem__(self, k) -> FrameRecord:
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._n))]
+        i = self._frame_index(k)
+        truth, dn, rel = self._read(i)
         exr = self.root / rel["exr"] if "exr" in rel else None
         return FrameRecord(index=i, dn=dn, truth=truth, exr_path=exr)
+
+    def observation(self, k, *, calibration_error=None):
+        """What the navigation pipeline may see of frame ``k``: no ground truth.
+
+        Parameters
+        ----------
+        k : int
+            Frame index (negative counts from the end).
+        calibration_error : skynav.datasets.observation.CalibrationErrorModel, optional
+            Perturb the camera by this model (default: the true camera).
+
+        Returns
+        -------
+        skynav.datasets.observation.Observation
+            ``dn`` (H, W), ``epoch_tdb_s`` (TDB s past J2000; ``.epoch`` as astropy ``Time``),
+            ``exposure_s``, ``camera`` as calibrated, ``calibration_error``.
+        """
+        from .observation import make_observation
+
+        i = self._frame_index(k)
+        truth, dn, _ = self._read(i)
+        if dn is None:
+            raise DatasetError(f"{self.root}: frame {i} has no DN image (formats: {', '.join(self.formats)})")
+        return make_observation(truth, dn, index=i, calibration_error=calibration_error)
+
+    def truth(self, k, *, validate: bool = True):
+        """Typed ground truth of frame ``k`` (for scoring code): a
+        :class:`~skynav.datasets.frame_truth.FrameTruth`, checked against ``frame.schema.json``
+        unless ``validate=False``. ``ds[k].truth`` stays the plain dict."""
+        from .frame_truth import FrameTruth
+
+        i = self._frame_index(k)
+        truth, _, rel = self._read(i, dn=False)
+        return FrameTruth.from_dict(truth, validate=validate, source=str(self.root / rel["json"]))
 
     def __iter__(self):
         for i in range(self._n):

@@ -22,7 +22,7 @@ Executors
 
 Crash safety
 ------------
-Every file is written atomically (temp + fsync + rename, :mod:`skynav.renderer.outputs`). The
+Every file is written atomically (temp + fsync + rename, :mod:`skynav.datasets.frame_files`). The
 manifest is written first with ``"complete": false``, rewritten every ``flush_every_s`` with the
 checksums of the frames done, and says ``"complete": true`` only after every frame, the index and
 the side files are written and checksummed. A re-run on the same folder (same recipe, seed and
@@ -108,8 +108,9 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     The random stream is ``default_rng(SeedSequence([master_seed, k]))``: the sampler draws
     first (:mod:`skynav.datasets.samplers`), then the renderer.
     """
-    from skynav.renderer.outputs import sha256_file
-    from skynav.renderer.render import RenderOptions, render, write_frame
+    from skynav.renderer.render import RenderOptions, render
+
+    from .frame_files import sha256_file, write_frame
     from skynav.scenes.scene import build_scene
 
     from .samplers import frame_seed
@@ -188,7 +189,7 @@ class _worker_threads:
 
 def _frame_present(root: Path, k: int, formats, recorded: dict):
     """``{relpath: sha}`` if frame k is fully present (and matches recorded checksums), else None."""
-    from skynav.renderer.outputs import sha256_file
+    from .frame_files import sha256_file
 
     files = {}
     for rel in layout.frame_relpaths(k, formats).values():
@@ -203,7 +204,7 @@ def _frame_present(root: Path, k: int, formats, recorded: dict):
 
 
 def _existing_row(root: Path, k: int, files: dict) -> tuple:
-    from skynav.renderer.outputs import read_truth_json
+    from .truth_schema import read_truth_json
 
     truth = read_truth_json(root / layout.frame_relpaths(k, ["json"])["json"])
     return layout.index_row(truth, k, files), (truth.get("dataset") or {}).get("draws")
@@ -279,8 +280,7 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     ------
     RecipeError, DatasetMismatchError, DatasetError
     """
-    from skynav.renderer.outputs import atomic_write_bytes, sha256_file
-
+    from .frame_files import atomic_write_bytes, sha256_file
     from .samplers import make_plan
 
     t_start = time.perf_counter()

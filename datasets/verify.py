@@ -1,9 +1,11 @@
 """Checking and summarising dataset folders: :func:`verify` and :func:`info`.
 
 Driver module (``skynav dataset verify`` / ``skynav dataset info``). :func:`verify` re-reads every
-file: SHA-256 against the manifest, every frame's files present, ground truth parsed and checked
-against the ``skynav.frame/1`` schema (:func:`skynav.renderer.outputs.validate_truth`), counts
-(manifest, recipe, index rows, files on disk). Each problem is one line naming the file.
+file: the manifest against ``manifest.schema.json``, SHA-256 against the manifest, every frame's
+files present, ground truth parsed and checked against ``frame.schema.json`` (JSON Schema, with
+``jsonschema``: :mod:`skynav.datasets.truth_schema`), counts (manifest, recipe, index rows, files
+on disk). Each problem is one line naming the file (and, for a schema violation, the JSON path:
+``frames/000003.json: does not follow skynav.frame/1: $.attitude.q_cam_icrs: missing``).
 """
 
 from __future__ import annotations
@@ -51,13 +53,14 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     ----------
     path : str or os.PathLike
     check_schema : bool
-        Parse every ground-truth JSON and validate it (slower; on by default).
+        Validate the manifest and every ground-truth JSON against their published JSON Schema
+        (slower; on by default).
     progress : bool
         Show a tqdm bar over the files.
     """
-    from skynav.renderer.outputs import sha256_file, validate_truth
-
     from .errors import DatasetError
+    from .frame_files import sha256_file
+    from .truth_schema import FRAME_SCHEMA, schema_problems, validate_manifest
 
     root = Path(path)
     problems: list = []
@@ -65,6 +68,11 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
         m = layout.read_manifest(root)
     except DatasetError as exc:
         return VerifyReport(path=str(root), ok=False, problems=[str(exc)])
+    if check_schema:
+        bad = validate_manifest(m)
+        if bad:
+            more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
+            problems.append(f"{layout.MANIFEST_NAME}: does not follow {layout.MANIFEST_SCHEMA}: {bad[0]}{more}")
     if m.get("complete") is not True:
         c = m.get("counts", {})
         problems.append(f"{layout.MANIFEST_NAME}: not complete ({c.get('frames_done')} of {c.get('frames')} frames)")
@@ -104,9 +112,10 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
             except (UnicodeDecodeError, json.JSONDecodeError) as exc:
                 problems.append(f"{rel}: truncated or invalid JSON ({exc.__class__.__name__} at byte {getattr(exc, 'pos', '?')})")
                 continue
-            bad = validate_truth(truth)
+            bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
             if bad:
-                problems.append(f"{rel}: ground truth does not follow skynav.frame/1 ({'; '.join(bad[:3])})")
+                more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
+                problems.append(f"{rel}: does not follow {FRAME_SCHEMA}: {bad[0]}{more}")
                 continue
         if not sha_ok:
             problems.append(f"{rel}: SHA-256 mismatch (file altered or corrupt)")

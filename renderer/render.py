@@ -470,32 +470,3 @@ def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int) -> None:
         return
     image[ys:ye, xs:xe] += crop[ys - y0:ye - y0, xs - x0:xe - x0]
 
-
-def write_frame(frame: Frame, directory, stem: str, *, formats=("png", "exr", "json"), fits: bool = False):
-    """Write a frame's files atomically; returns {format: Path}."""
-    from pathlib import Path
-
-    from . import outputs
-
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    written = {}
-    for fmt in formats:
-        path = directory / f"{stem}.{fmt}"
-        if fmt == "png":
-            outputs.write_png(path, frame.dn, bit_depth=frame.truth["camera"]["bit_depth"])
-        elif fmt == "exr":
-            outputs.write_exr(path, {"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
-        elif fmt == "json":
-            outputs.write_truth_json(path, frame.truth)
-        elif fmt == "fits":
-            t = frame.truth
-            hdr = outputs.tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
-                                         np.array(t["attitude"]["R_cam_icrs"]))
-            outputs.write_fits(path, frame.dn, wcs_header=hdr)
-        else:
-            raise ConfigValueError("formats", fmt, "png, exr, json or fits")
-        written[fmt] = path
-    if fits and "fits" not in formats:
-        written.update(write_frame(frame, directory, stem, formats=("fits",)))
-    return written

@@ -77,7 +77,8 @@ def cmd_scene(args) -> int:
 def cmd_render(args) -> int:
     import numpy as np
 
-    from skynav.renderer.render import RenderOptions, render, write_frame
+    from skynav.datasets.frame_files import write_frame
+    from skynav.renderer.render import RenderOptions, render
     from skynav.scenes.scene import build_from_spec
 
     spec = _load_spec(args.scene)

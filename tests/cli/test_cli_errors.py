@@ -76,7 +76,8 @@ def test_help_on_every_command(capsys):
 
 
 def test_render_default_writes_viewable_png_with_a_visible_planet(tmp_path, capsys):
-    from skynav.renderer.outputs import read_png, read_truth_json, validate_truth
+    from skynav.datasets.frame_files import read_png
+    from skynav.datasets.truth_schema import read_truth_json, validate_truth
 
     code = main(["render", "-o", str(tmp_path), "--backend", "numpy"])
     out = capsys.readouterr().out

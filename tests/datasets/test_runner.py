@@ -166,7 +166,6 @@ def test_visible_planet_filter_keeps_only_scenes_with_a_visible_planet(tmp_path)
 
 
 def test_info_and_preview(reference_dataset, tmp_path):
-    from skynav.renderer.outputs import read_png  # noqa: F401  (PNG reader used below via Pillow)
     from PIL import Image
 
     out, _, _ = reference_dataset

@@ -162,10 +162,11 @@ def test_thread_budget_sizes_drjit_and_openexr_pools(tmp_path):
     status = jb.configure_llvm()
     code = (
         "import io, numpy as np, OpenEXR\n"
-        "from skynav.renderer import jit_backend, outputs\n"
+        "from skynav.renderer import jit_backend\n"
+        "from skynav.datasets import frame_files\n"
         "ok = jit_backend.configure_llvm().available\n"
         "import drjit as dr\n"
-        "outputs.write_exr(io.BytesIO() if False else r'%s', {'a': np.zeros((4, 4), np.float32)})\n"
+        "frame_files.write_exr(io.BytesIO() if False else r'%s', {'a': np.zeros((4, 4), np.float32)})\n"
         "print(dr.thread_count() if ok else -1, OpenEXR.global_thread_count())\n" % (tmp_path / "a.exr")
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -1,7 +1,10 @@
-"""Frame files: OpenEXR, PNG, FITS with a TAN WCS, ground-truth JSON; every write is atomic.
+"""Frame files: OpenEXR, PNG, FITS with a TAN WCS; atomic writes and SHA-256.
 
 Adapter module (STYLE.md section 1): the one place that talks to OpenEXR, Pillow and
-``astropy.io.fits`` for frames. File contracts are those of CONVENTIONS.md "Files":
+``astropy.io.fits`` for frames. The renderer returns frames in memory
+(:class:`skynav.renderer.render.Frame`) and does no file I/O; :func:`write_frame` turns one into
+files, for ``skynav render`` and for the dataset runner alike. Nothing here imports the
+renderer. File contracts are those of CONVENTIONS.md "Files":
 
 - **EXR**: float32 named channels (``electrons``, ``irradiance_w_m2``, ...), optional uint32
   ``source_id``. Compression is ZIP (zlib on blocks of 16 scanlines): lossless for float32 and
@@ -11,8 +14,7 @@ Adapter module (STYLE.md section 1): the one place that talks to OpenEXR, Pillow
   9-16 bit; an ``sBIT`` chunk records the sensor bit depth when it is given.
 - **FITS**: primary HDU, the image as given (uint8/uint16/int/float), plus an optional TAN WCS of
   the *apparent* sky from :func:`tan_wcs_header`.
-- **JSON**: ground truth of one frame, ``"schema": "skynav.frame/1"``; :func:`validate_truth`
-  lists what CONVENTIONS.md requires and is missing.
+- **JSON** ground truth: :mod:`skynav.datasets.truth_schema`.
 
 Atomicity: each writer encodes to memory and hands the bytes to :func:`atomic_write_bytes`
 (temp file in the same directory, ``fsync``, ``os.replace``, directory ``fsync``), so a reader
@@ -30,23 +32,23 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
-import json
 import math
 import os
 import secrets
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 
-from skynav.scenes.errors import SkynavError
+from .errors import ConfigValueError, OutputFormatError
 
 __all__ = [
-    "FRAME_SCHEMA",
+    "FRAME_FORMATS",
     "OutputFormatError",
-    "TruthSchemaError",
     "atomic_write_bytes",
     "atomic_path",
     "sha256_file",
+    "thread_budget",
     "write_exr",
     "read_exr",
     "read_exr_header",
@@ -55,32 +57,11 @@ __all__ = [
     "tan_wcs_header",
     "write_fits",
     "read_fits",
-    "truth_to_jsonable",
-    "truth_json_bytes",
-    "write_truth_json",
-    "read_truth_json",
-    "validate_truth",
+    "write_frame",
 ]
 
-FRAME_SCHEMA = "skynav.frame/1"
-
-
-class OutputFormatError(SkynavError, ValueError):
-    """An image or header cannot be written in the requested file format (bad dtype, shape...)."""
-
-
-class TruthSchemaError(SkynavError, ValueError):
-    """Ground truth that does not follow the ``skynav.frame/1`` schema.
-
-    Attributes
-    ----------
-    problems : list of str
-        One line per problem, e.g. ``"attitude.q_cam_icrs: missing"``.
-    """
-
-    def __init__(self, message: str, problems=()):
-        self.problems = list(problems)
-        super().__init__(message)
+#: File formats :func:`write_frame` knows, by file extension.
+FRAME_FORMATS = ("png", "exr", "json", "fits")
 
 
 # ----------------------------------------------------------------------------- atomic writes
@@ -205,6 +186,29 @@ def _exr_channel(name, array, shape):
     raise OutputFormatError(f"EXR channel {name!r} has dtype {a.dtype}; expected float or unsigned integer")
 
 
+def thread_budget() -> int | None:
+    """``SKYNAV_THREADS`` as an int (threads this process may use), or None when unset.
+
+    The same reading as ``skynav.renderer.jit_backend.thread_budget``, kept here so that the
+    file side never imports the renderer (ARCHITECTURE.md "Never").
+
+    Raises
+    ------
+    ConfigValueError
+        The variable is not a whole number >= 1.
+    """
+    raw = os.environ.get("SKYNAV_THREADS", "").strip()
+    if not raw:
+        return None
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigValueError("SKYNAV_THREADS", raw, "a whole number of threads >= 1")
+    return n
+
+
 _exr_threads_set = False
 
 
@@ -213,8 +217,6 @@ def _exr_threads(OpenEXR) -> None:
     single helper thread is slower than compressing in the caller)."""
     global _exr_threads_set
     if not _exr_threads_set:
-        from .jit_backend import thread_budget
-
         n = thread_budget() or (os.cpu_count() or 1)
         OpenEXR.set_global_thread_count(n if n >= 2 else 0)
         _exr_threads_set = True
@@ -482,257 +484,58 @@ def read_fits(source):
         return np.array(hdul[0].data), hdul[0].header.copy()
 
 
-# ----------------------------------------------------------------------------- ground truth
-class _Slow(Exception):
-    """Internal: the fast conversion met something it leaves to the checked one."""
-
-
-def _fast_jsonable(obj):
-    tp = type(obj)
-    if tp is float:
-        if obj != obj:
-            return None
-        if obj - obj != 0.0:  # inf - inf is NaN
-            raise _Slow
-        return obj
-    if tp is int or tp is str or tp is bool or obj is None:
-        return obj
-    if tp is dict:
-        out = {}
-        for k, v in obj.items():
-            if type(k) is not str:
-                raise _Slow
-            out[k] = _fast_jsonable(v)
-        return out
-    if tp is np.ndarray:
-        kind = obj.dtype.kind
-        if kind in "iub" or (kind == "f" and np.isfinite(obj).all()):
-            return obj.tolist()  # Python numbers in nested lists: nothing left to convert
-        return _fast_jsonable(obj.tolist())
-    if tp is list or tp is tuple:
-        return [_fast_jsonable(v) for v in obj]
-    raise _Slow
-
-
-def truth_to_jsonable(obj, _where: str = "truth"):
-    """Plain-JSON copy of ground truth: numpy arrays/scalars to lists/numbers, NaN to None.
-
-    Mappings keep their insertion order; tuples become lists. ``+-inf`` has no JSON form and is
-    refused (a truth value must be finite or NaN = "not defined").
-
-    Raises
-    ------
-    TruthSchemaError
-        Non-string keys, infinities or types JSON cannot hold, naming where.
-    """
-    try:  # plain dicts, lists, Python and numpy numbers: no per-item bookkeeping
-        return _fast_jsonable(obj)
-    except _Slow:
-        return _checked_jsonable(obj, _where)
-
-
-def _checked_jsonable(obj, _where: str):
-    if isinstance(obj, Mapping):
-        out = {}
-        for k, v in obj.items():
-            if not isinstance(k, str):
-                raise TruthSchemaError(f"{_where}: key {k!r} is not a string")
-            out[k] = _checked_jsonable(v, f"{_where}.{k}")
-        return out
-    if isinstance(obj, np.ndarray):
-        return _checked_jsonable(obj.tolist(), _where)
-    if isinstance(obj, (list, tuple)):
-        return [_checked_jsonable(v, f"{_where}[{i}]") for i, v in enumerate(obj)]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if obj is None or isinstance(obj, (bool, str, int)):
-        return obj
-    if isinstance(obj, float):
-        obj = float(obj)
-        if math.isnan(obj):
-            return None
-        if math.isinf(obj):
-            raise TruthSchemaError(f"{_where} = {obj}: infinity has no JSON form; use NaN (written as null) or a finite value")
-        return obj
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    raise TruthSchemaError(f"{_where}: value of type {type(obj).__name__} cannot be written to JSON")
-
-
-_ENCODE = json.JSONEncoder(ensure_ascii=True, allow_nan=False, separators=(", ", ": ")).encode
-
-
-def _is_leaf(value) -> bool:
-    """True for what goes on one line: scalars and lists of scalars or of lists (truth lists are
-    homogeneous, so the first item stands for all)."""
-    while type(value) is list and value:
-        value = value[0]
-    return type(value) is not dict
-
-
-def _is_flat_record(value) -> bool:
-    return type(value) is dict and all(_is_leaf(v) for v in value.values())
-
-
-def _emit(value, indent: str, out: list) -> None:
-    """Canonical layout: a mapping has one key per line (2-space indent); lists of numbers,
-    matrices and flat records (a star, a body) are written on one line each."""
-    if _is_leaf(value):
-        out.append(_ENCODE(value))
-        return
-    inner = indent + "  "
-    if type(value) is dict:
-        if not value:
-            out.append("{}")
-            return
-        out.append("{\n")
-        last = len(value) - 1
-        for i, (k, v) in enumerate(value.items()):
-            out.append(inner + _ENCODE(k) + ": ")
-            _emit(v, inner, out)
-            out.append(",\n" if i < last else "\n")
-        out.append(indent + "}")
-        return
-    # a list holding mappings: one item per line, flat records on one line
-    out.append("[\n")
-    last = len(value) - 1
-    for i, v in enumerate(value):
-        out.append(inner)
-        if _is_flat_record(v):
-            out.append(_ENCODE(v))
-        else:
-            _emit(v, inner, out)
-        out.append(",\n" if i < last else "\n")
-    out.append(indent + "]")
-
-
-def truth_json_bytes(truth: Mapping) -> bytes:
-    """Canonical bytes of ground truth: insertion order, ASCII, ``repr`` floats; one key per
-    line (2-space indent), and each list of numbers and each flat record (one star, one body) on
-    one line, so that a frame with 700 stars is 700 readable lines, not 20 000."""
-    if not isinstance(truth, Mapping) or truth.get("schema") != FRAME_SCHEMA:
-        got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
-        raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
-    # json writes floats with float.__repr__: the shortest string that reads back bit-exact;
-    # the C encoder does every line (json's indent mode would use the pure-Python one).
-    out: list = []
-    _emit(truth_to_jsonable(truth), "", out)
-    out.append("\n")
-    return "".join(out).encode("ascii")
-
-
-def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:
-    """Write one frame's ground truth as canonical JSON, atomically.
+# ----------------------------------------------------------------------------- one frame
+def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), fits: bool = False) -> dict:
+    """Write one in-memory frame's files atomically: ``<directory>/<stem>.<format>``.
 
     Parameters
     ----------
-    path : str or os.PathLike
-        Destination ``.json``.
-    truth : mapping
-        Must hold ``"schema": "skynav.frame/1"``; numpy values are converted, NaN becomes
-        ``null``. Key order is kept as given (callers build it in a fixed order), so equal
-        truth gives equal bytes.
-    strict : bool
-        Also refuse truth for which :func:`validate_truth` finds problems.
-
-    Raises
-    ------
-    TruthSchemaError
-        Missing/wrong schema, infinities, unserialisable values, or (strict) schema problems.
-    """
-    if strict:
-        problems = validate_truth(truth)
-        if problems:
-            raise TruthSchemaError(f"ground truth has {len(problems)} problem(s): {'; '.join(problems[:5])}", problems)
-    atomic_write_bytes(path, truth_json_bytes(truth))
-
-
-def read_truth_json(source) -> dict:
-    """Ground truth of one frame (``null`` comes back as None); checks the schema name."""
-    with _open_binary(source) as f:
-        truth = json.loads(f.read().decode("utf-8"))
-    if not isinstance(truth, dict) or truth.get("schema") != FRAME_SCHEMA:
-        got = truth.get("schema") if isinstance(truth, dict) else type(truth).__name__
-        raise TruthSchemaError(f'not a skynav frame file: "schema" is {got!r}, expected "{FRAME_SCHEMA}"')
-    return truth
-
-
-# Required keys of CONVENTIONS.md "Per-frame ground truth", with the shape each must have
-# (None: any value). Lists of sources give the keys of each item.
-_TRUTH_SECTIONS = {
-    "epoch": {"tdb_iso": None, "jd_tdb": ()},
-    "observer": {"position_km": (3,), "velocity_km_s": (3,)},
-    "attitude": {"R_cam_icrs": (3, 3), "q_cam_icrs": (4,), "angular_velocity_rad_s": (3,)},
-    "camera": {"K": (3, 3), "width": (), "height": (), "focal_length_mm": (), "pixel_pitch_um": (),
-               "f_number": (), "exposure_s": (), "bit_depth": ()},
-}
-_TRUTH_LISTS = {
-    "stars": {"hip": (), "v_mag": (), "u_icrs": (3,), "xy": (2,), "electrons": ()},
-    "bodies": {"name": None, "xy": (2,), "xy_geometric": (2,), "u_icrs": (3,), "light_time_s": (),
-               "distance_km": (), "v_mag": (), "phase_angle_deg": (), "angular_diameter_px": (),
-               "in_fov": (), "visible": (), "resolved": (), "electrons": ()},
-    "cosmic_rays": {"xy": (2,), "electrons": ()},
-}
-
-
-def _shape_problem(where: str, value, shape) -> str | None:
-    if shape is None or value is None:  # None: NaN written as null, allowed
-        return None
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return f"{where}: not numeric"
-    if a.shape != shape:
-        return f"{where}: shape {a.shape}, expected {shape}"
-    return None
-
-
-def validate_truth(truth) -> list[str]:
-    """Problems of one frame's ground truth against CONVENTIONS.md; empty when it conforms.
-
-    Checks the schema name, the required sections and keys, the shapes of vectors and matrices
-    (``R_cam_icrs`` (3, 3), ``q_cam_icrs`` (4,), ``xy`` (2,), ``u_icrs`` (3,), ...), that
-    ``stars``/``bodies``/``cosmic_rays`` are lists of objects with their keys, and that ``seeds``
-    is present. Works on the in-memory dict (numpy values) and on what :func:`read_truth_json`
-    returns. Extra keys are welcome and not reported.
+    frame : skynav.renderer.render.Frame or any object with ``dn``, ``electrons``,
+            ``irradiance_w_m2`` and ``truth``
+        ``dn`` (H, W) uint8/uint16 DN; ``electrons`` and ``irradiance_w_m2`` (H, W) float32
+        (e-, W/m^2); ``truth`` the ``skynav.frame/1`` dict.
+    directory : str or os.PathLike
+        Created if missing.
+    stem : str
+        File name without extension (``"frame"``, ``"000042"``).
+    formats : sequence of str
+        Any of ``png`` (DN, with the camera's bit depth in ``sBIT``), ``exr`` (``electrons``,
+        ``irradiance_w_m2``), ``json`` (ground truth, canonical bytes) and ``fits`` (DN with
+        the TAN WCS of the truth's ``camera.K`` and ``attitude.R_cam_icrs``).
+    fits : bool
+        Also write FITS when ``formats`` does not name it.
 
     Returns
     -------
-    list of str
-        E.g. ``["attitude.q_cam_icrs: missing", "stars[2].xy: shape (3,), expected (2,)"]``.
+    dict of str to pathlib.Path
+        ``{format: path}`` in the order written.
+
+    Raises
+    ------
+    ConfigValueError
+        An unknown format.
+    OutputFormatError, TruthSchemaError
+        Data the format cannot hold.
     """
-    if not isinstance(truth, Mapping):
-        return [f"truth: a mapping is required, got {type(truth).__name__}"]
-    problems = []
-    if truth.get("schema") != FRAME_SCHEMA:
-        problems.append(f"schema: {truth.get('schema')!r}, expected {FRAME_SCHEMA!r}")
-    for section, keys in _TRUTH_SECTIONS.items():
-        sub = truth.get(section)
-        if not isinstance(sub, Mapping):
-            problems.append(f"{section}: missing" if sub is None else f"{section}: not an object")
-            continue
-        for key, shape in keys.items():
-            if key not in sub:
-                problems.append(f"{section}.{key}: missing")
-            elif (p := _shape_problem(f"{section}.{key}", sub[key], shape)) is not None:
-                problems.append(p)
-    for section, keys in _TRUTH_LISTS.items():
-        items = truth.get(section)
-        if items is None:
-            problems.append(f"{section}: missing")
-            continue
-        if isinstance(items, (str, bytes, Mapping)) or not hasattr(items, "__iter__"):
-            problems.append(f"{section}: not a list")
-            continue
-        for i, item in enumerate(items):
-            if not isinstance(item, Mapping):
-                problems.append(f"{section}[{i}]: not an object")
-                continue
-            for key, shape in keys.items():
-                if key not in item:
-                    problems.append(f"{section}[{i}].{key}: missing")
-                elif (p := _shape_problem(f"{section}[{i}].{key}", item[key], shape)) is not None:
-                    problems.append(p)
-    if "seeds" not in truth:
-        problems.append("seeds: missing")
-    return problems
+    from .truth_schema import write_truth_json
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    written = {}
+    for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
+        path = directory / f"{stem}.{fmt}"
+        if fmt == "png":
+            write_png(path, frame.dn, bit_depth=frame.truth["camera"]["bit_depth"])
+        elif fmt == "exr":
+            write_exr(path, {"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
+        elif fmt == "json":
+            write_truth_json(path, frame.truth)
+        elif fmt == "fits":
+            t = frame.truth
+            hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
+                                 np.array(t["attitude"]["R_cam_icrs"]))
+            write_fits(path, frame.dn, wcs_header=hdr)
+        else:
+            raise ConfigValueError("formats", fmt, "png, exr, json or fits")
+        written[fmt] = path
+    return written

@@ -1,4 +1,5 @@
-"""Frame files: round trips, deterministic bytes, atomicity, FITS WCS against astropy.wcs."""
+"""Frame files: round trips, deterministic bytes, atomicity, FITS WCS against astropy.wcs, and
+the published truth schema (moved from tests/renderer/test_outputs.py with the writers)."""
 
 from __future__ import annotations
 
@@ -12,24 +13,25 @@ import numpy as np
 import pytest
 from astropy.wcs import WCS
 
-from skynav.renderer import outputs
-from skynav.renderer.outputs import (
-    FRAME_SCHEMA,
+from skynav.datasets.frame_files import (
     OutputFormatError,
-    TruthSchemaError,
     atomic_path,
     atomic_write_bytes,
     read_exr,
     read_exr_header,
     read_fits,
     read_png,
-    read_truth_json,
     sha256_file,
     tan_wcs_header,
-    validate_truth,
     write_exr,
     write_fits,
     write_png,
+)
+from skynav.datasets.truth_schema import (
+    FRAME_SCHEMA,
+    TruthSchemaError,
+    read_truth_json,
+    validate_truth,
     write_truth_json,
 )
 from skynav.scenes.camera import paper_camera
@@ -349,32 +351,57 @@ def test_validate_truth_catches_missing_keys_and_shapes():
     t["camera"].pop("bit_depth")
     problems = validate_truth(t)
     assert set(problems) == {
-        "attitude.q_cam_icrs: missing",
-        "bodies[0].xy_geometric: missing",
-        "seeds: missing",
-        "stars[0].xy: shape (3,), expected (2,)",
-        "camera.bit_depth: missing",
+        "$.attitude.q_cam_icrs: missing",
+        "$.bodies[0].xy_geometric: missing",
+        "$.seeds: missing",
+        "$.stars[0].xy: 3 items, expected at most 2",
+        "$.camera.bit_depth: missing",
     }
     t = _truth()
     del t["cosmic_rays"]
     t["epoch"] = "2030"
-    assert set(validate_truth(t)) == {"cosmic_rays: missing", "epoch: not an object"}
+    assert set(validate_truth(t)) == {"$.cosmic_rays: missing", '$.epoch: "2030" is not of type object'}
     with pytest.raises(TruthSchemaError) as err:
         write_truth_json("/nonexistent-dir/x.json", {**_truth(), "seeds": None} | {"observer": {}}, strict=True)
-    assert "observer.position_km: missing" in err.value.problems
+    assert "$.observer.position_km: missing" in err.value.problems
+
+
+# CONVENTIONS.md "Per-frame ground truth", copied by hand: the independent reference the published
+# schema must require (section -> keys; the lists' keys are per item).
+CONVENTIONS_FIXED_KEYS = {
+    "epoch": ["tdb_iso", "jd_tdb"],
+    "observer": ["position_km", "velocity_km_s"],
+    "attitude": ["R_cam_icrs", "q_cam_icrs", "angular_velocity_rad_s"],
+    "camera": ["K", "width", "height", "focal_length_mm", "pixel_pitch_um", "f_number", "exposure_s", "bit_depth"],
+    "stars": ["hip", "v_mag", "u_icrs", "xy", "electrons"],
+    "bodies": ["name", "xy", "xy_geometric", "u_icrs", "light_time_s", "distance_km", "v_mag", "phase_angle_deg",
+               "angular_diameter_px", "in_fov", "visible", "resolved", "electrons"],
+    "cosmic_rays": ["xy", "electrons"],
+}
 
 
 def test_every_required_key_of_conventions_is_checked():
-    """Removing any one required key of CONVENTIONS.md is reported (the checker cannot be vacuous)."""
+    """Removing any one fixed key of CONVENTIONS.md is reported, with its JSON path (the schema
+    cannot be vacuous), and an extra key anywhere is welcome."""
     base = _truth()
-    for section, keys in {**outputs._TRUTH_SECTIONS, **outputs._TRUTH_LISTS}.items():
+    for section, keys in CONVENTIONS_FIXED_KEYS.items():
         for key in keys:
             t = _truth()
             target = t[section][0] if isinstance(t[section], list) else t[section]
             del target[key]
             probs = validate_truth(t)
-            assert len(probs) == 1 and key in probs[0], (section, key, probs)
-    assert validate_truth(base) == []
+            where = f"$.{section}[0].{key}" if isinstance(t[section], list) else f"$.{section}.{key}"
+            assert probs == [f"{where}: missing"], (section, key, probs)
+    for top in ("schema", "seeds", *CONVENTIONS_FIXED_KEYS):
+        t = _truth()
+        del t[top]
+        assert f"$.{top}: missing" in validate_truth(t)
+    t = _truth()
+    t["new_section"] = {"anything": [1, 2]}
+    t["stars"][0]["colour_index"] = 0.3
+    t["bodies"][0]["elongation_deg"] = 40.0
+    t["cosmic_rays"][0]["track"] = {"length_px": 3.0}
+    assert validate_truth(base) == [] and validate_truth(t) == []
 
 
 def test_truth_layout_parses_like_stdlib_json_and_one_record_per_line(tmp_path):
@@ -382,7 +409,7 @@ def test_truth_layout_parses_like_stdlib_json_and_one_record_per_line(tmp_path):
     # the canonical layout must decode to exactly the same object, and write each star on one line.
     import json
 
-    from skynav.renderer.outputs import truth_json_bytes, truth_to_jsonable
+    from skynav.datasets.truth_schema import truth_json_bytes, truth_to_jsonable
 
     truth = _truth()
     truth["stars"] = truth["stars"] * 50
@@ -395,7 +422,7 @@ def test_truth_layout_parses_like_stdlib_json_and_one_record_per_line(tmp_path):
 
 
 def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):
-    from skynav.renderer.outputs import truth_to_jsonable
+    from skynav.datasets.truth_schema import truth_to_jsonable
 
     assert truth_to_jsonable({"a": np.array([1.0, np.nan])}) == {"a": [1.0, None]}
     assert truth_to_jsonable({"a": np.array([[1, 2]], dtype=np.uint16)}) == {"a": [[1, 2]]}
@@ -406,3 +433,39 @@ def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):
         truth_to_jsonable({"a": {3: 1.0}})
     with pytest.raises(TruthSchemaError, match=r"truth\.a: value of type set"):
         truth_to_jsonable({"a": {1, 2}})
+
+
+def test_thread_budget_reads_skynav_threads_without_the_renderer(monkeypatch):
+    # the file side reads SKYNAV_THREADS itself (it may not import the renderer); same meaning
+    from skynav.datasets.frame_files import thread_budget
+    from skynav.scenes.errors import ConfigValueError
+
+    monkeypatch.delenv("SKYNAV_THREADS", raising=False)
+    assert thread_budget() is None
+    monkeypatch.setenv("SKYNAV_THREADS", " 3 ")
+    assert thread_budget() == 3
+    for bad in ("0", "-2", "two", "1.5"):
+        monkeypatch.setenv("SKYNAV_THREADS", bad)
+        with pytest.raises(ConfigValueError, match="SKYNAV_THREADS"):
+            thread_budget()
+
+
+def test_write_frame_writes_each_format_and_refuses_unknown_ones(tmp_path, rng):
+    from types import SimpleNamespace
+
+    from skynav.datasets.frame_files import write_frame
+
+    truth = _truth()
+    cam = truth["camera"]
+    dn = rng.integers(0, 256, (cam["height"], cam["width"]), dtype=np.uint8)
+    e = rng.random(dn.shape).astype(np.float32)
+    frame = SimpleNamespace(dn=dn, electrons=e, irradiance_w_m2=e * 1e-12, truth=truth)
+    paths = write_frame(frame, tmp_path / "out", "f", formats=("png", "json"), fits=True)
+    assert list(paths) == ["png", "json", "fits"] and all(p.is_file() for p in paths.values())
+    np.testing.assert_array_equal(read_png(paths["png"]), dn)
+    assert read_truth_json(paths["json"])["stars"][0]["hip"] == 32349
+    data, header = read_fits(paths["fits"])
+    np.testing.assert_array_equal(data, dn)
+    assert header["CRPIX1"] == cam["K"][0][2] + 1.0
+    with pytest.raises(SkynavError, match="formats"):
+        write_frame(frame, tmp_path / "out", "g", formats=("tiff",))

@@ -1,0 +1,398 @@
+"""Ground truth on disk: canonical JSON bytes, reading, and validation against JSON Schema.
+
+Adapter module. The contracts are published as JSON Schema (draft 2020-12) files inside the
+package, ``skynav/datasets/schemas/frame.schema.json`` (``skynav.frame/1``, one frame's truth)
+and ``manifest.schema.json`` (``skynav.dataset/1``, a dataset's ``manifest.json``); outside
+tools can validate against them without skynav. Their required keys are the fixed names of
+CONVENTIONS.md "Files"; every object allows more keys, so new fields never break a reader.
+
+- :func:`truth_json_bytes` / :func:`write_truth_json`: canonical bytes (insertion order, ASCII,
+  ``repr`` floats, NaN as ``null``, one star or body per line), written atomically;
+- :func:`read_truth_json`: the dict back (checks the schema name only: cheap);
+- :func:`validate_truth`, :func:`validate_manifest`, :func:`schema_problems`: every violation
+  as one line ``<JSON path>: <what is wrong>``, e.g. ``$.attitude.q_cam_icrs: missing``.
+
+The typed view of a truth file is :class:`skynav.datasets.frame_truth.FrameTruth`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+from collections.abc import Mapping
+
+import numpy as np
+
+from .errors import TruthSchemaError
+from .frame_files import _open_binary, atomic_write_bytes
+from .layout import MANIFEST_SCHEMA
+
+__all__ = [
+    "FRAME_SCHEMA",
+    "MANIFEST_SCHEMA",
+    "TruthSchemaError",
+    "load_schema",
+    "schema_problems",
+    "truth_to_jsonable",
+    "truth_json_bytes",
+    "write_truth_json",
+    "read_truth_json",
+    "validate_truth",
+    "validate_manifest",
+]
+
+FRAME_SCHEMA = "skynav.frame/1"
+_SCHEMA_FILES = {FRAME_SCHEMA: "frame.schema.json", MANIFEST_SCHEMA: "manifest.schema.json"}
+
+
+# ----------------------------------------------------------------------------- ground truth
+class _Slow(Exception):
+    """Internal: the fast conversion met something it leaves to the checked one."""
+
+
+def _fast_jsonable(obj):
+    tp = type(obj)
+    if tp is float:
+        if obj != obj:
+            return None
+        if obj - obj != 0.0:  # inf - inf is NaN
+            raise _Slow
+        return obj
+    if tp is int or tp is str or tp is bool or obj is None:
+        return obj
+    if tp is dict:
+        out = {}
+        for k, v in obj.items():
+            if type(k) is not str:
+                raise _Slow
+            out[k] = _fast_jsonable(v)
+        return out
+    if tp is np.ndarray:
+        kind = obj.dtype.kind
+        if kind in "iub" or (kind == "f" and np.isfinite(obj).all()):
+            return obj.tolist()  # Python numbers in nested lists: nothing left to convert
+        return _fast_jsonable(obj.tolist())
+    if tp is list or tp is tuple:
+        return [_fast_jsonable(v) for v in obj]
+    raise _Slow
+
+
+def truth_to_jsonable(obj, _where: str = "truth"):
+    """Plain-JSON copy of ground truth: numpy arrays/scalars to lists/numbers, NaN to None.
+
+    Mappings keep their insertion order; tuples become lists. ``+-inf`` has no JSON form and is
+    refused (a truth value must be finite or NaN = "not defined").
+
+    Raises
+    ------
+    TruthSchemaError
+        Non-string keys, infinities or types JSON cannot hold, naming where.
+    """
+    try:  # plain dicts, lists, Python and numpy numbers: no per-item bookkeeping
+        return _fast_jsonable(obj)
+    except _Slow:
+        return _checked_jsonable(obj, _where)
+
+
+def _checked_jsonable(obj, _where: str):
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise TruthSchemaError(f"{_where}: key {k!r} is not a string")
+            out[k] = _checked_jsonable(v, f"{_where}.{k}")
+        return out
+    if isinstance(obj, np.ndarray):
+        return _checked_jsonable(obj.tolist(), _where)
+    if isinstance(obj, (list, tuple)):
+        return [_checked_jsonable(v, f"{_where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if obj is None or isinstance(obj, (bool, str, int)):
+        return obj
+    if isinstance(obj, float):
+        obj = float(obj)
+        if math.isnan(obj):
+            return None
+        if math.isinf(obj):
+            raise TruthSchemaError(f"{_where} = {obj}: infinity has no JSON form; use NaN (written as null) or a finite value")
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TruthSchemaError(f"{_where}: value of type {type(obj).__name__} cannot be written to JSON")
+
+
+_ENCODE = json.JSONEncoder(ensure_ascii=True, allow_nan=False, separators=(", ", ": ")).encode
+
+
+def _is_leaf(value) -> bool:
+    """True for what goes on one line: scalars and lists of scalars or of lists (truth lists are
+    homogeneous, so the first item stands for all)."""
+    while type(value) is list and value:
+        value = value[0]
+    return type(value) is not dict
+
+
+def _is_flat_record(value) -> bool:
+    return type(value) is dict and all(_is_leaf(v) for v in value.values())
+
+
+def _emit(value, indent: str, out: list) -> None:
+    """Canonical layout: a mapping has one key per line (2-space indent); lists of numbers,
+    matrices and flat records (a star, a body) are written on one line each."""
+    if _is_leaf(value):
+        out.append(_ENCODE(value))
+        return
+    inner = indent + "  "
+    if type(value) is dict:
+        if not value:
+            out.append("{}")
+            return
+        out.append("{\n")
+        last = len(value) - 1
+        for i, (k, v) in enumerate(value.items()):
+            out.append(inner + _ENCODE(k) + ": ")
+            _emit(v, inner, out)
+            out.append(",\n" if i < last else "\n")
+        out.append(indent + "}")
+        return
+    # a list holding mappings: one item per line, flat records on one line
+    out.append("[\n")
+    last = len(value) - 1
+    for i, v in enumerate(value):
+        out.append(inner)
+        if _is_flat_record(v):
+            out.append(_ENCODE(v))
+        else:
+            _emit(v, inner, out)
+        out.append(",\n" if i < last else "\n")
+    out.append(indent + "]")
+
+
+def truth_json_bytes(truth: Mapping) -> bytes:
+    """Canonical bytes of ground truth: insertion order, ASCII, ``repr`` floats; one key per
+    line (2-space indent), and each list of numbers and each flat record (one star, one body) on
+    one line, so that a frame with 700 stars is 700 readable lines, not 20 000."""
+    if not isinstance(truth, Mapping) or truth.get("schema") != FRAME_SCHEMA:
+        got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
+        raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
+    # json writes floats with float.__repr__: the shortest string that reads back bit-exact;
+    # the C encoder does every line (json's indent mode would use the pure-Python one).
+    out: list = []
+    _emit(truth_to_jsonable(truth), "", out)
+    out.append("\n")
+    return "".join(out).encode("ascii")
+
+
+def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:
+    """Write one frame's ground truth as canonical JSON, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.json``.
+    truth : mapping
+        Must hold ``"schema": "skynav.frame/1"``; numpy values are converted, NaN becomes
+        ``null``. Key order is kept as given (callers build it in a fixed order), so equal
+        truth gives equal bytes.
+    strict : bool
+        Also refuse truth for which :func:`validate_truth` finds problems.
+
+    Raises
+    ------
+    TruthSchemaError
+        Missing/wrong schema, infinities, unserialisable values, or (strict) schema problems.
+    """
+    if strict:
+        problems = validate_truth(truth)
+        if problems:
+            raise TruthSchemaError(f"ground truth has {len(problems)} problem(s): {'; '.join(problems[:5])}", problems)
+    atomic_write_bytes(path, truth_json_bytes(truth))
+
+
+def read_truth_json(source) -> dict:
+    """Ground truth of one frame (``null`` comes back as None); checks the schema name."""
+    with _open_binary(source) as f:
+        truth = json.loads(f.read().decode("utf-8"))
+    if not isinstance(truth, dict) or truth.get("schema") != FRAME_SCHEMA:
+        got = truth.get("schema") if isinstance(truth, dict) else type(truth).__name__
+        raise TruthSchemaError(f'not a skynav frame file: "schema" is {got!r}, expected "{FRAME_SCHEMA}"')
+    return truth
+
+
+# ----------------------------------------------------------------------------- JSON Schema
+@functools.lru_cache(maxsize=None)
+def _schema_text(name: str) -> str:
+    from importlib.resources import files
+
+    if name not in _SCHEMA_FILES:
+        raise KeyError(f"no published schema {name!r}; known: {', '.join(_SCHEMA_FILES)}")
+    return (files("skynav.datasets") / "schemas" / _SCHEMA_FILES[name]).read_text(encoding="utf-8")
+
+
+def load_schema(name: str = FRAME_SCHEMA) -> dict:
+    """The published JSON Schema of ``"skynav.frame/1"`` or ``"skynav.dataset/1"`` (a fresh copy).
+
+    The files are package data: ``importlib.resources.files("skynav.datasets") / "schemas"``.
+    """
+    return json.loads(_schema_text(name))
+
+
+@functools.lru_cache(maxsize=None)
+def _validator(name: str):
+    import jsonschema  # adapter-local import: only validation needs it
+
+    schema = load_schema(name)
+    cls = jsonschema.validators.validator_for(schema)
+    cls.check_schema(schema)
+    return cls(schema)
+
+
+def _json_path(path) -> str:
+    """JSONPath of a location: ``$.stars[3].xy``; keys that are not identifiers in brackets,
+    ``$.files["frames/000000.png"]``."""
+    out = "$"
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else f".{p}" if str(p).isidentifier() else f"[{json.dumps(p)}]"
+    return out
+
+
+def _short(value) -> str:
+    text = json.dumps(value) if not isinstance(value, (dict, list)) else type(value).__name__.replace("dict", "object").replace("list", "array")
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _problem_lines(error) -> list:
+    """One line per violation: ``<JSON path>: <what>`` (short; never the whole instance)."""
+    path = _json_path(error.absolute_path)
+    v, want, got = error.validator, error.validator_value, error.instance
+    if v == "required":
+        return [f"{_json_path([*error.absolute_path, k])}: missing" for k in want if isinstance(got, dict) and k not in got]
+    if v == "type":
+        kinds = want if isinstance(want, list) else [want]
+        return [f"{path}: {_short(got)} is not of type {' or '.join(kinds)}"]
+    if v in ("minItems", "maxItems"):
+        return [f"{path}: {len(got)} items, expected {'at least' if v == 'minItems' else 'at most'} {want}"]
+    if v == "const":
+        return [f"{path}: {_short(got)}, expected {json.dumps(want)}"]
+    if v == "pattern":
+        return [f"{path}: {_short(got)} does not match {want}"]
+    if v in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        return [f"{path}: {_short(got)} violates {v} {want}"]
+    msg = error.message.splitlines()[0] if error.message else v
+    return [f"{path}: {msg if len(msg) <= 100 else msg[:97] + '...'}"]
+
+
+# Keywords whose verdict depends only on a value's skeleton (see _skeleton): where the items of a
+# top-level list use no others, validating one item per distinct skeleton is exact.
+_STRUCTURAL = frozenset({"type", "required", "properties", "items", "minItems", "maxItems", "$ref", "description"})
+
+
+def _structural(node, defs) -> bool:
+    if isinstance(node, list):
+        return all(_structural(x, defs) for x in node)
+    if not isinstance(node, dict):
+        return True
+    if not set(node) <= _STRUCTURAL:
+        return False
+    if "$ref" in node and not _structural(defs[node["$ref"].rsplit("/", 1)[-1]], defs):
+        return False
+    return ("items" not in node or _structural(node["items"], defs)) and all(_structural(v, defs) for v in node.get("properties", {}).values())
+
+
+@functools.lru_cache(maxsize=None)
+def _dedupable_lists(name: str) -> frozenset:
+    """Top-level list keys of a schema whose item schema is purely structural."""
+    schema = load_schema(name)
+    defs = schema.get("$defs", {})
+    return frozenset(k for k, sub in schema.get("properties", {}).items()
+                     if isinstance(sub, dict) and sub.get("type") == "array" and _structural(sub.get("items"), defs))
+
+
+def _skeleton(v):
+    """What the structural keywords see of a JSON value: types, lengths and keys; numbers only as
+    integer-valued or not (``"integer"`` accepts 3.0). Leaves become tags, never values, so that
+    ``0``, ``0.0`` and ``False`` (equal in Python) stay apart."""
+    tp = type(v)
+    if tp is dict:
+        return ("{", *((k, _skeleton(x)) for k, x in v.items()))
+    if tp is list:
+        return ("[", *(_skeleton(x) for x in v))
+    if tp is float:
+        return "f.0" if v.is_integer() else "f"
+    return _TAGS.get(tp, "?")
+
+
+_TAGS = {int: "i", str: "s", bool: "b", type(None): "n"}
+
+
+def schema_problems(instance, name: str = FRAME_SCHEMA) -> list:
+    """Violations of a published schema by a JSON value, one line each, sorted by JSON path.
+
+    Validated with ``jsonschema`` against the schema file. For speed (a frame lists hundreds of
+    stars, and ``jsonschema`` takes about a millisecond per star), the items of a top-level list
+    whose item schema uses only structural keywords (``type``, ``required``, ``properties``,
+    ``items``, ``minItems``, ``maxItems``) are validated once per distinct skeleton (types, lengths,
+    keys): exact for such schemas; a violation is reported at the first item that has it.
+
+    Parameters
+    ----------
+    instance : object
+        Plain JSON data (what ``json.loads`` returns).
+    name : str
+        ``"skynav.frame/1"`` or ``"skynav.dataset/1"``.
+
+    Returns
+    -------
+    list of str
+        Empty when it conforms, else e.g. ``["$.stars[2].xy: 3 items, expected at most 2"]``.
+    """
+    first_index = {}  # (list key, index in the reduced list) -> index in the instance
+    if isinstance(instance, dict):
+        reduced = dict(instance)
+        for key in _dedupable_lists(name):
+            items = instance.get(key)
+            if type(items) is not list:
+                continue
+            seen, kept = {}, []
+            for i, item in enumerate(items):
+                sk = _skeleton(item)
+                if sk not in seen:
+                    seen[sk] = len(kept)
+                    first_index[(key, len(kept))] = i
+                    kept.append(item)
+            reduced[key] = kept
+        instance = reduced
+    lines = []
+    for error in _validator(name).iter_errors(instance):
+        p = error.absolute_path
+        if len(p) >= 2 and (p[0], p[1]) in first_index:
+            error.path[1] = first_index[(p[0], p[1])]  # relative == absolute at the top level
+        lines.extend(_problem_lines(error))
+    return sorted(set(lines))
+
+
+def validate_truth(truth) -> list:
+    """Problems of one frame's ground truth against ``frame.schema.json``; empty when it conforms.
+
+    Works on the in-memory dict (numpy values, NaN) as on what :func:`read_truth_json` returns:
+    the dict is converted as :func:`truth_json_bytes` would write it, then validated. Extra keys
+    are welcome and not reported.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["$.attitude.q_cam_icrs: missing", "$.stars[2].xy: 3 items, expected at most 2"]``.
+    """
+    try:
+        plain = truth_to_jsonable(truth)
+    except TruthSchemaError as exc:
+        return [str(exc)]
+    return schema_problems(plain, FRAME_SCHEMA)
+
+
+def validate_manifest(manifest) -> list:
+    """Problems of a dataset's ``manifest.json`` content against ``manifest.schema.json``."""
+    return schema_problems(manifest, MANIFEST_SCHEMA)
