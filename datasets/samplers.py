@@ -24,15 +24,15 @@ Free-form scenes draw nothing before the renderer.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from skynav.scenes import frames
-from skynav.scenes.timescales import tdb_seconds, time_from_tdb_seconds
+from skynav.scenes.timescales import tdb_seconds
 
 from .dynamics import AU_KM, GM_KM3_S2
 from .errors import SceneSamplingError
+from .plan import FrameRequest, epoch_iso, frame_rng, frame_seed  # noqa: F401  (re-exported)
 
 __all__ = [
     "OBLIQUITY_J2000_RAD",
@@ -44,51 +44,13 @@ __all__ = [
     "ScenesPlan",
     "keep_filters_pass",
     "make_plan",
+    "epoch_iso",
 ]
 
 # Obliquity of the ecliptic at J2000, IAU 2006 (84381.406 arcsec). Ecliptic J2000 axes are ICRS
 # turned about x by it; the 23 mas ICRS frame bias is ignored (the sampler is statistical).
 OBLIQUITY_J2000_RAD = math.radians(84381.406 / 3600.0)
 R_ECL_ICRS = frames.rot1(OBLIQUITY_J2000_RAD)  # passive: v_ecl = R_ECL_ICRS @ v_icrs
-
-
-def frame_seed(master_seed: int, k: int) -> np.random.SeedSequence:
-    """The seed sequence of frame k: ``SeedSequence([master_seed, k])`` (CONVENTIONS.md)."""
-    return np.random.SeedSequence([int(master_seed), int(k)])
-
-
-def frame_rng(master_seed: int, k: int) -> np.random.Generator:
-    """Frame k's generator, ``default_rng(SeedSequence([master_seed, k]))``."""
-    return np.random.default_rng(frame_seed(master_seed, k))
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class FrameRequest:
-    """What one frame looks at, before the sky is computed.
-
-    Attributes
-    ----------
-    epoch_tdb_s : float
-        Mid-exposure, TDB s past J2000.
-    position_km, velocity_km_s : ndarray, shape (3,)
-        Barycentric ICRS observer state.
-    R_cam_icrs : ndarray, shape (3, 3)
-    angular_velocity_rad_s : ndarray, shape (3,)
-        Camera frame.
-    meta : dict
-        Recorded in the ground truth under ``"dataset"`` and in ``index.csv``
-        (``draws``, ``leg``, ``phase``, ``target``...).
-    sky : object or None
-        ``sky_bodies(...)`` already computed for this epoch/observer (reused by ``build_scene``).
-    """
-
-    epoch_tdb_s: float
-    position_km: np.ndarray
-    velocity_km_s: np.ndarray
-    R_cam_icrs: np.ndarray
-    angular_velocity_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    meta: dict = field(default_factory=dict)
-    sky: object = None
 
 
 def keep_filters_pass(filters, sky, R_cam_icrs, camera) -> tuple[bool, dict]:
@@ -264,7 +226,16 @@ class MonteCarloPlan:
 
 
 class ScenesPlan:
-    """Free-form recipe: an explicit list of scenes (same keys as scene files)."""
+    """Free-form recipe: an explicit list of scenes (same keys as scene files), rendered in order.
+
+    A scene's own ``camera`` replaces the recipe's for that frame (size, optics, sensor, and the
+    visibility limits the camera carries); its ``render.star_mag_limit`` and
+    ``render.resolved_threshold_px`` replace the recipe's ``star_mag_limit`` and the scene
+    model's default. The frame's ground truth records the camera and star limit it was rendered
+    with, and the scene's ``render`` mapping under ``dataset.render``. (``render.seed`` is refused
+    by :func:`~skynav.datasets.recipes.validate_recipe`: frame k's stream is fixed by the
+    recipe's seed.)
+    """
 
     kind = "scenes"
 
@@ -282,11 +253,18 @@ class ScenesPlan:
         from skynav.scenes.scene import resolve_spec
 
         spec = self.specs[k]
+        given = self.recipe["scenes"][k]
+        render = dict(given.get("render") or {})
         a = spec.attitude
         t, r, v, R, sky = resolve_spec(spec, ephemeris=self._eph)
         meta = {"kind": "scenes", "frame": int(k)}
+        if render:
+            meta["render"] = render
         return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R,
-                            angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky)
+                            angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky,
+                            camera=spec.camera if "camera" in given else None,
+                            star_mag_limit=spec.star_mag_limit if "star_mag_limit" in render else None,
+                            resolved_threshold_px=spec.resolved_threshold_px if "resolved_threshold_px" in render else None)
 
     def describe(self) -> dict:
         return {}
@@ -305,7 +283,3 @@ def make_plan(recipe: dict, *, ephemeris=None):
 
     return SequencePlan(recipe, camera, ephemeris=ephemeris)
 
-
-def epoch_iso(t_tdb_s: float) -> str:
-    """ISO date (TDB) of TDB seconds past J2000, millisecond precision, for tables."""
-    return time_from_tdb_seconds(t_tdb_s).tdb.isot

@@ -40,7 +40,7 @@ from .dynamics import GM_KM3_S2, ForceModel, SpacecraftSRP, propagate
 from .errors import LambertError, SceneSamplingError
 from .lambert import solve_lambert
 from .recipes import PLANETS
-from .samplers import FrameRequest
+from .plan import FrameRequest, epoch_iso
 
 __all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
 
@@ -254,8 +254,6 @@ class SequencePlan:
     # ------------------------------------------------------------------ dataset side files
     def describe(self) -> dict:
         """Plan summary for the manifest."""
-        from .samplers import epoch_iso
-
         tr = self.transfer
         return {
             "transfer": {
@@ -274,8 +272,6 @@ class SequencePlan:
 
     def trajectory_csv(self) -> str:
         """``trajectory.csv``: the cruise every ``trajectory_step_s``, barycentric ICRS, km and km/s."""
-        from .samplers import epoch_iso
-
         step = self.s["trajectory_step_s"]
         t = np.arange(self.t_start, self.t_end + 0.5 * step, step)
         t = t[t <= self.t_end]
@@ -287,8 +283,6 @@ class SequencePlan:
 
     def legs_csv(self) -> str:
         """``legs.csv``: the leg timeline (one row per window)."""
-        from .samplers import epoch_iso
-
         lines = ["leg,phase,target,start_tdb,end_tdb,start_tdb_s,end_tdb_s,duration_s"]
         for w in self.windows:
             t0, t1 = float(w.start_tdb_s), float(w.end_tdb_s)
