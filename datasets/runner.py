@@ -35,7 +35,7 @@ from pathlib import Path
 
 from . import layout
 from .errors import DatasetError, RecipeError
-from .execute import FrameResult, _THREAD_VARS, _worker_threads, check_backends, produce_frame  # noqa: F401
+from .execute import FrameResult, check_backends, produce_frame
 from .plan import RunPlan
 from .recipes import recipe_camera, validate_recipe
 
