@@ -88,11 +88,32 @@ def _frame_present(root: Path, k: int, formats, recorded: dict):
     return files
 
 
-def _existing_row(root: Path, k: int, files: dict) -> tuple:
+def _existing_row(root: Path, k: int, files: dict, backends: dict):
+    """``(index row, draws)`` of a present frame, or None if its truth shows another backend ran.
+
+    A frame whose files were written but not yet checksummed in the manifest (a worker finished
+    it as the run stopped) is kept only if its truth names no other sensor backend or Mitsuba
+    variant than ``backends``.
+    """
     from skynav.renderer.outputs import read_truth_json
 
     truth = read_truth_json(root / layout.frame_relpaths(k, ["json"])["json"])
+    sensor = (truth.get("render") or {}).get("backend")
+    if sensor in ("llvm", "numpy") and backends.get("sensor") not in (None, sensor):
+        return None
+    variants = {b.get("mitsuba_variant") for b in truth.get("bodies") or [] if b.get("mitsuba_variant")}
+    if variants and variants != {backends.get("mitsuba_variant")}:
+        return None
     return layout.index_row(truth, k, files), (truth.get("dataset") or {}).get("draws")
+
+
+def _remove_frame(root, res) -> None:
+    """Delete the files a refused frame wrote, so that a resume renders it again."""
+    for rel in res.files:
+        try:
+            os.unlink(Path(root) / rel)
+        except FileNotFoundError:
+            pass
 
 
 def resolve_backends(render_options) -> dict:
@@ -154,11 +175,12 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
     present, rows, draws, todo = {}, {}, {}, []
     for k in range(sampler.n_frames):
         files = _frame_present(root, k, formats, recorded)
-        if files is None:
+        existing = None if files is None else _existing_row(root, k, files, manifest["backends"])
+        if existing is None:
             todo.append(k)
         else:
             present[k] = files
-            rows[k], draws[k] = _existing_row(root, k, files)
+            rows[k], draws[k] = existing
     if max_frames is not None:
         todo = todo[:max_frames]
     write_checkpoint(root, manifest, {rel: sha for f in present.values() for rel, sha in f.items()}, len(rows))
@@ -233,8 +255,15 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     n = plan.n_frames
     reused = len(plan.present)
     update, close = _make_progress(progress, n, reused)
-    done = Progress(plan, flush_every_s=flush_every_s, update=update,
-                    check=lambda res: check_backends(res, plan.backends))
+
+    def check(res):
+        try:
+            check_backends(res, plan.backends)
+        except Exception:
+            _remove_frame(plan.root, res)
+            raise
+
+    done = Progress(plan, flush_every_s=flush_every_s, update=update, check=check)
     own_client = None
     try:
         if use_dask:

@@ -66,6 +66,24 @@ def test_resume_on_another_sensor_backend_is_refused(tmp_path):
         generate(small_recipe(frames=4), out, workers=1, progress=False)
 
 
+def test_an_unrecorded_frame_made_on_another_backend_is_rendered_again(reference_dataset, tmp_path):
+    _, _, ref = reference_dataset
+    out = _partial(tmp_path)
+    m = json.loads((out / "manifest.json").read_text())
+    # frame 1 finished as the run stopped: files on disk, not yet in the manifest; its truth says
+    # the other sensor backend ran (a worker without LLVM, say)
+    m["files"] = {k: v for k, v in m["files"].items() if not k.startswith("frames/000001.")}
+    (out / "manifest.json").write_text(json.dumps(m, indent=2) + "\n")
+    truth_path = out / "frames" / "000001.json"
+    truth = json.loads(truth_path.read_text())
+    truth["render"]["backend"] = "numpy" if m["backends"]["sensor"] == "llvm" else "llvm"
+    truth_path.write_text(json.dumps(truth))
+    s = generate(small_recipe(frames=4), out, workers=1, progress=False)
+    assert s.frames_reused == 1 and s.frames_rendered == 3
+    got = tree_sha256(out)
+    assert all(got[k] == ref[k] for k in got if k.startswith("frames/"))
+
+
 def test_a_worker_on_another_backend_is_refused():
     from skynav.datasets.execute import FrameResult, check_backends
 
