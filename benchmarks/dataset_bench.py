@@ -21,7 +21,7 @@
   (``render``), encode (``write_frame`` into /dev/shm, a memory file system) and write (the
   same on the dataset's disk, minus encode: temp file, fsync, rename).
 - ``--plot``: PNG of the planets' apparent V magnitudes along the navigation legs of the
-  default sequence recipe (Pillow plot, no matplotlib).
+  default sequence recipe (matplotlib, Agg).
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": time.perf_
 
 def _one_thread() -> dict:
     """The runner's thread-count variables, all at 1."""
-    from skynav.datasets.runner import _THREAD_VARS
+    from skynav.datasets.execute import _THREAD_VARS
 
     return {name: "1" for name in _THREAD_VARS}
 

@@ -33,12 +33,13 @@ from .reader import Dataset, FrameRecord, open_dataset  # noqa: F401
 
 open = open_dataset  # noqa: A001 - skynav.datasets.open(path), as asked by the room's issue
 
-# name -> module that defines it; imported on first access
+# name -> module that defines it; imported on first access. No module may share a name with a
+# function here: importing a submodule binds its name on the package, which would hide the function.
 _LAZY = {
-    "leg_plot": "preview", "preview": "preview",
+    "leg_plot": "contact_sheet", "preview": "contact_sheet",
     "PRESETS": "recipes", "load_recipe_file": "recipes", "preset_recipe": "recipes", "validate_recipe": "recipes",
     "GenerateSummary": "runner", "generate": "runner", "regenerate_frame": "runner",
-    "VerifyReport": "verify", "info": "verify", "verify": "verify",
+    "VerifyReport": "integrity", "info": "integrity", "verify": "integrity",
     "write_frame": "frame_files",
     "load_schema": "truth_schema", "validate_truth": "truth_schema", "validate_manifest": "truth_schema",
 }

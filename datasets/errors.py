@@ -49,7 +49,8 @@ class IncompleteDatasetError(DatasetError):
 
 
 class DatasetMismatchError(DatasetError):
-    """A resumed run was asked for a different recipe/seed/version than the folder holds."""
+    """A resumed run was asked for another recipe, seed, version, render options or backend than the
+    folder holds, or a worker ran another backend than the dataset records."""
 
 
 class FrameIndexError(SkynavError, IndexError):

@@ -102,7 +102,13 @@ def write_manifest(root, manifest: dict) -> None:
 
 
 def check_same_dataset(existing: dict, new: dict, root) -> None:
-    """Refuse to resume into a folder that holds a different dataset."""
+    """Refuse to resume into a folder that holds a different dataset (one line).
+
+    The recipe, master seed and package version must be equal, and so must what fixes the bits
+    beyond them: the render options (``render_options``, each option named with its old and new
+    value) and the backends that run (``backends``: the resolved sensor backend and Mitsuba
+    variant).
+    """
     for key in ("recipe", "master_seed", "version"):
         if existing.get(key) != new.get(key):
             detail = ""
@@ -111,6 +117,16 @@ def check_same_dataset(existing: dict, new: dict, root) -> None:
                 detail = f" (differs at: {', '.join(diff)})"
             raise DatasetMismatchError(
                 f"{root} holds a different dataset: its {key} differs{detail}; use a new folder or remove it")
+    for key, what in (("render_options", "render option"), ("backends", "backend")):
+        old, new_v = existing.get(key), new.get(key)
+        if not isinstance(old, dict):
+            raise DatasetMismatchError(
+                f"{root} records no {key} (made by an older skynav); its bits cannot be matched: use a new folder")
+        for name in sorted(set(old) | set(new_v)):
+            if old.get(name) != new_v.get(name):
+                raise DatasetMismatchError(
+                    f"{root} was made with {what} {name} = {old.get(name)!r}, this run has {new_v.get(name)!r};"
+                    f" the bits would differ: use the same {key.replace('_', ' ')} or a new folder")
 
 
 def _fmt(x) -> str:

@@ -1,7 +1,10 @@
-"""Small PNG line plots with Pillow (no matplotlib): planets' magnitudes along a sequence.
+"""Plots for reports and benchmarks, drawn with matplotlib (Agg, no display needed).
 
-Driver-side helper for reports and benchmarks. :func:`leg_magnitudes` computes the apparent V
-magnitude of every planet seen from the cruise; :func:`plot_lines_png` draws series on axes.
+Driver-side helper. :func:`leg_magnitudes` computes the apparent V magnitude of every planet
+seen from the cruise; :func:`plot_leg_magnitudes` plots them along the navigation legs;
+:func:`plot_lines_png` draws any set of series on labelled axes. Figures are made with
+:class:`matplotlib.figure.Figure` on an Agg canvas, never through ``pyplot``: no global state, no
+display, safe in worker processes and on headless machines.
 """
 
 from __future__ import annotations
@@ -13,85 +16,75 @@ import numpy as np
 
 from skynav.scenes.constants import SECONDS_PER_DAY
 
-__all__ = ["plot_lines_png", "leg_magnitudes", "plot_leg_magnitudes"]
+__all__ = ["plot_lines_png", "leg_magnitudes", "plot_leg_magnitudes", "figure_png"]
 
-_COLOURS = {"mercury": (150, 150, 150), "venus": (230, 200, 80), "earth": (60, 130, 255), "moon": (200, 200, 200),
-            "mars": (230, 80, 50), "jupiter": (220, 150, 90), "saturn": (190, 170, 100), "uranus": (100, 220, 220),
-            "neptune": (80, 90, 230)}
+_COLOURS = {"mercury": "#969696", "venus": "#d4a017", "earth": "#3c82ff", "moon": "#a0a0a0",
+            "mars": "#e6502f", "jupiter": "#c8874b", "saturn": "#a08c3c", "uranus": "#2ab0b0",
+            "neptune": "#5059e6"}
 
 
-def _nice_ticks(lo: float, hi: float, n: int = 6):
-    span = hi - lo if hi > lo else 1.0
-    step = 10 ** math.floor(math.log10(span / n))
-    for m in (1, 2, 5, 10):
-        if span / (m * step) <= n:
-            step *= m
-            break
-    start = math.ceil(lo / step) * step
-    return [start + i * step for i in range(int((hi - start) / step + 1e-9) + 1)]
+def _figure(size_px=(900, 520), dpi: int = 100):
+    """A matplotlib Figure of ``size_px`` pixels on an Agg canvas (no pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(size_px[0] / dpi, size_px[1] / dpi), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def figure_png(fig) -> bytes:
+    """PNG bytes of a matplotlib Figure (Agg; no timestamp or version in the file)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()
 
 
 def plot_lines_png(x, series: dict, *, title: str, xlabel: str, ylabel: str, invert_y: bool = False,
-                   spans=(), size=(900, 520), colours=None) -> bytes:
-    """PNG bytes of line plots ``series = {label: y (N,)}`` against ``x (N,)``.
+                   spans=(), size=(900, 520), colours=None, hlines=()) -> bytes:
+    """PNG bytes of line plots ``series = {label: y (N,)}`` against ``x (N,)``, with a legend.
 
-    ``spans``: ``(x0, x1, label)`` shaded vertical bands (e.g. tracking windows).
+    Parameters
+    ----------
+    x : array_like, shape (N,)
+    series : dict
+        ``{label: y}``, each ``y`` of shape (N,); NaN breaks a line (e.g. a planet hidden by the
+        Sun).
+    title, xlabel, ylabel : str
+        Axis labels carry their units, e.g. ``"V (mag)"``.
+    invert_y : bool
+        Smaller values up (magnitudes).
+    spans : sequence of (x0, x1, label)
+        Shaded vertical bands (e.g. tracking windows); one legend entry per distinct label.
+    size : (int, int)
+        Width and height, px (at 100 dpi).
+    colours : dict, optional
+        ``{label: matplotlib colour}``.
+    hlines : sequence of (y, label)
+        Dashed horizontal reference lines (e.g. a magnitude limit).
     """
-    from PIL import Image, ImageDraw
-
     colours = colours or {}
-    w, h = size
-    left, right, top, bottom = 70, 150, 40, 50
-    im = Image.new("RGB", size, (255, 255, 255))
-    d = ImageDraw.Draw(im)
+    fig = _figure(size)
+    ax = fig.add_subplot()
+    labelled = set()
+    for a, b, label in spans:
+        ax.axvspan(a, b, color="#dfe3f0", lw=0, zorder=0, label=None if label in labelled else label)
+        labelled.add(label)
     x = np.asarray(x, dtype=float)
-    ys = [np.asarray(v, dtype=float) for v in series.values()]
-    finite = np.concatenate([y[np.isfinite(y)] for y in ys]) if ys else np.zeros(1)
-    y0, y1 = float(finite.min()), float(finite.max())
-    pad = 0.05 * (y1 - y0 or 1.0)
-    y0, y1 = y0 - pad, y1 + pad
-    x0, x1 = float(x.min()), float(x.max() if x.max() > x.min() else x.min() + 1)
-
-    def px(xv, yv):
-        u = left + (xv - x0) / (x1 - x0) * (w - left - right)
-        f = (yv - y0) / (y1 - y0)
-        v = top + (f if invert_y else 1 - f) * (h - top - bottom)
-        return u, v
-
-    for a, b, _label in spans:
-        u0, _ = px(a, y0)
-        u1, _ = px(b, y0)
-        d.rectangle((u0, top, max(u1, u0 + 1), h - bottom), fill=(235, 235, 245))
-    d.rectangle((left, top, w - right, h - bottom), outline=(0, 0, 0))
-    for t in _nice_ticks(x0, x1):
-        u, _ = px(t, y0)
-        d.line((u, h - bottom, u, h - bottom + 4), fill=(0, 0, 0))
-        d.text((u - 10, h - bottom + 6), f"{t:g}", fill=(0, 0, 0))
-    for t in _nice_ticks(y0, y1):
-        _, v = px(x0, t)
-        d.line((left - 4, v, left, v), fill=(0, 0, 0))
-        d.line((left, v, w - right, v), fill=(225, 225, 225))
-        d.text((left - 40, v - 6), f"{t:g}", fill=(0, 0, 0))
-    for i, (label, y) in enumerate(series.items()):
-        col = colours.get(label, (0, 0, 0))
-        seg = []  # break the line where y is NaN (e.g. a planet too close to the Sun)
-        for a, b in zip(x, np.asarray(y, dtype=float)):
-            if np.isfinite(b):
-                seg.append(px(a, b))
-                continue
-            if len(seg) > 1:
-                d.line(seg, fill=col, width=2)
-            seg = []
-        if len(seg) > 1:
-            d.line(seg, fill=col, width=2)
-        d.line((w - right + 10, top + 10 + 16 * i, w - right + 30, top + 10 + 16 * i), fill=col, width=3)
-        d.text((w - right + 35, top + 4 + 16 * i), label, fill=(0, 0, 0))
-    d.text((left, 12), title, fill=(0, 0, 0))
-    d.text(((w - right + left) // 2 - 40, h - 22), xlabel, fill=(0, 0, 0))
-    d.text((5, top - 18), ylabel, fill=(0, 0, 0))
-    buf = io.BytesIO()
-    im.save(buf, format="PNG")
-    return buf.getvalue()
+    for label, y in series.items():
+        ax.plot(x, np.asarray(y, dtype=float), lw=1.6, label=label, color=colours.get(label))
+    for y, label in hlines:
+        ax.axhline(y, color="0.3", ls="--", lw=1.0, label=label)
+    if invert_y:
+        ax.invert_yaxis()
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, color="0.88", lw=0.6)
+    ax.set_axisbelow(True)
+    ax.margins(x=0.01)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=9)
+    return figure_png(fig)
 
 
 def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "venus", "earth", "mars", "jupiter", "saturn")):
@@ -110,16 +103,27 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
 
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
-    """PNG of the planets' V magnitudes along the cruise, tracking legs shaded (atomic write)."""
+    """PNG of the planets' V magnitudes along the cruise, tracking windows shaded (atomic write).
+
+    A planet's line is broken while it is inside the pair Sun-angle limit (not trackable); the
+    pair magnitude limit ``pair_limiting_v_mag`` is a dashed line.
+    """
     from .frame_files import atomic_write_bytes
 
     days, mags, sun = leg_magnitudes(plan, step_s=step_s)
-    # hide a planet while it is inside the pair Sun-angle limit (not trackable)
     limit = plan.s["pair_elongation_min_deg"]
-    shown = {p: np.where(sun[p] > limit, m, np.nan) for p, m in mags.items()}
-    spans = [((w.start_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY, (w.end_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY + 0.6, w.phase)
-             for w in plan.windows if w.phase.startswith("track")]
-    pairs = "; ".join("/".join(p) for p in plan.describe()["pairs"][:3])
-    png = plot_lines_png(days, shown, title=f"Apparent V magnitude of the planets along the cruise (legs shaded; pairs {pairs} ...)",
-                         xlabel="days since cruise start", ylabel="V (mag)", invert_y=True, spans=spans, colours=_COLOURS)
+    shown, colours = {}, {}
+    for p, m in mags.items():
+        y = np.where(sun[p] > limit, m, np.nan)
+        label = p.capitalize() if np.isfinite(y).any() else f"{p.capitalize()} (always within {limit:g} deg)"
+        shown[label], colours[label] = y, _COLOURS.get(p)
+    spans = [((w.start_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY, (w.end_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY + 0.6,
+              "tracking windows (widened)") for w in plan.windows if w.phase.startswith("track")]
+    png = plot_lines_png(
+        days, shown,
+        title=f"Planets' apparent V magnitude along the cruise ({plan.s['legs']} legs)\n"
+              f"tracking windows shaded; a line stops within {limit:g} deg of the Sun",
+        xlabel="time since cruise start (days)", ylabel="apparent V magnitude (mag)", invert_y=True, spans=spans,
+        colours=colours,
+        hlines=[(plan.s["pair_limiting_v_mag"], f"pair limit V < {plan.s['pair_limiting_v_mag']:g}")])
     atomic_write_bytes(out_png, png)

@@ -296,6 +296,10 @@ def validate_recipe(recipe) -> dict:
                 raise
             except Exception as exc:  # re-raise naming the list item
                 raise RecipeError(f"scenes[{i}]", "...", str(exc)) from None
+            render = sc.get("render") or {}
+            if "seed" in render:  # frame k's stream is SeedSequence([seed, k]); a scene cannot pick its own
+                raise RecipeError(f"scenes[{i}].render.seed", render["seed"],
+                                  "no per-scene seed in a dataset (frame k draws from SeedSequence([seed, k])); set the recipe's seed")
         out["scenes"] = copy.deepcopy(scenes)
         if recipe.get("frames") is not None and recipe["frames"] != len(scenes):
             raise RecipeError("frames", recipe["frames"], f"absent or equal to the number of scenes ({len(scenes)})")

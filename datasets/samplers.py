@@ -24,15 +24,15 @@ Free-form scenes draw nothing before the renderer.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from skynav.scenes import frames
 from skynav.scenes.constants import AU_KM, GM_KM3_S2, OBLIQUITY_J2000_RAD
-from skynav.scenes.timescales import tdb_seconds, time_from_tdb_seconds
+from skynav.scenes.timescales import tdb_seconds
 
 from .errors import SceneSamplingError
+from .plan import FrameRequest, epoch_iso, frame_rng, frame_seed  # noqa: F401  (re-exported)
 
 __all__ = [
     "OBLIQUITY_J2000_RAD",
@@ -44,50 +44,12 @@ __all__ = [
     "ScenesPlan",
     "keep_filters_pass",
     "make_plan",
+    "epoch_iso",
 ]
 
 # Ecliptic J2000 axes are ICRS turned about x by the obliquity (scenes.constants); the 23 mas ICRS
 # frame bias is ignored (the sampler is statistical).
 R_ECL_ICRS = frames.rot1(OBLIQUITY_J2000_RAD)  # passive: v_ecl = R_ECL_ICRS @ v_icrs
-
-
-def frame_seed(master_seed: int, k: int) -> np.random.SeedSequence:
-    """The seed sequence of frame k: ``SeedSequence([master_seed, k])`` (CONVENTIONS.md)."""
-    return np.random.SeedSequence([int(master_seed), int(k)])
-
-
-def frame_rng(master_seed: int, k: int) -> np.random.Generator:
-    """Frame k's generator, ``default_rng(SeedSequence([master_seed, k]))``."""
-    return np.random.default_rng(frame_seed(master_seed, k))
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class FrameRequest:
-    """What one frame looks at, before the sky is computed.
-
-    Attributes
-    ----------
-    epoch_tdb_s : float
-        Mid-exposure, TDB s past J2000.
-    position_km, velocity_km_s : ndarray, shape (3,)
-        Barycentric ICRS observer state.
-    R_cam_icrs : ndarray, shape (3, 3)
-    angular_velocity_rad_s : ndarray, shape (3,)
-        Camera frame.
-    meta : dict
-        Recorded in the ground truth under ``"dataset"`` and in ``index.csv``
-        (``draws``, ``leg``, ``phase``, ``target``...).
-    sky : object or None
-        ``sky_bodies(...)`` already computed for this epoch/observer (reused by ``build_scene``).
-    """
-
-    epoch_tdb_s: float
-    position_km: np.ndarray
-    velocity_km_s: np.ndarray
-    R_cam_icrs: np.ndarray
-    angular_velocity_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    meta: dict = field(default_factory=dict)
-    sky: object = None
 
 
 def keep_filters_pass(filters, sky, R_cam_icrs, camera, visibility) -> tuple[bool, dict]:
@@ -271,7 +233,16 @@ class MonteCarloPlan:
 
 
 class ScenesPlan:
-    """Free-form recipe: an explicit list of scenes (same keys as scene files)."""
+    """Free-form recipe: an explicit list of scenes (same keys as scene files), rendered in order.
+
+    A scene's own ``camera`` (size, optics, sensor) and ``visibility`` replace the recipe's for
+    that frame; its ``render.catalog_limiting_v_mag``, ``render.resolved_threshold_px`` and
+    ``render.cosmic_rays_per_frame`` replace the recipe's catalogue limit, the scene model's
+    default threshold and the dataset's cosmic-ray rate. The frame's ground truth records the camera and star limit it was rendered
+    with, and the scene's ``render`` mapping under ``dataset.render``. (``render.seed`` is refused
+    by :func:`~skynav.datasets.recipes.validate_recipe`: frame k's stream is fixed by the
+    recipe's seed.)
+    """
 
     kind = "scenes"
 
@@ -293,11 +264,20 @@ class ScenesPlan:
         from skynav.scenes.scene import resolve_spec
 
         spec = self.specs[k]
+        given = self.recipe["scenes"][k]
+        render = dict(given.get("render") or {})
         a = spec.attitude
         t, r, v, R, sky = resolve_spec(spec, ephemeris=self._eph)
         meta = {"kind": "scenes", "frame": int(k)}
+        if render:
+            meta["render"] = render
         return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R,
-                            angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky)
+                            angular_velocity_rad_s=np.asarray(a.angular_velocity_rad_s, dtype=float), meta=meta, sky=sky,
+                            camera=spec.camera if "camera" in given else None,
+                            catalog_limiting_v_mag=spec.catalog_limiting_v_mag if "catalog_limiting_v_mag" in render else None,
+                            resolved_threshold_px=spec.resolved_threshold_px if "resolved_threshold_px" in render else None,
+                            visibility=spec.visibility if "visibility" in given else None,
+                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame if "cosmic_rays_per_frame" in render else None)
 
     def describe(self) -> dict:
         return {}
@@ -316,7 +296,3 @@ def make_plan(recipe: dict, *, ephemeris=None):
 
     return SequencePlan(recipe, camera, ephemeris=ephemeris)
 
-
-def epoch_iso(t_tdb_s: float) -> str:
-    """ISO date (TDB) of TDB seconds past J2000, millisecond precision, for tables."""
-    return time_from_tdb_seconds(t_tdb_s).tdb.isot

@@ -42,7 +42,7 @@ from skynav.scenes.lambert import solve_lambert
 
 from .errors import SceneSamplingError
 from .recipes import PLANETS
-from .samplers import FrameRequest
+from .plan import FrameRequest, epoch_iso
 
 __all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
 
@@ -259,8 +259,6 @@ class SequencePlan:
     # ------------------------------------------------------------------ dataset side files
     def describe(self) -> dict:
         """Plan summary for the manifest."""
-        from .samplers import epoch_iso
-
         tr = self.transfer
         return {
             "transfer": {
@@ -279,8 +277,6 @@ class SequencePlan:
 
     def trajectory_csv(self) -> str:
         """``trajectory.csv``: the cruise every ``trajectory_step_s``, barycentric ICRS, km and km/s."""
-        from .samplers import epoch_iso
-
         step = self.s["trajectory_step_s"]
         t = np.arange(self.start_tdb_s, self.end_tdb_s + 0.5 * step, step)
         t = t[t <= self.end_tdb_s]
@@ -292,8 +288,6 @@ class SequencePlan:
 
     def legs_csv(self) -> str:
         """``legs.csv``: the leg timeline (one row per window)."""
-        from .samplers import epoch_iso
-
         lines = ["leg,phase,target,start_tdb,end_tdb,start_tdb_s,end_tdb_s,duration_s"]
         for w in self.windows:
             t0, t1 = float(w.start_tdb_s), float(w.end_tdb_s)

@@ -269,3 +269,20 @@ def test_reading_a_dataset_loads_no_renderer_mitsuba_or_drjit(tmp_path):
     got = json.loads(run.stdout.strip().splitlines()[-1])
     assert got["loaded"] == []
     assert got["shape"] == [256, 256] and got["stars"] > 0 and got["electrons"] > 0
+
+
+def test_no_datasets_module_shadows_a_public_function():
+    """``skynav.datasets.preview`` etc. are functions; a submodule of the same name would replace
+    the function on the package as soon as anything imported it (the lazy ``__getattr__`` is then
+    never asked)."""
+    import importlib
+    import pkgutil
+
+    import skynav.datasets as D
+
+    modules = {m.name for m in pkgutil.iter_modules(D.__path__)}
+    assert not modules & set(D._LAZY), modules & set(D._LAZY)
+    for m in modules:  # import them all, as a doctest walk does, then the functions still resolve
+        importlib.import_module(f"skynav.datasets.{m}")
+    for name in D._LAZY:
+        assert not isinstance(getattr(D, name), type(D)), name

@@ -177,7 +177,7 @@ def test_info_and_preview(reference_dataset, tmp_path):
 
 
 def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
-    from skynav.datasets.runner import _THREAD_VARS, _worker_threads
+    from skynav.datasets.execute import _THREAD_VARS, _worker_threads
 
     for name in _THREAD_VARS:
         monkeypatch.delenv(name, raising=False)

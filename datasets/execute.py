@@ -1,0 +1,258 @@
+"""Rendering a run plan's frames: one per-frame function, one strategy per executor.
+
+Driver module (the *execute* step of :func:`skynav.datasets.generate`). Frame k is made by
+:func:`produce_frame` from the sampler plan and frame k's seed ``SeedSequence([master_seed, k])``
+alone, so a frame's files are the same bytes whatever the executor, the number of workers, or the
+order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ only in where
+:func:`produce_frame` runs:
+
+- :func:`run_in_process` (``workers=1``): in this process, in order.
+- :func:`run_process_pool` (``workers=N``): :class:`concurrent.futures.ProcessPoolExecutor` with
+  the **spawn** start method. Dr.Jit/LLVM (the sensor kernel, Mitsuba) start threads and JIT state
+  in a process; a fork of a parent that already used them inherits locked mutexes and a
+  half-copied JIT (the classic fork-after-threads hazard), so children are spawned fresh and
+  import skynav themselves. The plan travels pickled. Each worker gets ``cores // N`` threads for
+  the libraries that start thread pools (Dr.Jit and OpenEXR via ``SKYNAV_THREADS``,
+  OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a variable the user set is left alone): N
+  processes each with a pool as wide as the machine spin against each other (measured: 2 workers
+  on 2 cores went from 1.0x to 1.6x the 1-worker rate with this alone;
+  ``benchmarks/dataset_bench.py``).
+- :func:`run_dask`: one Dask task per frame (``pure=False``); the workers must see the dataset
+  folder on a shared file system.
+
+Each executor hands every :class:`FrameResult` to an ``accept`` callback as it arrives (the
+runner checkpoints the manifest from there, :mod:`skynav.datasets.finalise`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import layout
+from .errors import DatasetMismatchError
+
+__all__ = ["FrameResult", "produce_frame", "run_in_process", "run_process_pool",
+           "run_dask", "check_backends"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrameResult:
+    """What a worker reports for one frame.
+
+    Attributes
+    ----------
+    frame : int
+    files : dict
+        ``{relpath: sha256}`` of the frame's files.
+    index_row : dict
+        The frame's ``index.csv`` row.
+    draws : int or None
+        Monte Carlo draws it took (None for the other kinds).
+    timings_s : dict
+        ``sample``, ``render``, ``write``, s.
+    backends : dict
+        What ran: ``sensor`` (``"llvm"`` or ``"numpy"``) and ``mitsuba_variant`` (None when no
+        body was ray-traced in this frame).
+    """
+
+    frame: int
+    files: dict
+    index_row: dict
+    draws: int | None
+    timings_s: dict
+    backends: dict = dataclasses.field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- the per-frame function
+_PLAN_CACHE: dict = {}
+
+
+def _plan_from_bytes(blob: bytes):
+    key = hash(blob)
+    plan = _PLAN_CACHE.get(key)
+    if plan is None:
+        _PLAN_CACHE.clear()
+        plan = _PLAN_CACHE[key] = pickle.loads(blob)
+    return plan
+
+
+def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
+                  render_options=None) -> FrameResult:
+    """Sample, render and write frame ``k``; returns its checksums and index row.
+
+    The random stream is ``default_rng(SeedSequence([master_seed, k]))``: the sampler draws
+    first (:mod:`skynav.datasets.samplers`), then the renderer. A frame request's own camera,
+    visibility criteria, catalogue limit, resolved-body threshold or cosmic-ray rate (per-scene
+    keys of a ``scenes`` recipe) replace the plan's for this frame.
+
+    Parameters
+    ----------
+    plan : SamplerPlan or bytes
+        The sampler plan, or its pickle (cached per process).
+    k : int
+    out_dir : str or os.PathLike
+        The dataset folder.
+    master_seed : int
+    formats : sequence of str
+    catalog_limiting_v_mag : float
+        The recipe's faintest catalog V.
+    render_options : RenderOptions, optional
+    """
+    from skynav.renderer.render import RenderOptions, render
+    from skynav.scenes.scene import build_scene
+
+    from .frame_files import sha256_file, write_frame
+    from .plan import frame_seed
+
+    if isinstance(plan, (bytes, bytearray)):
+        plan = _plan_from_bytes(bytes(plan))
+    options = render_options or RenderOptions()
+    out = Path(out_dir)
+    t0 = time.perf_counter()
+    ss = frame_seed(master_seed, k)
+    rng = np.random.default_rng(ss)
+    req = plan.frame_request(k, rng)
+    extra = {} if req.resolved_threshold_px is None else {"resolved_threshold_px": req.resolved_threshold_px}
+    scene = build_scene(req.epoch_tdb_s, position_km=req.position_km, velocity_km_s=req.velocity_km_s,
+                        R_cam_icrs=req.R_cam_icrs, camera=req.camera if req.camera is not None else plan.camera,
+                        angular_velocity_rad_s=req.angular_velocity_rad_s,
+                        catalog_limiting_v_mag=req.catalog_limiting_v_mag if req.catalog_limiting_v_mag is not None else catalog_limiting_v_mag,
+                        visibility=req.visibility if req.visibility is not None else plan.visibility,
+                        sky=req.sky, **extra)
+    if req.cosmic_rays_per_frame is not None:
+        options = dataclasses.replace(options, cosmic_rays_per_frame=req.cosmic_rays_per_frame)
+    t1 = time.perf_counter()
+    frame = render(scene, seed=ss, rng=rng, options=options)
+    t2 = time.perf_counter()
+    truth = dict(frame.truth)
+    truth["dataset"] = {**req.meta, "master_seed": int(master_seed),
+                        "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
+    frame = dataclasses.replace(frame, truth=truth)
+    stem = layout.frame_stem(k)
+    paths = write_frame(frame, out / layout.FRAMES_DIR, stem, formats=tuple(formats))
+    rel = layout.frame_relpaths(k, formats)
+    files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
+    t3 = time.perf_counter()
+    ran = truth["render"]  # what ran, as the renderer records it
+    backends = {"sensor": ran["backend_used"] if options.noise else None, "mitsuba_variant": ran["mitsuba_variant"]}
+    return FrameResult(frame=int(k), files=files, index_row=layout.index_row(truth, k, files),
+                       draws=req.meta.get("draws"), timings_s={"sample": t1 - t0, "render": t2 - t1, "write": t3 - t2},
+                       backends=backends)
+
+
+def check_backends(res: FrameResult, recorded: dict) -> None:
+    """Refuse a frame rendered on another backend than the dataset records (one line).
+
+    Raises
+    ------
+    DatasetMismatchError
+        E.g. a Dask worker whose LLVM backend does not work made a frame with numpy noise.
+    """
+    for key, ran in res.backends.items():
+        want = recorded.get(key)
+        if ran is not None and want is not None and ran != want:
+            raise DatasetMismatchError(
+                f"frame {res.frame} ran with {key} {ran!r} but this dataset records {want!r}; "
+                f"the bits would differ: give every worker the same backend (render options backend='{want}')")
+
+
+def _produce_job(job):
+    blob, k, out_dir, master_seed, formats, mag, options = job
+    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
+                         render_options=options)
+
+
+def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
+    # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
+    # 1); size skynav's pools to that unless the cluster's environment says otherwise.
+    if "SKYNAV_THREADS" not in os.environ:
+        from distributed import get_worker
+
+        os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
+    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
+                         render_options=options)
+
+
+# ----------------------------------------------------------------------------- executors
+_THREAD_VARS = ("SKYNAV_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+class _worker_threads:
+    """Context: thread-count variables the spawned workers inherit (``cores // workers`` each).
+
+    Spawned children read their environment when they start (inside the ``with`` block, when the
+    pool submits); the parent's environment is restored on exit. Variables already set by the
+    user are kept.
+    """
+
+    def __init__(self, n_workers: int):
+        self.threads = max(1, (os.cpu_count() or 1) // max(1, n_workers))
+        self.set_here: list = []
+
+    def __enter__(self):
+        self.set_here = [name for name in _THREAD_VARS if name not in os.environ]
+        for name in self.set_here:
+            os.environ[name] = str(self.threads)
+        return self
+
+    def __exit__(self, *exc):
+        for name in self.set_here:
+            os.environ.pop(name, None)
+        return False
+
+
+def _jobs(plan):
+    """One argument tuple per frame to make; the sampler plan travels pickled once."""
+    blob = pickle.dumps(plan.sampler)
+    return blob, [(blob, k, plan.root, plan.master_seed, list(plan.formats), plan.catalog_limiting_v_mag, plan.render_options)
+                  for k in plan.todo]
+
+
+def run_in_process(plan, accept) -> tuple:
+    """Make the plan's frames here, in order. Returns ``(workers, executor name)``."""
+    _, jobs = _jobs(plan)
+    for j in jobs:
+        accept(_produce_job(j))
+    return 1, "in-process"
+
+
+def run_process_pool(plan, accept, n_workers: int) -> tuple:
+    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    _, jobs = _jobs(plan)
+    with _worker_threads(n_workers), \
+            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+        futs = [ex.submit(_produce_job, j) for j in jobs]
+        try:
+            for fut in as_completed(futs):
+                accept(fut.result())
+        except BaseException:
+            for f in futs:
+                f.cancel()
+            raise
+    return n_workers, "processes (spawn)"
+
+
+def run_dask(plan, accept, client) -> tuple:
+    """Make the plan's frames as Dask tasks on ``client``. Returns ``(workers, executor name)``."""
+    from distributed import as_completed
+
+    n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))
+    if plan.todo:
+        blob = pickle.dumps(plan.sampler)
+        blob_f = client.scatter(blob, broadcast=True)
+        futs = client.map(_produce_dask, list(plan.todo), blob=blob_f, out_dir=plan.root,
+                          master_seed=plan.master_seed, formats=list(plan.formats), mag=plan.catalog_limiting_v_mag,
+                          options=plan.render_options, pure=False)
+        for fut in as_completed(futs):
+            accept(fut.result())
+    return n_workers, "dask"
