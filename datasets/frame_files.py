@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
+
 from .errors import ConfigValueError, OutputFormatError
 
 __all__ = [
@@ -184,29 +186,6 @@ def _exr_channel(name, array, shape):
             raise OutputFormatError(f"EXR channel {name!r}: integer values must fit uint32 (0..4294967295)")
         return np.ascontiguousarray(a, dtype=np.uint32)
     raise OutputFormatError(f"EXR channel {name!r} has dtype {a.dtype}; expected float or unsigned integer")
-
-
-def thread_budget() -> int | None:
-    """``SKYNAV_THREADS`` as an int (threads this process may use), or None when unset.
-
-    The same reading as ``skynav.renderer.jit_backend.thread_budget``, kept here so that the
-    file side never imports the renderer (ARCHITECTURE.md "Never").
-
-    Raises
-    ------
-    ConfigValueError
-        The variable is not a whole number >= 1.
-    """
-    raw = os.environ.get("SKYNAV_THREADS", "").strip()
-    if not raw:
-        return None
-    try:
-        n = int(raw)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise ConfigValueError("SKYNAV_THREADS", raw, "a whole number of threads >= 1")
-    return n
 
 
 _exr_threads_set = False

@@ -47,6 +47,7 @@ from pathlib import Path
 
 from skynav.scenes.data_files import cache_dir
 from skynav.scenes.errors import SkynavError
+from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
 
 from .errors import BackendUnavailableError  # noqa: F401  (its home is renderer/errors.py; re-exported)
 
@@ -347,26 +348,6 @@ def configure_llvm() -> BackendStatus:
     if status.available:
         _apply_thread_count()
     return status
-
-
-def thread_budget() -> int | None:
-    """``SKYNAV_THREADS`` as an int (threads this process may use), or None when unset.
-
-    Raises
-    ------
-    SkynavError
-        The variable is not a whole number >= 1.
-    """
-    raw = os.environ.get("SKYNAV_THREADS", "").strip()
-    if not raw:
-        return None
-    try:
-        n = int(raw)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise SkynavError(f"SKYNAV_THREADS={raw!r}: expected a whole number of threads >= 1")
-    return n
 
 
 def _apply_thread_count() -> None:

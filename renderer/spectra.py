@@ -16,21 +16,18 @@ Data sources (installed packages only, nothing downloads):
   constant 1361 W m^-2 (IAU 2015 B3 nominal; Kopp & Lean 2011) within 0.3 %.
 * Blackbodies: colour-science ``planck_law``.
 
-The data files are read lazily (first call), from file objects, and cached.
+The data tables are read by :mod:`skynav.scenes.reference_spectra` (lazily, from file objects,
+cached): the renderer itself opens no file.
 """
 
 from __future__ import annotations
 
 import functools
-import importlib.util
-import io
-import os
 import warnings
 
 import numpy as np
 
 from skynav.scenes.constants import SOLAR_CONSTANT_W_M2
-from skynav.scenes.errors import DataFileError
 
 __all__ = [
     "WAVELENGTHS_NM",
@@ -65,86 +62,13 @@ VEGA_V_MAG = 0.03
 #: photon-counting detector with this energy response has a photon response ``S_E / lambda``.
 V_PASSBAND_RESPONSE = "energy"
 
-_FLAM_TO_W_M2_NM = 1e-7 / 1e-4 * 10.0  # erg s^-1 cm^-2 A^-1 -> W m^-2 nm^-1  (= 1e-2)
 
-
-# ------------------------------------------------------------------------------- data files
-def _pyphot_libs_dir() -> str:
-    """Folder of the data tables that the ``pyphot`` package installs (without importing it:
-    importing pyphot pulls pandas and h5py, which the renderer does not need)."""
-    spec = importlib.util.find_spec("pyphot")
-    if spec is None or not spec.submodule_search_locations:
-        raise DataFileError("the 'pyphot' package is not installed; it ships the Vega, Sun and Johnson V tables (pip install pyphot)")
-    path = os.path.join(list(spec.submodule_search_locations)[0], "libs")
-    if not os.path.isdir(path):
-        raise DataFileError(f"pyphot's data folder {path} is missing; reinstall 'pyphot'")
-    return path
-
-
-def _open_lib(name: str):
-    path = os.path.join(_pyphot_libs_dir(), name)
-    if not os.path.isfile(path):
-        raise DataFileError(f"{name} not found at {path}; reinstall 'pyphot'")
-    return open(path, "rb")
-
-
-def read_calspec(fobj) -> tuple[np.ndarray, np.ndarray]:
-    """Read a CALSPEC FITS table (``WAVELENGTH`` in Angstrom, ``FLUX`` in FLAM).
-
-    Parameters
-    ----------
-    fobj : binary file object
-
-    Returns
-    -------
-    wavelength_nm : ndarray, shape (M,), nm
-    flux_w_m2_nm : ndarray, shape (M,), W m^-2 nm^-1
-    """
-    from astropy.io import fits
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # CALSPEC headers carry float TNULLn: harmless VerifyWarning
-        with fits.open(io.BytesIO(fobj.read())) as hdul:
-            data = hdul[1].data
-            wl = np.asarray(data["WAVELENGTH"], dtype=float) / 10.0
-            fl = np.asarray(data["FLUX"], dtype=float) * _FLAM_TO_W_M2_NM
-    good = np.isfinite(fl) & (fl >= 0)
-    return wl[good], fl[good]
-
-
-def read_synphot_csv(fobj) -> tuple[np.ndarray, np.ndarray]:
-    """Read a pyphot ASCII filter table (``WAVELENGTH`` in Angstrom, ``THROUGHPUT``).
-
-    Returns
-    -------
-    wavelength_nm : ndarray, shape (M,), nm
-    throughput : ndarray, shape (M,), dimensionless
-    """
-    text = fobj.read().decode("ascii")
-    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#") and not ln.startswith("WAVELENGTH")]
-    arr = np.array([[float(v) for v in ln.split(",")] for ln in rows])
-    return arr[:, 0] / 10.0, arr[:, 1]
-
-
-@functools.lru_cache(maxsize=None)
-def _vega_table():
-    with _open_lib("alpha_lyr_stis_011.fits") as f:
-        return read_calspec(f)
-
-
-@functools.lru_cache(maxsize=None)
-def _sun_table():
-    with _open_lib("sun_reference_stis_001.fits") as f:
-        return read_calspec(f)
-
-
-@functools.lru_cache(maxsize=None)
-def _v_table():
-    with _open_lib(os.path.join("ascii_sources", "ground_johnson_v.csv")) as f:
-        wl, t = read_synphot_csv(f)
-    order = np.argsort(wl)
-    wl, t = wl[order], np.clip(t[order], 0.0, None)
-    return wl, t / t.max()
+# ------------------------------------------------------------------------------- data tables
+# Read by the scenes adapter (skynav.scenes.reference_spectra): the renderer does no file I/O.
+from skynav.scenes.reference_spectra import read_calspec, read_synphot_csv  # noqa: E402,F401  (re-exported)
+from skynav.scenes.reference_spectra import johnson_v_table as _v_table  # noqa: E402
+from skynav.scenes.reference_spectra import sun_table as _sun_table  # noqa: E402
+from skynav.scenes.reference_spectra import vega_table as _vega_table  # noqa: E402
 
 
 def _interp0(wl, x, y):

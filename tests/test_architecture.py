@@ -29,8 +29,6 @@ FILE_FORMAT_LIBRARIES = ("PIL", "OpenEXR", "Imath", "imageio", "tifffile", "h5py
 # Known file access inside the renderer that is not frame I/O, each with its reason. The test fails
 # if an entry is no longer needed, so the list cannot go stale.
 RENDERER_FILE_ACCESS_ALLOWED = {
-    ("renderer/spectra.py", "import astropy.io.fits"):
-        "reads pyphot's CALSPEC reference spectra (input data tables, not frame files)",
     ("renderer/jit_backend.py", "call json.dump"): "the LLVM probe cache (one JSON in the user cache folder)",
     ("renderer/jit_backend.py", "call tempfile.mkstemp"): "the probe cache's atomic write",
     ("renderer/jit_backend.py", "call os.fdopen"): "the probe cache's atomic write",

@@ -14,6 +14,23 @@ from skynav.scenes.camera import paper_camera
 from skynav.scenes.scene import BodyInView, Scene, StarsInView
 
 
+def llvm_or_skip():
+    """Skip the calling test, with the probe's reason, when Dr.Jit's LLVM backend does not work."""
+    from skynav.renderer import jit_backend
+
+    status = jit_backend.configure_llvm()
+    if not status.available:
+        pytest.skip(f"Dr.Jit LLVM backend unavailable: {status.reason}")
+
+
+@pytest.fixture(params=["numpy", "llvm"])
+def backend(request):
+    """Each sensor backend in turn (``"llvm"`` skips with a reason where it does not work)."""
+    if request.param == "llvm":
+        llvm_or_skip()
+    return request.param
+
+
 @pytest.fixture(scope="session")
 def mitsuba_variant():
     """The Mitsuba variant the backend selects here (llvm_ad_spectral when a libLLVM >= 19 passes

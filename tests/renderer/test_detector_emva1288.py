@@ -15,22 +15,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from skynav.renderer import jit_backend
+from tests.renderer.conftest import llvm_or_skip
 from skynav.renderer.detector import Sensor, SensorInputError, bloom_columns, fixed_patterns
 from skynav.scenes.camera import SensorParams
 
-
-def _llvm_or_skip():
-    status = jit_backend.configure_llvm()
-    if not status.available:
-        pytest.skip(f"Dr.Jit LLVM backend unavailable: {status.reason}")
-
-
-@pytest.fixture(params=["numpy", "llvm"])
-def backend(request):
-    if request.param == "llvm":
-        _llvm_or_skip()
-    return request.param
 
 
 # 16 bit and K < 1 DN/e-, so the ADC quantisation (1/12 DN^2) is negligible next to the
@@ -167,7 +155,7 @@ def test_shot_noise_against_scipy_poisson_pmf(backend, lam):
 
 
 def test_numpy_and_llvm_statistics_agree():
-    _llvm_or_skip()
+    llvm_or_skip()
     # two-sample chi-square homogeneity test on DN histograms of the full chain at several levels
     params = dataclasses.replace(PTC, gain_dn_per_e=0.25, read_noise_e=2.0, reset_noise_e=1.0)
     s = Sensor(params, (128, 128))

@@ -30,21 +30,10 @@ import pytest
 from scipy import stats
 
 from skynav.renderer import jit_backend
+from tests.renderer.conftest import llvm_or_skip
 from skynav.renderer.detector import Sensor
 from skynav.scenes.camera import SensorParams
 
-
-def _llvm_or_skip():
-    status = jit_backend.configure_llvm()
-    if not status.available:
-        pytest.skip(f"Dr.Jit LLVM backend unavailable: {status.reason}")
-
-
-@pytest.fixture(params=["numpy", "llvm"])
-def backend(request):
-    if request.param == "llvm":
-        _llvm_or_skip()
-    return request.param
 
 
 # The flat field of the defect report: gain 0.8 DN/e-, 1000 e- per pixel; 16 bit, offset and
@@ -186,7 +175,7 @@ def test_same_generator_state_gives_identical_dn(backend):
 def test_llvm_path_draws_two_words_from_the_generator():
     # The frame key is two 64-bit words, as before the per-pixel streams were hashed: what a
     # caller draws after the sensor does not move.
-    _llvm_or_skip()
+    llvm_or_skip()
     used = np.random.default_rng(5)
     Sensor(FLAT, (16, 16)).expose(np.full((16, 16), 100.0), EXPOSURE_S, used, backend="llvm")
     ref = np.random.default_rng(5)

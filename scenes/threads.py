@@ -1,0 +1,35 @@
+"""The process's thread budget: ``SKYNAV_THREADS``, read in one place.
+
+Both the renderer (the size of Dr.Jit's CPU pool) and the datasets side (OpenEXR's pool) size
+their pools from it; it lives in ``scenes`` because both rooms may import ``scenes`` and neither
+may make the other load (ARCHITECTURE.md "Never": reading a dataset loads no renderer code). The
+dataset runner sets it to ``cores // workers`` in its worker processes.
+"""
+
+from __future__ import annotations
+
+import os
+
+from .errors import ConfigValueError
+
+ENV_VAR = "SKYNAV_THREADS"
+
+
+def thread_budget() -> int | None:
+    """``SKYNAV_THREADS`` as an int (threads this process may use), or None when unset.
+
+    Raises
+    ------
+    ConfigValueError
+        The variable is not a whole number >= 1.
+    """
+    raw = os.environ.get(ENV_VAR, "").strip()
+    if not raw:
+        return None
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigValueError(ENV_VAR, raw, "a whole number of threads >= 1")
+    return n
