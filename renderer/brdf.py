@@ -122,8 +122,13 @@ class BRDF:
         return cls(kind=kind, reflectance_550=float(geometric_albedo) / sphere_geometric_albedo(unit), **kw)
 
 
+@functools.lru_cache(maxsize=64)
 def default_brdf(body_name: str, kind: str | None = None) -> BRDF:
-    """The law of a body (``kind`` or the body's default) scaled to its geometric albedo."""
+    """The law of a body (``kind`` or the body's default) scaled to its geometric albedo.
+
+    Cached: the albedo normalisation is a quadrature, and every unresolved body of every frame
+    asks for it (a frozen BRDF is an immutable value, so sharing it is safe).
+    """
     key = str(body_name).strip().lower().split()[0] if str(body_name).strip() else ""
     k = kind or _DEFAULT_KIND.get(key, "lambert")
     return BRDF.for_geometric_albedo(k, GEOMETRIC_ALBEDO_V.get(key, DEFAULT_GEOMETRIC_ALBEDO))
@@ -218,9 +223,17 @@ def far_field_disk(brdf: BRDF, phase_angle_rad: float, *, n: int = 400) -> tuple
     return total, float((lum * X).sum() / total) if total > 0 else 0.0
 
 
+@functools.lru_cache(maxsize=4)
+def _gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(n)
+    x.flags.writeable = False
+    w.flags.writeable = False
+    return x, w
+
+
 def sphere_geometric_albedo(brdf: BRDF) -> float:
     """Geometric albedo of a sphere with this law: ``2 pi integral_0^1 f(mu, mu, 1) mu^2 dmu``."""
-    x, w = np.polynomial.legendre.leggauss(64)
+    x, w = _gauss_legendre(64)
     m = 0.5 * (x + 1.0)
     return float(2.0 * math.pi * np.sum(0.5 * w * brdf_value(brdf, m, m, 1.0) * m * m))
 
