@@ -21,6 +21,7 @@ FRAME_STATUSES = (
     "no_stars",      # fewer than 3 spots after thresholding (black, pure noise at high T, ...)
     "too_many_spots",  # the spot list is not a star field (hot pixels, noise, saturated frame)
     "id_failed",     # spots found but no star pattern verified (no wrong attitude reported)
+    "saturated",     # most of the frame at the sensor maximum (blinded)
     "bad_image",     # the image cannot be processed (wrong shape, empty, not finite)
 )
 
