@@ -51,5 +51,7 @@ def attitude_covariance(b_cam, sigma_rad) -> np.ndarray:
 
 def rotation_angle_rad(A, B) -> float:
     """Angle of the rotation ``A B^T``, rad (the attitude error between two DCMs)."""
-    c = (np.trace(np.asarray(A) @ np.asarray(B).T) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    M = np.asarray(A, dtype=float) @ np.asarray(B, dtype=float).T
+    c = (np.trace(M) - 1.0) / 2.0
+    s = 0.5 * np.linalg.norm([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+    return float(np.arctan2(s, c))  # atan2: accurate at small angles, where arccos(trace) is not

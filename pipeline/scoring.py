@@ -186,7 +186,11 @@ def score_frame(result, truth, sigma_km):
                 d = b.xy_px - xy
                 beacons.append((name, "correct" if e <= BEACON_WRONG_PX else "wrong", e, d))
         elif b is not None and b.xy_px is not None:
-            beacons.append((name, "wrong", float("nan"), None))  # reported a body that is not visible
+            # a body the mission rule calls invisible (V > limit, inside the Sun exclusion) but
+            # rendered in the field: found where it is, it is not scored; found elsewhere, wrong
+            e = float(np.hypot(*(b.xy_px - xy))) if in_fov and np.all(np.isfinite(xy)) else float("inf")
+            if not e <= BEACON_WRONG_PX:
+                beacons.append((name, "wrong", float("nan"), None))
     return {"status": result.status, "attitude": outcome, "error_arcsec": err, "n_stars": result.attitude.n_stars,
             "n_spots": len(result.centroids_xy_px), "method": result.star_id_method,
             "time_ms": float(result.timings_ms.get("total", float("nan"))),
