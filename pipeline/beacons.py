@@ -115,7 +115,7 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         if vc[2] <= 0:
             continue
         xy = camera.project(vc[None])[0]
-        if not camera.in_image(xy[None], margin_px)[0]:
+        if not np.all(np.isfinite(xy)) or not camera.in_image(xy[None], max(margin_px, camera.width))[0]:
             continue
         # Jacobian at the apparent point: put the body along u at its distance
         dist = np.linalg.norm(p - r)
@@ -141,6 +141,10 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             vm = float(planet_v_mag(name, np.linalg.norm(p - sun), dist, phase_angle_rad(p, sun, r)))
         except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
             vm = float("nan")
+        # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
+        reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(P)[-1], 0.0)))
+        if not camera.in_image(xy[None], margin_px + (reach if mode == "improved" else 0.0))[0]:
+            continue
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist})
     return out
 

@@ -145,6 +145,17 @@ class OnboardCatalog:
                     os.unlink(tmp)
         return cat
 
+    def deep_stars(self, deep_v_mag: float = 9.0):
+        """The full Hipparcos catalog to ``deep_v_mag`` (loaded once per process, cached on the
+        object): the improved beacon mode uses it to tell faint stars from beacons."""
+        cache = self.__dict__.setdefault("_deep", {})
+        if deep_v_mag not in cache:
+            from skynav.scenes.catalog_hipparcos import load_catalog
+
+            full = load_catalog()
+            cache[deep_v_mag] = full.subset(np.flatnonzero(full.v_mag < deep_v_mag))
+        return cache[deep_v_mag]
+
     # ------------------------------------------------------------------ queries
     def pairs_in_range(self, lo_rad: float, hi_rad: float):
         """(I, J) star indices of every pair whose angle is in ``[lo_rad, hi_rad]``."""

@@ -51,6 +51,7 @@ class ProcessOptions:
     saturated_fraction: float = 0.5     # more saturated pixels than this: "saturated"
     sigma_qv: float = 1e-4              # paper Eq. 22
     mag_sigma: float = 1.0              # improved beacon brightness prior, mag
+    deep_star_radius_px: float = 1.5    # improved: spots this close to a deep-catalog star are stars
     seed: int = 0                       # paper RANSAC draws
 
 
@@ -238,6 +239,19 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     n = len(spots)
     candidate = np.ones(n, dtype=bool)
     candidate[match.spot_index] = False  # spots matched to catalog stars are not beacons
+    if mode == "improved" and n:
+        # ... nor spots on fainter catalog stars (the deep catalog, V < deep_v_mag), predicted
+        # with the solved attitude: the field's faint stars are the usual wrong beacons
+        deep = catalog.deep_stars()
+        idx = deep.cone(A[2], cam.half_diagonal_fov_rad, margin_rad=2e-3)
+        u = deep.u_icrs[idx]
+        xy = cam.project(u @ A.T)
+        ok = np.all(np.isfinite(xy), axis=1)
+        if ok.any():
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(xy[ok]).query(spots.xy_px, distance_upper_bound=opt.deep_star_radius_px)
+            candidate &= ~np.isfinite(d)
     spot_mag = None
     if mode == "improved" and n:
         # photometric zero point from the matched, unsaturated stars: m = zp - 2.5 log10(flux)
@@ -249,9 +263,14 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
             spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn, 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
         spot_mag = np.where(spots.saturated, np.nan, spot_mag)
+    if mode == "improved":
+        chosen = _assign_beacons(preds, spots.xy_px, candidate, spot_mag, opt.mag_sigma)
     out = []
-    for p in preds:
-        k = select_spot(p, spots.xy_px, candidate, mode=mode, spot_mag=spot_mag, mag_sigma=opt.mag_sigma)
+    for i, p in enumerate(preds):
+        if mode == "improved":
+            k = chosen[i]
+        else:
+            k = select_spot(p, spots.xy_px, candidate, mode=mode, spot_mag=spot_mag, mag_sigma=opt.mag_sigma)
         if k is None:
             out.append(BeaconResult(name=p["name"], xy_px=None, predicted_xy_px=p["xy_px"], predicted_cov_px2=p["cov_px2"],
                                     status="not_found"))
@@ -260,3 +279,42 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
             out.append(BeaconResult(name=p["name"], xy_px=spots.xy_px[k].copy(), predicted_xy_px=p["xy_px"],
                                     predicted_cov_px2=p["cov_px2"], status="found"))
     return tuple(out)
+
+
+def _assign_beacons(preds, spots_xy, candidate, spot_mag, mag_sigma):
+    """Improved mode: one spot per beacon and one beacon per spot, jointly (a beacon with a huge
+    ellipse must not take the spot of one with a small ellipse, as the paper's one-at-a-time
+    closest-spike rule lets it). Cost of beacon i on spot j inside its 3-sigma ellipse:
+    ``m2_ij + ((m_j - m_pred_i) / mag_sigma)^2``; "not found" costs the ellipse's edge plus a
+    3-sigma brightness mismatch, so any spot inside the ellipse is preferred over none."""
+    from scipy.optimize import linear_sum_assignment
+
+    from .beacons import CHI2_2DOF_3SIGMA
+
+    nb = len(preds)
+    cand = np.flatnonzero(candidate)
+    if nb == 0:
+        return []
+    BIG = 1e9
+    cost = np.full((nb, len(cand) + nb), BIG)
+    for i, p in enumerate(preds):
+        cost[i, len(cand) + i] = CHI2_2DOF_3SIGMA + 9.0
+        if len(cand) == 0:
+            continue
+        d = spots_xy[cand] - p["xy_px"][None]
+        try:
+            Pinv = np.linalg.inv(p["cov_px2"])
+        except np.linalg.LinAlgError:
+            continue
+        m2 = np.einsum("ni,ij,nj->n", d, Pinv, d)
+        c = m2.copy()
+        if spot_mag is not None and np.isfinite(p["v_mag"]):
+            dm = spot_mag[cand] - p["v_mag"]
+            c = c + np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2
+        cost[i, :len(cand)] = np.where(m2 <= CHI2_2DOF_3SIGMA, c, BIG)
+    rows, cols = linear_sum_assignment(cost)
+    chosen = [None] * nb
+    for i, j in zip(rows, cols):
+        if j < len(cand) and cost[i, j] < BIG:
+            chosen[i] = int(cand[j])
+    return chosen
