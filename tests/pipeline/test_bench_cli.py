@@ -67,3 +67,21 @@ def test_not_a_dataset_and_missing_keys(frame_folder, tmp_path, capsys):
     assert main(["bench", "ip", str(bad), "-q", "-o", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "attitude.R_cam_icrs" in err
+
+
+@pytest.mark.slow
+def test_report_html_in_headless_chromium(frame_folder, tmp_path):
+    """issue 13: report.html loads in a real browser with no console errors and shows the plots."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "check_report_html", Path(__file__).resolve().parents[2] / "benchmarks" / "check_report_html.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    if mod.chromium() is None:
+        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
+    out = tmp_path / "rep"
+    assert main(["bench", "ip", str(frame_folder), "--position-sigma-km", "1e4", "-q", "-o", str(out)]) == 0
+    ok, msg = mod.check(out / "report.html", tmp_path / "shot.png")
+    assert ok, msg
