@@ -108,7 +108,18 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     K = camera.K
     sun = eph.position("sun", epoch_tdb_s)
     out = []
+    boresight = A[2]
+    cos_reach = camera.half_diagonal_fov_rad
+    sig_r = float(np.sqrt(max(np.trace(Pr), 0.0)))
     for name in bodies:
+        # cheap rejection first: the geometric direction far outside the field (plus 3 sigma of
+        # the position error seen from the body's distance, plus light-time and aberration slack)
+        pos = eph.position(name, epoch_tdb_s)
+        rho = pos - r
+        dist0 = float(np.linalg.norm(rho))
+        slack = 3.0 * sig_r / dist0 + 1e-3
+        if rho @ boresight < dist0 * np.cos(min(cos_reach + slack, np.pi)):
+            continue
         pos, vel = eph.position_velocity(name, epoch_tdb_s)
         u, p = apparent_direction(r, v, pos, vel)
         vc = A @ u

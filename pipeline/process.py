@@ -220,12 +220,12 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
 def _detect_robust(img, *, T, max_dn, max_regions):
     """Improved threshold: median + T x robust sigma (1.4826 MAD, floored at 0.5 DN for 8-bit
     frames whose dark background is one or two DN), so a resolved body does not lift it."""
-    sub = np.asarray(img[::4, ::4], dtype=np.float32)
+    sub = np.asarray(img[::8, ::8], dtype=np.float32)
     med = float(np.median(sub))
     mad = float(np.median(np.abs(sub - med))) * 1.4826
     sd = max(mad, float(np.std(sub[sub <= med + 5 * max(mad, 0.5)])), 0.5)
     return detect_spots(img, T=T, max_dn=max_dn, max_regions=max_regions, background="median",
-                        threshold_dn=med + T * sd, stats_stride=4)
+                        threshold_dn=med + T * sd, stats_stride=8)
 
 
 def _beacons_without_attitude(observation, predicted_state):

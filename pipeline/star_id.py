@@ -83,7 +83,7 @@ def lost_in_space(b_cam, cat, *, eps_rad, rel_eps=2.5e-4, n_max=12, top_k=3, max
     # each catalog pair votes for both its stars at both its spots (reference-star method)
     flat = np.concatenate([a_spot * ncat + I, a_spot * ncat + J, b_spot * ncat + I, b_spot * ncat + J])
     votes = np.bincount(flat, minlength=n * ncat).reshape(n, ncat)
-    top = np.argsort(-votes, axis=1)[:, :top_k]
+    top = np.argpartition(-votes, top_k, axis=1)[:, :top_k]
     hyp_spot = np.repeat(np.arange(n), top_k)
     hyp_star = top.ravel()
     hyp_votes = votes[hyp_spot, hyp_star]
