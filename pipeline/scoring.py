@@ -198,7 +198,7 @@ def score_frame(result, truth, sigma_km):
 
 
 def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0, progress=True, limit=None,
-                  catalog=None):
+                  catalog=None, peers=False):
     """Process every frame at every sigma; rows of results and the frame count.
 
     Each (frame, sigma) draws its predicted state from ``SeedSequence([seed, frame, i_sigma])``.
@@ -210,6 +210,18 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     first = src.observation(0)
     cat = catalog if catalog is not None else OnboardCatalog.load(camera=first.camera)
     rows = []
+    peer_rows = {}
+    peer_notes = {}
+    peer_objs = {}
+    if peers:
+        from .scoring_peers import available_peers
+
+        for name, p in available_peers().items():
+            if isinstance(p, str):
+                peer_notes[name] = p
+            else:
+                peer_objs[name] = p(first.camera)
+                peer_rows[name] = []
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -219,6 +231,11 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     for k in range(n):
         obs = first if k == 0 else src.observation(k)
         truth = src.truth(k)
+        for name, peer in peer_objs.items():
+            R, ms = peer.solve(obs.dn, _predicted_state(truth, float(sigmas_km[0]),
+                                                        np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
+            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC if R is not None else float("nan")
+            peer_rows[name].append({"frame": k, "solved": R is not None, "error_arcsec": err, "time_ms": ms})
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
             ps = _predicted_state(truth, float(s), rng)
@@ -231,7 +248,28 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     if bar is not None:
         bar.close()
     return rows, {"frames": n, "wall_s": time.perf_counter() - t0, "catalog": repr(cat),
-                  "kvector_build_s": cat.build_time_s}
+                  "kvector_build_s": cat.build_time_s, "peer_rows": peer_rows, "peer_notes": peer_notes}
+
+
+def summarise_peers(peer_rows, our_rows, sigma0):
+    """``peers.<name>.{solved_rate, error_arcsec_median, time_ms_median}`` plus our numbers on the
+    same frames (side by side)."""
+    out = {}
+    ours = {r["frame"]: r for r in our_rows if r["sigma_km"] == float(sigma0)}
+    for name, rows in peer_rows.items():
+        n = len(rows)
+        e = np.array([r["error_arcsec"] for r in rows if r["solved"]])
+        out[name] = {"solved_rate": _rate(sum(r["solved"] for r in rows), n),
+                     "wrong_rate": _rate(int(np.sum(e > WRONG_ATTITUDE_ARCSEC)), n),
+                     "error_arcsec_median": float(np.median(e)) if len(e) else float("nan"),
+                     "time_ms_median": float(np.median([r["time_ms"] for r in rows])) if n else float("nan")}
+        both = [(r["error_arcsec"], ours[r["frame"]]["error_arcsec"]) for r in rows
+                if r["solved"] and ours.get(r["frame"], {}).get("attitude") == "correct"]
+        if both:
+            b = np.array(both)
+            out[name]["both_solved_frames"] = len(b)
+            out[name]["both_solved_error_arcsec_median"] = {"peer": float(np.median(b[:, 0])), "ours": float(np.median(b[:, 1]))}
+    return out
 
 
 def _rate(x, n):

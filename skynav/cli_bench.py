@@ -14,7 +14,7 @@ SUBCOMMAND_MODULES = ("skynav.cli_bench_nav",)
 
 def cmd_ip(args) -> int:
     from skynav.pipeline.errors import BenchInputError
-    from skynav.pipeline.scoring import run_benchmark, summarise
+    from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
     from skynav.pipeline.scoring_report import write_report
 
     if args.mode not in ("paper", "improved"):
@@ -23,11 +23,21 @@ def cmd_ip(args) -> int:
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
     sigmas = tuple(float(s) for s in args.position_sigma_km)
     rows, info = run_benchmark(args.dir, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
-                               limit=args.limit)
-    if args.peers:
-        info["peers_note"] = ("--peers: tetra3rs and cedar-solve are not installed here (no offline package); "
-                              "peers were not run.")
+                               limit=args.limit, peers=args.peers)
     summary = summarise(rows, frames=info["frames"], sigmas_km=sigmas)
+    peer_rows = info.pop("peer_rows")
+    notes = info.pop("peer_notes")
+    if args.peers:
+        summary["peers"] = summarise_peers(peer_rows, rows, sigmas[0])
+        lines = [f"- {name}: solved {100 * p['solved_rate']:.2f} %, wrong {100 * p['wrong_rate']:.2f} %, median "
+                 f"{p['error_arcsec_median']:.2f} arcsec, {p['time_ms_median']:.1f} ms per frame"
+                 + (f"; on the {p['both_solved_frames']} frames both solve: peer {p['both_solved_error_arcsec_median']['peer']:.2f}"
+                    f" vs ours {p['both_solved_error_arcsec_median']['ours']:.2f} arcsec median" if "both_solved_frames" in p else "")
+                 for name, p in summary["peers"].items()]
+        lines += [f"- {name}: not run ({why})" for name, why in notes.items()]
+        info["peers_note"] = "\n".join(lines)
+        for line in lines:
+            print(line)
     out = write_report(args.output, rows, summary, sigmas_km=sigmas, mode=args.mode, seed=args.seed, source=args.dir,
                        info=info)
     a = summary["attitude"]

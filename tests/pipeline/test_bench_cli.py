@@ -85,3 +85,12 @@ def test_report_html_in_headless_chromium(frame_folder, tmp_path):
     assert main(["bench", "ip", str(frame_folder), "--position-sigma-km", "1e4", "-q", "-o", str(out)]) == 0
     ok, msg = mod.check(out / "report.html", tmp_path / "shot.png")
     assert ok, msg
+
+
+def test_peers_side_by_side(frame_folder, tmp_path):
+    pytest.importorskip("tetra3rs")
+    out = tmp_path / "rep"
+    assert main(["bench", "ip", str(frame_folder), "--position-sigma-km", "1e4", "--peers", "-q", "-o", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert set(s["peers"]["tetra3rs"]) >= {"solved_rate", "error_arcsec_median", "time_ms_median"}
+    assert "cedar-solve" in (out / "report.md").read_text()
