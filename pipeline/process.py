@@ -52,6 +52,7 @@ class ProcessOptions:
     sigma_qv: float = 1e-4              # paper Eq. 22
     mag_sigma: float = 1.0              # improved beacon brightness prior, mag
     deep_star_radius_px: float = 1.5    # improved: spots this close to a deep-catalog star are stars
+    blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
     seed: int = 0                       # paper RANSAC draws
 
 
@@ -264,6 +265,20 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
         spot_mag = np.where(spots.saturated, np.nan, spot_mag)
     if mode == "improved":
+        # blends: two beacons predicted within a few pixels (the Earth and the Moon) make one spot
+        # whose centroid lies between them; widen both gates by half the separation, and predict
+        # the blend's total brightness
+        for i in range(len(preds)):
+            for j in range(i + 1, len(preds)):
+                sep = float(np.hypot(*(preds[i]["xy_px"] - preds[j]["xy_px"])))
+                if sep < opt.blend_px:
+                    for a in (i, j):
+                        preds[a] = dict(preds[a], cov_px2=preds[a]["cov_px2"] + np.eye(2) * (0.5 * sep) ** 2)
+                    mi, mj = preds[i]["v_mag"], preds[j]["v_mag"]
+                    if np.isfinite(mi) and np.isfinite(mj):
+                        m = -2.5 * np.log10(10 ** (-0.4 * mi) + 10 ** (-0.4 * mj))
+                        preds[i] = dict(preds[i], v_mag=m)
+                        preds[j] = dict(preds[j], v_mag=m)
         chosen = _assign_beacons(preds, spots.xy_px, candidate, spot_mag, opt.mag_sigma)
     out = []
     for i, p in enumerate(preds):
