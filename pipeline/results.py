@@ -25,9 +25,10 @@ FRAME_STATUSES = (
     "bad_image",     # the image cannot be processed (wrong shape, empty, not finite)
 )
 
-#: Outcome of one beacon: "found" (a spot inside the 3-sigma ellipse), "not_found" (none inside),
-#: "outside_fov" (predicted outside the image), "no_attitude" (frame had no attitude).
-BEACON_STATUSES = ("found", "not_found", "outside_fov", "no_attitude")
+#: Outcome of one beacon: "found" (a spot inside the 3-sigma ellipse), "not_found" (none inside).
+#: Only beacons predicted in the field (improved: or whose ellipse reaches it) are listed; a frame
+#: without an attitude lists none (``beacons == ()``), since nothing can be projected.
+BEACON_STATUSES = ("found", "not_found")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
