@@ -52,6 +52,9 @@ class ProcessOptions:
     sigma_qv: float = 1e-4              # paper Eq. 22
     mag_sigma: float = 1.0              # improved beacon brightness prior, mag
     deep_star_radius_px: float = 1.5    # improved: spots this close to a deep-catalog star are stars
+    refine_v_mag: float = 7.5           # improved: catalog depth of the final attitude (5.5: off)
+    refine_px: float = 1.5              # improved: association radius of the final attitude, px
+    refine_max_spots: int = 400         # improved: brightest spots offered to the final association
     blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
     seed: int = 0                       # paper RANSAC draws
 
@@ -115,11 +118,12 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     stars = catalog.stars
     t_epoch = observation.epoch_tdb_s
 
-    def star_dirs(boresight, radius):
-        idx = stars.cone(boresight, radius, margin_rad=2e-3)
+    def star_dirs(boresight, radius, source=None):
+        src = stars if source is None else source
+        idx = src.cone(boresight, radius, margin_rad=2e-3)
         if mode == "paper":
             return idx, catalog.u_icrs[idx]
-        u = stars.directions(idx, t_epoch, r_km)
+        u = src.directions(idx, t_epoch, r_km)
         if aberr:
             beta = v_km_s / C_KM_S
             u = u + beta - (u @ beta)[:, None] * u
@@ -195,6 +199,20 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
 
     # ------------------------------------------------------------------ attitude + covariance
     ta0 = time.perf_counter()
+    ref_hip, ref_vmag = np.asarray(catalog.hip), catalog.v_mag
+    if mode == "improved" and opt.refine_v_mag > catalog.limiting_v_mag:
+        # the final attitude from every catalog star to refine_v_mag that the identified attitude
+        # predicts next to a spot (mutual nearest within 1.5 px): ~5x the stars of the ID catalog
+        deep = catalog.deep_stars(opt.refine_v_mag)
+        bright = np.argsort(-spots.flux_dn, kind="stable")[:opt.refine_max_spots]
+        m2 = refine(match.R_cam_icrs, b[bright], lambda c, r: star_dirs(c, r, deep), half_fov_rad=half_fov,
+                    tol_rad=opt.refine_px * ifov, iterations=1)
+        if m2 is not None and len(m2.spot_index) >= len(match.spot_index):
+            from .star_id import StarMatch
+
+            match = StarMatch(R_cam_icrs=m2.R_cam_icrs, spot_index=bright[m2.spot_index], star_index=m2.star_index,
+                              residual_rad=m2.residual_rad)
+            ref_hip, ref_vmag = np.asarray(deep.hip), np.asarray(deep.v_mag)
     A = match.R_cam_icrs
     bm = cam.line_of_sight(spots.xy_px[match.spot_index])
     n_st = len(match.spot_index)
@@ -209,10 +227,11 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     tb0 = time.perf_counter()
     beacons = ()
     if predicted_state is not None:
-        beacons = _identify_beacons(observation, predicted_state, A, P, spots, match, catalog, mode, opt, ephemeris)
+        beacons = _identify_beacons(observation, predicted_state, A, P, spots, match, catalog, mode, opt, ephemeris,
+                                    ref_vmag)
     timings["beacons"] = (time.perf_counter() - tb0) * 1e3
     timings["total"] = (time.perf_counter() - t0) * 1e3
-    star_ids = np.asarray(catalog.hip)[match.star_index]
+    star_ids = ref_hip[match.star_index]
     return FrameResult(status="ok", attitude=att, centroids_xy_px=spots.xy_px, beacons=beacons, timings_ms=timings,
                        mode=mode, star_id_method=method, matched_star_ids=star_ids,
                        matched_spot_index=np.asarray(match.spot_index))
@@ -233,7 +252,7 @@ def _beacons_without_attitude(observation, predicted_state):
     return ()
 
 
-def _identify_beacons(observation, predicted_state, A, P_att, spots, match, catalog, mode, opt, ephemeris):
+def _identify_beacons(observation, predicted_state, A, P_att, spots, match, catalog, mode, opt, ephemeris, ref_vmag):
     cam = observation.camera
     preds = predict_beacons(observation.epoch_tdb_s, predicted_state, A, cam, attitude_cov_rad2=P_att, mode=mode,
                             sigma_qv=opt.sigma_qv, ephemeris=ephemeris)
@@ -258,7 +277,7 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         # photometric zero point from the matched, unsaturated stars: m = zp - 2.5 log10(flux)
         ms = match.spot_index
         good = (~spots.saturated[ms]) & (spots.flux_dn[ms] > 0)
-        vm = catalog.v_mag[match.star_index]
+        vm = np.asarray(ref_vmag)[match.star_index]
         with np.errstate(divide="ignore"):
             zp = np.median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
             spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn, 1e-9))
