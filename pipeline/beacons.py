@@ -20,7 +20,7 @@ __all__ = ["dcm_from_quat", "quat_from_dcm", "project_beacon", "projection_jacob
            "CHI2_2DOF_3SIGMA", "BEACON_BODIES"]
 
 CHI2_2DOF_3SIGMA = 11.8292
-C_KM_S = 299792.458
+from skynav.scenes.constants import C_KM_S  # noqa: E402
 BEACON_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
 
 

@@ -32,7 +32,7 @@ BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
 ARCSEC = np.pi / 180.0 / 3600.0
-J2000_JD = 2451545.0
+from skynav.scenes.constants import J2000_JD, SECONDS_PER_DAY  # noqa: E402
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -118,7 +118,7 @@ class _FolderSource:
                      sensor=SensorParams(bit_depth=int(c["bit_depth"])))
         dn = np.ascontiguousarray(dn)
         dn.setflags(write=False)
-        return Observation(index=k, dn=dn, epoch_tdb_s=(float(d["epoch"]["jd_tdb"]) - J2000_JD) * 86400.0,
+        return Observation(index=k, dn=dn, epoch_tdb_s=(float(d["epoch"]["jd_tdb"]) - J2000_JD) * SECONDS_PER_DAY,
                            exposure_s=cam.exposure_s, camera=cam)
 
     def truth(self, k):

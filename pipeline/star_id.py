@@ -18,7 +18,7 @@ from .attitude import wahba_svd
 
 __all__ = ["StarMatch", "lost_in_space", "associate", "refine", "C_KM_S"]
 
-C_KM_S = 299792.458
+from skynav.scenes.constants import C_KM_S  # noqa: E402
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
