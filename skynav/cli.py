@@ -145,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
         cli_dataset.add_parser(sub)
     except ImportError:  # pragma: no cover - datasets command not available in this build
         pass
+    from . import cli_bench
+
+    cli_bench.add_parser(sub)
     return p
 
 

@@ -1,0 +1,73 @@
+"""Speed of the image processing (issue 13): lost-in-space frame (centroids + ID + attitude +
+beacons), tracking frame, and the k-vector build, on one core.
+
+Usage::
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/ip_bench.py DATASET [--frames 200] [--mode improved]
+
+Prints medians and p90s in ms and the build time in s. Targets (issue 13): lost in space <= 10 ms,
+tracking <= 3 ms, k-vector build <= 5 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dataset")
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--mode", default="improved", choices=("paper", "improved"))
+    ap.add_argument("--sigma-km", type=float, default=1e4)
+    args = ap.parse_args(argv)
+    try:
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
+    except (AttributeError, OSError):
+        pass
+
+    from skynav.pipeline import OnboardCatalog, process_frame
+    from skynav.pipeline.scoring import _predicted_state, open_frames
+
+    src = open_frames(args.dataset)
+    cam = src.observation(0).camera
+    builds = []
+    for _ in range(3):
+        builds.append(OnboardCatalog.build(camera=cam).build_time_s)
+    cat = OnboardCatalog.load(camera=cam)
+    n = min(args.frames, len(src))
+    frames = [(src.observation(k), src.truth(k)) for k in range(n)]
+    rng = np.random.default_rng(0)
+    states = [_predicted_state(t, args.sigma_km, rng) for _, t in frames]
+    process_frame(frames[0][0], catalog=cat, predicted_state=states[0], mode=args.mode)  # warm-up (ephemeris, deep catalog)
+    lis, trk, stages, prev = [], [], [], []
+    for (obs, _), ps in zip(frames, states):
+        t0 = time.perf_counter()
+        r = process_frame(obs, catalog=cat, predicted_state=ps, mode=args.mode)
+        lis.append((time.perf_counter() - t0) * 1e3)
+        stages.append(r.timings_ms)
+        prev.append(r.attitude.R_cam_icrs)
+    for (obs, _), ps, R in zip(frames, states, prev):
+        if R is None:
+            continue
+        t0 = time.perf_counter()
+        r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=R, mode=args.mode)
+        trk.append((time.perf_counter() - t0) * 1e3)
+    pct = lambda a, q: float(np.percentile(a, q)) if len(a) else float("nan")  # noqa: E731
+    print(f"{n} frames, mode {args.mode}, one core")
+    print(f"lost in space: median {pct(lis, 50):.2f} ms, p90 {pct(lis, 90):.2f} ms (target <= 10 ms)")
+    print(f"tracking:      median {pct(trk, 50):.2f} ms, p90 {pct(trk, 90):.2f} ms (target <= 3 ms)")
+    for key in ("centroids", "star_id", "attitude", "beacons"):
+        print(f"  stage {key:<9}: median {np.median([s.get(key, 0.0) for s in stages]):.2f} ms")
+    print(f"k-vector build: {min(builds):.3f} s (best of 3; {cat!r}) (target <= 5 s)")
+
+
+if __name__ == "__main__":
+    main()

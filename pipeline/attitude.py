@@ -1,0 +1,57 @@
+"""Wahba's problem by SVD (paper 000 Eq. 10-12) and its covariance.
+
+Core module. With body (camera) unit vectors ``b_i``, reference (ICRS) unit vectors ``r_i`` and
+weights ``w_i``: ``B = sum w_i b_i r_i^T`` (Eq. 10), ``B = U S V^T`` (Eq. 11) and
+``A = U diag(1, 1, det U det V) V^T`` (Eq. 12, Markley 1988) minimises
+``sum w_i |b_i - A r_i|^2``; ``A`` is the passive ``R_cam_icrs``.
+
+Covariance (Shuster's QUEST measurement model, Markley & Crassidis 2014 eq. 5.93): for
+isotropic direction errors of standard deviation ``sigma_i`` rad,
+``P = (sum (I - b_i b_i^T) / sigma_i^2)^-1`` of the small rotation error in the camera frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["wahba_svd", "attitude_covariance", "rotation_angle_rad"]
+
+
+def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
+    """Attitude ``A`` (3, 3) with ``b ~ A r``; Eq. 10-12.
+
+    Parameters
+    ----------
+    b_cam, r_icrs : ndarray, shape (N, 3)
+        Unit vectors, N >= 2 (not all parallel).
+    weights : ndarray, shape (N,), optional
+
+    Examples
+    --------
+    >>> A = wahba_svd(np.eye(3), np.eye(3))
+    >>> bool(np.allclose(A, np.eye(3)))
+    True
+    """
+    b = np.asarray(b_cam, dtype=float)
+    r = np.asarray(r_icrs, dtype=float)
+    w = np.ones(len(b)) if weights is None else np.asarray(weights, dtype=float)
+    B = np.einsum("n,ni,nj->ij", w, b, r)
+    U, _, Vt = np.linalg.svd(B)
+    d = np.linalg.det(U) * np.linalg.det(Vt)
+    return U @ np.diag([1.0, 1.0, d]) @ Vt
+
+
+def attitude_covariance(b_cam, sigma_rad) -> np.ndarray:
+    """Covariance (3, 3), rad^2, of the attitude error (camera frame) from N directions."""
+    b = np.asarray(b_cam, dtype=float)
+    s = np.broadcast_to(np.asarray(sigma_rad, dtype=float), (len(b),))
+    F = np.einsum("n,nij->ij", 1.0 / s**2, np.eye(3)[None] - np.einsum("ni,nj->nij", b, b))
+    return np.linalg.inv(F)
+
+
+def rotation_angle_rad(A, B) -> float:
+    """Angle of the rotation ``A B^T``, rad (the attitude error between two DCMs)."""
+    M = np.asarray(A, dtype=float) @ np.asarray(B, dtype=float).T
+    c = (np.trace(M) - 1.0) / 2.0
+    s = 0.5 * np.linalg.norm([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+    return float(np.arctan2(s, c))  # atan2: accurate at small angles, where arccos(trace) is not

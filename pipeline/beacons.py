@@ -1,0 +1,176 @@
+"""Beacon (planet) prediction and identification (paper 000 section III.B, Eq. 13-24).
+
+Core functions plus the ephemeris call. The predicted line of sight uses first-order light-time
+(``r_p(t - tau) ~ r_p(t) - v_p tau`` with ``tau = |r_p(t) - r| / c``) and first-order aberration
+(``u' = u + beta - (u . beta) u``, normalised), the models of the pipeline (the renderer's exact
+ones are the truth).
+
+Covariance: ``P = F S F^T`` (Eq. 13) with ``F`` the 2 x 10 Jacobian of the projection with respect
+to ``(q0, qv, r, r_bc)`` (Eq. 15-20; quaternion scalar first, ``A`` of Eq. 14), and
+``S = diag(sigma_q0^2, sigma_qv^2 I, sigma_r^2 I, sigma_rbc^2 I)`` (Eq. 22) in paper mode; the
+improved mode puts the full position covariance and the attitude covariance in ``S``. The 3-sigma
+ellipse is ``d^T P^-1 d <= 11.8292`` (Eq. 23, chi-square 2 dof at 0.9973).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["dcm_from_quat", "quat_from_dcm", "project_beacon", "projection_jacobian", "predict_beacons",
+           "CHI2_2DOF_3SIGMA", "BEACON_BODIES"]
+
+CHI2_2DOF_3SIGMA = 11.8292
+C_KM_S = 299792.458
+BEACON_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def dcm_from_quat(q) -> np.ndarray:
+    """Paper 000 Eq. 14, scalar first: ``A = (q0^2 - qv.qv) I + 2 qv qv^T - 2 q0 [qv x]``."""
+    q0, qv = float(q[0]), np.asarray(q[1:], dtype=float)
+    return (q0 * q0 - qv @ qv) * np.eye(3) + 2.0 * np.outer(qv, qv) - 2.0 * q0 * _skew(qv)
+
+
+def quat_from_dcm(A) -> np.ndarray:
+    """Scalar-first quaternion of Eq. 14 (q0 >= 0), inverse of :func:`dcm_from_quat`."""
+    A = np.asarray(A, dtype=float)
+    tr = np.trace(A)
+    cands = np.array([1 + tr, 1 + 2 * A[0, 0] - tr, 1 + 2 * A[1, 1] - tr, 1 + 2 * A[2, 2] - tr])
+    k = int(np.argmax(cands))
+    q = np.empty(4)
+    if k == 0:
+        q[0] = 0.5 * np.sqrt(cands[0])
+        q[1] = (A[1, 2] - A[2, 1]) / (4 * q[0])
+        q[2] = (A[2, 0] - A[0, 2]) / (4 * q[0])
+        q[3] = (A[0, 1] - A[1, 0]) / (4 * q[0])
+    else:
+        i = k - 1
+        j, l = (i + 1) % 3, (i + 2) % 3
+        q[1 + i] = 0.5 * np.sqrt(cands[k])
+        q[0] = (A[j, l] - A[l, j]) / (4 * q[1 + i])
+        q[1 + j] = (A[i, j] + A[j, i]) / (4 * q[1 + i])
+        q[1 + l] = (A[i, l] + A[l, i]) / (4 * q[1 + i])
+    return q if q[0] >= 0 else -q
+
+
+def project_beacon(q, r_km, r_bc_km, K) -> np.ndarray:
+    """Pixel position (2,) of the beacon at ``r_bc_km`` seen from ``r_km`` (Eq. 4-5, pinhole)."""
+    v = dcm_from_quat(q) @ (np.asarray(r_bc_km, float) - np.asarray(r_km, float))
+    return np.array([K[0][0] * v[0] / v[2] + K[0][2], K[1][1] * v[1] / v[2] + K[1][2]])
+
+
+def projection_jacobian(q, r_km, r_bc_km, K) -> np.ndarray:
+    """``F`` (2, 10) of Eq. 16-20: d(pixel) / d(q0, qv, r, r_bc)."""
+    q0, qv = float(q[0]), np.asarray(q[1:], dtype=float)
+    rho = np.asarray(r_bc_km, float) - np.asarray(r_km, float)
+    A = dcm_from_quat(q)
+    v = A @ rho
+    fx, fy = K[0][0], K[1][1]
+    dproj = np.array([[fx / v[2], 0.0, -fx * v[0] / v[2] ** 2], [0.0, fy / v[2], -fy * v[1] / v[2] ** 2]])
+    d_q0 = 2.0 * q0 * rho - 2.0 * np.cross(qv, rho)  # Eq. 17
+    d_qv = -2.0 * np.outer(rho, qv) + 2.0 * (qv @ rho) * np.eye(3) + 2.0 * np.outer(qv, rho) + 2.0 * q0 * _skew(rho)  # Eq. 18
+    d_r = -A  # Eq. 19
+    d_rbc = A  # Eq. 20
+    return dproj @ np.hstack([d_q0[:, None], d_qv, d_r, d_rbc])
+
+
+def apparent_direction(r_km, v_km_s, body_pos_km, body_vel_km_s):
+    """First-order light-time and aberration: apparent unit vector (3,), ICRS, and the retarded
+    body position used (3,)."""
+    rho = body_pos_km - r_km
+    tau = np.linalg.norm(rho) / C_KM_S
+    p = body_pos_km - body_vel_km_s * tau
+    u = (p - r_km) / np.linalg.norm(p - r_km)
+    beta = np.asarray(v_km_s, float) / C_KM_S
+    u2 = u + beta - (u @ beta) * u
+    return u2 / np.linalg.norm(u2), p
+
+
+def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitude_cov_rad2=None,
+                    mode="improved", sigma_qv=1e-4, sigma_rbc_km=0.0, bodies=BEACON_BODIES, ephemeris=None,
+                    margin_px=0.0):
+    """Predicted pixel position, covariance and V magnitude of every beacon in (or near) the field.
+
+    Returns a list of dicts ``name, xy_px (2,), cov_px2 (2, 2), v_mag, distance_km``.
+    """
+    from skynav.scenes.ephemeris_jpl import default_ephemeris
+    from skynav.scenes.photometry import phase_angle_rad, planet_v_mag
+
+    eph = ephemeris if ephemeris is not None else default_ephemeris()
+    r = np.asarray(predicted_state.position_km, float)
+    v = np.asarray(predicted_state.velocity_km_s, float)
+    Pr = np.asarray(predicted_state.position_cov_km2, float)
+    A = np.asarray(R_cam_icrs, float)
+    q = quat_from_dcm(A)
+    K = camera.K
+    sun = eph.position("sun", epoch_tdb_s)
+    out = []
+    for name in bodies:
+        pos, vel = eph.position_velocity(name, epoch_tdb_s)
+        u, p = apparent_direction(r, v, pos, vel)
+        vc = A @ u
+        if vc[2] <= 0:
+            continue
+        xy = camera.project(vc[None])[0]
+        if not np.all(np.isfinite(xy)) or not camera.in_image(xy[None], max(margin_px, camera.width))[0]:
+            continue
+        # Jacobian at the apparent point: put the body along u at its distance
+        dist = np.linalg.norm(p - r)
+        pb = r + u * dist
+        F = projection_jacobian(q, r, pb, K)
+        if mode == "paper":
+            sr2 = float(np.trace(Pr) / 3.0)
+            S = np.diag([0.0] + [sigma_qv**2] * 3 + [sr2] * 3 + [sigma_rbc_km**2] * 3)
+            P = F @ S @ F.T
+        else:
+            # attitude: small rotation phi (camera frame) -> pixel; position: full covariance
+            Fr = F[:, 4:7]
+            P = Fr @ Pr @ Fr.T
+            if attitude_cov_rad2 is not None:
+                # d(pixel)/d(phi) for A' = (I - [phi x]) A: d v_cam = -phi x v_cam = [v_cam x] phi
+                vcam = A @ (pb - r)
+                dproj = np.array([[K[0, 0] / vcam[2], 0.0, -K[0, 0] * vcam[0] / vcam[2] ** 2],
+                                  [0.0, K[1, 1] / vcam[2], -K[1, 1] * vcam[1] / vcam[2] ** 2]])
+                Fa = dproj @ _skew(vcam)
+                P = P + Fa @ attitude_cov_rad2 @ Fa.T
+            P = P + np.eye(2) * 0.25**2  # centroid and first-order model error floor, px^2
+        try:
+            vm = float(planet_v_mag(name, np.linalg.norm(p - sun), dist, phase_angle_rad(p, sun, r)))
+        except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
+            vm = float("nan")
+        # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
+        reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(P)[-1], 0.0)))
+        if not camera.in_image(xy[None], margin_px + (reach if mode == "improved" else 0.0))[0]:
+            continue
+        out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist})
+    return out
+
+
+def select_spot(pred, spots_xy, candidate_mask, *, mode, spot_mag=None, mag_sigma=1.0):
+    """Index of the spot identified as the beacon, or None (Eq. 23-24).
+
+    paper: the closest candidate spot inside the 3-sigma ellipse. improved: the candidate inside
+    the ellipse minimising Mahalanobis^2 + ((m_spot - m_pred) / mag_sigma)^2.
+    """
+    if len(spots_xy) == 0:
+        return None
+    d = spots_xy - pred["xy_px"][None]
+    try:
+        Pinv = np.linalg.inv(pred["cov_px2"])
+    except np.linalg.LinAlgError:
+        return None
+    m2 = np.einsum("ni,ij,nj->n", d, Pinv, d)
+    inside = candidate_mask & (m2 <= CHI2_2DOF_3SIGMA)
+    if not inside.any():
+        return None
+    idx = np.flatnonzero(inside)
+    if mode == "paper" or spot_mag is None or not np.isfinite(pred["v_mag"]):
+        cost = np.hypot(d[idx, 0], d[idx, 1])
+    else:
+        dm = spot_mag[idx] - pred["v_mag"]
+        dm = np.where(np.isfinite(dm), dm, 0.0)
+        cost = m2[idx] + (dm / mag_sigma) ** 2
+    return int(idx[np.argmin(cost)])

@@ -1,0 +1,320 @@
+"""One frame in, one :class:`~skynav.pipeline.results.FrameResult` out (the pipeline's driver).
+
+``process_frame`` never raises for a bad image: every failure is an outcome class. Two modes:
+
+- ``"paper"`` (paper 000 as published): Eq. 6 threshold with the image mean and standard
+  deviation, the iterative increase of T when the ID fails, reference-star votes, RANSAC over
+  random 3-star Wahba solutions, the attitude from the RANSAC inliers, no aberration correction,
+  beacons by the closest spike in the Eq. 23 ellipse with ``S`` of Eq. 22.
+- ``"improved"``: a robust threshold (median + T x 1.4826 MAD, so a resolved planet or a bright
+  frame does not lift it above the stars), star-like spots first (no single hot pixels, no huge
+  regions), deterministic vote-ordered triples, every catalog star predicted in the field
+  re-associated and the attitude re-solved from all of them with stellar aberration removed
+  (paper 002 section 3.2: catalog directions aberrated with the predicted velocity), an
+  acceptance test (>= ``min_matches`` stars), a covariance from the residuals, beacons by
+  Mahalanobis distance plus predicted brightness among spots not matched to catalog stars.
+- Tracking (``previous_attitude`` given): association from the previous attitude, falling back to
+  lost in space (paper 001 Fig. 4).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .attitude import attitude_covariance
+from .beacons import predict_beacons, select_spot
+from .centroids import Spots, detect_spots
+from .results import AttitudeResult, BeaconResult, FrameResult
+from .star_id import C_KM_S, lost_in_space, refine
+
+__all__ = ["ProcessOptions", "process_frame"]
+
+ARCSEC = np.pi / 180.0 / 3600.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProcessOptions:
+    """Speed/accuracy trade-offs of :func:`process_frame` (one object; vary with ``replace``)."""
+
+    T: float = 5.0                      # Eq. 6 tuning parameter (improved: on the robust sigma)
+    T_step: float = 2.0                 # paper: T increase after a failed ID
+    T_max_iterations: int = 5
+    eps_px: float = 0.6                 # k-vector range error, in pixels of the field
+    inlier_px: float = 2.0              # RANSAC / association tolerance, px
+    n_max: int = 12                     # spots used for the votes
+    n_ransac: int = 100                 # paper mode: random triples
+    min_matches: int = 5                # improved: stars needed to accept an attitude
+    max_spots: int = 3000               # more regions than this: "too_many_spots"
+    saturated_fraction: float = 0.5     # more saturated pixels than this: "saturated"
+    sigma_qv: float = 1e-4              # paper Eq. 22
+    mag_sigma: float = 1.0              # improved beacon brightness prior, mag
+    deep_star_radius_px: float = 1.5    # improved: spots this close to a deep-catalog star are stars
+    seed: int = 0                       # paper RANSAC draws
+
+
+def _fail(status, spots_xy, t0, timings, mode, beacons=()):
+    timings["total"] = (time.perf_counter() - t0) * 1e3
+    return FrameResult(status=status, attitude=AttitudeResult(), centroids_xy_px=np.asarray(spots_xy, float).reshape(-1, 2),
+                       beacons=tuple(beacons), timings_ms=timings, mode=mode)
+
+
+def _star_order(spots: Spots, mode: str) -> np.ndarray:
+    """Spots in the order star ID should try them (brightest first; improved: star-like first)."""
+    n = len(spots)
+    if mode == "paper":
+        return np.arange(n)
+    starlike = (spots.n_pixels >= 2) & (spots.size_px <= 12) & (spots.elongation < 4.0)
+    return np.concatenate([np.flatnonzero(starlike), np.flatnonzero(~starlike)])
+
+
+def process_frame(observation, *, catalog, predicted_state=None, previous_attitude=None, mode="improved",
+                  options: ProcessOptions | None = None, ephemeris=None) -> FrameResult:
+    """Centroids, star ID, attitude and beacons of one frame.
+
+    Parameters
+    ----------
+    observation : skynav.datasets.observation.Observation
+        ``dn`` (H, W), ``epoch_tdb_s``, ``exposure_s``, ``camera`` (as calibrated).
+    catalog : skynav.pipeline.OnboardCatalog
+    predicted_state : skynav.pipeline.PredictedState, optional
+        Needed for beacons (and for aberration and parallax in the improved mode).
+    previous_attitude : ndarray, shape (3, 3), optional
+        ``R_cam_icrs`` of the previous frame: tracking mode first.
+    mode : {"paper", "improved"}
+
+    Returns
+    -------
+    FrameResult
+        Never raises for a bad image; ``status`` says what happened.
+    """
+    if mode not in ("paper", "improved"):
+        raise ValueError(f"mode must be 'paper' or 'improved', got {mode!r}")
+    opt = options or ProcessOptions()
+    t0 = time.perf_counter()
+    timings = {}
+    cam = observation.camera
+    try:
+        img = np.asarray(observation.dn)
+        if img.ndim != 2 or img.shape != (cam.height, cam.width) or not np.all(np.isfinite(img.astype(float, copy=False)[::64, ::64])):
+            return _fail("bad_image", np.zeros((0, 2)), t0, timings, mode)
+    except Exception:  # noqa: BLE001 - anything unreadable is a bad image
+        return _fail("bad_image", np.zeros((0, 2)), t0, timings, mode)
+    max_dn = float(2 ** cam.sensor.bit_depth - 1)
+    if np.count_nonzero(img >= max_dn) > opt.saturated_fraction * img.size:
+        return _fail("saturated", np.zeros((0, 2)), t0, timings, mode)
+
+    v_km_s = None if predicted_state is None else np.asarray(predicted_state.velocity_km_s, float)
+    r_km = np.zeros(3) if predicted_state is None else np.asarray(predicted_state.position_km, float)
+    aberr = mode == "improved" and v_km_s is not None
+    ifov = cam.ifov_rad
+    half_fov = cam.half_diagonal_fov_rad
+    stars = catalog.stars
+    t_epoch = observation.epoch_tdb_s
+
+    def star_dirs(boresight, radius):
+        idx = stars.cone(boresight, radius, margin_rad=2e-3)
+        if mode == "paper":
+            return idx, catalog.u_icrs[idx]
+        u = stars.directions(idx, t_epoch, r_km)
+        if aberr:
+            beta = v_km_s / C_KM_S
+            u = u + beta - (u @ beta)[:, None] * u
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+        return idx, u
+
+    # ------------------------------------------------------------------ centroids + star ID loop
+    T = opt.T
+    match = None
+    method = ""
+    rel_eps = (np.linalg.norm(v_km_s) / C_KM_S if v_km_s is not None else 2e-4) + 2e-5
+    spots = Spots.empty()
+    status = "id_failed"
+    t_c = t_id = 0.0
+    for it in range(opt.T_max_iterations if mode == "paper" else 1):
+        tc0 = time.perf_counter()
+        if mode == "paper":
+            spots = detect_spots(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, stats_stride=2)
+        else:
+            spots = _detect_robust(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1)
+        t_c += time.perf_counter() - tc0
+        if len(spots) > opt.max_spots:
+            status = "too_many_spots"
+            if mode == "paper":
+                T += opt.T_step
+                continue
+            break
+        if len(spots) < 3:
+            status = "no_stars"
+            break
+        ti0 = time.perf_counter()
+        order = _star_order(spots, mode)
+        b = cam.line_of_sight(spots.xy_px)
+        if previous_attitude is not None:
+            m = refine(np.asarray(previous_attitude, float), b, star_dirs, half_fov_rad=half_fov,
+                       tol_rad=10 * opt.inlier_px * ifov, iterations=1)
+            if m is not None:
+                m = refine(m.R_cam_icrs, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
+            if m is not None and len(m.spot_index) >= opt.min_matches:
+                match, method = m, "tracking"
+        if match is None:
+            for n_max in ((opt.n_max,) if mode == "paper" else (opt.n_max, 2 * opt.n_max)):
+                sol = lost_in_space(b[order], catalog, eps_rad=opt.eps_px * ifov, rel_eps=rel_eps, n_max=n_max,
+                                    inlier_rad=opt.inlier_px * ifov, rng=np.random.default_rng(opt.seed),
+                                    random_triples=(mode == "paper"), max_triples=opt.n_ransac if mode == "paper" else 200)
+                if sol is None:
+                    continue
+                A, sp, st = sol
+                sp = order[sp]
+                if mode == "paper":
+                    if len(sp) >= 3:
+                        from .star_id import StarMatch
+                        res = np.arccos(np.clip(np.einsum("ij,ij->i", catalog.u_icrs[st] @ A.T, b[sp]), -1, 1))
+                        match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=res)
+                else:
+                    m = refine(A, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
+                    if m is not None and len(m.spot_index) >= opt.min_matches:
+                        match = m
+                if match is not None:
+                    method = "lost_in_space"
+                    break
+        t_id += time.perf_counter() - ti0
+        if match is not None:
+            status = "ok"
+            break
+        status = "id_failed"
+        T += opt.T_step
+    timings["centroids"] = t_c * 1e3
+    timings["star_id"] = t_id * 1e3
+    if match is None:
+        res = _fail(status, spots.xy_px, t0, timings, mode)
+        return replace(res, beacons=_beacons_without_attitude(observation, predicted_state))
+
+    # ------------------------------------------------------------------ attitude + covariance
+    ta0 = time.perf_counter()
+    A = match.R_cam_icrs
+    bm = cam.line_of_sight(spots.xy_px[match.spot_index])
+    n_st = len(match.spot_index)
+    rms = float(np.sqrt(np.mean(match.residual_rad**2))) if n_st > 3 else opt.inlier_px * ifov / 2
+    sigma = max(rms * np.sqrt(n_st / max(n_st - 3, 1)) / np.sqrt(2.0), 0.05 * ifov)
+    P = attitude_covariance(bm, sigma)
+    att = AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n_st,
+                         error_estimate_arcsec=float(np.sqrt(np.trace(P)) / ARCSEC))
+    timings["attitude"] = (time.perf_counter() - ta0) * 1e3
+
+    # ------------------------------------------------------------------ beacons
+    tb0 = time.perf_counter()
+    beacons = ()
+    if predicted_state is not None:
+        beacons = _identify_beacons(observation, predicted_state, A, P, spots, match, catalog, mode, opt, ephemeris)
+    timings["beacons"] = (time.perf_counter() - tb0) * 1e3
+    timings["total"] = (time.perf_counter() - t0) * 1e3
+    star_ids = np.asarray(catalog.hip)[match.star_index]
+    return FrameResult(status="ok", attitude=att, centroids_xy_px=spots.xy_px, beacons=beacons, timings_ms=timings,
+                       mode=mode, star_id_method=method, matched_star_ids=star_ids,
+                       matched_spot_index=np.asarray(match.spot_index))
+
+
+def _detect_robust(img, *, T, max_dn, max_regions):
+    """Improved threshold: median + T x robust sigma (1.4826 MAD, floored at 0.5 DN for 8-bit
+    frames whose dark background is one or two DN), so a resolved body does not lift it."""
+    sub = np.asarray(img[::4, ::4], dtype=np.float32)
+    med = float(np.median(sub))
+    mad = float(np.median(np.abs(sub - med))) * 1.4826
+    sd = max(mad, float(np.std(sub[sub <= med + 5 * max(mad, 0.5)])), 0.5)
+    return detect_spots(img, T=T, max_dn=max_dn, max_regions=max_regions, background="median",
+                        threshold_dn=med + T * sd, stats_stride=4)
+
+
+def _beacons_without_attitude(observation, predicted_state):
+    return ()
+
+
+def _identify_beacons(observation, predicted_state, A, P_att, spots, match, catalog, mode, opt, ephemeris):
+    cam = observation.camera
+    preds = predict_beacons(observation.epoch_tdb_s, predicted_state, A, cam, attitude_cov_rad2=P_att, mode=mode,
+                            sigma_qv=opt.sigma_qv, ephemeris=ephemeris)
+    n = len(spots)
+    candidate = np.ones(n, dtype=bool)
+    candidate[match.spot_index] = False  # spots matched to catalog stars are not beacons
+    if mode == "improved" and n:
+        # ... nor spots on fainter catalog stars (the deep catalog, V < deep_v_mag), predicted
+        # with the solved attitude: the field's faint stars are the usual wrong beacons
+        deep = catalog.deep_stars()
+        idx = deep.cone(A[2], cam.half_diagonal_fov_rad, margin_rad=2e-3)
+        u = deep.u_icrs[idx]
+        xy = cam.project(u @ A.T)
+        ok = np.all(np.isfinite(xy), axis=1)
+        if ok.any():
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(xy[ok]).query(spots.xy_px, distance_upper_bound=opt.deep_star_radius_px)
+            candidate &= ~np.isfinite(d)
+    spot_mag = None
+    if mode == "improved" and n:
+        # photometric zero point from the matched, unsaturated stars: m = zp - 2.5 log10(flux)
+        ms = match.spot_index
+        good = (~spots.saturated[ms]) & (spots.flux_dn[ms] > 0)
+        vm = catalog.v_mag[match.star_index]
+        with np.errstate(divide="ignore"):
+            zp = np.median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
+            spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn, 1e-9))
+        # saturated spots are at least as bright as measured: no penalty for a brighter prediction
+        spot_mag = np.where(spots.saturated, np.nan, spot_mag)
+    if mode == "improved":
+        chosen = _assign_beacons(preds, spots.xy_px, candidate, spot_mag, opt.mag_sigma)
+    out = []
+    for i, p in enumerate(preds):
+        if mode == "improved":
+            k = chosen[i]
+        else:
+            k = select_spot(p, spots.xy_px, candidate, mode=mode, spot_mag=spot_mag, mag_sigma=opt.mag_sigma)
+        if k is None:
+            out.append(BeaconResult(name=p["name"], xy_px=None, predicted_xy_px=p["xy_px"], predicted_cov_px2=p["cov_px2"],
+                                    status="not_found"))
+        else:
+            candidate[k] = False
+            out.append(BeaconResult(name=p["name"], xy_px=spots.xy_px[k].copy(), predicted_xy_px=p["xy_px"],
+                                    predicted_cov_px2=p["cov_px2"], status="found"))
+    return tuple(out)
+
+
+def _assign_beacons(preds, spots_xy, candidate, spot_mag, mag_sigma):
+    """Improved mode: one spot per beacon and one beacon per spot, jointly (a beacon with a huge
+    ellipse must not take the spot of one with a small ellipse, as the paper's one-at-a-time
+    closest-spike rule lets it). Cost of beacon i on spot j inside its 3-sigma ellipse:
+    ``m2_ij + ((m_j - m_pred_i) / mag_sigma)^2``; "not found" costs the ellipse's edge plus a
+    3-sigma brightness mismatch, so any spot inside the ellipse is preferred over none."""
+    from scipy.optimize import linear_sum_assignment
+
+    from .beacons import CHI2_2DOF_3SIGMA
+
+    nb = len(preds)
+    cand = np.flatnonzero(candidate)
+    if nb == 0:
+        return []
+    BIG = 1e9
+    cost = np.full((nb, len(cand) + nb), BIG)
+    for i, p in enumerate(preds):
+        cost[i, len(cand) + i] = CHI2_2DOF_3SIGMA + 9.0
+        if len(cand) == 0:
+            continue
+        d = spots_xy[cand] - p["xy_px"][None]
+        try:
+            Pinv = np.linalg.inv(p["cov_px2"])
+        except np.linalg.LinAlgError:
+            continue
+        m2 = np.einsum("ni,ij,nj->n", d, Pinv, d)
+        c = m2.copy()
+        if spot_mag is not None and np.isfinite(p["v_mag"]):
+            dm = spot_mag[cand] - p["v_mag"]
+            c = c + np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2
+        cost[i, :len(cand)] = np.where(m2 <= CHI2_2DOF_3SIGMA, c, BIG)
+    rows, cols = linear_sum_assignment(cost)
+    chosen = [None] * nb
+    for i, j in zip(rows, cols):
+        if j < len(cand) and cost[i, j] < BIG:
+            chosen[i] = int(cand[j])
+    return chosen

@@ -1,0 +1,294 @@
+"""Scoring the image processing against the ground truth: ``skynav bench ip``'s engine.
+
+Scoring module (the only pipeline modules that read truth: ``tests/test_architecture.py``). It
+opens a skynav dataset (:func:`skynav.datasets.open_dataset`, typed truth ``ds.truth(k)``) or any
+folder of frames in the frame schema (``frames/NNNNNN.png`` + ``.json``, or the pairs directly in
+the folder), reading from the JSON only ``epoch.jd_tdb``, ``camera.K``, ``camera.width``,
+``camera.height``, ``camera.bit_depth``, ``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]``
+(``name``, ``xy``, ``in_fov``, ``visible``). The pipeline gets only the observation and a
+predicted state drawn here from the truth with the given sigma per axis (paper 000 section V).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .attitude import rotation_angle_rad
+from .catalog import OnboardCatalog
+from .errors import BenchInputError
+from .process import process_frame
+from .results import PredictedState
+
+__all__ = ["FrameTruthLite", "open_frames", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
+           "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
+
+WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
+BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is a failure
+DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
+VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
+ARCSEC = np.pi / 180.0 / 3600.0
+J2000_JD = 2451545.0
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FrameTruthLite:
+    """The keys of the truth the benchmark uses."""
+
+    R_cam_icrs: np.ndarray
+    position_km: np.ndarray
+    velocity_km_s: np.ndarray
+    bodies: tuple  # (name, xy (2,), in_fov, visible)
+
+
+class _SkynavSource:
+    def __init__(self, ds):
+        self.ds = ds
+        self.root = ds.root
+
+    def __len__(self):
+        return len(self.ds)
+
+    def observation(self, k):
+        return self.ds.observation(k)
+
+    def truth(self, k):
+        t = self.ds.truth(k, validate=False)
+        bodies = tuple((b.name, np.asarray(b.xy, float), bool(b.in_fov), bool(b.visible)) for b in t.bodies)
+        return FrameTruthLite(R_cam_icrs=np.asarray(t.R_cam_icrs, float), position_km=np.asarray(t.position_km, float),
+                              velocity_km_s=np.asarray(t.velocity_km_s, float), bodies=bodies)
+
+
+def _need(d, path, where):
+    cur = d
+    for key in path.split("."):
+        if not isinstance(cur, dict) or key not in cur:
+            raise BenchInputError(f"{where}: frame JSON has no '{path}' (the benchmark needs epoch.jd_tdb, camera.K, "
+                                  "camera.width, camera.height, camera.bit_depth, observer.*, attitude.R_cam_icrs, bodies[])")
+        cur = cur[key]
+    return cur
+
+
+class _FolderSource:
+    """Any folder of ``NNNNNN.png`` + ``NNNNNN.json`` pairs (in ``frames/`` or at the top)."""
+
+    def __init__(self, root: Path, pairs):
+        self.root = root
+        self.pairs = pairs
+        self._cache = {}
+
+    def __len__(self):
+        return len(self.pairs)
+
+    def _json(self, k):
+        png, js = self.pairs[k]
+        try:
+            d = json.loads(js.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise BenchInputError(f"{js}: not a readable frame JSON ({exc.__class__.__name__})") from None
+        for key in ("epoch.jd_tdb", "camera.K", "camera.width", "camera.height", "camera.bit_depth",
+                    "observer.position_km", "observer.velocity_km_s", "attitude.R_cam_icrs", "bodies"):
+            _need(d, key, js)
+        return d
+
+    def observation(self, k):
+        from PIL import Image
+
+        from skynav.datasets.observation import Observation
+        from skynav.scenes.camera import Camera, SensorParams
+
+        d = self._json(k)
+        c = d["camera"]
+        K = np.asarray(c["K"], float)
+        try:
+            with Image.open(self.pairs[k][0]) as im:
+                dn = np.asarray(im)
+        except OSError as exc:
+            raise BenchInputError(f"{self.pairs[k][0]}: not a readable PNG ({exc})") from None
+        if dn.ndim == 3:
+            dn = dn[..., :3].mean(axis=-1)
+        pitch_um = 10.0
+        cam = Camera(width=int(c["width"]), height=int(c["height"]), focal_length_mm=K[0, 0] * pitch_um * 1e-3,
+                     pixel_pitch_um=pitch_um, pixel_pitch_y_um=pitch_um * K[0, 0] / K[1, 1], cx=float(K[0, 2]),
+                     cy=float(K[1, 2]), exposure_s=float(c.get("exposure_s", 0.4)),
+                     sensor=SensorParams(bit_depth=int(c["bit_depth"])))
+        dn = np.ascontiguousarray(dn)
+        dn.setflags(write=False)
+        return Observation(index=k, dn=dn, epoch_tdb_s=(float(d["epoch"]["jd_tdb"]) - J2000_JD) * 86400.0,
+                           exposure_s=cam.exposure_s, camera=cam)
+
+    def truth(self, k):
+        d = self._json(k)
+        bodies = []
+        for b in d["bodies"]:
+            xy = np.array([np.nan if v is None else v for v in (b.get("xy") or [None, None])], float)
+            bodies.append((str(b.get("name", "")), xy, bool(b.get("in_fov", False)), bool(b.get("visible", False))))
+        return FrameTruthLite(R_cam_icrs=np.asarray(d["attitude"]["R_cam_icrs"], float),
+                              position_km=np.asarray(d["observer"]["position_km"], float),
+                              velocity_km_s=np.asarray(d["observer"]["velocity_km_s"], float), bodies=tuple(bodies))
+
+
+def open_frames(path):
+    """A frame source for ``path``: a skynav dataset, or a folder of PNG + JSON frames.
+
+    Raises
+    ------
+    BenchInputError
+        Not a folder, or no frames in it.
+    """
+    from skynav.datasets import open_dataset
+    from skynav.datasets.errors import DatasetError
+
+    root = Path(path)
+    if not root.is_dir():
+        raise BenchInputError(f"{root}: no such folder (give a skynav dataset or a folder of NNNNNN.png + .json frames)")
+    if (root / "manifest.json").exists():
+        try:
+            return _SkynavSource(open_dataset(root))
+        except DatasetError as exc:
+            raise BenchInputError(str(exc)) from None
+    for folder in (root / "frames", root):
+        if folder.is_dir():
+            pairs = [(p, p.with_suffix(".json")) for p in sorted(folder.glob("*.png")) if p.with_suffix(".json").exists()]
+            if pairs:
+                return _FolderSource(root, pairs)
+    raise BenchInputError(f"{root} is not a dataset: no manifest.json and no PNG + JSON frame pairs in it or in frames/")
+
+
+def _predicted_state(truth, sigma_km, rng):
+    pos = truth.position_km + rng.normal(0.0, sigma_km, 3)
+    vel = truth.velocity_km_s + rng.normal(0.0, VELOCITY_SIGMA_KM_S, 3)
+    return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
+
+
+def score_frame(result, truth, sigma_km):
+    """Rows (dicts) for one processed frame: the frame row and its beacon outcomes."""
+    err = float("nan")
+    if result.status == "ok":
+        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC
+        outcome = "correct" if err <= WRONG_ATTITUDE_ARCSEC else "wrong"
+    else:
+        outcome = "none"
+    found = {b.name: b for b in result.beacons}
+    beacons = []
+    expected = {name for name, xy, in_fov, vis in truth.bodies if in_fov and vis}
+    for name, xy, in_fov, vis in truth.bodies:
+        b = found.get(name)
+        if name in expected:
+            if b is None or b.xy_px is None:
+                beacons.append((name, "none", float("nan"), None))
+            else:
+                e = float(np.hypot(*(b.xy_px - xy)))
+                d = b.xy_px - xy
+                beacons.append((name, "correct" if e <= BEACON_WRONG_PX else "wrong", e, d))
+        elif b is not None and b.xy_px is not None:
+            # a body the mission rule calls invisible (V > limit, inside the Sun exclusion) but
+            # rendered in the field: found where it is, it is not scored; found elsewhere, wrong
+            e = float(np.hypot(*(b.xy_px - xy))) if in_fov and np.all(np.isfinite(xy)) else float("inf")
+            if not e <= BEACON_WRONG_PX:
+                beacons.append((name, "wrong", float("nan"), None))
+    return {"status": result.status, "attitude": outcome, "error_arcsec": err, "n_stars": result.attitude.n_stars,
+            "n_spots": len(result.centroids_xy_px), "method": result.star_id_method,
+            "time_ms": float(result.timings_ms.get("total", float("nan"))),
+            "error_estimate_arcsec": result.attitude.error_estimate_arcsec, "beacons": beacons}
+
+
+def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0, progress=True, limit=None,
+                  catalog=None):
+    """Process every frame at every sigma; rows of results and the frame count.
+
+    Each (frame, sigma) draws its predicted state from ``SeedSequence([seed, frame, i_sigma])``.
+    """
+    src = open_frames(path)
+    n = len(src) if limit is None else min(limit, len(src))
+    if n == 0:
+        raise BenchInputError(f"{path}: no frames")
+    first = src.observation(0)
+    cat = catalog if catalog is not None else OnboardCatalog.load(camera=first.camera)
+    rows = []
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n * len(sigmas_km), unit="frame", desc=f"bench ip ({mode})")
+    t0 = time.perf_counter()
+    for k in range(n):
+        obs = first if k == 0 else src.observation(k)
+        truth = src.truth(k)
+        for i, s in enumerate(sigmas_km):
+            rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
+            ps = _predicted_state(truth, float(s), rng)
+            res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode)
+            row = score_frame(res, truth, float(s))
+            row.update(frame=k, sigma_km=float(s))
+            rows.append(row)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    return rows, {"frames": n, "wall_s": time.perf_counter() - t0, "catalog": repr(cat),
+                  "kvector_build_s": cat.build_time_s}
+
+
+def _rate(x, n):
+    return float(x) / n if n else float("nan")
+
+
+def summarise(rows, *, frames, sigmas_km):
+    """``summary.json`` (the issue's fixed keys, plus details)."""
+    s0 = [r for r in rows if r["sigma_km"] == float(sigmas_km[0])]
+    n = len(s0)
+    errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] == "correct"])
+    times = np.array([r["time_ms"] for r in rows])
+    out = {
+        "frames": int(frames),
+        "attitude": {
+            "correct_rate": _rate(sum(r["attitude"] == "correct" for r in s0), n),
+            "wrong_rate": _rate(sum(r["attitude"] == "wrong" for r in s0), n),
+            "none_rate": _rate(sum(r["attitude"] == "none" for r in s0), n),
+            "error_arcsec_median": float(np.median(errs)) if len(errs) else float("nan"),
+            "error_arcsec_p90": float(np.percentile(errs, 90)) if len(errs) else float("nan"),
+            # the 68.27th percentile of the error angle (a "1 sigma" that is robust to outliers)
+            "error_arcsec_1sigma": float(np.percentile(errs, 68.27)) if len(errs) else float("nan"),
+        },
+        "beacon": {},
+        "time_ms": {"median": float(np.median(times)), "p90": float(np.percentile(times, 90))},
+        "status_counts": {},
+    }
+    for r in s0:
+        out["status_counts"][r["status"]] = out["status_counts"].get(r["status"], 0) + 1
+    for s in sigmas_km:
+        rs = [r for r in rows if r["sigma_km"] == float(s)]
+        b = [bb for r in rs for bb in r["beacons"]]
+        nb = len(b)
+        e = [bb[2] for bb in b if bb[1] == "correct"]
+        d = np.array([bb[3] for bb in b if bb[1] == "correct"]).reshape(-1, 2)
+        with_att = [bb for r in rs if r["attitude"] != "none" for bb in r["beacons"]]
+        with_right = [bb for r in rs if r["attitude"] == "correct" for bb in r["beacons"]]
+        frames_with = [r for r in rs if r["beacons"]]
+        out["beacon"][_key(s)] = {
+            "correct_rate": _rate(sum(bb[1] == "correct" for bb in b), nb),
+            "wrong_rate": _rate(sum(bb[1] == "wrong" for bb in b), nb),
+            "none_rate": _rate(sum(bb[1] == "none" for bb in b), nb),
+            "error_px_mean": float(np.mean(e)) if e else float("nan"),
+            "beacons": nb,
+            "frames_with_beacon": len(frames_with),
+            # paper 000 Table 3 columns 5 and 6: failures (wrong or none) among beacons of frames
+            # with an attitude, and of frames with the right attitude
+            "failure_rate_with_attitude": _rate(sum(bb[1] != "correct" for bb in with_att), len(with_att)),
+            "failure_rate_with_right_attitude": _rate(sum(bb[1] != "correct" for bb in with_right), len(with_right)),
+            "error_mean_px": d.mean(axis=0).tolist() if len(d) else [float("nan")] * 2,
+            "error_cov_px2": np.cov(d.T).tolist() if len(d) > 2 else None,
+        }
+        ra = [r for r in rs if r["attitude"] != "none"]
+        out["beacon"][_key(s)]["attitude_wrong_rate"] = _rate(sum(r["attitude"] == "wrong" for r in rs), len(rs))
+        del ra
+    return out
+
+
+def _key(s):
+    return f"{float(s):g}"

@@ -1,0 +1,192 @@
+"""Writing the ``skynav bench ip`` report: results.csv, summary.json, report.md, report.html.
+
+Driver-side scoring module: the HTML is self-contained (matplotlib PNGs embedded as base64, no
+script, no external resource), and puts our numbers next to paper 000 Tables 3 and 4.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_report", "PAPER_TABLE3"]
+
+# Paper 000 Table 3 (1031 scenes with a planet; 962 with an attitude): sigma_r km ->
+# (sigma_ErrRot arcsec, % wrong attitude, % no attitude, % wrong beacon (of 962),
+#  % wrong beacon with right attitude (of 962))
+PAPER_TABLE3 = {
+    "10000": (14.77, 3.88, 6.69, 4.57, 0.42),
+    "100000": (15.18, 3.88, 6.69, 4.68, 0.52),
+    "1e+06": (15.21, 4.07, 6.69, 7.69, 3.33),
+    "1e+07": (15.48, 4.07, 6.69, 29.83, 25.47),
+}
+# Paper 000 Table 4: mean error (px) and det(P) (px^4) of the planet projection errors
+PAPER_TABLE4 = {
+    "10000": ((0.0014, -0.0003), 5.9e-5),
+    "100000": ((0.0001, -0.0034), 7.05e-5),
+    "1e+06": ((-0.0005, -0.0045), 9.94e-5),
+    "1e+07": ((-0.0005, -0.0041), 7.05e-5),
+}
+CSV_FIELDS = ("frame", "sigma_km", "status", "attitude", "error_arcsec", "error_estimate_arcsec", "n_stars", "n_spots",
+              "method", "time_ms", "beacon_name", "beacon_outcome", "beacon_error_px")
+
+
+def _clean(x):
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, np.generic):
+        return _clean(x.item())
+    return x
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _plots(rows, summary, sigmas):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = {}
+    s0 = [r for r in rows if r["sigma_km"] == float(sigmas[0])]
+    errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] != "none"])
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
+    if len(errs):
+        ax[0].hist(np.clip(errs, 0, 200), bins=50, color="#4477aa")
+        e = np.sort(errs)
+        ax[1].plot(e, np.arange(1, len(e) + 1) / len(e), color="#4477aa")
+        ax[1].set_xscale("log")
+    ax[0].set_xlabel("attitude error, arcsec (clipped at 200)")
+    ax[0].set_ylabel("frames")
+    ax[1].set_xlabel("attitude error, arcsec")
+    ax[1].set_ylabel("CDF")
+    ax[1].axvline(500, color="r", lw=0.8)
+    out["attitude error histogram and CDF"] = _png(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    labels = [f"{s:g}" for s in sigmas]
+    bottoms = np.zeros(len(sigmas))
+    for outcome, color in (("correct", "#228833"), ("wrong", "#ee6677"), ("none", "#bbbbbb")):
+        v = np.array([summary["beacon"][f"{float(s):g}"][f"{outcome}_rate"] or 0.0 for s in sigmas])
+        v = np.nan_to_num(v)
+        ax.bar(labels, v, bottom=bottoms, color=color, label=f"beacon {outcome}")
+        bottoms += v
+    ax.set_xlabel("sigma_r, km")
+    ax.set_ylabel("fraction of beacons")
+    ax.legend(loc="lower left", fontsize=8)
+    out["beacon outcomes per sigma"] = _png(fig)
+
+    fig, axes = plt.subplots(1, len(sigmas), figsize=(3.2 * len(sigmas), 3.2), squeeze=False)
+    t = np.linspace(0, 2 * np.pi, 100)
+    for ax, s in zip(axes[0], sigmas):
+        d = np.array([bb[3] for r in rows if r["sigma_km"] == float(s) for bb in r["beacons"] if bb[1] == "correct"]).reshape(-1, 2)
+        if len(d):
+            ax.scatter(d[:, 0], d[:, 1], s=3, alpha=0.5)
+        if len(d) > 2:
+            C = np.cov(d.T)
+            w, V = np.linalg.eigh(C)
+            ell = (V @ (np.sqrt(11.8292 * np.clip(w, 0, None))[:, None] * np.stack([np.cos(t), np.sin(t)]))).T + d.mean(0)
+            ax.plot(ell[:, 0], ell[:, 1], "r-", lw=1)
+        ax.set_title(f"sigma_r = {s:g} km", fontsize=9)
+        ax.set_xlabel("dx, px")
+        ax.set_aspect("equal", adjustable="datalim")
+    axes[0][0].set_ylabel("dy, px")
+    out["beacon projection errors with 3-sigma ellipses"] = _png(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    times = np.array([r["time_ms"] for r in rows])
+    ax.hist(times, bins=50, color="#aa7744")
+    ax.set_xlabel("time per frame, ms")
+    out["time per frame"] = _png(fig)
+    return out
+
+
+def _table_md(summary, sigmas):
+    a = summary["attitude"]
+    lines = ["| sigma_r km | ours: 1-sigma err arcsec | paper | ours: % wrong att. | paper | ours: % no att. | paper | "
+             "ours: % beacon fail (with att.) | paper | ours: % fail (right att.) | paper |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for s in sigmas:
+        k = f"{float(s):g}"
+        p = PAPER_TABLE3.get(k)
+        b = summary["beacon"][k]
+        pct = lambda v: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{100 * v:.2f}"
+        lines.append(f"| {k} | {a['error_arcsec_1sigma']:.2f} | {p[0] if p else '-'} | {pct(a['wrong_rate'])} | "
+                     f"{p[1] if p else '-'} | {pct(a['none_rate'])} | {p[2] if p else '-'} | "
+                     f"{pct(b['failure_rate_with_attitude'])} | {p[3] if p else '-'} | "
+                     f"{pct(b['failure_rate_with_right_attitude'])} | {p[4] if p else '-'} |")
+    return "\n".join(lines)
+
+
+def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info):
+    """Write the four report files into ``out_dir`` (created)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "results.csv", "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(CSV_FIELDS)
+        for r in rows:
+            base = [r["frame"], f"{r['sigma_km']:g}", r["status"], r["attitude"], f"{r['error_arcsec']:.3f}",
+                    f"{r['error_estimate_arcsec']:.3f}", r["n_stars"], r["n_spots"], r["method"], f"{r['time_ms']:.3f}"]
+            if not r["beacons"]:
+                w.writerow(base + ["", "", ""])
+            for name, outcome, e, _ in r["beacons"]:
+                w.writerow(base + [name, outcome, f"{e:.4f}"])
+    full = dict(summary)
+    full["run"] = {"source": str(source), "mode": mode, "seed": int(seed), "sigmas_km": [float(s) for s in sigmas_km],
+                   **{k: v for k, v in info.items()}}
+    (out / "summary.json").write_text(json.dumps(_clean(full), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    a = summary["attitude"]
+    md = [f"# skynav bench ip: {source}", "",
+          f"Mode `{mode}`, seed {seed}, {summary['frames']} frames, sigmas {', '.join(f'{s:g}' for s in sigmas_km)} km.", "",
+          "## Attitude", "",
+          f"- correct {100 * a['correct_rate']:.2f} %, wrong (> 500 arcsec) {100 * a['wrong_rate']:.2f} %, "
+          f"none {100 * a['none_rate']:.2f} %",
+          f"- error median {a['error_arcsec_median']:.2f} arcsec, p90 {a['error_arcsec_p90']:.2f}, "
+          f"68th percentile {a['error_arcsec_1sigma']:.2f}",
+          f"- status counts: {summary['status_counts']}",
+          f"- time per frame: median {summary['time_ms']['median']:.2f} ms, p90 {summary['time_ms']['p90']:.2f} ms", "",
+          "## Next to paper 000 Table 3", "",
+          "The paper's rates are over the 1031 scenes with a planet in the field (beacon columns: of the 962 with an "
+          "attitude); ours over all frames (attitude) and all visible in-field planets (beacons).", "",
+          _table_md(summary, sigmas_km), "", "## Beacons", "",
+          "| sigma_r km | beacons | correct % | wrong % | none % | mean error px | mean (dx, dy) px | paper Table 4 mean |",
+          "|---|---|---|---|---|---|---|---|"]
+    for s in sigmas_km:
+        k = f"{float(s):g}"
+        b = summary["beacon"][k]
+        p4 = PAPER_TABLE4.get(k)
+        f = lambda v: "-" if v is None or not math.isfinite(v) else f"{100 * v:.2f}"
+        md.append(f"| {k} | {b['beacons']} | {f(b['correct_rate'])} | {f(b['wrong_rate'])} | {f(b['none_rate'])} | "
+                  f"{b['error_px_mean']:.3f} | ({b['error_mean_px'][0]:.4f}, {b['error_mean_px'][1]:.4f}) | "
+                  f"{p4[0] if p4 else '-'} |")
+    md += ["", "## Peers", "", info.get("peers_note", "Peers not run (--peers not given)."), ""]
+    (out / "report.md").write_text("\n".join(md), encoding="utf-8")
+    plots = _plots(rows, summary, sigmas_km)
+    import html
+
+    body = "".join(f"<h2>{html.escape(t)}</h2><img alt=\"{html.escape(t)}\" src=\"data:image/png;base64,{b}\">" for t, b in plots.items())
+    md_html = "<pre>" + html.escape("\n".join(md)) + "</pre>"
+    page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench ip</title>"
+            "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}img{max-width:100%}"
+            "pre{white-space:pre-wrap;font-size:12px}</style></head><body><h1>skynav bench ip</h1>"
+            f"{md_html}{body}</body></html>\n")
+    (out / "report.html").write_text(page, encoding="utf-8")
+    return out

@@ -1,0 +1,193 @@
+"""Star identification: lost-in-space (k-vector + reference-star votes + RANSAC over 3-star Wahba)
+and tracking (catalog stars predicted from a previous attitude). Paper 000 section III.A.2-3,
+paper 001 Fig. 4.
+
+Core module. Inputs are camera-frame unit vectors of the spots (``camera.line_of_sight``) in a
+priority order (brightest, most star-like first), outputs the attitude and the spot <-> star
+matches. No wrong attitude is reported as correct: every solution is checked against the catalog
+stars it predicts in the field (:func:`associate`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .attitude import wahba_svd
+
+__all__ = ["StarMatch", "lost_in_space", "associate", "refine", "C_KM_S"]
+
+C_KM_S = 299792.458
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class StarMatch:
+    """An attitude and its matches (indices into the spots and into the on-board catalog)."""
+
+    R_cam_icrs: np.ndarray
+    spot_index: np.ndarray
+    star_index: np.ndarray
+    residual_rad: np.ndarray
+
+
+def _pair_candidates(cat, b, eps_rad, rel_eps):
+    """For every spot pair (a, b): the catalog pairs within the angle window; flattened arrays."""
+    n = len(b)
+    ii, jj = np.triu_indices(n, 1)
+    ang = np.arccos(np.clip(np.einsum("ij,ij->i", b[ii], b[jj]), -1.0, 1.0))
+    eps = eps_rad + rel_eps * ang
+    start, end = cat.kvector.ranges(ang - eps, ang + eps)
+    lengths = end - start
+    total = int(lengths.sum())
+    if total == 0:
+        return ii, jj, ang, eps, np.zeros(0, int), np.zeros(0, int), np.zeros(0, int)
+    pair_of = np.repeat(np.arange(len(ii)), lengths)
+    first = np.repeat(start - np.concatenate(([0], np.cumsum(lengths)[:-1])), lengths)
+    k = first + np.arange(total)
+    return ii, jj, ang, eps, pair_of, cat.pair_i[k], cat.pair_j[k]
+
+
+def lost_in_space(b_cam, cat, *, eps_rad, rel_eps=2.5e-4, n_max=12, top_k=3, max_triples=200,
+                  inlier_rad, rng=None, random_triples=False):
+    """Reference-star votes, then RANSAC over 3-star Wahba solutions.
+
+    Parameters
+    ----------
+    b_cam : ndarray, shape (N, 3)
+        Spot directions in the camera frame, in priority order (the first ``n_max`` are used).
+    cat : OnboardCatalog
+    eps_rad : float
+        k-vector range error (half window) at zero angle, rad.
+    rel_eps : float
+        Extra window per radian of separation (differential aberration, ~|v|/c).
+    inlier_rad : float
+        A hypothesis agrees with an attitude when ``angle(A r, b) < inlier_rad``.
+    random_triples : bool
+        Paper mode: draw ``max_triples`` random triples (``rng``) instead of trying them in the
+        order of the vote counts.
+
+    Returns
+    -------
+    (A, spot_index, star_index) of the best consensus, or None.
+    """
+    b = np.asarray(b_cam, dtype=float)[:n_max]
+    n = len(b)
+    if n < 3:
+        return None
+    ncat = len(cat.hip)
+    ii, jj, ang, eps, pair_of, I, J = _pair_candidates(cat, b, eps_rad, rel_eps)
+    if len(I) == 0:
+        return None
+    a_spot, b_spot = ii[pair_of], jj[pair_of]
+    # each catalog pair votes for both its stars at both its spots (reference-star method)
+    flat = np.concatenate([a_spot * ncat + I, a_spot * ncat + J, b_spot * ncat + I, b_spot * ncat + J])
+    votes = np.bincount(flat, minlength=n * ncat).reshape(n, ncat)
+    top = np.argsort(-votes, axis=1)[:, :top_k]
+    hyp_spot = np.repeat(np.arange(n), top_k)
+    hyp_star = top.ravel()
+    hyp_votes = votes[hyp_spot, hyp_star]
+    ok = hyp_votes >= 2
+    hyp_spot, hyp_star, hyp_votes = hyp_spot[ok], hyp_star[ok], hyp_votes[ok]
+    if len(np.unique(hyp_spot)) < 3:
+        return None
+    order = np.argsort(-hyp_votes, kind="stable")
+    hyp_spot, hyp_star, hyp_votes = hyp_spot[order], hyp_star[order], hyp_votes[order]
+    m = len(hyp_spot)
+    r_h = cat.u_icrs[hyp_star]
+    b_h = b[hyp_spot]
+    cos_in = np.cos(inlier_rad)
+    # the measured angle of every spot pair, and the tolerance, for the triangle check
+    pair_ang = np.full((n, n), np.nan)
+    pair_eps = np.zeros((n, n))
+    pair_ang[ii, jj] = pair_ang[jj, ii] = ang
+    pair_eps[ii, jj] = pair_eps[jj, ii] = eps
+
+    def triples():
+        if random_triples:
+            rng_ = np.random.default_rng(rng)
+            for _ in range(max_triples):
+                yield tuple(rng_.choice(m, 3, replace=False))
+        else:
+            count = 0
+            lim = min(m, 12)
+            for c in range(2, lim):
+                for bb in range(1, c):
+                    for a in range(bb):
+                        yield (a, bb, c)
+                        count += 1
+                        if count >= max_triples:
+                            return
+
+    best = None
+    best_score = 2
+    for t in triples():
+        s = hyp_spot[list(t)]
+        st = hyp_star[list(t)]
+        if len(set(s.tolist())) < 3 or len(set(st.tolist())) < 3:
+            continue
+        # triangle check: the three catalog angles match the measured ones
+        good = True
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            ca = np.arccos(np.clip(r_h[t[p]] @ r_h[t[q]], -1.0, 1.0))
+            if abs(ca - pair_ang[s[p], s[q]]) > pair_eps[s[p], s[q]]:
+                good = False
+                break
+        if not good:
+            continue
+        A = wahba_svd(b_h[list(t)], r_h[list(t)])
+        agree = np.einsum("ij,ij->i", (r_h @ A.T), b_h) > cos_in
+        # one star per spot and one spot per star
+        sp, sr = hyp_spot[agree], hyp_star[agree]
+        _, first = np.unique(sp, return_index=True)
+        sp, sr = sp[first], sr[first]
+        _, first = np.unique(sr, return_index=True)
+        sp, sr = sp[first], sr[first]
+        score = len(sp)
+        if score > best_score:
+            best_score = score
+            best = (wahba_svd(b[sp], cat.u_icrs[sr]), sp, sr)
+            if score >= min(n, 8) and not random_triples:
+                break
+    return best
+
+
+def associate(A, b_cam, star_u_icrs, star_index, *, tol_rad):
+    """Nearest-direction association of predicted catalog stars with spots (mutual nearest).
+
+    Returns (spot_index, star_index, residual_rad) arrays.
+    """
+    if len(star_index) == 0 or len(b_cam) == 0:
+        z = np.zeros(0, dtype=int)
+        return z, z, np.zeros(0)
+    pred = star_u_icrs @ A.T  # (M, 3) in the camera frame
+    cosm = b_cam @ pred.T  # (N, M)
+    j_best = np.argmax(cosm, axis=1)
+    i_best = np.argmax(cosm, axis=0)
+    n = np.arange(len(b_cam))
+    mutual = i_best[j_best] == n
+    cbest = cosm[n, j_best]
+    ok = mutual & (cbest > np.cos(tol_rad))
+    spots = n[ok]
+    stars = j_best[ok]
+    res = np.arccos(np.clip(cbest[ok], -1.0, 1.0))
+    return spots, np.asarray(star_index)[stars], res
+
+
+def refine(A, b_cam, star_dirs_fn, *, half_fov_rad, tol_rad, iterations=2):
+    """Re-associate every catalog star predicted in the field and re-solve Wahba.
+
+    ``star_dirs_fn(boresight_icrs, radius_rad) -> (star_index, u_icrs)`` gives the catalog stars
+    (apparent directions at the epoch) in a cone. Returns a :class:`StarMatch` or None (< 3).
+    """
+    for _ in range(iterations):
+        boresight = A[2]
+        idx, u = star_dirs_fn(boresight, half_fov_rad)
+        spots, stars, res = associate(A, b_cam, u, idx, tol_rad=tol_rad)
+        if len(spots) < 3:
+            return None
+        pos = {s: k for k, s in enumerate(idx)}
+        r = u[[pos[s] for s in stars]]
+        A = wahba_svd(b_cam[spots], r)
+        res = np.arccos(np.clip(np.einsum("ij,ij->i", r @ A.T, b_cam[spots]), -1.0, 1.0))
+    return StarMatch(R_cam_icrs=A, spot_index=spots, star_index=stars, residual_rad=res)

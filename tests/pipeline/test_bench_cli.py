@@ -1,0 +1,69 @@
+"""``skynav bench ip``: a tiny run writes the four report files with the fixed summary keys, and a
+folder that is not a dataset, or frames without the needed keys, give one line and exit 2."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from skynav.cli import main
+
+from .conftest import attitude_towards, render_observation
+
+
+@pytest.fixture(scope="module")
+def frame_folder(tmp_path_factory, paper_cam):
+    """Two frames as a plain folder of PNG + JSON pairs (not a skynav dataset)."""
+    from skynav.datasets.frame_files import write_png
+
+    root = tmp_path_factory.mktemp("frames")
+    for k, (ra, dec) in enumerate(((83.0, -5.0), (250.0, -20.0))):
+        obs, truth = render_observation(R_cam_icrs=attitude_towards(ra, dec, 10.0), camera=paper_cam, seed=k)
+        write_png(root / f"{k:06d}.png", np.asarray(obs.dn))
+        (root / f"{k:06d}.json").write_text(json.dumps(truth))
+    return root
+
+
+def test_bench_ip_on_a_folder_of_frames(frame_folder, tmp_path, capsys):
+    out = tmp_path / "rep"
+    code = main(["bench", "ip", str(frame_folder), "--position-sigma-km", "1e4", "1e7", "-q", "-o", str(out)])
+    assert code == 0
+    for name in ("results.csv", "summary.json", "report.md", "report.html"):
+        assert (out / name).stat().st_size > 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["frames"] == 2
+    assert set(s["attitude"]) >= {"correct_rate", "wrong_rate", "none_rate", "error_arcsec_median", "error_arcsec_p90",
+                                  "error_arcsec_1sigma"}
+    assert s["attitude"]["correct_rate"] == 1.0
+    assert set(s["beacon"]) == {"10000", "1e+07"}
+    assert set(s["beacon"]["10000"]) >= {"correct_rate", "wrong_rate", "none_rate", "error_px_mean"}
+    assert set(s["time_ms"]) == {"median", "p90"}
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 3 and "http" not in html.split("<body>")[1]
+    # reproducible from the seed
+    out2 = tmp_path / "rep2"
+    main(["bench", "ip", str(frame_folder), "--position-sigma-km", "1e4", "1e7", "-q", "-o", str(out2)])
+    a = [line.split(",")[:9] for line in (out / "results.csv").read_text().splitlines()]
+    b = [line.split(",")[:9] for line in (out2 / "results.csv").read_text().splitlines()]
+    assert a == b
+
+
+def test_not_a_dataset_and_missing_keys(frame_folder, tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["bench", "ip", str(empty), "-o", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not a dataset" in err
+    assert main(["bench", "ip", str(tmp_path / "nope"), "-o", str(tmp_path / "r")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    bad = tmp_path / "bad"
+    shutil.copytree(frame_folder, bad)
+    d = json.loads((bad / "000000.json").read_text())
+    del d["attitude"]
+    (bad / "000000.json").write_text(json.dumps(d))
+    assert main(["bench", "ip", str(bad), "-q", "-o", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "attitude.R_cam_icrs" in err
