@@ -38,7 +38,23 @@ import numpy as np
 
 from skynav.scenes.constants import C_KM_S
 
-__all__ = ["LightCorrections", "CASES", "PlanetMeasurement", "planet_pixel", "deaberrate_pixel"]
+__all__ = ["LightCorrections", "CASES", "PlanetMeasurement", "planet_pixel", "deaberrate_pixel",
+           "lambert_photocentre_offset"]
+
+
+def lambert_photocentre_offset(phase_angle_rad):
+    """Offset of a Lambert sphere's centre of light from its centre, towards the Sun, in radii.
+
+    ``(3 pi / 16) sin a (1 + cos a) / (sin a + (pi - a) cos a)``: 0 at full phase; towards new
+    phase it tends to 9 pi / 32 (e.g. Lindegren 1977, A&A 57, 55; Gaia's solar-system photocentre
+    correction). At 120 deg it is 0.75 radius: 1.5 px for the Earth at 0.05 au with the paper camera, which the
+    renderer's discs show and paper 002's point-planet model would take as a position error.
+    """
+    a = np.asarray(phase_angle_rad, dtype=float)
+    den = np.sin(a) + (np.pi - a) * np.cos(a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = 3.0 * np.pi / 16.0 * np.sin(a) * (1.0 + np.cos(a)) / den
+    return np.where(a > np.pi - 1e-6, 9.0 * np.pi / 32.0, np.where(a < 1e-9, 0.0, out))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -112,7 +128,8 @@ def _projection_jacobian(camera, v_cam):
 
 
 def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity_km_s, R_cam_icrs, camera,
-                 *, corrections: LightCorrections = CASES[1]) -> PlanetMeasurement:
+                 *, corrections: LightCorrections = CASES[1], sun_position_km=None,
+                 planet_radius_km: float = 0.0) -> PlanetMeasurement:
     """Modelled pixel position of a planet and its Jacobian wrt the spacecraft state.
 
     Parameters
@@ -127,6 +144,12 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
         Calibrated camera.
     corrections : LightCorrections
         Which effects are modelled (:data:`CASES`).
+    sun_position_km : ndarray, shape (3,), optional
+        With ``planet_radius_km > 0``: the model aims at the planet's Lambert centre of light
+        (:func:`lambert_photocentre_offset`, towards the Sun across the line of sight) instead of
+        its centre (an addition to paper 002). The Jacobian treats the offset as constant (its
+        derivative is ~ offset / distance, < 1e-3 of ``H``).
+    planet_radius_km : float
 
     Returns
     -------
@@ -154,6 +177,15 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
         tau = 0.0
         d = rho
         dd_drho = eye
+    if sun_position_km is not None and planet_radius_km > 0.0:
+        to_sun = np.asarray(sun_position_km, dtype=float) - (r + d)   # planet (at emission) to Sun
+        to_sun /= np.linalg.norm(to_sun)
+        lhat = d / np.linalg.norm(d)
+        phase = np.arccos(np.clip(-lhat @ to_sun, -1.0, 1.0))
+        across = to_sun - (to_sun @ lhat) * lhat
+        na = np.linalg.norm(across)
+        if na > 0:
+            d = d + float(lambert_photocentre_offset(phase)) * planet_radius_km * across / na
     nd = np.linalg.norm(d)
     l = d / nd
     dl_dd = (eye - np.outer(l, l)) / nd

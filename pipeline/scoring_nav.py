@@ -15,8 +15,17 @@ do that). What each part sees:
 Measurement noise ``R = sigma_px^2 I``: measured, not guessed (paper 002 Sec. 5.1 did the same
 with its image-processing Monte Carlo): before the filter runs, the image processing is run on
 every ``calibration_stride``-th frame with a predicted state drawn from P0 about the truth, and
-``sigma_px`` is the RMS per axis of the target's centroid error against the truth's ``xy``
-(bias included). ``--sigma-px`` overrides it.
+the target's centroid minus the measurement model at the true state gives the errors; their
+mean square per axis is fitted as ``sigma0^2 + (kappa D)^2`` with ``D`` the planet's apparent
+diameter in px (:class:`CentroidNoise`; non-negative least squares with iterated 99.7 % clipping of
+outliers such as a star blended with the planet, which the filter's innovation gate rejects); the filter evaluates ``D`` from its own estimate.
+``--sigma-px`` gives a constant instead.
+
+Phase: the renderer draws planets as lit discs, whose centre of light sits up to ~0.4 diameter
+from the centre towards the Sun (1.5 px for the Earth early in the cruise, 0.2 px for Venus). By
+default the measurement model aims at the Lambert photocentre
+(:func:`skynav.pipeline.measurement.lambert_photocentre_offset`); ``phase_offset=False`` keeps
+paper 002's centre-of-planet model.
 
 The image processing runs once per frame for all the runs of a worker (the predicted state it
 gets is the runs' mean, with the runs' mean covariance plus their spread); with ``workers > 1``
@@ -38,8 +47,33 @@ from .errors import BenchInputError
 from .filter_dynamics import FilterDynamics
 from .measurement import CASES
 
-__all__ = ["NavInputError", "NavPlan", "CampaignResult", "load_plan", "calibrate_sigma_px", "run_campaign",
-           "icrs_to_ecliptic"]
+__all__ = ["NavInputError", "NavPlan", "CampaignResult", "CentroidNoise", "load_plan", "calibrate_sigma_px",
+           "run_campaign", "icrs_to_ecliptic"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class CentroidNoise:
+    """Measurement noise per axis, ``sigma^2 = sigma0_px^2 + (kappa D)^2`` with ``D`` the planet's
+    predicted apparent diameter in px (a lit disc's centroid is noisier and its phase model less
+    exact the larger it is). Fitted on the calibration frames by non-negative least squares."""
+
+    sigma0_px: float
+    kappa: float = 0.0
+    mean_px: tuple = (0.0, 0.0)
+    frames: int = 0
+    clipped: int = 0
+
+    def sigma_px(self, diameter_px: float) -> float:
+        return math.sqrt(self.sigma0_px**2 + (self.kappa * diameter_px) ** 2)
+
+    def describe(self) -> str:
+        return (f"sigma = sqrt({self.sigma0_px:.3f}^2 + ({self.kappa:.3f} D)^2) px, measured on {self.frames} frames "
+                f"({self.clipped} clipped as outliers; mean error {np.round(self.mean_px, 3).tolist()} px)") if self.frames else f"{self.sigma0_px:g} px (given)"
+
+
+def diameter_px(radius_km: float, distance_km: float, camera) -> float:
+    """Apparent diameter of a body, px."""
+    return 2.0 * math.asin(min(1.0, radius_km / distance_km)) / camera.ifov_rad
 
 
 class NavInputError(BenchInputError):
@@ -156,16 +190,26 @@ def _observation(ds, plan: NavPlan, i):
 
 
 def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_position_km: float = 1e4,
-                       sigma_velocity_km_s: float = 0.1):
-    """Measured planet-centroid error: ``(sigma_px, mean_px (2,), n)`` (module docstring)."""
+                       sigma_velocity_km_s: float = 0.1, phase_offset: bool = True):
+    """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
+
+    The error is the image processing's target centroid minus the measurement model (case 1,
+    with the Lambert photocentre offset if ``phase_offset``) evaluated at the TRUE state with the
+    image processing's attitude: what the filter's R must describe.
+    """
     import skynav.datasets as sdat
+    from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
     from . import OnboardCatalog, PredictedState, process_frame
+    from .measurement import planet_pixel
+
+    eph = default_ephemeris()
 
     ds = sdat.open(plan.root)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
     cat = None
     errs = []
+    diam = []
     prev = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
@@ -180,11 +224,31 @@ def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_p
         prev = fr.attitude.R_cam_icrs
         b = _target_beacon(fr, plan.target[i])
         if b is not None:
-            errs.append(np.asarray(b.xy_px) - plan.target_xy_px[i])
+            t = plan.t_tdb_s[i]
+            rp, vp = eph.position_velocity(plan.target[i], t)
+            m = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs, obs.camera,
+                             corrections=CASES[1], sun_position_km=eph.position("sun", t),
+                             planet_radius_km=BODY_RADII_KM[plan.target[i]] if phase_offset else 0.0)
+            errs.append(np.asarray(b.xy_px) - m.xy_px)
+            diam.append(diameter_px(BODY_RADII_KM[plan.target[i]], np.linalg.norm(rp - plan.position_km[i]), obs.camera))
     if not errs:
         raise NavInputError(f"{plan.root}: the image processing found no target planet on the calibration frames")
+    from scipy.optimize import nnls
+
     e = np.array(errs)
-    return float(np.sqrt(np.mean(e**2))), e.mean(0), len(e)
+    d = np.array(diam)
+    e2 = 0.5 * np.sum(e * e, 1)                       # mean square per axis, one per frame
+    keep = np.ones(len(e), dtype=bool)
+    A = np.column_stack([np.ones_like(d), d * d])
+    for _ in range(10):  # fit, then clip outliers (blends, misidentified spots) at the 2-dof 99.7 % point
+        coef, _ = nnls(A[keep], e2[keep])
+        coef[0] = max(coef[0], 1e-6)
+        new = 2.0 * e2 / (A @ coef) <= 11.6
+        if np.array_equal(new, keep) or new.sum() < 3:
+            break
+        keep = new
+    return CentroidNoise(sigma0_px=float(np.sqrt(coef[0])), kappa=float(np.sqrt(coef[1])), mean_px=tuple(e[keep].mean(0)),
+                         frames=int(keep.sum()), clipped=int((~keep).sum()))
 
 
 def _target_beacon(fr, target):
@@ -201,7 +265,7 @@ class CampaignResult:
     """Per-run, per-frame histories (runs R, frames F). Errors are estimate minus truth, ICRS."""
 
     case: int
-    sigma_px: float
+    noise: CentroidNoise
     t_tdb_s: np.ndarray          # (F,)
     error: np.ndarray            # (R, F, 6) km, km/s (after the frame's update)
     cov: np.ndarray              # (R, F, 6, 6)
@@ -214,9 +278,10 @@ class CampaignResult:
     pairs: tuple                 # per leg: (leg, plan pair, optimal pair from the estimate)
 
 
-def _run_chunk(plan: NavPlan, x0, P0, case: int, sigma_px: float, dynamics: FilterDynamics, progress_q=None):
+def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
+               progress_q=None):
     import skynav.datasets as sdat
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
+    from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
     from . import OnboardCatalog, PredictedState, process_frame
     from .pairs import candidates_from_state, optimal_pair
@@ -261,8 +326,12 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, sigma_px: float, dynamics: Filt
         c2 = time.perf_counter()
         if b is not None:
             rp, vp = eph.position_velocity(plan.target[i], t[i])
+            radius = BODY_RADII_KM[plan.target[i]]
+            sigma_px = noise.sigma_px(diameter_px(radius, np.linalg.norm(rp - mean[:3]), obs.camera))
             z = np.broadcast_to(np.asarray(b.xy_px, dtype=float), (n_runs, 2))
-            u = kf.update(z, rp, vp, fr.attitude.R_cam_icrs, obs.camera, sigma_px)
+            u = kf.update(z, rp, vp, fr.attitude.R_cam_icrs, obs.camera, sigma_px,
+                          sun_position_km=eph.position("sun", t[i]),
+                          planet_radius_km=radius if phase_offset else 0.0)
             res[:, i], acc[:, i] = u.residual_px, u.accepted
             meas[i] = np.asarray(b.xy_px) - plan.target_xy_px[i]
         truth = np.concatenate([plan.position_km[i], plan.velocity_km_s[i]])
@@ -282,7 +351,8 @@ def _chunk_worker(args):
 
 
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
-                 sigma_px: float, dynamics: FilterDynamics | None = None, progress=None) -> CampaignResult:
+                 noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
+                 progress=None) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (paper 002 Eq. 45-46 initial errors, 001 Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
@@ -292,20 +362,20 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     if runs < 2:
         raise NavInputError(f"--runs {runs}: at least 2 runs are needed for sample statistics")
     dynamics = dynamics or FilterDynamics()
-    P0 = initial_covariance(sigma_residual_km_s2=dynamics.sigma_residual_km_s2,
-                            sigma_srp_km_s2=dynamics.sigma_srp_km_s2)
+    P0 = initial_covariance()   # paper 001 Table 2
     rng = np.random.default_rng(np.random.SeedSequence([seed, 45]))
     nominal = np.concatenate([plan.position_km[0], plan.velocity_km_s[0], np.zeros(6)])
     x0 = nominal + rng.standard_normal((runs, 12)) * np.sqrt(np.diag(P0))   # paper 002 Eq. 45
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
-        outs = [_run_chunk(plan, x0, P0, case, sigma_px, dynamics, progress)]
+        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress)]
     else:
         with ProcessPoolExecutor(workers) as ex:
-            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, sigma_px, dynamics, None) for c in chunks]))
+            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None)
+                                                    for c in chunks]))
     cat = lambda k: np.concatenate([o[k] for o in outs], 0)  # noqa: E731
-    return CampaignResult(case=case, sigma_px=float(sigma_px), t_tdb_s=plan.t_tdb_s, error=cat("err"),
+    return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("err"),
                           cov=cat("cov"), residual_px=cat("res"), accepted=cat("acc"), ip_status=outs[0]["status"],
                           measured_error_px=outs[0]["meas"], ip_time_s=max(o["ip_s"] for o in outs),
                           filter_time_s=max(o["fl_s"] for o in outs), pairs=outs[0]["pairs"])

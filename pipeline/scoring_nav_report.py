@@ -93,7 +93,7 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
                                  "std": float(mn.std()) if mn.size else None,
                                  "mean_xy": m[np.all(np.isfinite(m), 1)].mean(0).tolist() if mn.size else None,
                                  "frames": int(mn.size)},
-        "sigma_px": res.sigma_px,
+        "noise": {"sigma0_px": res.noise.sigma0_px, "kappa": res.noise.kappa, "frames": res.noise.frames},
         "measurements": {"frames_with_centroid": int(np.sum(np.isfinite(res.residual_px[0, :, 0]))),
                          "accepted_fraction": float(res.accepted.sum() / max(1, np.isfinite(res.residual_px[..., 0]).sum())),
                          "residual_mean_px": resid.mean(0).tolist() if resid.size else None,
@@ -159,8 +159,8 @@ def _plots(res, summary) -> dict:
     ok = np.isfinite(r[:, 0])
     ax.plot(days[ok], r[ok, 0], ".", ms=3, label="x (run 0)")
     ax.plot(days[ok], r[ok, 1], ".", ms=3, label="y (run 0)")
-    ax.axhline(3 * res.sigma_px, color="gray", ls=":")
-    ax.axhline(-3 * res.sigma_px, color="gray", ls=":", label="3 sigma_px")
+    ax.axhline(3 * res.noise.sigma0_px, color="gray", ls=":")
+    ax.axhline(-3 * res.noise.sigma0_px, color="gray", ls=":", label="3 sigma0_px")
     ax.set_ylabel("pre-fit residual [px]")
     ax.set_xlabel("days since the first frame")
     ax.legend()
@@ -228,7 +228,7 @@ def _markdown(s: dict, info: dict) -> list:
     me = s["measurement_error_px"]
     md = [f"# skynav bench nav: {info.get('source')}", "",
           f"Case {s['case']}, {s['runs']} runs, {s['frames']} frames, seed {info.get('seed')}, "
-          f"sigma_px {s['sigma_px']:.3f} ({info.get('sigma_source')}), {s['time_s']:.1f} s "
+          f"R: {info.get('noise')}, {s['time_s']:.1f} s "
           f"(image processing {info.get('ip_time_s', float('nan')):.1f} s, filter {info.get('filter_time_s', float('nan')):.1f} s, "
           f"setup {info.get('setup_time_s', float('nan')):.1f} s).", "",
           "## Final accuracy (3-sigma), next to paper 002 and the issue's targets", "",

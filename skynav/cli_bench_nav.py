@@ -9,7 +9,7 @@ import time
 
 
 def cmd_nav(args) -> int:
-    from skynav.pipeline.scoring_nav import NavInputError, calibrate_sigma_px, load_plan, run_campaign
+    from skynav.pipeline.scoring_nav import CentroidNoise, NavInputError, calibrate_sigma_px, load_plan, run_campaign
     from skynav.pipeline.scoring_nav_report import summarise, write_report
 
     cases = list(dict.fromkeys(args.case))
@@ -25,10 +25,10 @@ def cmd_nav(args) -> int:
     t0 = time.perf_counter()
     plan = load_plan(args.dataset, images=args.images, limit=args.limit)
     if args.sigma_px is None:
-        sigma, mean_xy, n = calibrate_sigma_px(plan, stride=args.calibration_stride, seed=args.seed)
-        sigma_source = f"measured on {n} frames (every {args.calibration_stride}th), mean error {mean_xy.round(3).tolist()} px"
+        noise = calibrate_sigma_px(plan, stride=args.calibration_stride, seed=args.seed,
+                                   phase_offset=not args.no_phase_offset)
     else:
-        sigma, sigma_source = float(args.sigma_px), "--sigma-px"
+        noise = CentroidNoise(sigma0_px=float(args.sigma_px))
     setup_s = time.perf_counter() - t0
     results = {}
     ip_s = fl_s = 0.0
@@ -38,8 +38,8 @@ def cmd_nav(args) -> int:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=plan.frames, unit="frame", desc=f"case {c}, {args.runs} runs")
-        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, sigma_px=sigma,
-                                  progress=None if bar is None else bar.update)
+        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise,
+                                  phase_offset=not args.no_phase_offset, progress=None if bar is None else bar.update)
         if bar is not None:
             bar.close()
         ip_s += results[c].ip_time_s
@@ -47,8 +47,8 @@ def cmd_nav(args) -> int:
     total = time.perf_counter() - t0
     primary = cases[0]
     summary = summarise(results, primary=primary, time_s=total, plan=plan)
-    info = {"source": str(args.dataset), "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
-            "cases": cases, "sigma_source": sigma_source, "setup_time_s": setup_s, "ip_time_s": ip_s,
+    info = {"source": str(args.dataset), "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
+            "cases": cases, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
     f = summary["final"]
@@ -57,7 +57,7 @@ def cmd_nav(args) -> int:
           f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
           f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); paper 002: 1953 km, 0.41 m/s")
     print(f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
-          f"frames inside); sigma_px {sigma:.3f}")
+          f"frames inside); R: {noise.describe()}")
     for c, v in summary["cases"].items():
         print(f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
     print(f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})")
@@ -80,6 +80,8 @@ def add_parser(bsub) -> None:
     p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
     p.add_argument("--sigma-px", type=float, default=None,
                    help="measurement noise, px (default: measured on the dataset's frames)")
+    p.add_argument("--no-phase-offset", action="store_true",
+                   help="model the planet's centre, not its Lambert centre of light (paper 002's model)")
     p.add_argument("--calibration-stride", type=int, default=8, help="frames between calibration frames (default 8)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")

@@ -82,3 +82,23 @@ def test_case_two_deaberration_matches_model():
 def test_aberration_in_model_and_measurement_is_refused():
     with pytest.raises(ValueError):
         LightCorrections(aberration=True, deaberrate_measurement=True)
+
+
+def test_lambert_photocentre_offset_limits_and_direction():
+    from skynav.pipeline.measurement import lambert_photocentre_offset
+
+    assert lambert_photocentre_offset(0.0) == 0.0
+    assert lambert_photocentre_offset(np.pi) == pytest.approx(9 * np.pi / 32)
+    assert lambert_photocentre_offset(np.pi - 1e-3) == pytest.approx(9 * np.pi / 32, rel=1e-4)
+    assert lambert_photocentre_offset(np.radians(120)) == pytest.approx(0.7456, abs=1e-3)
+    cam = paper_camera()
+    r, v, rp, vp, R = _geometry()
+    sun = np.zeros(3)
+    plain = planet_pixel(r, v, rp, vp, R, cam)
+    lit = planet_pixel(r, v, rp, vp, R, cam, sun_position_km=sun, planet_radius_km=6000.0)
+    # the shift points towards the Sun's projection as seen from the planet
+    toward = cam.project((R @ (rp + 1e6 * (sun - rp) / np.linalg.norm(sun - rp) - r))[None])[0] - plain.xy_px
+    shift = lit.xy_px - plain.xy_px
+    assert 0 < np.linalg.norm(shift) < 0.1 and shift @ toward > 0.99 * np.linalg.norm(shift) * np.linalg.norm(toward)
+    # the Jacobian that ignores the offset's own derivative stays within 1e-3
+    assert np.abs(lit.H - plain.H).max() < 1e-3 * np.abs(plain.H).max()
