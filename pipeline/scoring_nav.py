@@ -317,8 +317,11 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
             cat = OnboardCatalog.load(camera=obs.camera)
         mean = kf.x.mean(0)
         spread = np.cov(kf.x[:, :3].T) if n_runs > 1 else np.zeros((3, 3))
+        # the image processing predicts the planet's centre; its spot is the centre of light, up to
+        # 0.9 radius away (measurement.lambert_photocentre_offset): widen the search by one radius
+        radius = BODY_RADII_KM.get(plan.target[i], 0.0)
         ps = PredictedState(position_km=mean[:3], velocity_km_s=mean[3:6],
-                            position_cov_km2=kf.P[:, :3, :3].mean(0) + spread)
+                            position_cov_km2=kf.P[:, :3, :3].mean(0) + spread + radius**2 * np.eye(3))
         fr = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prev)
         prev = fr.attitude.R_cam_icrs
         status.append(fr.status)
