@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from skynav.scenes.constants import AU_KM, GM_KM3_S2
+from skynav.scenes.constants import AU_KM, GM_KM3_S2, SECONDS_PER_DAY
 from skynav.scenes.dynamics import BodyTable, SpacecraftSRP
 
 __all__ = ["LU_KM", "TU_S", "VU_KM_S", "ACU_KM_S2", "FilterDynamics", "STATE_SIZE", "state_scale"]
@@ -72,7 +72,7 @@ class FilterDynamics:
 
     bodies: tuple = ("sun", "earth", "moon", "mars", "jupiter")
     srp: SpacecraftSRP | None = field(default_factory=SpacecraftSRP)
-    correlation_time_s: float = 10 * 86400.0
+    correlation_time_s: float = 10 * SECONDS_PER_DAY
     sigma_residual_km_s2: float = 5e-10
     sigma_srp_km_s2: float = 5e-10
     rtol: float = 1e-9

@@ -281,6 +281,7 @@ class CampaignResult:
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
                progress_q=None):
     import skynav.datasets as sdat
+    from skynav.scenes.constants import SECONDS_PER_DAY
     from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
     from . import OnboardCatalog, PredictedState, process_frame
@@ -289,7 +290,7 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
     ds = sdat.open(plan.root)
     eph = default_ephemeris()
     t = plan.t_tdb_s
-    dyn = dynamics.bind(eph, t[0] - 86400.0, t[-1] + 86400.0)
+    dyn = dynamics.bind(eph, t[0] - SECONDS_PER_DAY, t[-1] + SECONDS_PER_DAY)
     kf = NavFilter(dyn, x0, P0, t[0], corrections=CASES[case])
     n_runs, F = kf.n_runs, plan.frames
     err = np.empty((n_runs, F, 6))

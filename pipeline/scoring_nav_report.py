@@ -125,7 +125,9 @@ def _plots(res, summary) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    days = (res.t_tdb_s - res.t_tdb_s[0]) / 86400.0
+    from skynav.scenes.constants import SECONDS_PER_DAY
+
+    days = (res.t_tdb_s - res.t_tdb_s[0]) / SECONDS_PER_DAY
     E = icrs_to_ecliptic()
     e = np.einsum("ij,rfj->rfi", E, res.error[..., :3])
     ev = np.einsum("ij,rfj->rfi", E, res.error[..., 3:]) * 1e3
@@ -143,7 +145,9 @@ def _plots(res, summary) -> dict:
             ax.plot(days, f3, "k--", lw=1.0, label="filter 3-sigma")
             ax.plot(days, -f3, "k--", lw=1.0)
             ax.set_ylabel(f"{'xyz'[k]} ecl. [{unit}]")
-            ax.set_ylim(-1.5 * np.nanmax(f3[len(f3) // 10:]), 1.5 * np.nanmax(f3[len(f3) // 10:]))
+            # symmetric log: the first legs (0.1 km/s initial sigma) span 100x the converged bounds
+            lin = float(np.nanmedian(f3[len(f3) // 2:])) or 1.0
+            ax.set_yscale("symlog", linthresh=lin)
         axs[0].legend(loc="upper right")
         axs[0].set_title(f"{key} error, ecliptic J2000 (case {res.case}, {err.shape[0]} runs)")
         axs[-1].set_xlabel("days since the first frame")
