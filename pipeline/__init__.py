@@ -11,3 +11,12 @@ from .results import AttitudeResult, BeaconResult, FrameResult, PredictedState
 
 __all__ = ["AttitudeResult", "BeaconResult", "FrameResult", "OnboardCatalog", "PredictedState", "ProcessOptions",
            "process_frame"]
+
+# Navigation filter (issue 14): measurement model, EKF, optimal pair.
+from .ekf import NavFilter, initial_covariance  # noqa: E402
+from .filter_dynamics import FilterDynamics  # noqa: E402
+from .measurement import CASES, LightCorrections, planet_pixel  # noqa: E402
+from .pairs import optimal_pair  # noqa: E402
+
+__all__ += ["CASES", "FilterDynamics", "LightCorrections", "NavFilter", "initial_covariance", "optimal_pair",
+            "planet_pixel"]

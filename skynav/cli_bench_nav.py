@@ -1,0 +1,92 @@
+"""``skynav bench nav``: Monte Carlo EKF campaign on a ``sequence`` dataset (issue 14).
+
+Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`add_parser`.
+"""
+
+from __future__ import annotations
+
+import time
+
+
+def cmd_nav(args) -> int:
+    from skynav.pipeline.scoring_nav import CentroidNoise, NavInputError, calibrate_sigma_px, load_plan, run_campaign
+    from skynav.pipeline.scoring_nav_report import summarise, write_report
+
+    cases = list(dict.fromkeys(args.case))
+    for c in cases:
+        if c not in (1, 2, 3, 4, 5):
+            raise NavInputError(f"--case {c}: give 1, 2, 3, 4 or 5")
+    if args.runs < 2:
+        raise NavInputError(f"--runs {args.runs}: at least 2 runs are needed for sample statistics")
+    if args.workers < 1:
+        raise NavInputError(f"--workers {args.workers}: give at least 1")
+    if args.sigma_px is not None and not args.sigma_px > 0:
+        raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
+    t0 = time.perf_counter()
+    plan = load_plan(args.dataset, images=args.images, limit=args.limit)
+    if args.sigma_px is None:
+        noise = calibrate_sigma_px(plan, stride=args.calibration_stride, seed=args.seed,
+                                   phase_offset=not args.no_phase_offset)
+    else:
+        noise = CentroidNoise(sigma0_px=float(args.sigma_px))
+    setup_s = time.perf_counter() - t0
+    results = {}
+    ip_s = fl_s = 0.0
+    for c in cases:
+        bar = None
+        if not args.quiet and args.workers == 1:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=plan.frames, unit="frame", desc=f"case {c}, {args.runs} runs")
+        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise,
+                                  phase_offset=not args.no_phase_offset, progress=None if bar is None else bar.update)
+        if bar is not None:
+            bar.close()
+        ip_s += results[c].ip_time_s
+        fl_s += results[c].filter_time_s
+    total = time.perf_counter() - t0
+    primary = cases[0]
+    summary = summarise(results, primary=primary, time_s=total, plan=plan)
+    info = {"source": str(args.dataset), "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
+            "cases": cases, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
+            "filter_time_s": fl_s}
+    out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
+    f = summary["final"]
+    n = summary["nees"]
+    print(f"{summary['runs']} runs x {summary['frames']} frames, case {primary}: final 3-sigma "
+          f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
+          f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); paper 002: 1953 km, 0.41 m/s")
+    print(f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
+          f"frames inside); R: {noise.describe()}")
+    for c, v in summary["cases"].items():
+        print(f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
+    print(f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})")
+    print(f"report: {out}/report.html")
+    return 0
+
+
+def add_parser(bsub) -> None:
+    """Register ``nav`` on the ``bench`` sub-parsers."""
+    p = bsub.add_parser("nav", help="Monte Carlo EKF navigation campaign on a sequence dataset",
+                        description="Run the image processing on every frame of a 'sequence' dataset and the EKF "
+                        "(planet centroids, first-order light-time and aberration) over Monte Carlo initial errors; "
+                        "score against the truth and write runs.csv, frames.csv, summary.json, report.md, report.html.")
+    p.add_argument("dataset", help="a 'sequence' dataset folder")
+    p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (default 50)")
+    p.add_argument("--case", type=int, nargs="+", default=[1],
+                   help="measurement-model cases of paper 002 (1..5; several run in turn; the first is plotted)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the initial-error draws (default 0)")
+    p.add_argument("--workers", type=int, default=1, help="processes; the runs are split among them (default 1)")
+    p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
+    p.add_argument("--sigma-px", type=float, default=None,
+                   help="measurement noise, px (default: measured on the dataset's frames)")
+    p.add_argument("--no-phase-offset", action="store_true",
+                   help="model the planet's centre, not its Lambert centre of light (paper 002's model)")
+    p.add_argument("--calibration-stride", type=int, default=8, help="frames between calibration frames (default 8)")
+    p.add_argument("--limit", type=int, default=None, help="only the first N frames")
+    p.add_argument("-o", "--output", required=True, help="report folder")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_nav)
+
+
+register_nav = add_parser
