@@ -55,7 +55,7 @@ def detect_dots(image, *, background=None, window_px: int | None = None) -> Blob
         r0, c0, r1, c1 = p.bbox
         if r0 == 0 or c0 == 0 or r1 == H or c1 == W:
             continue
-        h = window_px if window_px is not None else int(np.ceil(np.sqrt(a / np.pi) + 2.0))
+        h = window_px if window_px is not None else int(np.ceil(np.sqrt(a / np.pi) + 1.0))
         cy, cx = p.centroid
         ok = True
         for _ in range(3):
