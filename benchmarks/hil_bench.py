@@ -1,7 +1,7 @@
 """Hardware-in-the-loop bench campaign: calibration accuracy and speed, screen-frame export speed.
 
 Run: ``python benchmarks/hil_bench.py [--preset bench] [--scenarios realistic,stress,shifted,roll90]
-[--frames 16] [--phases 4]``. For each virtual-bench scenario it writes the patterns (``phases**2``
+[--frames 16] [--phases 4] [--closed-loop] [--skip-export]``. For each virtual-bench scenario it writes the patterns (``phases**2``
 dot grids + 3 flats + 1 dark: 20 patterns for ``--phases 4``), captures them on the virtual bench,
 fits, and prints the uncalibrated error, the held-out residuals (p50/p99/max arcsec, measurement
 noise included), the error of the fitted model against the virtual bench's truth (which only a
@@ -36,6 +36,7 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--phases", type=int, default=4)
     ap.add_argument("--skip-export", action="store_true")
+    ap.add_argument("--closed-loop", action="store_true", help="also run the closed loop on the realistic bench")
     a = ap.parse_args(argv)
 
     from skynav.calibration.errors import IdentificationError
@@ -45,6 +46,7 @@ def main(argv=None) -> None:
     from skynav.scenes.facility import PRESETS
 
     fac = PRESETS[a.preset]()
+    calibrated = {}
     with tempfile.TemporaryDirectory() as tmp:
         pats = write_patterns(fac, f"{tmp}/pat", phases=a.phases)
         print(f"{a.preset}: {len(pats)} patterns, camera {fac.camera.width} px "
@@ -58,11 +60,27 @@ def main(argv=None) -> None:
             except IdentificationError as exc:
                 print(f"{name:<10} refused: {exc}")
                 continue
+            if name == "realistic" and a.closed_loop:
+                from skynav.calibration.radiometric import calibrate_radiometric
+
+                calibrated[name] = calibrate_radiometric(res.facility, f"{tmp}/cap_{name}/power_meter.csv").facility
             s = res.summary()
             e = truth_error_arcsec(fac, res.facility, truth)
             print(f"{name:<10} {uncalibrated_error_arcsec(fac, truth):8.0f} {s['p50']:12.3f} {s['p99']:7.3f} {s['max']:7.3f} "
                   f"{np.percentile(e, 99):9.3f} {e.max():7.3f} {res.seconds:6.1f}")
 
+    if "realistic" in calibrated:
+        import json
+
+        from skynav.calibration.closed_loop import closed_loop
+        from skynav.calibration.virtual_bench import VirtualBench
+        from skynav.scenes import config, presets
+        from skynav.scenes.scene import build_from_spec
+
+        scene = build_from_spec(config.scene_spec_from_mapping(presets.preset_mapping("default")))
+        out = closed_loop(VirtualBench(fac, scenario("realistic", fac)), calibrated["realistic"], scene)
+        print("closed loop (default scene, realistic bench, calibrated):")
+        print(json.dumps(out, indent=1))
     if a.skip_export:
         return
     from skynav.renderer.display import screen_frame
