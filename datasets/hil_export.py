@@ -72,7 +72,7 @@ def _export_one(job):
     from . import open_dataset
 
     ds = open_dataset(root)
-    truth = ds.truth(k, validate=False)
+    truth = ds[k].truth  # the raw ground-truth dict
     scene = scene_from_truth(truth)
     name = f"{k:06d}"
     write_screen_frame(facility, scene, out, name, source={"dataset": str(root), "frame": int(k)}, seed=k)
