@@ -52,7 +52,7 @@ def main(argv=None) -> None:
         print(f"{a.preset}: {len(pats)} patterns, camera {fac.camera.width} px "
               f"({np.degrees(fac.camera.ifov_rad) * 3600:.1f} arcsec/px)")
         print(f"{'scenario':<10} {'uncal.':>8} {'hold-out p50':>12} {'p99':>7} {'max':>7} {'truth p99':>9} {'max':>7} {'fit s':>6}")
-        for name in a.scenarios.split(","):
+        for name in [n for n in a.scenarios.split(",") if n]:
             truth = scenario(name, fac)
             simulate(fac, f"{tmp}/pat", f"{tmp}/cap_{name}", scenario_name=name, frames=a.frames)
             try:
@@ -92,7 +92,7 @@ def main(argv=None) -> None:
     render(scene, seed=0, options=RenderOptions())  # warm caches
     screen_frame(scene, fac, rng=np.random.default_rng(0))
     t = []
-    for _ in range(3):
+    for _ in range(5):
         t0 = time.perf_counter()
         render(scene, seed=0, options=RenderOptions())
         t1 = time.perf_counter()

@@ -61,11 +61,12 @@ def screen_frame(scene, facility, *, rng: np.random.Generator, options=None, scr
     exp = expected_image(sc_scene, projection=proj, rng=rng, options=dataclasses.replace(options, background_e_per_px_s=0.0),
                          own_size=True)
     H, W = proj.height, proj.width
-    yy, xx = np.mgrid[0:H, 0:W].astype(float)
-    grid = np.stack([xx, yy], -1)
-    dn_real, bright = dn_of_electrons(facility, exp.electrons, grid)
+    # only lit pixels need the curve: the dark sky stays at DN 0 (the black level)
+    rows, cols = np.nonzero(exp.electrons > 0)
+    dn_real, bright = dn_of_electrons(facility, exp.electrons[rows, cols], np.stack([cols, rows], -1).astype(float))
     maxdn = facility.screen.max_dn
-    dn = np.clip(np.round(dn_real), 0, maxdn).astype(np.uint8 if facility.screen.bit_depth <= 8 else np.uint16)
+    dn = np.zeros((H, W), dtype=np.uint8 if facility.screen.bit_depth <= 8 else np.uint16)
+    dn[rows, cols] = np.clip(np.round(dn_real), 0, maxdn)
     v = np.einsum("ij,nj->ni", scene.R_cam_icrs, np.asarray(scene.stars.u_icrs, dtype=float).reshape(-1, 3))
     sxy = proj.project(v)
 
