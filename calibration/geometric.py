@@ -171,7 +171,7 @@ def _fit_physical(facility: Facility, s, v, g0: GeometricModel) -> GeometricMode
     return GeometricModel.from_vector(p)
 
 
-def _residual_field(sc, s, dt, n_nodes: int = 33, n_knots: int = 10) -> ResidualField:
+def _residual_field(sc, s, dt, n_nodes: int = 41, n_knots: int = 10) -> ResidualField:
     """Least-squares bicubic spline of tangent-plane residuals over the screen, sampled on a grid."""
     from scipy.interpolate import LSQBivariateSpline
 
@@ -179,9 +179,11 @@ def _residual_field(sc, s, dt, n_nodes: int = 33, n_knots: int = 10) -> Residual
     y0, y1 = s[:, 1].min(), s[:, 1].max()
     tx = np.linspace(x0, x1, n_knots + 2)[1:-1]
     ty = np.linspace(y0, y1, n_knots + 2)[1:-1]
-    gx = np.linspace(-0.5, sc.width_px - 0.5, n_nodes)
-    gy = np.linspace(-0.5, sc.height_px - 0.5, n_nodes)
-    GX, GY = np.meshgrid(np.clip(gx, x0, x1), np.clip(gy, y0, y1))
+    # the grid spans the data only (the field is clamped beyond it): a grid over the whole screen
+    # would carry the clamped edge back into the data region through the bicubic interpolation
+    gx = np.linspace(x0, x1, n_nodes)
+    gy = np.linspace(y0, y1, n_nodes)
+    GX, GY = np.meshgrid(gx, gy)
     out = []
     for c in range(2):
         spl = LSQBivariateSpline(s[:, 0], s[:, 1], dt[:, c], tx, ty, bbox=[x0, x1, y0, y1], kx=3, ky=3)

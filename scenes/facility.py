@@ -109,9 +109,11 @@ class ResidualField:
                 RectBivariateSpline(y, x, np.array(self.dy_rad), kx=3, ky=3))
 
     def __call__(self, x, y):
+        """Offsets at screen px ``(x, y)``; constant beyond the grid (clamped to its edge)."""
         sx, sy = self._splines
         shape = np.shape(x)
-        xf, yf = np.ravel(x), np.ravel(y)
+        xf = np.clip(np.ravel(x), self.x_px[0], self.x_px[-1])
+        yf = np.clip(np.ravel(y), self.y_px[0], self.y_px[-1])
         return sx.ev(yf, xf).reshape(shape), sy.ev(yf, xf).reshape(shape)
 
     def __getstate__(self):
