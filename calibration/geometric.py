@@ -251,10 +251,13 @@ def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdo
         raise IdentificationError(f"only {int(fit.sum())} dots identified over all captures; need >= 50 for a fit")
     g0 = _initial(facility, obs.screen_xy[fit], v[fit])
     g = _fit_physical(facility, obs.screen_xy[fit], v[fit], g0)
-    # robust pass: drop gross outliers (> 10x the median error, e.g. a blob merged with a cosmic ray)
+    # robust pass: drop gross outliers (> 10x the median error and > 2 arcsec, e.g. a dot cut by an
+    # obstruction or merged with a cosmic ray) from the fit and from the held-out set (counted)
     e = _angles_arcsec(g, sc, obs.screen_xy, v)
     good = e < max(10 * np.median(e[fit]), 2.0)
     fit &= good
+    n_test_outliers = int((test & ~good).sum())
+    test &= good  # the same rule for held-out dots (a dot cut by a cosmic ray or an obstruction)
     g = _fit_physical(facility, obs.screen_xy[fit], v[fit], g)
     phys_holdout = _angles_arcsec(g, sc, obs.screen_xy[test], v[test])
     t = g.tangent(sc, obs.screen_xy[fit], residual=False)
@@ -273,7 +276,8 @@ def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdo
                                "max": round(float(fit_e.max()), 4)},
                 "physical_model_only_holdout_arcsec": {"p50": round(float(np.percentile(phys_holdout, 50)), 4),
                                                        "p99": round(float(np.percentile(phys_holdout, 99)), 4)},
-                "n_fit": s["n_fit"], "n_holdout": s["n_holdout"], "excluded_outliers": int((~good).sum())},
+                "n_fit": s["n_fit"], "n_holdout": s["n_holdout"], "excluded_outliers": int((~good).sum()),
+                "excluded_holdout_outliers": n_test_outliers},
         "provenance": {"patterns": str(patterns_dir), "captures": str(captures_dir), "captures_used": len(obs.per_pattern),
                        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "holdout_fraction": holdout, "seed": seed},
     }

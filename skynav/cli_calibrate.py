@@ -56,7 +56,9 @@ def cmd_geometric(args) -> int:
     s = res.summary()
     print(f"identified {sum(v[0] for v in res.per_pattern.values())} dots in {len(res.per_pattern)} captures; "
           f"fit on {s['n_fit']}, held out {s['n_holdout']}; {res.seconds:.1f} s")
-    print(f"held-out line-of-sight residual: p50 {s['p50']:.3f}  p99 {s['p99']:.3f}  max {s['max']:.3f} arcsec")
+    fit = res.facility.calibrated_geometric["fit"]
+    print(f"held-out line-of-sight residual: p50 {s['p50']:.3f}  p99 {s['p99']:.3f}  max {s['max']:.3f} arcsec "
+          f"({fit['excluded_outliers']} gross outliers excluded, {fit['excluded_holdout_outliers']} of them held out)")
     print(f"wrote {out} and {plot}")
     return 0
 

@@ -63,3 +63,22 @@ def test_radiometric_fit_recovers_the_virtual_screen(small_facility, small_captu
     assert res.rms_relative < 0.01
     lo, hi = res.usable_v_mag
     assert hi < lo and lo > 6.0  # stars to beyond V = 6 are displayable
+
+
+def test_hot_pixels_a_cosmic_ray_and_missing_dots_do_not_slip(tmp_path, small_facility, small_patterns, small_captures):
+    import shutil
+
+    from skynav.datasets.frame_files import read_png, write_png
+
+    cap = tmp_path / "cap"
+    shutil.copytree(small_captures, cap)
+    img = read_png(cap / "dots_00.png")
+    rng = np.random.default_rng(3)
+    img[rng.integers(5, 250, 25), rng.integers(5, 250, 25)] = 255  # hot pixels
+    img[100, 60:80] = 200  # a cosmic-ray track
+    img[120:140, 120:140] = img[0:20, 0:20]  # a few dots hidden
+    write_png(cap / "dots_00.png", img, bit_depth=8)
+    res = calibrate_geometric(small_facility, small_patterns, cap)
+    truth = scenario("realistic", small_facility)
+    assert np.percentile(true_error_arcsec(small_facility, res.facility, truth), 99) < 0.015 * 281
+    assert res.summary()["max"] < 0.05 * 281
