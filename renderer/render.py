@@ -241,7 +241,7 @@ def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, proje
     return proj.project(v)
 
 
-def _check_projection(scene: Scene, projection):
+def _check_projection(scene: Scene, projection, own_size: bool = False):
     from skynav.scenes.projection import Projection
 
     if projection is None:
@@ -249,7 +249,7 @@ def _check_projection(scene: Scene, projection):
     if not isinstance(projection, Projection):
         raise ConfigValueError("projection", type(projection).__name__, "an object with width, height, project() and line_of_sight()")
     cam = scene.camera
-    if (int(projection.width), int(projection.height)) != (cam.width, cam.height):
+    if not own_size and (int(projection.width), int(projection.height)) != (cam.width, cam.height):
         raise ConfigValueError("projection.size", (projection.width, projection.height),
                                f"the camera's image size ({cam.width}, {cam.height})")
     return projection
@@ -266,7 +266,8 @@ def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
     return projection.project(np.einsum("sij,j->si", Rs, np.asarray(body.u_icrs, dtype=float)))
 
 
-def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions()) -> ExpectedImage:
+def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions(),
+                   own_size: bool = False) -> ExpectedImage:
     """Noise-free electrons and pupil irradiance of a scene through a projection.
 
     Parameters
@@ -275,12 +276,15 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
         Sources, attitude and the camera's optics (aperture, spectral response, exposure, PSF).
     projection : Projection, optional
         Camera-frame line of sight <-> pixel of the image (default ``scene.camera``); its size
-        must be the camera's. Point sources are placed with ``projection.project``; resolved
+        must be the camera's unless ``own_size``. Point sources are placed with ``projection.project``; resolved
         bodies are ray-traced along ``projection.line_of_sight``.
     rng : numpy.random.Generator
         The frame's stream. Only resolved bodies use it, through ``rng.spawn(1)[0]`` (the Mitsuba
         seeds), so ``rng``'s own draws are left for :func:`detect`.
     options : RenderOptions
+    own_size : bool
+        True: the image has the projection's size (a bench screen seen through its collimator),
+        not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
 
     Returns
     -------
@@ -291,9 +295,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     from .radiometry import Radiometry
     from .raster import rasterize
 
-    proj = _check_projection(scene, projection)
+    proj = _check_projection(scene, projection, own_size)
     cam = scene.camera
-    shape = (cam.height, cam.width)
+    shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
     psf = GaussianPSF(cam.defocus_sigma_px)
     T = cam.exposure_s
@@ -371,6 +375,9 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         Sensor parameters (``camera.sensor``), exposure (dark current) and cosmic-ray rate.
     rng : numpy.random.Generator
         The frame's stream: cosmic rays draw first, then the sensor.
+    own_size : bool
+        True: the image has the projection's size (a bench screen seen through its collimator),
+        not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
     options : RenderOptions
         ``cosmic_ray_mode``, ``cosmic_ray_track_prob``, ``noise`` and ``backend``.
 

@@ -85,6 +85,10 @@ def cmd_render(args) -> int:
     seed = spec.seed if args.seed is None else args.seed
     if seed < 0:
         return _fail(f"--seed {seed}: expected a non-negative integer")
+    if args.hil:
+        from .cli_hil import render_hil
+
+        return render_hil(args, spec, seed)
     t0 = time.perf_counter()
     scene = build_from_spec(spec)
     options = RenderOptions(noise=not args.no_noise, backend=args.backend,
@@ -137,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
     r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
+    r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
     r.set_defaults(func=cmd_render)
 
     try:
@@ -145,9 +150,11 @@ def build_parser() -> argparse.ArgumentParser:
         cli_dataset.add_parser(sub)
     except ImportError:  # pragma: no cover - datasets command not available in this build
         pass
-    from . import cli_bench
+    from . import cli_bench, cli_calibrate, cli_hil
 
     cli_bench.add_parser(sub)
+    cli_calibrate.add_parser(sub)
+    cli_hil.add_parser(sub)
     return p
 
 

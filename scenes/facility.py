@@ -1,0 +1,577 @@
+"""A hardware-in-the-loop bench (a *facility*): a screen seen by the camera through a collimator.
+
+Paper 001 section 3 (RETINA): a microdisplay sits in the focal plane of a collimator; the flight
+camera looks into the collimator, so every screen pixel becomes a direction in the camera frame.
+This module is the model of such a bench, pure computation:
+
+- :class:`GeometricModel` / :class:`ScreenProjection`: screen pixel <-> camera-frame line of
+  sight, both directions, a physical model (screen decentre, tilt and roll, collimator focal
+  length and Brown-Conrady distortion, camera misalignment) plus a smooth residual field (a
+  bicubic spline over a coarse grid of the screen). :class:`ScreenProjection` implements the
+  :class:`~skynav.scenes.projection.Projection` protocol at screen resolution, so the renderer
+  draws straight into screen pixels.
+- :class:`RadiometricModel`: screen digital count -> irradiance at the camera pupil per lit pixel
+  (as the power meter reads it), monotone, with its inverse; :meth:`Facility.electrons_per_s_per_w_m2`
+  turns the meter's reading into camera electrons through the screen's relative emission
+  spectrum, the meter's spectral responsivity and the camera's QE x T, so a screen frame targets
+  the same *electrons* as the rendered source, not the same broadband watts.
+- :class:`FlatField`: the relative transmission screen -> camera across the field (collimator
+  vignetting, screen non-uniformity), 1 where the radiometric curve was measured (screen centre).
+
+File form (YAML, ``schema: skynav.facility/1``) is read and written by :func:`facility_from_mapping`
+and :meth:`Facility.to_mapping`; angles are degrees (or arcsec) in files, radians in code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import Camera, paper_camera
+from .constants import C_M_S, PLANCK_J_S
+from .errors import ConfigValueError
+
+SCHEMA = "skynav.facility/1"
+ARCSEC = math.pi / (180.0 * 3600.0)
+
+
+def _check(cond: bool, key: str, value, allowed: str) -> None:
+    if not cond:
+        raise ConfigValueError(key, value, allowed)
+
+
+# ----------------------------------------------------------------------------- screen
+@dataclass(frozen=True, kw_only=True)
+class Screen:
+    """The display: size, pixel pitch and bit depth (PNG: uint8 for 8 bits, uint16 above)."""
+
+    width_px: int
+    height_px: int
+    pixel_pitch_um: float
+    bit_depth: int = 10
+
+    def __post_init__(self):
+        _check(isinstance(self.width_px, int) and self.width_px >= 16, "screen.width_px", self.width_px, "an integer >= 16")
+        _check(isinstance(self.height_px, int) and self.height_px >= 16, "screen.height_px", self.height_px, "an integer >= 16")
+        _check(math.isfinite(self.pixel_pitch_um) and self.pixel_pitch_um > 0, "screen.pixel_pitch_um", self.pixel_pitch_um, "> 0")
+        _check(isinstance(self.bit_depth, int) and 1 <= self.bit_depth <= 16, "screen.bit_depth", self.bit_depth, "an integer in 1..16")
+
+    @property
+    def max_dn(self) -> int:
+        return (1 << self.bit_depth) - 1
+
+
+# ----------------------------------------------------------------------------- geometry
+def rotation_from_vector(rvec) -> np.ndarray:
+    """Rotation matrix of a rotation vector (axis * angle, rad), Rodrigues' formula; active."""
+    r = np.asarray(rvec, dtype=float)
+    th = float(np.linalg.norm(r))
+    if th < 1e-300:
+        return np.eye(3)
+    k = r / th
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(th) * K + (1.0 - math.cos(th)) * (K @ K)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ResidualField:
+    """A smooth correction of the line of sight over the screen: tangent-plane offsets (rad) on a
+    regular grid of screen pixel coordinates, interpolated by a bicubic spline.
+
+    ``x_px`` (nx,), ``y_px`` (ny,) grid nodes; ``dx_rad``, ``dy_rad`` tuples of rows (ny, nx).
+    """
+
+    x_px: tuple
+    y_px: tuple
+    dx_rad: tuple
+    dy_rad: tuple
+
+    def __post_init__(self):
+        for name in ("x_px", "y_px"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        ny, nx = len(self.y_px), len(self.x_px)
+        _check(nx >= 4 and ny >= 4, "geometric.residual_field", (nx, ny), "a grid of at least 4 x 4 nodes")
+        for name in ("dx_rad", "dy_rad"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            _check(a.shape == (ny, nx) and np.all(np.isfinite(a)), f"geometric.residual_field.{name}", a.shape, f"finite values of shape ({ny}, {nx})")
+            object.__setattr__(self, name, tuple(tuple(float(v) for v in row) for row in a))
+
+    @functools.cached_property
+    def _splines(self):
+        from scipy.interpolate import RectBivariateSpline
+
+        x, y = np.array(self.x_px), np.array(self.y_px)
+        return (RectBivariateSpline(y, x, np.array(self.dx_rad), kx=3, ky=3),
+                RectBivariateSpline(y, x, np.array(self.dy_rad), kx=3, ky=3))
+
+    def __call__(self, x, y):
+        """Offsets at screen px ``(x, y)``; constant beyond the grid (clamped to its edge)."""
+        sx, sy = self._splines
+        shape = np.shape(x)
+        xf = np.clip(np.ravel(x), self.x_px[0], self.x_px[-1])
+        yf = np.clip(np.ravel(y), self.y_px[0], self.y_px[-1])
+        return sx.ev(yf, xf).reshape(shape), sy.ev(yf, xf).reshape(shape)
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d.pop("_splines", None)
+        return d
+
+    def __setstate__(self, d):
+        self.__dict__.update(d)
+
+
+@dataclass(frozen=True, kw_only=True)
+class GeometricModel:
+    """Physical model of the bench geometry (``model: physical/1``). Angles rad, lengths mm.
+
+    Screen pixel ``(x, y)`` -> millimetres from the screen centre -> rolled by ``roll_rad`` ->
+    tilted (``tilt_x_rad`` about x, then ``tilt_y_rad`` about y) and offset by the decentre, at
+    ``focal_length_mm`` from the collimator -> chief-ray slope -> Brown-Conrady distortion of the
+    collimator ``(k1, k2, p1, p2)`` -> rotated by the camera misalignment (rotation vector,
+    rad) -> plus the residual field. Screen x right and y down map to camera +x and +y for a
+    perfectly aligned bench (the image inversion of a real collimator is a 180 deg roll).
+    """
+
+    focal_length_mm: float
+    decentre_x_mm: float = 0.0
+    decentre_y_mm: float = 0.0
+    tilt_x_rad: float = 0.0
+    tilt_y_rad: float = 0.0
+    roll_rad: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    misalignment_rad: tuple = (0.0, 0.0, 0.0)
+    residual: ResidualField | None = None
+
+    def __post_init__(self):
+        _check(math.isfinite(self.focal_length_mm) and self.focal_length_mm > 0, "collimator.focal_length_mm", self.focal_length_mm, "> 0")
+        object.__setattr__(self, "misalignment_rad", tuple(float(v) for v in self.misalignment_rad))
+        _check(len(self.misalignment_rad) == 3, "geometric.misalignment_deg", self.misalignment_rad, "3 angles")
+
+    #: names of the fitted parameters, in the order of :meth:`vector`
+    PARAMS = ("focal_length_mm", "decentre_x_mm", "decentre_y_mm", "tilt_x_rad", "tilt_y_rad", "roll_rad",
+              "k1", "k2", "p1", "p2", "mis_x_rad", "mis_y_rad", "mis_z_rad")
+
+    def vector(self) -> np.ndarray:
+        return np.array([self.focal_length_mm, self.decentre_x_mm, self.decentre_y_mm, self.tilt_x_rad, self.tilt_y_rad,
+                         self.roll_rad, self.k1, self.k2, self.p1, self.p2, *self.misalignment_rad])
+
+    @classmethod
+    def from_vector(cls, p, residual=None) -> "GeometricModel":
+        p = [float(v) for v in p]
+        return cls(focal_length_mm=p[0], decentre_x_mm=p[1], decentre_y_mm=p[2], tilt_x_rad=p[3], tilt_y_rad=p[4],
+                   roll_rad=p[5], k1=p[6], k2=p[7], p1=p[8], p2=p[9], misalignment_rad=tuple(p[10:13]), residual=residual)
+
+    @functools.cached_property
+    def _matrices(self):
+        cx, sx = math.cos(self.tilt_x_rad), math.sin(self.tilt_x_rad)
+        cy, sy = math.cos(self.tilt_y_rad), math.sin(self.tilt_y_rad)
+        Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+        Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+        return Ry @ Rx, rotation_from_vector(self.misalignment_rad)
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d.pop("_matrices", None)
+        return d
+
+    def __setstate__(self, d):
+        self.__dict__.update(d)
+
+    def tangent(self, screen: Screen, xy_px, *, residual: bool = True) -> np.ndarray:
+        """Camera-frame tangent-plane coordinates ``(vx/vz, vy/vz)`` of screen pixels, shape (..., 2)."""
+        xy = np.asarray(xy_px, dtype=float)
+        p_mm = screen.pixel_pitch_um * 1e-3
+        u = (xy[..., 0] - 0.5 * (screen.width_px - 1)) * p_mm
+        v = (xy[..., 1] - 0.5 * (screen.height_px - 1)) * p_mm
+        c, s = math.cos(self.roll_rad), math.sin(self.roll_rad)
+        ur, vr = c * u - s * v, s * u + c * v
+        Rt, Rm = self._matrices
+        X = Rt[0, 0] * ur + Rt[0, 1] * vr + self.decentre_x_mm
+        Y = Rt[1, 0] * ur + Rt[1, 1] * vr + self.decentre_y_mm
+        Z = Rt[2, 0] * ur + Rt[2, 1] * vr + self.focal_length_mm
+        xn, yn = X / Z, Y / Z
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+        xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+        vx = Rm[0, 0] * xd + Rm[0, 1] * yd + Rm[0, 2]
+        vy = Rm[1, 0] * xd + Rm[1, 1] * yd + Rm[1, 2]
+        vz = Rm[2, 0] * xd + Rm[2, 1] * yd + Rm[2, 2]
+        tx, ty = vx / vz, vy / vz
+        if residual and self.residual is not None:
+            dx, dy = self.residual(xy[..., 0], xy[..., 1])
+            tx, ty = tx + dx, ty + dy
+        return np.stack([tx, ty], -1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScreenProjection:
+    """Screen pixel <-> camera-frame line of sight of a bench: a
+    :class:`~skynav.scenes.projection.Projection` at screen resolution.
+
+    :meth:`line_of_sight` is the model in closed form; :meth:`project` inverts it by Newton's
+    method on the tangent-plane coordinates (converged to 1e-10 px, far below 0.01 arcsec).
+    """
+
+    screen: Screen
+    model: GeometricModel
+
+    @property
+    def width(self) -> int:
+        return self.screen.width_px
+
+    @property
+    def height(self) -> int:
+        return self.screen.height_px
+
+    def line_of_sight(self, xy_px) -> np.ndarray:
+        t = self.model.tangent(self.screen, xy_px)
+        v = np.concatenate([t, np.ones(t.shape[:-1] + (1,))], -1)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def _local(self, xy, h=1e-3):
+        t0 = self.model.tangent(self.screen, xy)
+        tx = self.model.tangent(self.screen, xy + np.array([h, 0.0]))
+        ty = self.model.tangent(self.screen, xy + np.array([0.0, h]))
+        J = np.stack([(tx - t0) / h, (ty - t0) / h], -1)  # (..., 2 [t], 2 [x, y])
+        return t0, J
+
+    def project(self, v_cam, *, iterations: int = 12, tol_px: float = 1e-10) -> np.ndarray:
+        v = np.asarray(v_cam, dtype=float)
+        z = v[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            target = np.stack([np.where(z > 0, v[..., 0] / z, np.nan), np.where(z > 0, v[..., 1] / z, np.nan)], -1)
+        centre = np.array([0.5 * (self.width - 1), 0.5 * (self.height - 1)])
+        tc, Jc = self._local(centre)
+        xy = centre + np.einsum("ij,...j->...i", np.linalg.inv(Jc), target - tc)
+        for _ in range(iterations):
+            t0, J = self._local(xy)
+            det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+            r = target - t0
+            dx = (J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1]) / det
+            dy = (-J[..., 1, 0] * r[..., 0] + J[..., 0, 0] * r[..., 1]) / det
+            xy = xy + np.stack([dx, dy], -1)
+            step = np.nanmax(np.abs(np.stack([dx, dy]))) if np.any(np.isfinite(dx)) else 0.0
+            if step < tol_px:
+                break
+        return xy
+
+    def in_screen(self, xy_px, margin_px: float = 0.0):
+        xy = np.asarray(xy_px, dtype=float)
+        x, y = xy[..., 0], xy[..., 1]
+        return (x >= -0.5 + margin_px) & (x <= self.width - 0.5 - margin_px) & (y >= -0.5 + margin_px) & (y <= self.height - 0.5 - margin_px)
+
+
+# ----------------------------------------------------------------------------- radiometry
+@dataclass(frozen=True, kw_only=True)
+class RadiometricModel:
+    """Screen digital count -> irradiance at the camera pupil per lit pixel, W/m^2 as the power
+    meter reads it (``model: gamma/1``): ``E(d) = black + (peak - black) * (d / max_dn)**gamma``.
+
+    Monotone for ``gamma > 0`` and ``peak > black``; :meth:`digital_count` is its inverse.
+    """
+
+    black_w_m2: float
+    peak_w_m2: float
+    gamma: float
+    max_dn: int
+
+    def __post_init__(self):
+        _check(math.isfinite(self.black_w_m2) and self.black_w_m2 >= 0, "radiometric.black_w_m2", self.black_w_m2, ">= 0")
+        _check(math.isfinite(self.peak_w_m2) and self.peak_w_m2 > self.black_w_m2, "radiometric.peak_w_m2", self.peak_w_m2, "> black_w_m2")
+        _check(math.isfinite(self.gamma) and 0.2 < self.gamma < 10, "radiometric.gamma", self.gamma, "in (0.2, 10)")
+
+    def irradiance_w_m2(self, dn) -> np.ndarray:
+        d = np.clip(np.asarray(dn, dtype=float), 0, self.max_dn) / self.max_dn
+        return self.black_w_m2 + (self.peak_w_m2 - self.black_w_m2) * d ** self.gamma
+
+    def digital_count(self, irradiance_w_m2) -> np.ndarray:
+        """Real-valued digital count giving ``irradiance_w_m2`` (clipped to 0..max_dn)."""
+        e = (np.asarray(irradiance_w_m2, dtype=float) - self.black_w_m2) / (self.peak_w_m2 - self.black_w_m2)
+        return self.max_dn * np.clip(e, 0.0, 1.0) ** (1.0 / self.gamma)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlatField:
+    """Relative transmission screen -> camera over the screen (bicubic spline over a grid);
+    1 at the screen centre, where the radiometric curve is measured."""
+
+    x_px: tuple
+    y_px: tuple
+    relative: tuple
+
+    def __post_init__(self):
+        object.__setattr__(self, "x_px", tuple(float(v) for v in self.x_px))
+        object.__setattr__(self, "y_px", tuple(float(v) for v in self.y_px))
+        a = np.asarray(self.relative, dtype=float)
+        _check(a.shape == (len(self.y_px), len(self.x_px)) and a.shape[0] >= 2 and a.shape[1] >= 2 and np.all(a > 0),
+               "radiometric.flat_field.relative", a.shape, "positive values on the (ny, nx) grid")
+        object.__setattr__(self, "relative", tuple(tuple(float(v) for v in row) for row in a))
+
+    @functools.cached_property
+    def _spline(self):
+        from scipy.interpolate import RectBivariateSpline
+
+        k = min(3, len(self.x_px) - 1, len(self.y_px) - 1)
+        return RectBivariateSpline(np.array(self.y_px), np.array(self.x_px), np.array(self.relative), kx=k, ky=k)
+
+    def __call__(self, xy_px) -> np.ndarray:
+        xy = np.asarray(xy_px, dtype=float)
+        x = np.clip(xy[..., 0], self.x_px[0], self.x_px[-1])
+        y = np.clip(xy[..., 1], self.y_px[0], self.y_px[-1])
+        return self._spline.ev(np.ravel(y), np.ravel(x)).reshape(np.shape(x))
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d.pop("_spline", None)
+        return d
+
+    def __setstate__(self, d):
+        self.__dict__.update(d)
+
+
+def default_screen_spectrum():
+    """Documented default relative emission of a colour OLED microdisplay showing grey: three
+    Gaussian primaries (B 460 nm, G 530 nm, R 620 nm; sigma 12, 18, 14 nm; weights 1, 0.8, 0.7),
+    380-780 nm every 5 nm. Returns (wavelengths_nm, relative) tuples."""
+    wl = np.arange(380.0, 781.0, 5.0)
+    s = (1.0 * np.exp(-0.5 * ((wl - 460) / 12) ** 2) + 0.8 * np.exp(-0.5 * ((wl - 530) / 18) ** 2)
+         + 0.7 * np.exp(-0.5 * ((wl - 620) / 14) ** 2))
+    return tuple(float(v) for v in wl), tuple(round(float(v / s.max()), 6) for v in s)
+
+
+FLAT_RESPONSIVITY = ((300.0, 1200.0), (1.0, 1.0))
+
+
+# ----------------------------------------------------------------------------- the facility
+@dataclass(frozen=True, kw_only=True)
+class Facility:
+    """A bench: screen, collimator, camera, geometric and radiometric models."""
+
+    name: str = "bench"
+    screen: Screen
+    camera: Camera
+    geometric: GeometricModel
+    radiometric: RadiometricModel
+    flat_field: FlatField | None = None
+    screen_spectrum: tuple = field(default_factory=default_screen_spectrum)
+    meter_responsivity: tuple = FLAT_RESPONSIVITY
+    calibrated_geometric: dict | None = None  # fit report + provenance (file only)
+    calibrated_radiometric: dict | None = None
+
+    def __post_init__(self):
+        for key in ("screen_spectrum", "meter_responsivity"):
+            wl, rel = (tuple(float(v) for v in a) for a in getattr(self, key))
+            _check(len(wl) == len(rel) >= 2 and all(b > a for a, b in zip(wl, wl[1:])) and min(rel) >= 0 and max(rel) > 0,
+                   f"spectra.{key}", len(wl), "increasing wavelengths_nm and non-negative relative values, >= 2 samples")
+            object.__setattr__(self, key, (wl, rel))
+        _check(self.radiometric.max_dn == self.screen.max_dn, "radiometric.max_dn", self.radiometric.max_dn,
+               f"the screen's 2**bit_depth - 1 = {self.screen.max_dn}")
+
+    def __hash__(self):
+        return hash((self.name, self.screen, self.camera, self.geometric.vector().tobytes()))
+
+    @property
+    def projection(self) -> ScreenProjection:
+        return ScreenProjection(screen=self.screen, model=self.geometric)
+
+    def flat(self, xy_px) -> np.ndarray:
+        if self.flat_field is None:
+            return np.ones(np.shape(xy_px)[:-1])
+        return self.flat_field(xy_px)
+
+    def electrons_per_s_per_w_m2(self) -> float:
+        """Camera electrons per second per W/m^2 of power-meter reading of the screen's light.
+
+        ``A_pupil * int S(l) QE(l) l/(h c) dl / int S(l) R(l) dl`` with S the screen's relative
+        emission, R the meter's relative responsivity, QE the camera's QE x T (1 nm grid).
+        """
+        wl = np.arange(300.0, 1200.0, 1.0)
+        S = np.interp(wl, *self.screen_spectrum, left=0.0, right=0.0)
+        R = np.interp(wl, *self.meter_responsivity, left=0.0, right=0.0)
+        Q = np.interp(wl, self.camera.response_wavelengths_nm, self.camera.response_qe_t, left=0.0, right=0.0)
+        photons_per_j = wl * 1e-9 / (PLANCK_J_S * C_M_S)
+        den = np.trapezoid(S * R, wl)
+        _check(den > 0, "spectra", "screen spectrum x meter responsivity", "overlapping spectra")
+        return float(self.camera.aperture_area_m2 * np.trapezoid(S * Q * photons_per_j, wl) / den)
+
+    def coverage(self, n: int = 64) -> float:
+        """Smallest distance (screen px, negative = outside) from the camera's image border,
+        seen through the bench, to the screen's edge."""
+        W, H = self.camera.width, self.camera.height
+        s = np.linspace(-0.5, 1.0, n)
+        xs = np.linspace(-0.5, W - 0.5, n)
+        ys = np.linspace(-0.5, H - 0.5, n)
+        border = np.concatenate([np.stack([xs, np.full(n, -0.5)], -1), np.stack([xs, np.full(n, H - 0.5)], -1),
+                                 np.stack([np.full(n, -0.5), ys], -1), np.stack([np.full(n, W - 0.5), ys], -1)])
+        del s
+        xy = self.projection.project(self.camera.line_of_sight(border))
+        if not np.all(np.isfinite(xy)):
+            return -math.inf
+        d = np.minimum.reduce([xy[:, 0] + 0.5, self.screen.width_px - 0.5 - xy[:, 0], xy[:, 1] + 0.5, self.screen.height_px - 0.5 - xy[:, 1]])
+        return float(d.min())
+
+    def check_coverage(self) -> None:
+        """Raise :class:`ConfigValueError` if the screen does not cover the camera's field."""
+        d = self.coverage()
+        if not d >= 0:
+            raise ConfigValueError("screen", f"{self.screen.width_px}x{self.screen.height_px} px of {self.screen.pixel_pitch_um:g} um "
+                                   f"behind a {self.geometric.focal_length_mm:g} mm collimator",
+                                   f"a screen that covers the camera's {math.degrees(self.camera.fov_x_rad):.1f} deg field "
+                                   f"(its edge falls {-d:.0f} screen px inside the camera's image)")
+
+    def replace(self, **changes) -> "Facility":
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ file form
+    def to_mapping(self) -> dict:
+        g = self.geometric
+        geo = {
+            "model": "physical/1",
+            "parameters": {
+                "focal_length_mm": g.focal_length_mm,
+                "decentre_x_mm": g.decentre_x_mm, "decentre_y_mm": g.decentre_y_mm,
+                "tilt_x_deg": math.degrees(g.tilt_x_rad), "tilt_y_deg": math.degrees(g.tilt_y_rad),
+                "roll_deg": math.degrees(g.roll_rad),
+                "k1": g.k1, "k2": g.k2, "p1": g.p1, "p2": g.p2,
+                "misalignment_deg": [math.degrees(a) for a in g.misalignment_rad],
+            },
+        }
+        if g.residual is not None:
+            r = g.residual
+            geo["residual_field"] = {"x_px": list(r.x_px), "y_px": list(r.y_px),
+                                     "dx_arcsec": [[v / ARCSEC for v in row] for row in r.dx_rad],
+                                     "dy_arcsec": [[v / ARCSEC for v in row] for row in r.dy_rad]}
+        geo.update(self.calibrated_geometric or {"status": "nominal (not calibrated)"})
+        rm = self.radiometric
+        rad = {"model": "gamma/1", "parameters": {"black_w_m2": rm.black_w_m2, "peak_w_m2": rm.peak_w_m2, "gamma": rm.gamma}}
+        if self.flat_field is not None:
+            f = self.flat_field
+            rad["flat_field"] = {"x_px": list(f.x_px), "y_px": list(f.y_px), "relative": [list(row) for row in f.relative]}
+        rad.update(self.calibrated_radiometric or {"status": "nominal (not calibrated)"})
+        return {
+            "schema": SCHEMA,
+            "name": self.name,
+            "screen": dataclasses.asdict(self.screen),
+            "collimator": {"focal_length_mm": g.focal_length_mm},
+            "camera": self.camera.to_dict(),
+            "spectra": {
+                "screen_emission": {"wavelengths_nm": list(self.screen_spectrum[0]), "relative": list(self.screen_spectrum[1])},
+                "power_meter_responsivity": {"wavelengths_nm": list(self.meter_responsivity[0]), "relative": list(self.meter_responsivity[1])},
+            },
+            "geometric": geo,
+            "radiometric": rad,
+        }
+
+
+def _get(d, key, path):
+    if not isinstance(d, dict) or key not in d:
+        raise ConfigValueError(f"{path}.{key}" if path else key, None, "a value (missing)")
+    return d[key]
+
+
+def _num(v, path):
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ConfigValueError(path, v, "a number") from None
+    _check(math.isfinite(x), path, v, "a finite number")
+    return x
+
+
+def facility_from_mapping(d) -> Facility:
+    """A :class:`Facility` from its file form (:meth:`Facility.to_mapping`)."""
+    from .config import camera_from_mapping
+
+    if not isinstance(d, dict):
+        raise ConfigValueError("facility", type(d).__name__, "a mapping (a facility YAML file)")
+    schema = d.get("schema")
+    _check(schema == SCHEMA, "schema", schema, repr(SCHEMA))
+    s = _get(d, "screen", "")
+    screen = Screen(width_px=s.get("width_px"), height_px=s.get("height_px"),
+                    pixel_pitch_um=_num(_get(s, "pixel_pitch_um", "screen"), "screen.pixel_pitch_um"),
+                    bit_depth=s.get("bit_depth", 10))
+    focal = _num(_get(_get(d, "collimator", ""), "focal_length_mm", "collimator"), "collimator.focal_length_mm")
+    camera = camera_from_mapping(_get(d, "camera", ""))
+    geo = d.get("geometric") or {}
+    p = geo.get("parameters") or {}
+    _check(geo.get("model", "physical/1") == "physical/1", "geometric.model", geo.get("model"), "'physical/1'")
+    residual = None
+    if geo.get("residual_field"):
+        rf = geo["residual_field"]
+        residual = ResidualField(x_px=rf["x_px"], y_px=rf["y_px"],
+                                 dx_rad=(np.asarray(rf["dx_arcsec"], dtype=float) * ARCSEC).tolist(),
+                                 dy_rad=(np.asarray(rf["dy_arcsec"], dtype=float) * ARCSEC).tolist())
+    g = GeometricModel(
+        focal_length_mm=_num(p.get("focal_length_mm", focal), "geometric.parameters.focal_length_mm"),
+        decentre_x_mm=_num(p.get("decentre_x_mm", 0.0), "geometric.parameters.decentre_x_mm"),
+        decentre_y_mm=_num(p.get("decentre_y_mm", 0.0), "geometric.parameters.decentre_y_mm"),
+        tilt_x_rad=math.radians(_num(p.get("tilt_x_deg", 0.0), "geometric.parameters.tilt_x_deg")),
+        tilt_y_rad=math.radians(_num(p.get("tilt_y_deg", 0.0), "geometric.parameters.tilt_y_deg")),
+        roll_rad=math.radians(_num(p.get("roll_deg", 0.0), "geometric.parameters.roll_deg")),
+        k1=_num(p.get("k1", 0.0), "k1"), k2=_num(p.get("k2", 0.0), "k2"), p1=_num(p.get("p1", 0.0), "p1"), p2=_num(p.get("p2", 0.0), "p2"),
+        misalignment_rad=tuple(math.radians(_num(a, "geometric.parameters.misalignment_deg")) for a in p.get("misalignment_deg", (0, 0, 0))),
+        residual=residual)
+    cal_geo = {k: v for k, v in geo.items() if k not in ("model", "parameters", "residual_field", "status")} or None
+    rad = d.get("radiometric") or {}
+    _check(rad.get("model", "gamma/1") == "gamma/1", "radiometric.model", rad.get("model"), "'gamma/1'")
+    rp = rad.get("parameters") or {}
+    nominal = nominal_radiometric(screen, camera)
+    rm = RadiometricModel(black_w_m2=_num(rp.get("black_w_m2", nominal.black_w_m2), "radiometric.parameters.black_w_m2"),
+                          peak_w_m2=_num(rp.get("peak_w_m2", nominal.peak_w_m2), "radiometric.parameters.peak_w_m2"),
+                          gamma=_num(rp.get("gamma", nominal.gamma), "radiometric.parameters.gamma"), max_dn=screen.max_dn)
+    flat = None
+    if rad.get("flat_field"):
+        ff = rad["flat_field"]
+        flat = FlatField(x_px=ff["x_px"], y_px=ff["y_px"], relative=ff["relative"])
+    cal_rad = {k: v for k, v in rad.items() if k not in ("model", "parameters", "flat_field", "status")} or None
+    spectra = d.get("spectra") or {}
+    kw = {}
+    if "screen_emission" in spectra:
+        kw["screen_spectrum"] = (spectra["screen_emission"]["wavelengths_nm"], spectra["screen_emission"]["relative"])
+    if "power_meter_responsivity" in spectra:
+        kw["meter_responsivity"] = (spectra["power_meter_responsivity"]["wavelengths_nm"], spectra["power_meter_responsivity"]["relative"])
+    return Facility(name=str(d.get("name", "bench")), screen=screen, camera=camera, geometric=g, radiometric=rm,
+                    flat_field=flat, calibrated_geometric=cal_geo, calibrated_radiometric=cal_rad, **kw)
+
+
+# ----------------------------------------------------------------------------- presets
+def nominal_radiometric(screen: Screen, camera: Camera) -> RadiometricModel:
+    """A plausible uncalibrated curve: gamma 2.2, contrast 50 000:1, and a peak of 1e-8 W/m^2
+    per lit pixel (scaled by the camera's aperture to the paper camera's), which puts a V = -1.5
+    star's core near full scale through the preset collimator."""
+    peak = 1.0e-8 * (paper_camera().aperture_area_m2 / camera.aperture_area_m2)
+    return RadiometricModel(black_w_m2=peak / 5.0e4, peak_w_m2=peak, gamma=2.2, max_dn=screen.max_dn)
+
+
+def _bench(camera: Camera, screen_px: int, pitch_um: float, focal_mm: float, name: str) -> Facility:
+    screen = Screen(width_px=screen_px, height_px=screen_px, pixel_pitch_um=pitch_um, bit_depth=10)
+    return Facility(name=name, screen=screen, camera=camera, geometric=GeometricModel(focal_length_mm=focal_mm),
+                    radiometric=nominal_radiometric(screen, camera))
+
+
+def bench_preset() -> Facility:
+    """``bench``: the paper camera (20 deg, 1024 px) behind a 50 mm collimator looking at a square
+    2560 x 2560 px, 8 um, 10-bit microdisplay: the screen spans +/-11.6 deg (a 1.6 deg margin for
+    misalignment) at 2.15 screen px per camera px."""
+    return _bench(paper_camera(), 2560, 8.0, 50.0, "bench")
+
+
+def bench_small_preset() -> Facility:
+    """``bench_small``: the same optics scaled down for quick rehearsals and tests: a 256 x 256 px
+    camera with the paper camera's 20 deg field, a 640 x 640 px, 32 um screen (2.15 screen px per
+    camera px)."""
+    cam = paper_camera()
+    cam = cam.replace(width=256, height=256, pixel_pitch_um=cam.pixel_pitch_um * 4)
+    return _bench(cam, 640, 32.0, 50.0, "bench_small")
+
+
+PRESETS = {"bench": bench_preset, "bench_small": bench_small_preset}
