@@ -46,6 +46,8 @@ from .errors import ConfigValueError, OutputFormatError
 
 __all__ = [
     "FRAME_FORMATS",
+    "check_output_dir",
+    "check_stem",
     "OutputFormatError",
     "atomic_write_bytes",
     "atomic_path",
@@ -144,6 +146,55 @@ def atomic_write_bytes(path, data: bytes) -> None:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
+
+
+_SYSTEM_DIRS = ("/proc", "/sys", "/dev")
+
+
+def check_output_dir(directory, *, what: str = "output folder") -> Path:
+    """Refuse an output folder that cannot hold files, with one line naming it.
+
+    Checked before any work: the path (or one of its parents) is an existing file, lies in a
+    kernel file system (``/proc``, ``/sys``, ``/dev``), or its nearest existing folder is not
+    writable.
+
+    Raises
+    ------
+    OutputPathError
+    """
+    from .errors import OutputPathError
+
+    d = Path(os.path.abspath(os.fspath(directory)))
+    for sysdir in _SYSTEM_DIRS:
+        if str(d) == sysdir or str(d).startswith(sysdir + "/"):
+            raise OutputPathError(f"{directory}: {what} is in a kernel file system ({sysdir}); choose a folder on disk")
+    probe = d
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        where = "is an existing file" if probe == d else f"lies under a file ({probe})"
+        raise OutputPathError(f"{directory}: {what} {where}; give a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{directory}: {what} is not writable (no write permission on {probe})")
+    return d
+
+
+def check_stem(stem, *, what: str = "file name") -> str:
+    """Refuse a file stem that is not a plain visible name (empty, ``..``, a path, hidden).
+
+    Raises
+    ------
+    OutputPathError
+    """
+    from .errors import OutputPathError
+
+    if not isinstance(stem, str) or not stem.strip() or "/" in stem or os.sep in stem or stem.startswith(".") \
+            or "\0" in stem:
+        raise OutputPathError(f"{what} {stem!r}: expected a plain file name (not empty, no '/', "
+                              f"not starting with '.')")
+    return stem
 
 
 def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
@@ -498,8 +549,14 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     """
     from .truth_schema import write_truth_json
 
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    from .errors import OutputPathError
+
+    check_stem(stem)
+    directory = check_output_dir(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"{directory}: cannot create the output folder ({exc.strerror or exc.__class__.__name__})") from None
     written = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         path = directory / f"{stem}.{fmt}"
