@@ -71,7 +71,7 @@ def dataset_lock(root):
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 pid, host = _holder(path)
                 who = f"pid {pid} on host {host}" if pid is not None else "another process"
-                raise DatasetLockedError(f"{root}: a generator is already running on this dataset ({who}); "
+                raise DatasetLockedError(f"{root}: already running ({who}): another generator is writing this dataset; "
                                          f"wait for it, or stop it first", pid=pid, host=host) from None
             if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):  # no locks here: go on
                 yield None

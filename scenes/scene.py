@@ -176,6 +176,13 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
+    # geometric check first: inside a body (the Sun included) the light-time iteration has no
+    # solution and would fail with a misleading message
+    for name in ("sun",) + tuple(names):
+        rb, _ = eph.position_velocity(name, t_tdb_s)
+        dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
+        if dist <= BODY_RADII_KM[name]:
+            raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r)
     sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
     out = []
     for name in names:
