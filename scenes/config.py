@@ -248,8 +248,9 @@ _RENDER_KEYS = {"catalog_limiting_v_mag", "resolved_threshold_px", "cosmic_rays_
 _MOVED_RENDER_KEYS = {"star_mag_limit": "render.catalog_limiting_v_mag"}
 
 
-#: Farthest observer from the barycentre (or its ``relative_to`` body), km: ~6700 AU.
-MAX_DISTANCE_KM = 1e12
+#: Farthest observer from the barycentre (or its ``relative_to`` body), km: ~200 AU (Voyager 1 is at
+#: ~165 AU). Beyond ~1e11 km the light-time iteration (1e-10 s tolerance) meets float64 resolution.
+MAX_DISTANCE_KM = 3e10
 
 
 def check_cosmic_rays(rays: float, camera: Camera, key: str) -> float:
@@ -369,7 +370,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     pos = _vector(obs["position_km"], "observer.position_km")
     if np.linalg.norm(pos) > MAX_DISTANCE_KM:
         raise ConfigValueError("observer.position_km", obs["position_km"],
-                               f"within {MAX_DISTANCE_KM:.0e} km (about 6700 AU) of the "
+                               f"within {MAX_DISTANCE_KM:.0e} km (about 200 AU) of the "
                                f"{'barycentre' if rel is None else rel}")
     vel = _vector(obs["velocity_km_s"], "observer.velocity_km_s")
     if np.linalg.norm(vel) >= 0.1 * C_KM_S:
