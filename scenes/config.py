@@ -315,7 +315,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if len(modes) != 1:
         raise ConfigValueError("attitude", sorted(att), "exactly one of point_at, ra_deg+dec_deg, q_cam_icrs")
     point_at = att.get("point_at")
-    if point_at is not None and not isinstance(point_at, str):
+    if "point_at" in att and not isinstance(point_at, str):
         raise ConfigValueError("attitude.point_at", point_at, "a body name or auto")
     if point_at == "sun":
         raise ConfigValueError("attitude.point_at", point_at, "a planet, the Moon or auto; a navigation camera "

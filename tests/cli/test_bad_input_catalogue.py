@@ -73,6 +73,7 @@ SCENE_MUTATIONS = [
     ("attitude.point_at", ["mars"], "attitude.point_at"),
     ("attitude.point_at", {"body": "mars"}, "attitude.point_at"),
     ("attitude.point_at", 4, "attitude.point_at"),
+    ("attitude.point_at", None, "attitude.point_at"),  # found by the fuzz test (a traceback before)
     ("attitude.ra_deg", 10.0, "attitude"),
     ("attitude.q_cam_icrs", [1, 0, 0, 0], "attitude"),
     ("attitude.roll_deg", 1, "attitude.roll_deg"),
