@@ -9,9 +9,10 @@
   after its temp file is complete or half written. 20 points, 4 of them followed by a resume that
   is itself killed; every final resume must give the same SHA-256 for every file as a run never
   interrupted.
-- A full disk: no size-limited file system can be mounted in the CI container, so ``ENOSPC`` is
-  raised by the writer at the N-th write (monkeypatched), the command line must say it in one
-  line, and a resume must end identical.
+- A full disk, twice: a real 400 KiB tmpfs mounted by the test (root only, skipped elsewhere)
+  fills mid-run, then is grown and the run resumed; and, everywhere, ``ENOSPC`` raised by the
+  writer at the 7th write (monkeypatched). The command line must say it in one line, and the
+  resume must end identical. A read-only mount checks the "not writable" refusal.
 """
 
 from __future__ import annotations
@@ -147,7 +148,7 @@ def test_sigkill_at_a_write_then_resume_identical(small_reference, tmp_path, die
 
 
 def test_full_disk_is_one_line_and_the_resume_ends_identical(small_reference, tmp_path, monkeypatch, capsys):
-    """ENOSPC simulated at the 7th write (no size-limited file system can be mounted here)."""
+    """ENOSPC simulated at the 7th write (runs where no file system can be mounted)."""
     import skynav.datasets.frame_files as ff
     from skynav.cli import main
 
@@ -201,3 +202,49 @@ def test_a_stale_lock_of_a_killed_run_is_taken_over(tmp_path):
     assert rc == -signal.SIGKILL and (out / ".skynav.lock").exists()  # left behind, not held
     generate(recipe(), out, workers=1, progress=False)
     assert verify(out).ok and not (out / ".skynav.lock").exists()
+
+
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    """A tmpfs of 400 KiB (half of the 6-frame dataset) mounted for the test (root only; skipped where mounting is not allowed)."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a size-limited tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mnt)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_real_full_disk_then_more_space_resumes_identical(small_reference, small_tmpfs):
+    """A 400 KiB file system fills mid-run (ENOSPC from the kernel); one line, exit 2; after the
+    file system is grown (remount), the same command resumes to the uninterrupted bytes."""
+    out = small_tmpfs / "ds"
+    rf = small_tmpfs.parent / "r.json"
+    rf.write_text(json.dumps(recipe()))
+    cmd = [sys.executable, "-m", "skynav", "dataset", "generate", str(rf), "-o", str(out), "--workers", "1", "-q"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    lines = first.stderr.strip().splitlines()
+    assert first.returncode == 2 and "Traceback" not in first.stderr, first.stderr
+    assert "no space left" in lines[-1] and lines[-1].startswith("skynav: error:"), lines
+    assert json.loads((out / "manifest.json").read_text())["complete"] is False
+    subprocess.run(["mount", "-o", "remount,size=64m", str(small_tmpfs)], check=True)
+    second = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert second.returncode == 0, second.stderr
+    assert tree_sha256(out) == small_reference
+
+
+def test_read_only_output_folder_is_one_line(small_tmpfs, capsys):
+    from skynav.cli import main
+
+    subprocess.run(["mount", "-o", "remount,ro", str(small_tmpfs)], check=True)
+    assert main(["dataset", "generate", "montecarlo", "-o", str(small_tmpfs / "ds"), "-q", "--count", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not writable" in err[0] and str(small_tmpfs) in err[0], err
+    assert main(["render", "-o", str(small_tmpfs / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not writable" in err[0], err
