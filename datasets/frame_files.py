@@ -89,7 +89,7 @@ def _temp_name(path: str) -> str:
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path, *, durable: bool = True):
     """Context manager yielding a temporary path that replaces ``path`` on success.
 
     The temporary file lives in the directory of ``path`` (so ``os.replace`` is an atomic
@@ -102,6 +102,10 @@ def atomic_path(path):
     ----------
     path : str or os.PathLike
         Final destination. Its directory must exist.
+    durable : bool
+        fsync the file and its directory (default). False keeps only the atomic rename: after a
+        power loss the file may be absent or empty, never partly new (for files whose loss is
+        detected and repaired, like the per-frame checksum records).
 
     Yields
     ------
@@ -117,20 +121,22 @@ def atomic_path(path):
     tmp = _temp_name(final)
     try:
         yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        if durable:
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
         os.replace(tmp, final)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
-    _fsync_dir(os.path.dirname(final))
+    if durable:
+        _fsync_dir(os.path.dirname(final))
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
+def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> None:
     """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
 
     Parameters
@@ -139,8 +145,10 @@ def atomic_write_bytes(path, data: bytes) -> None:
         Destination; its directory must exist.
     data : bytes
         The complete file content.
+    durable : bool
+        See :func:`atomic_path`.
     """
-    with atomic_path(path) as tmp:
+    with atomic_path(path, durable=durable) as tmp:
         # O_EXCL: the random name must not exist; the mode follows the umask like open().
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:

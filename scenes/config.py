@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import C_KM_S
+from .constants import C_KM_S, SECONDS_PER_DAY
 from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
 from .errors import ConfigValueError, MovedKeyError, SceneFileError
 from .visibility import VisibilityCriteria
@@ -73,9 +73,6 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         if k in MOVED_CAMERA_KEYS:
             raise MovedKeyError(f"{key}.{k}", d[k], MOVED_CAMERA_KEYS[k])
     _check_keys(d, key, _CAMERA_KEYS)
-    if "K" in d:
-        raise ConfigValueError(f"{key}.K", d["K"], "no K: it is derived; give fov_deg or focal_length_mm, "
-                               "pixel_pitch_um, cx and cy")
     preset = d.get("preset", "paper" if "width" not in d else None)
     if preset is not None and (not isinstance(preset, str) or preset not in CAMERA_PRESETS):
         raise ConfigValueError(f"{key}.preset", preset, "one of: " + ", ".join(CAMERA_PRESETS))
@@ -140,8 +137,22 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
             raise ConfigValueError(f"{key}.{missing[0]}", None, "a value (or `preset: paper`)")
     _check_camera_limits(kw, key)
     camera = base.replace(**kw) if base is not None else Camera(**kw)
+    if "K" in d:  # a derived copy (Camera.to_dict writes it): accepted only when it agrees
+        _check_K(d["K"], camera, key)
     _warn_camera(camera, key)
     return camera
+
+
+def _check_K(K, camera: Camera, key: str) -> None:
+    """Refuse a ``K`` that is not the one the other camera keys give (K is never read)."""
+    allowed = (f"no K (it is derived: give fov_deg or focal_length_mm, pixel_pitch_um, cx and cy), or exactly "
+               f"the derived {np.round(camera.K, 6).tolist()}")
+    try:
+        arr = np.asarray(K, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigValueError(f"{key}.K", K, allowed) from None
+    if arr.shape != (3, 3) or not np.allclose(arr, camera.K, rtol=1e-9, atol=1e-9):
+        raise ConfigValueError(f"{key}.K", K, allowed)
 
 
 #: Bytes a rendered pixel needs at the peak of a render (float64 work arrays, EXR planes, DN).
@@ -164,7 +175,7 @@ def _check_camera_limits(kw: dict, key: str) -> None:
         "pixel_pitch_um": (0.0, 1e3, "in (0, 1000] um"),
         "pixel_pitch_y_um": (0.0, 1e3, "in (0, 1000] um"),
         "f_number": (0.0, 1e3, "in (0, 1000]"),
-        "exposure_s": (0.0, 86400.0, "in (0, 86400] s (one day)"),
+        "exposure_s": (0.0, SECONDS_PER_DAY, "in (0, 86400] s (one day)"),
         "defocus_sigma_px": (-1e-300, 1e3, "in [0, 1000] px"),
     }
     for name, (lo, hi, allowed) in limits.items():

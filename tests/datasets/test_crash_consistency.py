@@ -155,11 +155,11 @@ def test_full_disk_is_one_line_and_the_resume_ends_identical(small_reference, tm
     real = ff.atomic_path
     calls = {"n": 0}
 
-    def full(path):
+    def full(path, **kw):
         calls["n"] += 1
         if calls["n"] == 7:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path)
+        return real(path, **kw)
 
     monkeypatch.setattr(ff, "atomic_path", full)
     out = tmp_path / "ds"
