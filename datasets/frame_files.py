@@ -560,11 +560,14 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     from .errors import OutputPathError
 
     check_stem(stem)
-    directory = check_output_dir(directory)
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputPathError(f"{directory}: cannot create the output folder ({exc.strerror or exc.__class__.__name__})") from None
+    directory = Path(directory)
+    if not directory.is_dir():  # an existing folder (a dataset's frames/) needs no more checks per frame
+        check_output_dir(directory)
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputPathError(f"{directory}: cannot create the output folder "
+                                  f"({exc.strerror or exc.__class__.__name__})") from None
     written = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         path = directory / f"{stem}.{fmt}"

@@ -177,10 +177,13 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
     try:
-        sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
-        if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
-            raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
-        return _sky_bodies(eph, t_tdb_s, r, v, sun, names)
+        # at a body's centre the light-time step divides by zero before the error below names
+        # the body: numpy's floating-point warnings are silenced here (a NaN still fails later)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+            if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
+                raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
+            return _sky_bodies(eph, t_tdb_s, r, v, sun, names)
     except ObserverInsideBodyError:
         raise
     except Exception:

@@ -429,3 +429,24 @@ def test_every_bad_input_gives_one_line_and_the_documented_exit_code(catalogue, 
         elif want_code == 1 and (lines or "FAILED" not in out.splitlines()[0]):
             failures.append(f"{ident}: verify said {out.strip()[:200]!r}, stderr {err.strip()[:200]!r}")
     assert not failures, f"{len(failures)} of {len(catalogue)} cases:\n" + "\n".join(failures)
+
+
+@pytest.mark.parametrize("key, value, expect", [
+    ("observer", {"relative_to": "earth", "position_km": [0, 0, 0], "velocity_km_s": [0, 0, 0]}, "inside earth"),
+    ("attitude.point_at", "sun", "attitude.point_at"),
+    ("camera.width", 100000, "camera.width x camera.height"),
+])
+def test_in_a_real_process_stderr_is_one_line_too(tmp_path, key, value, expect):
+    """A few catalogue cases in a fresh interpreter: warnings printed by numpy or at interpreter
+    exit (which the in-process table cannot see) must not add lines."""
+    import subprocess
+    import sys
+
+    d = _set(GOOD_SCENE, key, value)
+    if key == "camera.width":
+        d["camera"]["height"] = 100000
+    f = tmp_path / "s.yaml"
+    f.write_text(yaml.safe_dump(d))
+    p = subprocess.run([sys.executable, "-m", "skynav", "scene", str(f)], capture_output=True, text=True, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and expect in lines[0], p.stderr
