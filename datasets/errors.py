@@ -19,6 +19,7 @@ __all__ = [
     "SceneSamplingError",
     "LambertError",
     "OutputFormatError",
+    "OutputPathError",
     "TruthSchemaError",
 ]
 
@@ -63,6 +64,11 @@ class SceneSamplingError(SkynavError, RuntimeError):
 
 class OutputFormatError(SkynavError, ValueError):
     """An image or header cannot be written in the requested file format (bad dtype, shape...)."""
+
+
+class OutputPathError(DatasetError):
+    """An output path that cannot be written (an existing file, under a file, not writable, a kernel
+    file system, a file name with a path in it); checked before any work."""
 
 
 class TruthSchemaError(SkynavError, ValueError):

@@ -60,6 +60,9 @@ class FrameResult:
     backends : dict
         What ran: ``sensor`` (``"llvm"`` or ``"numpy"``) and ``mitsuba_variant`` (None when no
         body was ray-traced in this frame).
+    record : dict
+        ``{"frames/NNNNNN.sha256": sha256}``: the frame's checksum record
+        (:mod:`skynav.datasets.journal`), written after its files.
     """
 
     frame: int
@@ -68,6 +71,7 @@ class FrameResult:
     draws: int | None
     timings_s: dict
     backends: dict = dataclasses.field(default_factory=dict)
+    record: dict = dataclasses.field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- the per-frame function
@@ -109,6 +113,7 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     from skynav.scenes.scene import build_scene
 
     from .frame_files import sha256_file, write_frame
+    from .journal import write_record
     from .plan import frame_seed
 
     if isinstance(plan, (bytes, bytearray)):
@@ -139,12 +144,13 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     paths = write_frame(frame, out / layout.FRAMES_DIR, stem, formats=tuple(formats))
     rel = layout.frame_relpaths(k, formats)
     files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
+    record = write_record(out, k, files)  # the frame's commit point: written last, atomically
     t3 = time.perf_counter()
     ran = truth["render"]  # what ran, as the renderer records it
     backends = {"sensor": ran["backend_used"] if options.noise else None, "mitsuba_variant": ran["mitsuba_variant"]}
     return FrameResult(frame=int(k), files=files, index_row=layout.index_row(truth, k, files),
                        draws=req.meta.get("draws"), timings_s={"sample": t1 - t0, "render": t2 - t1, "write": t3 - t2},
-                       backends=backends)
+                       backends=backends, record=record)
 
 
 def check_backends(res: FrameResult, recorded: dict) -> None:

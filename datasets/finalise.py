@@ -90,6 +90,7 @@ class Progress:
         if self._check is not None:
             self._check(res)
         self.files.update(res.files)
+        self.files.update(res.record)
         self.rows[res.frame] = res.index_row
         self.draws[res.frame] = res.draws
         for key, v in res.timings_s.items():

@@ -46,6 +46,8 @@ from .errors import ConfigValueError, OutputFormatError
 
 __all__ = [
     "FRAME_FORMATS",
+    "check_output_dir",
+    "check_stem",
     "OutputFormatError",
     "atomic_write_bytes",
     "atomic_path",
@@ -87,7 +89,7 @@ def _temp_name(path: str) -> str:
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path, *, durable: bool = True):
     """Context manager yielding a temporary path that replaces ``path`` on success.
 
     The temporary file lives in the directory of ``path`` (so ``os.replace`` is an atomic
@@ -100,6 +102,10 @@ def atomic_path(path):
     ----------
     path : str or os.PathLike
         Final destination. Its directory must exist.
+    durable : bool
+        fsync the file and its directory (default). False keeps only the atomic rename: after a
+        power loss the file may be absent or empty, never partly new (for files whose loss is
+        detected and repaired, like the per-frame checksum records).
 
     Yields
     ------
@@ -115,20 +121,22 @@ def atomic_path(path):
     tmp = _temp_name(final)
     try:
         yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        if durable:
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
         os.replace(tmp, final)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
-    _fsync_dir(os.path.dirname(final))
+    if durable:
+        _fsync_dir(os.path.dirname(final))
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
+def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> None:
     """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
 
     Parameters
@@ -137,13 +145,64 @@ def atomic_write_bytes(path, data: bytes) -> None:
         Destination; its directory must exist.
     data : bytes
         The complete file content.
+    durable : bool
+        See :func:`atomic_path`.
     """
-    with atomic_path(path) as tmp:
+    with atomic_path(path, durable=durable) as tmp:
         # O_EXCL: the random name must not exist; the mode follows the umask like open().
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
+
+
+_SYSTEM_DIRS = ("/proc", "/sys", "/dev")
+
+
+def check_output_dir(directory, *, what: str = "output folder") -> Path:
+    """Refuse an output folder that cannot hold files, with one line naming it.
+
+    Checked before any work: the path (or one of its parents) is an existing file, lies in a
+    kernel file system (``/proc``, ``/sys``, ``/dev``), or its nearest existing folder is not
+    writable.
+
+    Raises
+    ------
+    OutputPathError
+    """
+    from .errors import OutputPathError
+
+    d = Path(os.path.abspath(os.fspath(directory)))
+    for sysdir in _SYSTEM_DIRS:
+        if str(d) == sysdir or str(d).startswith(sysdir + "/"):
+            raise OutputPathError(f"{directory}: {what} is in a kernel file system ({sysdir}); choose a folder on disk")
+    probe = d
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        where = "is an existing file" if probe == d else f"lies under a file ({probe})"
+        raise OutputPathError(f"{directory}: {what} {where}; give a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{directory}: {what} is not writable (no write permission on {probe})")
+    return d
+
+
+def check_stem(stem, *, what: str = "file name") -> str:
+    """Refuse a file stem that is not a plain visible name (empty, ``..``, a path, hidden).
+
+    Raises
+    ------
+    OutputPathError
+    """
+    from .errors import OutputPathError
+
+    if not isinstance(stem, str) or not stem.strip() or "/" in stem or os.sep in stem or stem.startswith(".") \
+            or "\0" in stem:
+        raise OutputPathError(f"{what} {stem!r}: expected a plain file name (not empty, no '/', "
+                              f"not starting with '.')")
+    return stem
 
 
 def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
@@ -498,8 +557,17 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     """
     from .truth_schema import write_truth_json
 
+    from .errors import OutputPathError
+
+    check_stem(stem)
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    if not directory.is_dir():  # an existing folder (a dataset's frames/) needs no more checks per frame
+        check_output_dir(directory)
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputPathError(f"{directory}: cannot create the output folder "
+                                  f"({exc.strerror or exc.__class__.__name__})") from None
     written = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         path = directory / f"{stem}.{fmt}"

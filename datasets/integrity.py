@@ -3,7 +3,7 @@
 Driver module (``skynav dataset verify`` / ``skynav dataset info``). :func:`verify` re-reads every
 file: the manifest against ``manifest.schema.json``, SHA-256 against the manifest, every frame's
 files present, ground truth parsed and checked against ``frame.schema.json`` (JSON Schema, with
-``jsonschema``: :mod:`skynav.datasets.truth_schema`), counts (manifest, recipe, index rows, files
+``jsonschema``: :mod:`skynav.datasets.truth_schema`), every image decoded (PNG, EXR), counts (manifest, recipe, index rows, files
 on disk). Each problem is one line naming the file (and, for a schema violation, the JSON path:
 ``frames/000003.json: does not follow skynav.frame/1: $.attitude.q_cam_icrs: missing``).
 """
@@ -83,9 +83,15 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     if recipe.get("kind") == "montecarlo" and recipe.get("frames") != n:
         problems.append(f"{layout.MANIFEST_NAME}: counts.frames = {n} but the recipe asks for {recipe.get('frames')}")
 
+    from .journal import RECORD_EXT, decode_problem, record_relpath
+
+    # datasets made since per-frame checksum records exist list them in the manifest
+    has_records = any(rel.endswith("." + RECORD_EXT) for rel in files)
     expected = set()
     for k in range(n):
         expected.update(layout.frame_relpaths(k, formats).values())
+        if has_records:
+            expected.add(record_relpath(k))
     missing: dict = {}  # frame stem -> missing file names (one line per frame)
     for rel in sorted(expected - set(files)):
         if (root / rel).is_file():
@@ -106,23 +112,33 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
             continue
         checked += 1
         sha_ok = sha256_file(p) == files[rel]
-        if rel.endswith(".json") and check_schema:
-            try:
+        if rel.endswith(".json"):
+            # JSON first: a truncated file is named as such (its checksum differs too)
+            why = decode_problem(p)
+            if why is not None:
+                problems.append(f"{rel}: {why}")
+                continue
+            if check_schema:
                 truth = json.loads(p.read_bytes().decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                problems.append(f"{rel}: truncated or invalid JSON ({exc.__class__.__name__} at byte {getattr(exc, 'pos', '?')})")
-                continue
-            bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
-            if bad:
-                more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
-                problems.append(f"{rel}: does not follow {FRAME_SCHEMA}: {bad[0]}{more}")
-                continue
+                bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
+                if bad:
+                    more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
+                    problems.append(f"{rel}: does not follow {FRAME_SCHEMA}: {bad[0]}{more}")
+                    continue
         if not sha_ok:
             problems.append(f"{rel}: SHA-256 mismatch (file altered or corrupt)")
+            continue
+        # an image whose damaged bytes were checksummed (a disk that filled, a node that died
+        # before per-frame records existed) still fails to decode: decode every image
+        if not rel.endswith((".json", "." + RECORD_EXT)):
+            why = decode_problem(p)
+            if why is not None:
+                problems.append(f"{rel}: {why}")
     for stem, rels in sorted(missing.items()):
         if stem.startswith(layout.FRAMES_DIR + "/"):
             k = int(stem.split("/")[-1])
-            what = "frame missing" if len(rels) == len(formats) else "missing " + ", ".join(r.rsplit("/", 1)[-1] for r in rels)
+            data = [r for r in rels if not r.endswith("." + RECORD_EXT)]
+            what = "frame missing" if len(data) == len(formats) else "missing " + ", ".join(r.rsplit("/", 1)[-1] for r in rels)
             problems.append(f"frame {k} ({stem}.*): {what}")
         else:
             problems.extend(f"{r}: missing" for r in rels)
@@ -149,11 +165,36 @@ def info(path) -> dict:
     """Summary of a dataset for a table: ``{"rows": [(field, value), ...], ...}``.
 
     Works on incomplete datasets too (it says so). Values are strings ready to print.
+
+    Raises
+    ------
+    DatasetError
+        No dataset there, or a manifest or ``index.csv`` too damaged to summarise (one line
+        naming the file; ``verify`` says more).
     """
-    from skynav.scenes.camera import Camera
+    from .errors import DatasetError, SkynavError
 
     root = Path(path)
     m = layout.read_manifest(root)
+    try:
+        return _info(root, m)
+    except SkynavError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OSError, _csv_error()) as exc:
+        what = f"missing key {exc}" if isinstance(exc, KeyError) else exc.__class__.__name__
+        bad = layout.INDEX_NAME if isinstance(exc, (OSError, _csv_error(), UnicodeDecodeError)) else layout.MANIFEST_NAME
+        raise DatasetError(f"{root / bad}: damaged, cannot summarise ({what}); run `skynav dataset verify`") from None
+
+
+def _csv_error():
+    import csv
+
+    return csv.Error
+
+
+def _info(root: Path, m: dict) -> dict:
+    from skynav.scenes.camera import Camera
+
     r = m["recipe"]
     cam = Camera.from_dict(m["camera"])
     c = m.get("counts", {})

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
-from .errors import DatasetError, FrameIndexError, IncompleteDatasetError
+from .errors import SkynavError, DatasetError, FrameIndexError, IncompleteDatasetError
 
 __all__ = ["Dataset", "FrameRecord", "open_dataset"]
 
@@ -116,6 +116,14 @@ class Dataset:
             image = read_png(self.root / rel["png"]) if dn and "png" in rel else None
         except FileNotFoundError as exc:
             raise DatasetError(f"{self.root}: frame {i} is missing ({Path(exc.filename).name}); run verify()") from None
+        except SkynavError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a damaged file (0 bytes, truncated, corrupt)
+            from .journal import decode_problem
+
+            bad = next((r for r in rel.values() if decode_problem(self.root / r) is not None), rel.get("png", rel["json"]))
+            raise DatasetError(f"{self.root / bad}: frame {i} is damaged ({exc.__class__.__name__}); "
+                               f"run `skynav dataset verify`") from None
         return truth, image, rel
 
     def __getitem__(self, k) -> FrameRecord:

@@ -323,13 +323,17 @@ def load_recipe_file(path) -> dict:
 
     import yaml
 
+    from skynav.scenes.config import load_yaml
+
     if isinstance(path, str) and path in PRESETS and not os.path.isfile(path):
         return validate_recipe(preset_recipe(path))
     try:
         with open(path, "rb") as f:
-            data = yaml.safe_load(f)
-    except FileNotFoundError:
+            data = load_yaml(f)
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
         raise RecipeError("recipe", str(path), "an existing YAML file or a preset: " + ", ".join(PRESETS)) from None
     except yaml.YAMLError as exc:
-        raise RecipeError("recipe", str(path), f"valid YAML ({exc.__class__.__name__})") from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise RecipeError("recipe", str(path), f"valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__}{where})") from None
     return validate_recipe(data)

@@ -21,8 +21,11 @@ manifest is written first with ``"complete": false``, rewritten every ``flush_ev
 checksums of the frames done, and says ``"complete": true`` only after every frame, the index and
 the side files are written and checksummed. A re-run on the same folder (same recipe, seed,
 package version, render options and resolved backends; anything else is refused) renders only the
-frames that are missing: a frame is present when all its files exist and, where the manifest
-recorded them, their SHA-256 match.
+frames that are missing. Each frame's checksums are recorded with the frame: a worker writes
+``frames/NNNNNN.sha256`` after the frame's files (:mod:`skynav.datasets.journal`). A resume keeps
+a frame only when that record exists, every file's SHA-256 matches it (and the manifest, where it
+recorded the file) and every file decodes (PNG, EXR, JSON); any other frame is made again, so a
+truncated or corrupted file is never kept.
 """
 
 from __future__ import annotations
@@ -73,19 +76,16 @@ class GenerateSummary:
 
 # ----------------------------------------------------------------------------- plan
 def _frame_present(root: Path, k: int, formats, recorded: dict):
-    """``{relpath: sha}`` if frame k is fully present (and matches recorded checksums), else None."""
-    from .frame_files import sha256_file
+    """``(files, record)`` if frame k can be kept, else None.
 
-    files = {}
-    for rel in layout.frame_relpaths(k, formats).values():
-        p = root / rel
-        if not p.is_file():
-            return None
-        sha = sha256_file(p)
-        if rel in recorded and recorded[rel] != sha:
-            return None
-        files[rel] = sha
-    return files
+    Kept means: its checksum record exists (:mod:`skynav.datasets.journal`), every file matches
+    the record and the manifest (where it recorded the file), and every file decodes (PNG, EXR,
+    JSON). Anything else (interrupted, truncated, altered) is made again.
+    """
+    from .journal import frame_problem
+
+    problem, files, record = frame_problem(root, k, formats, recorded=recorded)
+    return None if problem is not None else (files, record)
 
 
 def _existing_row(root: Path, k: int, files: dict, backends: dict):
@@ -109,7 +109,7 @@ def _existing_row(root: Path, k: int, files: dict, backends: dict):
 
 def _remove_frame(root, res) -> None:
     """Delete the files a refused frame wrote, so that a resume renders it again."""
-    for rel in res.files:
+    for rel in list(res.record) + list(res.files):  # the record first: the frame is no longer committed
         try:
             os.unlink(Path(root) / rel)
         except FileNotFoundError:
@@ -128,6 +128,47 @@ def resolve_backends(render_options) -> dict:
 
     variant = jit_backend.select_mitsuba_variant()[0] if render_options.resolved else None
     return {"sensor": sensor_backend(render_options.backend), "mitsuba_variant": variant}
+
+
+def connect_dask(address: str, *, timeout_s: float = 10.0):
+    """A ``distributed.Client`` on ``address``; one line naming it if it cannot be reached.
+
+    Raises
+    ------
+    DatasetError
+        No scheduler answers at ``address`` within ``timeout_s`` (or the address is malformed),
+        or ``distributed`` is not installed.
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise DatasetError(f"--dask-scheduler {address}: the 'distributed' package is not installed") from None
+    try:
+        return Client(address, timeout=f"{timeout_s}s")
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        raise DatasetError(f"--dask-scheduler {address}: no Dask scheduler reachable there within {timeout_s:g} s "
+                           f"({exc.__class__.__name__}); check the address (tcp://HOST:8786)") from None
+
+
+def make_folder(root) -> Path:
+    """Create the dataset folder and its ``frames/``; one line naming the path otherwise.
+
+    Raises
+    ------
+    DatasetError
+        The path is a file, lies under a file, is not writable, or is in a system folder.
+    """
+    from .frame_files import check_output_dir
+
+    root = Path(root)
+    check_output_dir(root, what="dataset folder")
+    try:
+        (root / layout.FRAMES_DIR).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"{root}: cannot create the dataset folder ({exc.strerror or exc.__class__.__name__})") from None
+    if not os.access(root / layout.FRAMES_DIR, os.W_OK | os.X_OK):
+        raise DatasetError(f"{root}: the dataset folder is not writable")
+    return root
 
 
 def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames: int | None = None) -> RunPlan:
@@ -150,10 +191,7 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
     recipe = validate_recipe(recipe)
     options = render_options if render_options is not None else RenderOptions()
     root = Path(out_dir)
-    try:
-        (root / layout.FRAMES_DIR).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DatasetError(f"{root}: cannot create the dataset folder ({exc.strerror})") from None
+    make_folder(root)
     camera = recipe_camera(recipe)
     sampler = make_plan(recipe, ephemeris=ephemeris)
     manifest = base_manifest(recipe, sampler, camera, options, resolve_backends(options))
@@ -173,12 +211,12 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
     # what is there already
     present, rows, draws, todo = {}, {}, {}, []
     for k in range(sampler.n_frames):
-        files = _frame_present(root, k, formats, recorded)
-        existing = None if files is None else _existing_row(root, k, files, manifest["backends"])
+        found = _frame_present(root, k, formats, recorded)
+        existing = None if found is None else _existing_row(root, k, found[0], manifest["backends"])
         if existing is None:
             todo.append(k)
         else:
-            present[k] = files
+            present[k] = {**found[0], **found[1]}
             rows[k], draws[k] = existing
     if max_frames is not None:
         todo = todo[:max_frames]
@@ -240,16 +278,39 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     Raises
     ------
     RecipeError, DatasetMismatchError, DatasetError
+        ``DatasetLockedError`` (a ``DatasetError``) when another generator is running on the
+        folder (:mod:`skynav.datasets.lock`).
     """
-    from . import execute
-    from .finalise import Progress, finalise
-
     t_start = time.perf_counter()
     use_dask = client is not None or dask_scheduler is not None
     if not use_dask:
         n_workers = int(workers) if workers is not None else (os.cpu_count() or 1)
         if n_workers < 1:
             raise RecipeError("workers", workers, "an integer >= 1")
+    from .lock import dataset_lock
+
+    recipe = validate_recipe(recipe)  # a bad recipe is refused before anything is created
+    make_folder(out_dir)
+    own_client = None
+    if use_dask and client is None:  # an unreachable scheduler is named before any work
+        client = own_client = connect_dask(dask_scheduler)
+    try:
+        with dataset_lock(out_dir):
+            return _generate_locked(recipe, out_dir, use_dask=use_dask, n_workers=None if use_dask else n_workers,
+                                    client=client, progress=progress, render_options=render_options,
+                                    flush_every_s=flush_every_s, ephemeris=ephemeris, max_frames=max_frames,
+                                    t_start=t_start)
+    finally:
+        if own_client is not None:
+            own_client.close()
+
+
+def _generate_locked(recipe, out_dir, *, use_dask, n_workers, client, progress, render_options,
+                     flush_every_s, ephemeris, max_frames, t_start) -> GenerateSummary:
+    """:func:`generate` once the folder's lock is held."""
+    from . import execute
+    from .finalise import Progress, finalise
+
     plan = plan_run(recipe, out_dir, render_options=render_options, ephemeris=ephemeris, max_frames=max_frames)
     n = plan.n_frames
     reused = len(plan.present)
@@ -263,13 +324,8 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
             raise
 
     done = Progress(plan, flush_every_s=flush_every_s, update=update, check=check)
-    own_client = None
     try:
         if use_dask:
-            if client is None:
-                from distributed import Client
-
-                client = own_client = Client(dask_scheduler)
             n_workers, executor = execute.run_dask(plan, done.accept, client)
         elif n_workers == 1 or len(plan.todo) <= 1:
             n_workers, executor = execute.run_in_process(plan, done.accept)
@@ -277,8 +333,6 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
             n_workers, executor = execute.run_process_pool(plan, done.accept, n_workers)
     finally:
         close()
-        if own_client is not None:
-            own_client.close()
         if not done.complete:
             done.checkpoint()
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .constants import C_KM_S, SECONDS_PER_DAY
 from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
 from .errors import ConfigValueError, MovedKeyError, SceneFileError
 from .visibility import VisibilityCriteria
@@ -73,7 +74,7 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
             raise MovedKeyError(f"{key}.{k}", d[k], MOVED_CAMERA_KEYS[k])
     _check_keys(d, key, _CAMERA_KEYS)
     preset = d.get("preset", "paper" if "width" not in d else None)
-    if preset is not None and preset not in CAMERA_PRESETS:
+    if preset is not None and (not isinstance(preset, str) or preset not in CAMERA_PRESETS):
         raise ConfigValueError(f"{key}.preset", preset, "one of: " + ", ".join(CAMERA_PRESETS))
     base = CAMERA_PRESETS[preset]() if preset else None
     kw = {}
@@ -130,12 +131,92 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         if width is None or pitch is None:
             raise ConfigValueError(f"{key}.fov_deg", fov, "together with width and pixel_pitch_um (or a preset)")
         kw["focal_length_mm"] = 0.5 * width * pitch * 1e-3 / math.tan(math.radians(fov) / 2)
-    if base is not None:
-        return base.replace(**kw)
-    missing = [k for k in ("width", "height", "focal_length_mm", "pixel_pitch_um") if k not in kw]
-    if missing:
-        raise ConfigValueError(f"{key}.{missing[0]}", None, "a value (or `preset: paper`)")
-    return Camera(**kw)
+    if base is None:
+        missing = [k for k in ("width", "height", "focal_length_mm", "pixel_pitch_um") if k not in kw]
+        if missing:
+            raise ConfigValueError(f"{key}.{missing[0]}", None, "a value (or `preset: paper`)")
+    _check_camera_limits(kw, key)
+    camera = base.replace(**kw) if base is not None else Camera(**kw)
+    if "K" in d:  # a derived copy (Camera.to_dict writes it): accepted only when it agrees
+        _check_K(d["K"], camera, key)
+    _warn_camera(camera, key)
+    return camera
+
+
+def _check_K(K, camera: Camera, key: str) -> None:
+    """Refuse a ``K`` that is not the one the other camera keys give (K is never read)."""
+    allowed = (f"no K (it is derived: give fov_deg or focal_length_mm, pixel_pitch_um, cx and cy), or exactly "
+               f"the derived {np.round(camera.K, 6).tolist()}")
+    try:
+        arr = np.asarray(K, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigValueError(f"{key}.K", K, allowed) from None
+    if arr.shape != (3, 3) or not np.allclose(arr, camera.K, rtol=1e-9, atol=1e-9):
+        raise ConfigValueError(f"{key}.K", K, allowed)
+
+
+#: Bytes a rendered pixel needs at the peak of a render (float64 work arrays, EXR planes, DN).
+BYTES_PER_PIXEL = 64
+
+
+def _physical_memory_bytes() -> int:
+    import os
+
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 16 << 30
+
+
+def _check_camera_limits(kw: dict, key: str) -> None:
+    """Refuse physically impossible camera values (one line naming the key the user wrote)."""
+    limits = {  # key: (low exclusive, high inclusive, what is allowed)
+        "focal_length_mm": (0.0, 1e5, "in (0, 1e5] mm (a 100 m focal length is already beyond any camera)"),
+        "pixel_pitch_um": (0.0, 1e3, "in (0, 1000] um"),
+        "pixel_pitch_y_um": (0.0, 1e3, "in (0, 1000] um"),
+        "f_number": (0.0, 1e3, "in (0, 1000]"),
+        "exposure_s": (0.0, SECONDS_PER_DAY, "in (0, 86400] s (one day)"),
+        "defocus_sigma_px": (-1e-300, 1e3, "in [0, 1000] px"),
+    }
+    for name, (lo, hi, allowed) in limits.items():
+        if name in kw and kw[name] is not None and not lo < kw[name] <= hi:
+            raise ConfigValueError(f"{key}.{name}", kw[name], allowed)
+    for name in ("width", "height"):
+        if name in kw and not 1 <= kw[name] <= 100_000:
+            raise ConfigValueError(f"{key}.{name}", kw[name], "an integer in 1..100000 px")
+    w, h = kw.get("width"), kw.get("height")
+    if w is not None and h is not None:
+        need = w * h * BYTES_PER_PIXEL
+        have = _physical_memory_bytes()
+        if need > have // 2:
+            raise ConfigValueError(f"{key}.width x {key}.height", f"{w} x {h}",
+                                   f"a frame that fits in memory: about {need / 2**30:.0f} GiB needed, "
+                                   f"{have / 2**30:.0f} GiB on this machine")
+    sensor = kw.get("sensor")
+    if sensor is not None:
+        if sensor.full_well_e < 1.0:
+            raise ConfigValueError(f"{key}.sensor.full_well_e", sensor.full_well_e, ">= 1 electron")
+        for name in ("read_noise_e", "reset_noise_e", "dark_current_e_per_s", "dsnu_e_per_s", "gain_dn_per_e"):
+            v = getattr(sensor, name, None)
+            if v is not None and v > 1e9:
+                raise ConfigValueError(f"{key}.sensor.{name}", v, "<= 1e9")
+
+
+def _warn_camera(camera: Camera, key: str) -> None:
+    """One warning per absurd but possible camera value (the command line prints one line each)."""
+    import warnings
+
+    from .errors import SkynavWarning
+
+    fov = math.degrees(camera.fov_x_rad)
+    if fov > 120:
+        warnings.warn(f"{key}: a {fov:.0f} deg horizontal field is far wider than a pinhole camera can image "
+                      f"without severe stretching at the edges", SkynavWarning, stacklevel=3)
+    for name in ("k1", "k2", "k3", "p1", "p2"):
+        v = getattr(camera.distortion, name, 0.0) or 0.0
+        if abs(v) > 10:
+            warnings.warn(f"{key}.distortion.{name} = {v:g} is far outside real lenses (|{name}| < 1)",
+                          SkynavWarning, stacklevel=3)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -176,6 +257,28 @@ class SceneSpec:
 _SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render"}
 _RENDER_KEYS = {"catalog_limiting_v_mag", "resolved_threshold_px", "cosmic_rays_per_frame", "seed"}
 _MOVED_RENDER_KEYS = {"star_mag_limit": "render.catalog_limiting_v_mag"}
+
+
+#: Farthest observer from the barycentre (or its ``relative_to`` body), km: ~200 AU (Voyager 1 is at
+#: ~165 AU). Beyond ~1e11 km the light-time iteration (1e-10 s tolerance) meets float64 resolution.
+MAX_DISTANCE_KM = 3e10
+
+
+def check_cosmic_rays(rays: float, camera: Camera, key: str) -> float:
+    """Refuse a cosmic-ray rate the frame cannot hold (``<= 0.01`` hits per pixel).
+
+    Each hit deposits a track of several pixels; beyond one hit per 100 pixels the frame is
+    noise and the rasteriser's time grows without bound (1e7 hits never finished).
+
+    Raises
+    ------
+    ConfigValueError
+    """
+    limit = 0.01 * camera.width * camera.height
+    if not 0 <= rays <= limit:
+        raise ConfigValueError(key, rays, f"in [0, {limit:g}] (0.01 per pixel of the {camera.width} x "
+                                          f"{camera.height} frame)")
+    return rays
 
 
 def visibility_from_mapping(d, key: str = "visibility") -> VisibilityCriteria:
@@ -223,6 +326,11 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if len(modes) != 1:
         raise ConfigValueError("attitude", sorted(att), "exactly one of point_at, ra_deg+dec_deg, q_cam_icrs")
     point_at = att.get("point_at")
+    if "point_at" in att and not isinstance(point_at, str):
+        raise ConfigValueError("attitude.point_at", point_at, "a body name or auto")
+    if point_at == "sun":
+        raise ConfigValueError("attitude.point_at", point_at, "a planet, the Moon or auto; a navigation camera "
+                               "is never pointed at the Sun (it is outside every scene's sun exclusion)")
     if point_at is not None and point_at != "auto" and point_at not in BODIES:
         raise UnknownBodyError(str(point_at), ("auto",) + BODIES)
     ra = dec = None
@@ -238,7 +346,17 @@ def scene_spec_from_mapping(d) -> SceneSpec:
         if np.linalg.norm(qv) < 1e-12:
             raise ConfigValueError("attitude.q_cam_icrs", att["q_cam_icrs"], "a non-zero quaternion (scalar first)")
         q = tuple(qv / np.linalg.norm(qv))
-    w = np.radians(_vector(att.get("angular_velocity_deg_s", [0, 0, 0]), "attitude.angular_velocity_deg_s"))
+    w_deg = _vector(att.get("angular_velocity_deg_s", [0, 0, 0]), "attitude.angular_velocity_deg_s")
+    if np.linalg.norm(w_deg) > 1e7:
+        raise ConfigValueError("attitude.angular_velocity_deg_s", att["angular_velocity_deg_s"], "a rate below 1e7 deg/s")
+    if np.linalg.norm(w_deg) > 360:
+        import warnings
+
+        from .errors import SkynavWarning
+
+        warnings.warn(f"attitude.angular_velocity_deg_s: {np.linalg.norm(w_deg):g} deg/s is more than one turn per "
+                      f"second; the stars are long streaks", SkynavWarning, stacklevel=2)
+    w = np.radians(w_deg)
     attitude = AttitudeSpec(point_at=point_at, ra_rad=ra, dec_rad=dec, q_cam_icrs=q,
                             twist_rad=math.radians(_number(att.get("twist_deg", 0.0), "attitude.twist_deg")),
                             angular_velocity_rad_s=tuple(float(x) for x in w))
@@ -253,18 +371,26 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if not -2 <= mag <= 14:
         raise ConfigValueError("render.catalog_limiting_v_mag", mag, "in [-2, 14] (Hipparcos is complete to about V = 8)")
     rays = _number(rd.get("cosmic_rays_per_frame", 1.0), "render.cosmic_rays_per_frame")
-    if rays < 0:
-        raise ConfigValueError("render.cosmic_rays_per_frame", rays, ">= 0")
+    check_cosmic_rays(rays, camera, "render.cosmic_rays_per_frame")
     thr = _number(rd.get("resolved_threshold_px", 2.0), "render.resolved_threshold_px")
     if thr <= 0:
         raise ConfigValueError("render.resolved_threshold_px", thr, "> 0")
     seed = _number(rd.get("seed", 0), "render.seed", allowed="a non-negative integer", integer=True)
     if seed < 0:
         raise ConfigValueError("render.seed", seed, "a non-negative integer")
+    pos = _vector(obs["position_km"], "observer.position_km")
+    if np.linalg.norm(pos) > MAX_DISTANCE_KM:
+        raise ConfigValueError("observer.position_km", obs["position_km"],
+                               f"within {MAX_DISTANCE_KM:.0e} km (about 200 AU) of the "
+                               f"{'barycentre' if rel is None else rel}")
+    vel = _vector(obs["velocity_km_s"], "observer.velocity_km_s")
+    if np.linalg.norm(vel) >= 0.1 * C_KM_S:
+        raise ConfigValueError("observer.velocity_km_s", obs["velocity_km_s"],
+                               f"a speed below {0.1 * C_KM_S:.0f} km/s (0.1 c; light is {C_KM_S:.0f} km/s)")
     return SceneSpec(
         epoch_tdb_iso=iso,
-        position_km=tuple(_vector(obs["position_km"], "observer.position_km")),
-        velocity_km_s=tuple(_vector(obs["velocity_km_s"], "observer.velocity_km_s")),
+        position_km=tuple(pos),
+        velocity_km_s=tuple(vel),
         relative_to=rel,
         attitude=attitude,
         camera=camera,
@@ -276,12 +402,66 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     )
 
 
+def _strict_loader():
+    """A ``yaml.SafeLoader`` subclass: ``1e30`` and ``2e-1`` are numbers, a duplicate key is an error.
+
+    PyYAML follows YAML 1.1, whose float pattern needs a dot (``1.0e30``), so ``2e-1`` would be
+    the string ``'2e-1'``; YAML 1.2 (and every reader of JSON) reads it as a number, as people
+    mean it. A mapping with the same key twice keeps the last value silently in PyYAML; here it
+    is refused, naming the key and its line.
+    """
+    import re
+
+    import yaml
+
+    class StrictLoader(yaml.SafeLoader):
+        pass
+
+    StrictLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    float_re = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""", re.X)
+    StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", float_re, list("-+0123456789."))
+
+    def construct_mapping(loader, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            k = loader.construct_object(key_node, deep=deep)
+            try:
+                hash(k)
+            except TypeError:
+                raise yaml.constructor.ConstructorError(None, None, "a mapping key that is not a scalar",
+                                                        key_node.start_mark) from None
+            if k in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {k!r} (first at line {seen[k] + 1})", key_node.start_mark)
+            seen[k] = key_node.start_mark.line
+        return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+    StrictLoader.add_constructor("tag:yaml.org,2002:map", construct_mapping)
+    return StrictLoader
+
+
+def load_yaml(fobj):
+    """Parse YAML with :func:`_strict_loader` (scientific numbers, no duplicate keys).
+
+    Raises
+    ------
+    yaml.YAMLError
+    """
+    import yaml
+
+    return yaml.load(fobj, Loader=_strict_loader())  # noqa: S506 - a SafeLoader subclass
+
+
 def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
     """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
     import yaml
 
     try:
-        data = yaml.safe_load(fobj)
+        data = load_yaml(fobj)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

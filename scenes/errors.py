@@ -114,3 +114,8 @@ class ObserverInsideBodyError(SkynavError, ValueError):
         self.position_km = tuple(float(x) for x in position_km)
         super().__init__(f"observer.position_km = {[round(x, 3) for x in self.position_km]} is inside {body}: "
                          f"{self.distance_km:.3f} km from its centre, radius {self.radius_km:g} km")
+
+
+class SkynavWarning(UserWarning):
+    """An absurd but possible input (a 173 deg field, ``k1: 1000``, 1e6 deg/s): the work goes on
+    and the command line prints one ``skynav: warning:`` line."""

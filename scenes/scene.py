@@ -176,7 +176,33 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
-    sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+    try:
+        # at a body's centre the light-time step divides by zero before the error below names
+        # the body: numpy's floating-point warnings are silenced here (a NaN still fails later)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+            if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
+                raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
+            return _sky_bodies(eph, t_tdb_s, r, v, sun, names)
+    except ObserverInsideBodyError:
+        raise
+    except Exception:
+        # Inside a body (at its centre, say) the light-time iteration has no solution and fails
+        # with a message that blames something else (the epoch): name the body instead. Done
+        # only on failure, so a good frame pays no extra ephemeris look-ups.
+        for name in ("sun",) + tuple(names):
+            rb, _ = eph.position_velocity(name, t_tdb_s)
+            dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
+            if dist <= BODY_RADII_KM[name]:
+                raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r) from None
+        raise
+
+
+def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
+    from . import apparent, photometry
+    from .ephemeris_jpl import BODY_RADII_KM
+    from .errors import ObserverInsideBodyError
+
     out = []
     for name in names:
         d = apparent.apparent_body(eph, name, r, v, t_tdb_s)

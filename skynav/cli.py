@@ -1,8 +1,9 @@
 """The ``skynav`` command line: parses, validates, calls the parts, prints.
 
-Errors for people: any ``SkynavError`` (bad input) prints one line ``skynav: error: ...`` and
-exits with code 2; argparse usage errors exit 2 as well. Anything else is a bug and keeps its
-traceback.
+Errors for people: any ``SkynavError`` (bad input), an output path the system refuses or a frame
+too large for memory prints one line ``skynav: error: ...`` and exits with code 2; argparse usage
+errors exit 2 as well (:mod:`skynav.cli_common`, shared by every sub-command). Anything else is a
+bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from . import __version__
 
 
 def _fail(message: str) -> int:
-    print(f"skynav: error: {message}", file=sys.stderr)
-    return 2
+    from .cli_common import fail
+
+    return fail(message)
 
 
 def _load_spec(arg: str | None):
@@ -81,10 +83,14 @@ def cmd_render(args) -> int:
     from skynav.renderer.render import RenderOptions, render
     from skynav.scenes.scene import build_from_spec
 
+    from skynav.datasets.frame_files import check_output_dir, check_stem
+
     spec = _load_spec(args.scene)
     seed = spec.seed if args.seed is None else args.seed
     if seed < 0:
         return _fail(f"--seed {seed}: expected a non-negative integer")
+    check_stem(args.name, what="--name")
+    check_output_dir(args.output, what="-o/--output folder")  # before the work, not after
     if args.hil:
         from .cli_hil import render_hil
 
@@ -120,7 +126,9 @@ def cmd_render(args) -> int:
 
 # ----------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="skynav", description="Deep-space optical navigation imagery: "
+    from .cli_common import OneLineParser
+
+    p = OneLineParser(prog="skynav", description="Deep-space optical navigation imagery: "
                                 "render star fields and planets as a spacecraft camera sees them.")
     p.add_argument("--version", action="version", version=f"skynav {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
@@ -159,22 +167,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from skynav.scenes.errors import SkynavError
+    from .cli_common import run_command
 
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except SkynavError as exc:
-        return _fail(str(exc))
-    except KeyboardInterrupt:
-        return _fail("interrupted")
-    except BrokenPipeError:  # output piped into `head` and closed early
-        try:
-            sys.stdout = open(__import__("os").devnull, "w")
-        except OSError:
-            pass
-        return 0
+    return run_command(args.func, args)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 
@@ -28,12 +27,6 @@ def _recipe(arg: str, count, seed):
 def cmd_generate(args) -> int:
     from skynav import datasets
 
-    if args.count is not None and args.count < 1:
-        print(f"skynav: error: --count {args.count}: expected a positive integer", file=sys.stderr)
-        return 2
-    if args.workers is not None and args.workers < 1:
-        print(f"skynav: error: --workers {args.workers}: expected a positive integer", file=sys.stderr)
-        return 2
     recipe = _recipe(args.recipe, args.count, args.seed)
     summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                                 progress=not args.quiet)
@@ -48,7 +41,9 @@ def cmd_verify(args) -> int:
     report = datasets.verify(args.path, progress=not args.quiet)
     for line in report.lines():
         print(line)
-    return 0 if report.ok else 1
+    from .cli_common import EXIT_CHECK_FAILED, EXIT_OK
+
+    return EXIT_OK if report.ok else EXIT_CHECK_FAILED
 
 
 def cmd_info(args) -> int:
@@ -61,10 +56,24 @@ def cmd_info(args) -> int:
     return 0
 
 
+def _check_output_png(out: str) -> None:
+    """Refuse a contact-sheet path that cannot be written (before reading the dataset)."""
+    from skynav.datasets.errors import OutputPathError
+    from skynav.datasets.frame_files import check_output_dir, check_stem
+
+    p = Path(out)
+    if p.is_dir() or out.endswith("/"):
+        raise OutputPathError(f"{out}: -o/--output is a folder; give a PNG file path")
+    check_stem(p.name, what="-o/--output file name")
+    check_output_dir(p.parent, what="-o/--output folder")
+
+
 def cmd_preview(args) -> int:
     from skynav import datasets
 
+    datasets.open(args.path)  # a missing or incomplete dataset is named first
     out = args.output or str(Path(args.path) / "preview.png")
+    _check_output_png(out)
     path = datasets.preview(args.path, out, count=args.count, columns=args.columns)
     print(f"contact sheet: {path}")
     if datasets.open(args.path).manifest["recipe"]["kind"] == "sequence":
@@ -74,6 +83,8 @@ def cmd_preview(args) -> int:
 
 
 def add_parser(sub) -> None:
+    from .cli_common import non_negative_int, positive_int
+
     d = sub.add_parser("dataset", help="generate, verify, inspect and preview datasets",
                        description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
     dsub = d.add_subparsers(dest="dataset_command", metavar="ACTION")
@@ -82,9 +93,9 @@ def add_parser(sub) -> None:
                         "dataset folder. Re-running the same command on a partly written folder renders only what is missing.")
     g.add_argument("recipe", help="recipe YAML file or preset name")
     g.add_argument("-o", "--output", required=True, help="dataset folder")
-    g.add_argument("--count", type=int, default=None, help="number of frames (overrides the recipe)")
-    g.add_argument("--seed", type=int, default=None, help="master seed (overrides the recipe)")
-    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    g.add_argument("--count", type=positive_int, default=None, help="number of frames (overrides the recipe)")
+    g.add_argument("--seed", type=non_negative_int, default=None, help="master seed (overrides the recipe)")
+    g.add_argument("--workers", type=positive_int, default=None, help="local worker processes (default: all cores)")
     g.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
@@ -101,7 +112,7 @@ def add_parser(sub) -> None:
                                     " sequence, also the planets' V along the legs (PREVIEW_legs_vmag.png).")
     p.add_argument("path")
     p.add_argument("-o", "--output", default=None, help="PNG path (default: DATASET/preview.png)")
-    p.add_argument("--count", type=int, default=16)
-    p.add_argument("--columns", type=int, default=4)
+    p.add_argument("--count", type=positive_int, default=16, help="frames on the sheet (default 16)")
+    p.add_argument("--columns", type=positive_int, default=4, help="tiles per row (default 4)")
     p.set_defaults(func=cmd_preview)
     d.set_defaults(func=lambda args: (d.print_help(), 2)[1])

@@ -101,7 +101,7 @@ def test_resume_with_the_same_options_is_byte_identical(reference_dataset, tmp_p
     assert s.frames_reused == 2 and s.frames_rendered == 2
     got = tree_sha256(out)
     frames = sorted(k for k in got if k.startswith("frames/"))
-    assert len(frames) == 12 and all(got[k] == ref[k] for k in frames)  # = the 50-frame reference's first 4
+    assert len(frames) == 16 and all(got[k] == ref[k] for k in frames)  # 4 x (png, exr, json, sha256 record): = the 50-frame reference's first 4
     assert D.verify(out).ok
 
 

@@ -29,7 +29,7 @@ def test_reference_is_complete_and_verifies(reference_dataset):
     out, summary, shas = reference_dataset
     assert summary.frames_total == 50 and summary.frames_rendered == 50
     assert {"manifest.json", "index.csv"} <= set(shas)
-    assert sum(1 for k in shas if k.startswith("frames/")) == 150  # png, exr, json x 50
+    assert sum(1 for k in shas if k.startswith("frames/")) == 200  # png, exr, json + the checksum record x 50
     report = verify(out)
     assert report.ok, report.lines()
     m = json.loads((out / "manifest.json").read_text())
