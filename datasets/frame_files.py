@@ -29,12 +29,9 @@ Readers accept a path or a binary file object (STYLE.md section 2).
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import io
 import math
 import os
-import secrets
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -42,6 +39,7 @@ import numpy as np
 
 from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
 
+from .atomic_files import _open_binary, atomic_path, atomic_write_bytes, sha256_file  # noqa: F401  (re-exported)
 from .errors import ConfigValueError, OutputFormatError
 
 __all__ = [
@@ -66,94 +64,6 @@ __all__ = [
 
 #: File formats :func:`write_frame` knows, by file extension.
 FRAME_FORMATS = ("png", "exr", "json", "fits")
-
-
-# ----------------------------------------------------------------------------- atomic writes
-def _fsync_dir(directory: str) -> None:
-    """Make a rename durable: fsync the directory (best effort; not possible on Windows)."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _temp_name(path: str) -> str:
-    directory, name = os.path.split(os.path.abspath(path))
-    return os.path.join(directory, f".{name}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
-
-
-@contextlib.contextmanager
-def atomic_path(path, *, durable: bool = True):
-    """Context manager yielding a temporary path that replaces ``path`` on success.
-
-    The temporary file lives in the directory of ``path`` (so ``os.replace`` is an atomic
-    rename on the same file system) under a unique hidden name
-    ``.<name>.<pid>.<random>.tmp``. The body must create it. On normal exit the temp file is
-    fsync'ed and renamed onto ``path`` (and the directory fsync'ed); on any exception it is
-    removed and ``path`` is left as it was (absent, or the previous complete file).
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Final destination. Its directory must exist.
-    durable : bool
-        fsync the file and its directory (default). False keeps only the atomic rename: after a
-        power loss the file may be absent or empty, never partly new (for files whose loss is
-        detected and repaired, like the per-frame checksum records).
-
-    Yields
-    ------
-    str
-        Temporary path to write to.
-
-    Examples
-    --------
-    >>> with atomic_path("frame.fits") as tmp:  # doctest: +SKIP
-    ...     hdul.writeto(tmp)
-    """
-    final = os.path.abspath(os.fspath(path))
-    tmp = _temp_name(final)
-    try:
-        yield tmp
-        if durable:
-            fd = os.open(tmp, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-        os.replace(tmp, final)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    if durable:
-        _fsync_dir(os.path.dirname(final))
-
-
-def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> None:
-    """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Destination; its directory must exist.
-    data : bytes
-        The complete file content.
-    durable : bool
-        See :func:`atomic_path`.
-    """
-    with atomic_path(path, durable=durable) as tmp:
-        # O_EXCL: the random name must not exist; the mode follows the umask like open().
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
 
 
 _SYSTEM_DIRS = ("/proc", "/sys", "/dev")
@@ -203,25 +113,6 @@ def check_stem(stem, *, what: str = "file name") -> str:
         raise OutputPathError(f"{what} {stem!r}: expected a plain file name (not empty, no '/', "
                               f"not starting with '.')")
     return stem
-
-
-def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
-    """Hexadecimal SHA-256 of a file's bytes (for ``manifest.json``)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(chunk_bytes):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-@contextlib.contextmanager
-def _open_binary(source):
-    """Yield a binary file object for a path or pass a file object through (not closed)."""
-    if hasattr(source, "read"):
-        yield source
-    else:
-        with open(source, "rb") as f:
-            yield f
 
 
 # ----------------------------------------------------------------------------- OpenEXR

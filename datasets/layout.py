@@ -25,7 +25,7 @@ import os
 from pathlib import Path
 
 from .errors import DatasetError, DatasetMismatchError, IncompleteDatasetError
-from .frame_files import atomic_write_bytes, sha256_file
+from .atomic_files import atomic_write_bytes, sha256_file
 
 __all__ = [
     "MANIFEST_SCHEMA",

@@ -26,7 +26,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .errors import TruthSchemaError
-from .frame_files import _open_binary, atomic_write_bytes
+from .atomic_files import _open_binary, atomic_write_bytes
 from .layout import MANIFEST_SCHEMA
 
 __all__ = [
