@@ -99,7 +99,11 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     from skynav.scenes.ephemeris_jpl import default_ephemeris
     from skynav.scenes.photometry import phase_angle_rad, planet_v_mag
 
-    eph = ephemeris if ephemeris is not None else default_ephemeris()
+    if ephemeris is None:
+        if _CachedEphemeris._default is None:
+            _CachedEphemeris._default = default_ephemeris()
+        ephemeris = _CachedEphemeris._default
+    eph = _CachedEphemeris.wrap(ephemeris, epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)
@@ -158,6 +162,40 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             continue
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist})
     return out
+
+
+class _CachedEphemeris:
+    """Body states at one epoch, computed once: tracking predicts the beacons twice per frame
+    (windows from the previous attitude, then the identification), and the states do not change
+    within a frame. The last epoch of the last ephemeris object is kept (module level)."""
+
+    _last = None
+    _default = None
+
+    def __init__(self, eph, epoch):
+        self.eph, self.epoch, self._pos, self._pv = eph, float(epoch), {}, {}
+
+    @classmethod
+    def wrap(cls, eph, epoch):
+        last = cls._last
+        if last is None or last.eph is not eph or last.epoch != float(epoch):
+            last = cls._last = cls(eph, epoch)
+        return last
+
+    def position(self, name, t):
+        if float(t) != self.epoch:
+            return self.eph.position(name, t)
+        if name not in self._pos:
+            self._pos[name] = np.array(self._pv[name][0] if name in self._pv else self.eph.position(name, t))
+        return self._pos[name]
+
+    def position_velocity(self, name, t):
+        if float(t) != self.epoch:
+            return self.eph.position_velocity(name, t)
+        if name not in self._pv:
+            p, v = self.eph.position_velocity(name, t)
+            self._pv[name] = (np.array(p), np.array(v))
+        return self._pv[name]
 
 
 def select_spot(pred, spots_xy, candidate_mask, *, mode, spot_mag=None, mag_sigma=1.0):

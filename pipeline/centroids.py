@@ -79,7 +79,8 @@ def threshold(image: np.ndarray, T: float) -> float:
 
 def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixels: int = 1,
                  max_regions: int = 5000, background: str = "mean", threshold_dn: float | None = None,
-                 stats_stride: int = 1) -> Spots:
+                 stats_stride: int = 1, windows_xy=None, window_half_px: float | np.ndarray = 0,
+                 background_dn: float | None = None) -> Spots:
     """Spots of an image: Eq. 6 threshold, connected regions, Eq. 7-8 centroids.
 
     Parameters
@@ -103,6 +104,13 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
         Use this threshold instead of Eq. 6 (the improved mode's robust one).
     stats_stride : int
         Mean and standard deviation from every ``stats_stride``-th row and column (speed).
+    windows_xy : ndarray, shape (K, 2), optional
+        Tracking: threshold only the pixels of square windows centred on these predicted
+        positions (x = column), half-size ``window_half_px`` (scalar or (K,)), instead of the
+        whole frame. Same regions and the same Eq. 7-8 centroids for every spot that lies wholly
+        inside a window (the ROI margin may reach one pixel outside it).
+    background_dn : float, optional
+        With ``threshold_dn``: the background level already computed by the caller (speed).
 
     Returns
     -------
@@ -125,14 +133,23 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     if img.ndim != 2 or img.size == 0:
         raise ValueError(f"image must be a non-empty 2-D array, got shape {img.shape}")
     H, W = img.shape
-    sub = img[::stats_stride, ::stats_stride].astype(np.float64)
-    mu = float(sub.mean())
-    sd = float(sub.std())
-    thr = mu + T * sd if threshold_dn is None else float(threshold_dn)
-    if not np.isfinite(thr) or (threshold_dn is None and sd == 0.0):
+    if threshold_dn is not None and background_dn is not None:
+        mu = sd = float("nan")
+        thr = float(threshold_dn)
+    else:
+        sub = img[::stats_stride, ::stats_stride].astype(np.float64)
+        mu = float(sub.mean())
+        sd = float(sub.std())
+        thr = mu + T * sd if threshold_dn is None else float(threshold_dn)
+        if not np.isfinite(thr) or (threshold_dn is None and sd == 0.0):
+            return Spots.empty(thr)
+    if not np.isfinite(thr):
         return Spots.empty(thr)
     flat_img = img.ravel()
-    f = np.flatnonzero(flat_img > thr)
+    if windows_xy is None:
+        f = np.flatnonzero(flat_img > thr)
+    else:
+        f = _window_pixels(np.asarray(windows_xy, float).reshape(-1, 2), window_half_px, H, W, flat_img, thr)
     P = len(f)
     if P == 0:
         return Spots.empty(thr)
@@ -152,7 +169,10 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(P, P))
     n, lab = connected_components(graph, directed=False)
     npix = np.bincount(lab, minlength=n)
-    bg = mu if background == "mean" else float(np.median(sub))
+    if background_dn is not None:
+        bg = float(background_dn)
+    else:
+        bg = mu if background == "mean" else float(np.median(sub))
     # ROI: the region's pixels plus their 8-neighbours (first label wins where two margins meet)
     rows = f // W
     offs_r = np.repeat(np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1]), 1)
@@ -195,3 +215,28 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     return Spots(xy_px=np.stack([xc[keep], yc[keep]], -1), flux_dn=flux[keep], peak_dn=peak[keep],
                  n_pixels=npix[keep], saturated=sat, elongation=elong[keep], size_px=size[keep].astype(float),
                  threshold_dn=thr)
+
+
+def _window_pixels(xy, half, H, W, flat_img, thr) -> np.ndarray:
+    """Sorted unique flat indices of the pixels above ``thr`` inside the square windows (centre
+    ``xy`` rounded, half-size ``half`` px, scalar or per window) clipped to the image."""
+    if len(xy) == 0:
+        return np.zeros(0, dtype=np.intp)
+    half = np.broadcast_to(np.ceil(np.asarray(half, float)).astype(np.intp), (len(xy),))
+    ok = np.all(np.isfinite(xy), axis=1)
+    xy, half = xy[ok], half[ok]
+    cx = np.rint(xy[:, 0]).astype(np.intp)
+    cy = np.rint(xy[:, 1]).astype(np.intp)
+    ok = (cx + half >= 0) & (cx - half < W) & (cy + half >= 0) & (cy - half < H)
+    cx, cy, half = cx[ok], cy[ok], half[ok]
+    out = []
+    for h in np.unique(half):
+        sel = half == h
+        d = np.arange(-h, h + 1)
+        rr = np.clip(cy[sel, None] + d[None, :], 0, H - 1)
+        cc = np.clip(cx[sel, None] + d[None, :], 0, W - 1)
+        f = (rr[:, :, None] * W + cc[:, None, :]).ravel()
+        out.append(f[flat_img[f] > thr])
+    if not out:
+        return np.zeros(0, dtype=np.intp)
+    return np.unique(np.concatenate(out))

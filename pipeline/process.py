@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .attitude import attitude_covariance
-from .beacons import predict_beacons, select_spot
+from .beacons import CHI2_2DOF_3SIGMA, predict_beacons, select_spot
 from .centroids import Spots, detect_spots
 from .results import AttitudeResult, BeaconResult, FrameResult
 from .star_id import C_KM_S, lost_in_space, refine
@@ -56,6 +56,15 @@ class ProcessOptions:
     refine_px: float = 1.5              # improved: association radius of the final attitude, px
     refine_max_spots: int = 400         # improved: brightest spots offered to the final association
     blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
+    # tracking, improved mode: spots only in windows around the stars (to refine_v_mag) and beacons
+    # predicted from previous_attitude; window half-size = track_window_px (covers a prior
+    # attitude error plus the rotation since the previous frame of up to ~(track_window_px - 4) px,
+    # i.e. (track_window_px - 4) x IFOV: 8 px x 70"/px ~ 9' for the paper camera), beacons' plus
+    # their 3-sigma reach (capped at track_window_max_px, beyond which the full frame is used).
+    # 0 turns windows off (full-frame tracking).
+    track_window_px: float = 12.0
+    track_fine_px: float = 4.0          # tracking pass 2: deep-star windows around the pass-1 attitude
+    track_window_max_px: float = 96.0
     seed: int = 0                       # paper RANSAC draws
 
 
@@ -138,7 +147,16 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     spots = Spots.empty()
     status = "id_failed"
     t_c = t_id = 0.0
-    for it in range(opt.T_max_iterations if mode == "paper" else 1):
+    if previous_attitude is not None and mode == "improved" and opt.track_window_px > 0:
+        tc0 = time.perf_counter()
+        got = _track_windowed(img, observation, catalog, np.asarray(previous_attitude, float), star_dirs,
+                              predicted_state, opt, max_dn, ephemeris)
+        if got is not None:
+            spots, b, match = got
+            method = "tracking"
+            status = "ok"
+            t_c += time.perf_counter() - tc0
+    for it in range(0 if match is not None else (opt.T_max_iterations if mode == "paper" else 1)):
         tc0 = time.perf_counter()
         if mode == "paper":
             spots = detect_spots(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, stats_stride=2)
@@ -212,6 +230,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
 
             match = StarMatch(R_cam_icrs=m2.R_cam_icrs, spot_index=bright[m2.spot_index], star_index=m2.star_index,
                               residual_rad=m2.residual_rad)
+            match = _clip_outliers(match, b, deep, star_dirs, half_fov)
             ref_hip, ref_vmag = np.asarray(deep.hip), np.asarray(deep.v_mag)
     A = match.R_cam_icrs
     bm = cam.line_of_sight(spots.xy_px[match.spot_index])
@@ -237,15 +256,117 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
                        matched_spot_index=np.asarray(match.spot_index))
 
 
-def _detect_robust(img, *, T, max_dn, max_regions):
-    """Improved threshold: median + T x robust sigma (1.4826 MAD, floored at 0.5 DN for 8-bit
-    frames whose dark background is one or two DN), so a resolved body does not lift it."""
+def _clip_outliers(match, b, source, star_dirs, half_fov):
+    """One pass of residual clipping on the final association: a 2-D Gaussian residual has its
+    median at 1.18 sigma and its 99.9 % point at 3.7 sigma, so residuals above 3.5 x the median
+    are blends or wrong neighbours; the attitude is re-solved without them."""
+    from .attitude import wahba_svd
+    from .star_id import StarMatch
+
+    r = match.residual_rad
+    if len(r) < 10:
+        return match
+    keep = r <= 3.5 * float(np.median(r))
+    if keep.all() or keep.sum() < 5:
+        return match
+    sp, st = match.spot_index[keep], match.star_index[keep]
+    idx, u_all = star_dirs(match.R_cam_icrs[2], half_fov, source)
+    pos = {s: k for k, s in enumerate(idx)}
+    u = u_all[[pos[s] for s in st]]
+    A = wahba_svd(b[sp], u)
+    res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b[sp]), -1.0, 1.0))
+    return StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=res)
+
+
+def _robust_level(img, T):
+    """(background, threshold) of the improved mode: median + T x robust sigma (1.4826 MAD,
+    floored at 0.5 DN for 8-bit frames whose dark background is one or two DN)."""
     sub = np.asarray(img[::8, ::8], dtype=np.float32)
     med = float(np.median(sub))
     mad = float(np.median(np.abs(sub - med))) * 1.4826
     sd = max(mad, float(np.std(sub[sub <= med + 5 * max(mad, 0.5)])), 0.5)
+    return med, med + T * sd
+
+
+def _detect_robust(img, *, T, max_dn, max_regions, windows_xy=None, window_half_px=0):
+    """Improved threshold (:func:`_robust_level`), so a resolved body does not lift it."""
+    med, thr = _robust_level(img, T)
     return detect_spots(img, T=T, max_dn=max_dn, max_regions=max_regions, background="median",
-                        threshold_dn=med + T * sd, stats_stride=8)
+                        threshold_dn=thr, background_dn=med, stats_stride=8, windows_xy=windows_xy,
+                        window_half_px=window_half_px)
+
+
+def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state, opt, max_dn, ephemeris):
+    """Tracking with spots only in windows around predicted stars and beacons.
+
+    Two passes: (1) windows of half-size ``track_window_px`` around the ID-catalog stars predicted
+    from ``R_prev``, tracking association + Wahba; (2) with that attitude (sub-pixel), windows of
+    half-size ``track_fine_px`` around the deep-catalog stars (to ``refine_v_mag``) plus the
+    pass-1 windows plus the beacons' windows (``track_window_px`` + their 3-sigma reach), and the
+    association again. Returns ``(spots, b, match)`` or None (too few stars found, a beacon window
+    too large, or the attitude check failed): the caller then runs the full-frame path (tracking,
+    then lost in space).
+    """
+    cam = observation.camera
+    half_fov = cam.half_diagonal_fov_rad
+    ifov = cam.ifov_rad
+    med, thr = _robust_level(img, opt.T)
+
+    def detect(win, half):
+        return detect_spots(img, T=opt.T, max_dn=max_dn, max_regions=opt.max_spots + 1, background="median",
+                            threshold_dn=thr, background_dn=med, windows_xy=win, window_half_px=half)
+
+    def predicted_xy(R, source, margin):
+        _, u = star_dirs(R[2], half_fov, source)
+        xy = cam.project(u @ R.T)
+        return xy[np.all(np.isfinite(xy), axis=1) & cam.in_image(xy, margin)]
+
+    # pass 1: bright stars, prior windows
+    w1 = predicted_xy(R_prev, None, opt.track_window_px)
+    if len(w1) < opt.min_matches:
+        return None
+    spots = detect(w1, opt.track_window_px)
+    if len(spots) < opt.min_matches:
+        return None
+    b = cam.line_of_sight(spots.xy_px)
+    match = refine(R_prev, b, star_dirs, half_fov_rad=half_fov, tol_rad=10 * opt.inlier_px * ifov, iterations=1)
+    if match is not None:
+        match = refine(match.R_cam_icrs, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
+    # attitude check: enough ID-catalog stars, and the solved attitude within the windows' reach
+    if match is None or len(match.spot_index) < opt.min_matches:
+        return None
+    R1 = match.R_cam_icrs
+    dR = R1 @ R_prev.T
+    ang = float(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)))
+    if ang > max(opt.track_window_px - 4.0, 1.0) * ifov:
+        return None
+    # pass 2: deep stars and beacons, from the pass-1 attitude
+    win, half = [w1], [np.full(len(w1), float(opt.track_window_px))]
+    if opt.refine_v_mag > catalog.limiting_v_mag:
+        w2 = predicted_xy(R1, catalog.deep_stars(opt.refine_v_mag), opt.track_fine_px)
+        win.append(w2)
+        half.append(np.full(len(w2), float(opt.track_fine_px)))
+    if predicted_state is not None:
+        try:
+            preds = predict_beacons(observation.epoch_tdb_s, predicted_state, R1, cam, mode="improved",
+                                    sigma_qv=opt.sigma_qv, ephemeris=ephemeris)
+        except Exception:  # noqa: BLE001 - no ephemeris: the full-frame path decides
+            return None
+        for p in preds:
+            reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(p["cov_px2"])[-1], 0.0)))
+            h = reach + opt.track_window_px
+            if h > opt.track_window_max_px:
+                return None
+            win.append(np.asarray(p["xy_px"], float)[None])
+            half.append(np.array([h]))
+    spots = detect(np.concatenate(win), np.concatenate(half))
+    if len(spots) < opt.min_matches or len(spots) > opt.max_spots:
+        return None
+    b = cam.line_of_sight(spots.xy_px)
+    match = refine(R1, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov, iterations=1)
+    if match is None or len(match.spot_index) < opt.min_matches:
+        return None
+    return spots, b, match
 
 
 def _beacons_without_attitude(observation, predicted_state):
