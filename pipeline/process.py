@@ -127,16 +127,28 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     stars = catalog.stars
     t_epoch = observation.epoch_tdb_s
 
+    dirs_cache = {}
+    REUSE_RAD = 5e-3  # a cone computed 5 mrad wider serves every boresight within 5 mrad of its axis
+
     def star_dirs(boresight, radius, source=None):
+        # the stars of a cone with a 2 mrad margin; within one frame the boresight moves by a
+        # few pixels between calls, so one wider cone per catalog serves them all (the extra
+        # stars lie outside the image by >= 2 mrad, beyond every association tolerance)
         src = stars if source is None else source
-        idx = src.cone(boresight, radius, margin_rad=2e-3)
+        key = (id(src), float(radius))
+        hit = dirs_cache.get(key)
+        if hit is not None and float(np.dot(hit[0], boresight)) >= np.cos(REUSE_RAD) * np.linalg.norm(boresight):
+            return hit[1], hit[2]
+        idx = src.cone(boresight, radius, margin_rad=2e-3 + REUSE_RAD)
         if mode == "paper":
-            return idx, catalog.u_icrs[idx]
-        u = src.directions(idx, t_epoch, r_km)
-        if aberr:
-            beta = v_km_s / C_KM_S
-            u = u + beta - (u @ beta)[:, None] * u
-            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            u = catalog.u_icrs[idx]
+        else:
+            u = src.directions(idx, t_epoch, r_km)
+            if aberr:
+                beta = v_km_s / C_KM_S
+                u = u + beta - (u @ beta)[:, None] * u
+                u /= np.linalg.norm(u, axis=1, keepdims=True)
+        dirs_cache[key] = (np.asarray(boresight, float) / np.linalg.norm(boresight), idx, u)
         return idx, u
 
     # ------------------------------------------------------------------ centroids + star ID loop
