@@ -99,11 +99,7 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     from skynav.scenes.ephemeris_jpl import default_ephemeris
     from skynav.scenes.photometry import phase_angle_rad, planet_v_mag
 
-    if ephemeris is None:
-        if _CachedEphemeris._default is None:
-            _CachedEphemeris._default = default_ephemeris()
-        ephemeris = _CachedEphemeris._default
-    eph = _CachedEphemeris.wrap(ephemeris, epoch_tdb_s)
+    eph = _CachedEphemeris.wrap(ephemeris if ephemeris is not None else default_ephemeris(), epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)
@@ -167,10 +163,10 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
 class _CachedEphemeris:
     """Body states at one epoch, computed once: tracking predicts the beacons twice per frame
     (windows from the previous attitude, then the identification), and the states do not change
-    within a frame. The last epoch of the last ephemeris object is kept (module level)."""
+    within a frame. The last epoch of the last ephemeris object is kept (module level; the default
+    ephemeris is one object per process)."""
 
     _last = None
-    _default = None
 
     def __init__(self, eph, epoch):
         self.eph, self.epoch, self._pos, self._pv = eph, float(epoch), {}, {}

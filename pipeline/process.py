@@ -63,7 +63,6 @@ class ProcessOptions:
     # their 3-sigma reach (capped at track_window_max_px, beyond which the full frame is used).
     # 0 turns windows off (full-frame tracking).
     track_window_px: float = 12.0
-    track_fine_px: float = 4.0          # tracking pass 2: deep-star windows around the pass-1 attitude
     track_window_max_px: float = 96.0
     seed: int = 0                       # paper RANSAC draws
 
@@ -311,72 +310,58 @@ def _detect_robust(img, *, T, max_dn, max_regions, windows_xy=None, window_half_
 def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state, opt, max_dn, ephemeris):
     """Tracking with spots only in windows around predicted stars and beacons.
 
-    Two passes: (1) windows of half-size ``track_window_px`` around the ID-catalog stars predicted
-    from ``R_prev``, tracking association + Wahba; (2) with that attitude (sub-pixel), windows of
-    half-size ``track_fine_px`` around the deep-catalog stars (to ``refine_v_mag``) plus the
-    pass-1 windows plus the beacons' windows (``track_window_px`` + their 3-sigma reach), and the
-    association again. Returns ``(spots, b, match)`` or None (too few stars found, a beacon window
-    too large, or the attitude check failed): the caller then runs the full-frame path (tracking,
-    then lost in space).
+    Windows of half-size ``track_window_px`` around the ID-catalog and deep-catalog stars (to
+    ``refine_v_mag``) predicted from ``R_prev``, and around each beacon (``track_window_px`` plus
+    its 3-sigma reach); one detection over their union, the tracking association (wide, then
+    ``inlier_px``) and Wahba. Returns ``(spots, b, match)`` or None (too few stars found, a beacon
+    window too large, or the attitude check failed): the caller then runs the full-frame path
+    (tracking, then lost in space).
     """
     cam = observation.camera
     half_fov = cam.half_diagonal_fov_rad
     ifov = cam.ifov_rad
-    med, thr = _robust_level(img, opt.T)
+    hw = float(opt.track_window_px)
 
-    def detect(win, half):
-        return detect_spots(img, T=opt.T, max_dn=max_dn, max_regions=opt.max_spots + 1, background="median",
-                            threshold_dn=thr, background_dn=med, windows_xy=win, window_half_px=half)
+    def predicted_xy(source):
+        _, u = star_dirs(R_prev[2], half_fov, source)
+        xy = cam.project(u @ R_prev.T)
+        return xy[np.all(np.isfinite(xy), axis=1) & cam.in_image(xy, hw)]
 
-    def predicted_xy(R, source, margin):
-        _, u = star_dirs(R[2], half_fov, source)
-        xy = cam.project(u @ R.T)
-        return xy[np.all(np.isfinite(xy), axis=1) & cam.in_image(xy, margin)]
-
-    # pass 1: bright stars, prior windows
-    w1 = predicted_xy(R_prev, None, opt.track_window_px)
-    if len(w1) < opt.min_matches:
+    win = [predicted_xy(None)]
+    if len(win[0]) < opt.min_matches:
         return None
-    spots = detect(w1, opt.track_window_px)
-    if len(spots) < opt.min_matches:
-        return None
-    b = cam.line_of_sight(spots.xy_px)
-    match = refine(R_prev, b, star_dirs, half_fov_rad=half_fov, tol_rad=10 * opt.inlier_px * ifov, iterations=1)
-    if match is not None:
-        match = refine(match.R_cam_icrs, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
-    # attitude check: enough ID-catalog stars, and the solved attitude within the windows' reach
-    if match is None or len(match.spot_index) < opt.min_matches:
-        return None
-    R1 = match.R_cam_icrs
-    dR = R1 @ R_prev.T
-    ang = float(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)))
-    if ang > max(opt.track_window_px - 4.0, 1.0) * ifov:
-        return None
-    # pass 2: deep stars and beacons, from the pass-1 attitude
-    win, half = [w1], [np.full(len(w1), float(opt.track_window_px))]
     if opt.refine_v_mag > catalog.limiting_v_mag:
-        w2 = predicted_xy(R1, catalog.deep_stars(opt.refine_v_mag), opt.track_fine_px)
-        win.append(w2)
-        half.append(np.full(len(w2), float(opt.track_fine_px)))
+        win.append(predicted_xy(catalog.deep_stars(opt.refine_v_mag)))
+    half = [np.full(len(w), hw) for w in win]
     if predicted_state is not None:
         try:
-            preds = predict_beacons(observation.epoch_tdb_s, predicted_state, R1, cam, mode="improved",
+            preds = predict_beacons(observation.epoch_tdb_s, predicted_state, R_prev, cam, mode="improved",
                                     sigma_qv=opt.sigma_qv, ephemeris=ephemeris)
         except Exception:  # noqa: BLE001 - no ephemeris: the full-frame path decides
             return None
         for p in preds:
             reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(p["cov_px2"])[-1], 0.0)))
-            h = reach + opt.track_window_px
-            if h > opt.track_window_max_px:
+            if reach + hw > opt.track_window_max_px:
                 return None
             win.append(np.asarray(p["xy_px"], float)[None])
-            half.append(np.array([h]))
-    spots = detect(np.concatenate(win), np.concatenate(half))
+            half.append(np.array([reach + hw]))
+    med, thr = _robust_level(img, opt.T)
+    spots = detect_spots(img, T=opt.T, max_dn=max_dn, max_regions=opt.max_spots + 1, background="median",
+                         threshold_dn=thr, background_dn=med, windows_xy=np.concatenate(win),
+                         window_half_px=np.concatenate(half))
     if len(spots) < opt.min_matches or len(spots) > opt.max_spots:
         return None
     b = cam.line_of_sight(spots.xy_px)
-    match = refine(R1, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov, iterations=1)
+    match = refine(R_prev, b, star_dirs, half_fov_rad=half_fov, tol_rad=10 * opt.inlier_px * ifov, iterations=1)
+    if match is not None:
+        match = refine(match.R_cam_icrs, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
+    # attitude check: enough ID-catalog stars, and the solution within the windows' capture range
+    # (a spot wholly inside its window: prior error <= track_window_px - 4 px)
     if match is None or len(match.spot_index) < opt.min_matches:
+        return None
+    dR = match.R_cam_icrs @ R_prev.T
+    ang = float(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)))
+    if ang > max(hw - 4.0, 1.0) * ifov:
         return None
     return spots, b, match
 
