@@ -34,8 +34,7 @@ def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
     """
     b = np.asarray(b_cam, dtype=float)
     r = np.asarray(r_icrs, dtype=float)
-    w = np.ones(len(b)) if weights is None else np.asarray(weights, dtype=float)
-    B = np.einsum("n,ni,nj->ij", w, b, r)
+    B = b.T @ r if weights is None else (b * np.asarray(weights, dtype=float)[:, None]).T @ r
     U, _, Vt = np.linalg.svd(B)
     d = np.linalg.det(U) * np.linalg.det(Vt)
     return U @ np.diag([1.0, 1.0, d]) @ Vt

@@ -70,7 +70,7 @@ def projection_jacobian(q, r_km, r_bc_km, K) -> np.ndarray:
     v = A @ rho
     fx, fy = K[0][0], K[1][1]
     dproj = np.array([[fx / v[2], 0.0, -fx * v[0] / v[2] ** 2], [0.0, fy / v[2], -fy * v[1] / v[2] ** 2]])
-    d_q0 = 2.0 * q0 * rho - 2.0 * np.cross(qv, rho)  # Eq. 17
+    d_q0 = 2.0 * q0 * rho - 2.0 * (_skew(qv) @ rho)  # Eq. 17
     d_qv = -2.0 * np.outer(rho, qv) + 2.0 * (qv @ rho) * np.eye(3) + 2.0 * np.outer(qv, rho) + 2.0 * q0 * _skew(rho)  # Eq. 18
     d_r = -A  # Eq. 19
     d_rbc = A  # Eq. 20
@@ -140,12 +140,12 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             # attitude: small rotation phi (camera frame) -> pixel; position: full covariance
             Fr = F[:, 4:7]
             P = Fr @ Pr @ Fr.T
+            # d(pixel)/d(phi) for A' = (I - [phi x]) A: d v_cam = -phi x v_cam = [v_cam x] phi
+            vcam = A @ (pb - r)
+            dproj = np.array([[K[0, 0] / vcam[2], 0.0, -K[0, 0] * vcam[0] / vcam[2] ** 2],
+                              [0.0, K[1, 1] / vcam[2], -K[1, 1] * vcam[1] / vcam[2] ** 2]])
+            Fa = dproj @ _skew(vcam)
             if attitude_cov_rad2 is not None:
-                # d(pixel)/d(phi) for A' = (I - [phi x]) A: d v_cam = -phi x v_cam = [v_cam x] phi
-                vcam = A @ (pb - r)
-                dproj = np.array([[K[0, 0] / vcam[2], 0.0, -K[0, 0] * vcam[0] / vcam[2] ** 2],
-                                  [0.0, K[1, 1] / vcam[2], -K[1, 1] * vcam[1] / vcam[2] ** 2]])
-                Fa = dproj @ _skew(vcam)
                 P = P + Fa @ attitude_cov_rad2 @ Fa.T
             P = P + np.eye(2) * 0.25**2  # centroid and first-order model error floor, px^2
         try:
@@ -156,20 +156,26 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(P)[-1], 0.0)))
         if not camera.in_image(xy[None], margin_px + (reach if mode == "improved" else 0.0))[0]:
             continue
-        out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist})
+        out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist,
+                    "attitude_jacobian_px_rad": Fa if mode != "paper" else None})
     return out
 
 
 class _CachedEphemeris:
     """Body states at one epoch, computed once: tracking predicts the beacons twice per frame
     (windows from the previous attitude, then the identification), and the states do not change
-    within a frame. The last epoch of the last ephemeris object is kept (module level; the default
-    ephemeris is one object per process)."""
+    within a frame. An ephemeris with ``states_at`` (skynav's DE421 adapter) gives every body in
+    one vectorised evaluation (~0.1 ms instead of ~1 ms body by body); any other object with
+    ``position`` / ``position_velocity`` is asked body by body. The last epoch of the last
+    ephemeris object is kept (module level; the default ephemeris is one object per process)."""
 
     _last = None
 
     def __init__(self, eph, epoch):
-        self.eph, self.epoch, self._pos, self._pv = eph, float(epoch), {}, {}
+        self.eph, self.epoch, self._pv = eph, float(epoch), {}
+        if hasattr(eph, "states_at"):
+            self._pv = {k: (np.asarray(r), np.asarray(v)) for k, (r, v) in
+                        eph.states_at(self.epoch, ("sun",) + tuple(BEACON_BODIES)).items()}
 
     @classmethod
     def wrap(cls, eph, epoch):
@@ -179,11 +185,7 @@ class _CachedEphemeris:
         return last
 
     def position(self, name, t):
-        if float(t) != self.epoch:
-            return self.eph.position(name, t)
-        if name not in self._pos:
-            self._pos[name] = np.array(self._pv[name][0] if name in self._pv else self.eph.position(name, t))
-        return self._pos[name]
+        return self.position_velocity(name, t)[0]
 
     def position_velocity(self, name, t):
         if float(t) != self.epoch:

@@ -240,3 +240,154 @@ def _window_pixels(xy, half, H, W, flat_img, thr) -> np.ndarray:
     if not out:
         return np.zeros(0, dtype=np.intp)
     return np.unique(np.concatenate(out))
+
+
+@dataclass(frozen=True)
+class WindowCentroids:
+    """Eq. 7-8 centroids measured in small windows around predicted positions (tracking).
+
+    ``valid`` marks windows whose peak is above the threshold, lies inside the search box and
+    whose ROI (the pixels above the threshold plus their 8-neighbours) does not touch the ROI's
+    border (a spot larger than the ROI is remeasured with a larger ROI, else dropped)."""
+
+    xy_px: np.ndarray        # (N, 2)
+    flux_dn: np.ndarray      # (N,) sum of background-subtracted DN over the ROI
+    peak_dn: np.ndarray      # (N,)
+    n_pixels: np.ndarray     # (N,) pixels above the threshold in the ROI
+    valid: np.ndarray        # (N,) bool
+
+
+def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float, search_half_px: int = 0,
+                     roi_half_px: int = 3, max_roi_half_px: int = 8) -> WindowCentroids:
+    """Eq. 7-8 centroids of the spots near predicted positions, without a full-frame pass.
+
+    For each predicted position (x = column, CONVENTIONS pixel centres): the brightest pixel
+    within ``search_half_px`` of the rounded position is the spot's peak; the ROI is the
+    ``(2 roi_half_px + 1)^2`` box around the peak, and in it the pixels above ``threshold_dn``
+    and their 8-neighbours are weighted by ``I^2`` (``w = I / I_max`` of Eq. 7, ``I`` above
+    ``background_dn``), as :func:`detect_spots` weights a region and its one-pixel margin. A ROI
+    whose above-threshold pixels reach its border is widened (up to ``max_roi_half_px``) so a
+    bright or saturated spot is not truncated. Every window is one vectorised gather: ~0.1 ms
+    for a few hundred stars where a full 1024^2 frame takes ~2.5 ms.
+    """
+    img = np.asarray(image)
+    H, W = img.shape
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    n = len(xy)
+    out_xy = np.full((n, 2), np.nan)
+    flux, peak, npx = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
+    valid = np.zeros(n, dtype=bool)
+    finite = np.all(np.isfinite(xy), axis=1)
+    cx = np.where(finite, np.rint(np.where(finite, xy[:, 0], 0.0)), -10**6).astype(np.intp)
+    cy = np.where(finite, np.rint(np.where(finite, xy[:, 1], 0.0)), -10**6).astype(np.intp)
+    # the brightest pixel of the search box (the box must lie in the image)
+    s = int(search_half_px)
+    ok = (cx - s >= 0) & (cx + s < W) & (cy - s >= 0) & (cy + s < H)
+    idx = np.flatnonzero(ok)
+    if s > 0 and len(idx):
+        d = np.arange(-s, s + 1)
+        box = img[(cy[idx, None] + d)[:, :, None], (cx[idx, None] + d)[:, None, :]].reshape(len(idx), -1)
+        k = np.argmax(box, axis=1)
+        cy[idx] += k // (2 * s + 1) - s
+        cx[idx] += k % (2 * s + 1) - s
+    # a peak at or below the threshold is no spot: only the others are measured
+    pk0 = np.zeros(len(idx), dtype=np.float64)
+    if len(idx):
+        pk0 = img[cy[idx], cx[idx]].astype(np.float64)
+    pending = idx[pk0 > threshold_dn]
+    r = int(roi_half_px)
+    while len(pending):
+        i = pending[(cx[pending] - r - 1 >= 0) & (cx[pending] + r + 1 < W) & (cy[pending] - r - 1 >= 0)
+                    & (cy[pending] + r + 1 < H)]
+        # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge
+        d = np.arange(-r - 1, r + 2)
+        box = img[(cy[i, None] + d)[:, :, None], (cx[i, None] + d)[:, None, :]].astype(np.float32)
+        above = box > threshold_dn
+        rows = above[:, :-2, :] | above[:, 1:-1, :] | above[:, 2:, :]
+        dil = rows[:, :, :-2] | rows[:, :, 1:-1] | rows[:, :, 2:]          # (n, 2r+1, 2r+1)
+        a_in = above[:, 1:-1, 1:-1]
+        grow = a_in[:, [0, -1], :].any(axis=(1, 2)) | a_in[:, :, [0, -1]].any(axis=(1, 2))
+        I = np.maximum(box[:, 1:-1, 1:-1] - np.float32(background_dn), 0.0) * dil
+        I2 = (I * I).astype(np.float64)
+        m0 = I2.sum(axis=(1, 2))
+        dd = np.arange(-r, r + 1, dtype=np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out_xy[i, 0] = cx[i] + I2.sum(axis=1) @ dd / m0
+            out_xy[i, 1] = cy[i] + I2.sum(axis=2) @ dd / m0
+        flux[i] = I.sum(axis=(1, 2), dtype=np.float64)
+        peak[i] = img[cy[i], cx[i]]
+        npx[i] = a_in.sum(axis=(1, 2))
+        valid[i] = (m0 > 0) & ~grow
+        pending = i[grow]
+        if r >= max_roi_half_px:
+            break
+        r = min(2 * r, int(max_roi_half_px))
+    out_xy[~valid] = np.nan
+    return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
+
+
+def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,
+                   max_dn: float | None = None) -> Spots:
+    """Spots (Eq. 6-8 regions and centroids, as :func:`detect_spots` finds them) inside a few
+    square boxes, each labelled on its own crop: the beacons' windows in tracking, where a
+    full-frame pass costs ~10x more. A region touching its box's edge (not the image's) is
+    dropped: it may continue outside the box, and a truncated region has a biased centroid.
+    Spots found in two overlapping boxes are kept once."""
+    from scipy import ndimage
+
+    img = np.asarray(image)
+    H, W = img.shape
+    xy = np.asarray(centres_xy, float).reshape(-1, 2)
+    half = np.broadcast_to(np.ceil(np.asarray(half_px, float)), (len(xy),))
+    eight = np.ones((3, 3), dtype=bool)
+    parts = []
+    seen = set()
+    for (x, y), h in zip(xy, half):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        x0, x1 = max(int(round(x - h)), 0), min(int(round(x + h)) + 1, W)
+        y0, y1 = max(int(round(y - h)), 0), min(int(round(y + h)) + 1, H)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        crop = img[y0:y1, x0:x1]
+        above = crop > threshold_dn
+        if not above.any():
+            continue
+        lab, n = ndimage.label(above, structure=eight)
+        # the ROI: each region plus its 8-neighbours (a margin pixel shared by two regions goes
+        # to the higher label; detect_spots gives it to the first, a sub-threshold pixel either way)
+        roi = np.where(lab > 0, lab, ndimage.grey_dilation(lab, footprint=eight, mode="constant", cval=0))
+        I = np.clip(crop.astype(np.float64) - background_dn, 0.0, None)
+        rr, cc = np.mgrid[y0:y1, x0:x1]
+        l = roi.ravel()
+        I1, I2 = I.ravel(), (I * I).ravel()
+        m0 = np.bincount(l, I2, minlength=n + 1)[1:]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xc = np.bincount(l, I2 * cc.ravel(), minlength=n + 1)[1:] / m0
+            yc = np.bincount(l, I2 * rr.ravel(), minlength=n + 1)[1:] / m0
+        flux = np.bincount(l, I1, minlength=n + 1)[1:]
+        labs = lab.ravel()
+        npix = np.bincount(labs, minlength=n + 1)[1:]
+        peak = np.zeros(n + 1)
+        np.maximum.at(peak, labs, crop.ravel().astype(np.float64))
+        peak = peak[1:]
+        sl = ndimage.find_objects(lab)
+        for k, s in enumerate(sl):
+            ys, xs = s
+            touches = ((ys.start == 0 and y0 > 0) or (ys.stop == y1 - y0 and y1 < H)
+                       or (xs.start == 0 and x0 > 0) or (xs.stop == x1 - x0 and x1 < W))
+            if touches or not m0[k] > 0:
+                continue
+            key = (int(round(xc[k] * 16)), int(round(yc[k] * 16)))
+            if key in seen:
+                continue
+            seen.add(key)
+            size = max(ys.stop - ys.start, xs.stop - xs.start)
+            parts.append((xc[k], yc[k], flux[k], peak[k], npix[k], size))
+    if not parts:
+        return Spots.empty(float(threshold_dn))
+    a = np.array(parts, dtype=float)
+    a = a[np.argsort(-a[:, 2], kind="stable")]
+    sat = a[:, 3] >= max_dn if max_dn is not None else np.zeros(len(a), bool)
+    return Spots(xy_px=a[:, :2].copy(), flux_dn=a[:, 2].copy(), peak_dn=a[:, 3].copy(), n_pixels=a[:, 4].astype(int),
+                 saturated=sat, elongation=np.ones(len(a)), size_px=a[:, 5].copy(), threshold_dn=float(threshold_dn))

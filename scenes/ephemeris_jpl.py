@@ -26,6 +26,10 @@ import threading
 import numpy as np
 
 from .constants import J2000_JD, SECONDS_PER_DAY
+
+# jplephem's own constants (jplephem.spk.T0, S_PER_DAY), used to repeat its interval arithmetic
+_T0 = J2000_JD
+_S_PER_DAY = SECONDS_PER_DAY
 from .data_files import de421_path
 from .errors import DataFileError, EphemerisRangeError, UnknownBodyError
 
@@ -123,6 +127,7 @@ class Ephemeris:
     def __setstate__(self, state):
         self._path = state["_path"]
         self._kernel = None
+        self._tables = None
         self._lock = threading.Lock()
 
     # -- kernel -------------------------------------------------------------------------------
@@ -197,6 +202,85 @@ class Ephemeris:
         as ``position_velocity(...)[0]``.
         """
         return self._states(body, t_tdb_s, offset_s, velocity=False)
+
+    def states_at(self, t_tdb_s: float, bodies=BODIES) -> dict:
+        """Position and velocity of several bodies at one epoch: ``{body: (r_km (3,), v_km_s (3,))}``.
+
+        Each DE421 segment is evaluated once (the Earth-Moon barycentre serves the Earth and the
+        Moon) and all segments' Chebyshev series in one vectorised Clenshaw recurrence: about
+        ten times faster than a :meth:`position_velocity` call per body, with the same bits (the
+        same interval arithmetic as ``jplephem``; shorter series are padded with leading zeros,
+        which leave the recurrence's bits unchanged).
+        """
+        keys = [b.lower() if isinstance(b, str) else b for b in bodies]
+        for k, b in zip(keys, bodies):
+            if k not in _CHAINS:
+                raise UnknownBodyError(b, BODIES)
+        self._open()
+        t = float(t_tdb_s)
+        day = np.floor(t / SECONDS_PER_DAY)
+        jd1 = J2000_JD + day
+        jd2 = (t - day * SECONDS_PER_DAY) / SECONDS_PER_DAY
+        if not (self._start_jd <= jd1 + jd2 <= self._end_jd):
+            raise EphemerisRangeError(
+                f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
+                f" epoch {t!r} s outside", time_mask=True, start_jd=self._start_jd, end_jd=self._end_jd)
+        pairs = list(dict.fromkeys(p for k in keys for p in _CHAINS[k]))
+        tables = self._cheb_tables()
+        cmax = max(tables[p][2].shape[0] for p in pairs)
+        coef = np.zeros((cmax, 3, len(pairs)))
+        s = np.empty(len(pairs))
+        intl = np.empty(len(pairs))
+        for j, p in enumerate(pairs):
+            init, intlen, c = tables[p]
+            n = c.shape[2]
+            # jplephem's interval arithmetic (Segment.generate), scalar, for the same bits
+            index1, offset1 = divmod((jd1 - _T0) * _S_PER_DAY - init, intlen)
+            index2, offset2 = divmod(jd2 * _S_PER_DAY, intlen)
+            index3, offset = divmod(offset1 + offset2, intlen)
+            index = int(index1 + index2 + index3)
+            if index == n:
+                index, offset = index - 1, offset + intlen
+            coef[cmax - c.shape[0]:, :, j] = c[:, :, index]
+            s[j] = 2.0 * offset / intlen - 1.0
+            intl[j] = intlen
+        s2 = 2.0 * s
+        w0 = w1 = 0.0
+        wlist = []
+        for c in coef[:-1]:
+            w2 = w1
+            w1 = w0
+            w0 = c + (s2 * w1 - w2)
+            wlist.append(w1)
+        pos = coef[-1] + (s * w0 - w1)
+        dw0 = dw1 = 0.0
+        for w1_ in wlist:
+            dw2 = dw1
+            dw1 = dw0
+            dw0 = 2.0 * w1_ + dw1 * s2 - dw2
+        rates = w0 + s * dw0 - dw1
+        rates /= intl
+        rates *= 2.0
+        rates *= _S_PER_DAY
+        col = {p: j for j, p in enumerate(pairs)}
+        out = {}
+        for k, b in zip(keys, bodies):
+            r = np.zeros(3)
+            v = np.zeros(3)
+            for p in _CHAINS[k]:
+                r += pos[:, col[p]]
+                v += rates[:, col[p]]
+            out[b] = (r, v / SECONDS_PER_DAY)
+        return out
+
+    def _cheb_tables(self) -> dict:
+        """``{(center, target): (init_s, intlen_s, coefficients (C, 3, N))}`` of every chained
+        segment, highest degree first, as ``jplephem`` holds them (memory-mapped, loaded once)."""
+        tables = getattr(self, "_tables", None)
+        if tables is None:
+            tables = {p: self._segments[p]._data for chain in _CHAINS.values() for p in chain}
+            self._tables = tables
+        return tables
 
     def _states(self, body, t_tdb_s, offset_s, *, velocity: bool):
         key = body.lower() if isinstance(body, str) else body

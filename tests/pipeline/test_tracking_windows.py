@@ -51,21 +51,22 @@ def test_windowed_tracking_matches_full_frame_tracking(paper_cam, onboard, spy, 
     assert spy == [True], "the windowed path fell back"
     assert full.status == win.status == "ok"
     assert full.star_id_method == win.star_id_method == "tracking"
-    assert rotation_angle_rad(full.attitude.R_cam_icrs, win.attitude.R_cam_icrs) < 0.1 * ARCSEC
-    # the final association offers the refine_max_spots brightest spots: the full frame's noise
-    # spots can push a few faint stars out of that list; offering all spots, the same stars match
-    assert set(full.matched_star_ids) <= set(win.matched_star_ids)
-    all_spots = ProcessOptions(refine_max_spots=10**6)
-    full_all = process_frame(obs, catalog=onboard, predicted_state=st, previous_attitude=prev,
-                             options=ProcessOptions(track_window_px=0, refine_max_spots=10**6))
-    win_all = process_frame(obs, catalog=onboard, predicted_state=st, previous_attitude=prev, options=all_spots)
-    assert set(full_all.matched_star_ids) == set(win_all.matched_star_ids)
-    assert rotation_angle_rad(full_all.attitude.R_cam_icrs, win_all.attitude.R_cam_icrs) < 0.1 * ARCSEC
-    assert rotation_angle_rad(win.attitude.R_cam_icrs, R) < 40 * ARCSEC
+    # judged against the truth: the windowed centroids (each star's ROI in its own box) differ
+    # from the full frame's connected regions only where a neighbour shares a ROI, so the
+    # attitude must be as good. Tolerance: 0.3 arcsec, a quarter of the ~1.2 arcsec attitude
+    # noise of ~150 stars at 70 arcsec/px
+    e_full = rotation_angle_rad(full.attitude.R_cam_icrs, R) / ARCSEC
+    e_win = rotation_angle_rad(win.attitude.R_cam_icrs, R) / ARCSEC
+    assert e_win < e_full + 0.3, (e_win, e_full)
+    assert e_win < 10.0
+    # the same stars carry the solution (at least 90 % of the full frame's matches)
+    assert len(set(full.matched_star_ids) & set(win.matched_star_ids)) >= 0.9 * len(full.matched_star_ids)
+    # beacons: the same outcome, the same spot (the box labelling repeats detect_spots' regions
+    # and Eq. 7-8 centroids; 1e-6 px allows for the order of the sums)
     assert [b.status for b in full.beacons] == [b.status for b in win.beacons]
     for a, b in zip(full.beacons, win.beacons):
         if a.xy_px is not None:
-            assert np.allclose(a.xy_px, b.xy_px, atol=1e-9)
+            assert np.allclose(a.xy_px, b.xy_px, atol=1e-6)
     assert len(win.centroids_xy_px) < len(full.centroids_xy_px)  # fewer pixels looked at
 
 
