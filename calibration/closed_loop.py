@@ -22,8 +22,9 @@ software frame: what a lab measures) and ``noise_free`` (the capture's expected 
 the software frame's noise-free ``electrons`` channel: the bench's systematic error alone).
 
 Sources left out, with the reason counted: too near the image edge for the measurement windows,
-or blended (another catalogued star within 10 px and less than 4 mag fainter, a planet within
-20 px, or a cosmic-ray hit of the software frame within 6 px). The truth decides only the
+or blended (another catalogued star within 10 px and less than 4 mag fainter, a planet or moon
+within 20 px whatever its brightness: next to a saturated planet even a faint moon sits in the
+wings that locate it; or a cosmic-ray hit of the software frame within 6 px). The truth decides only the
 selection and the scoring, never the measurement.
 """
 
@@ -115,8 +116,10 @@ def _select(truth: dict, cam, v_max: float, skipped: dict):
     stars = truth["stars"]
     s_xy = np.array([s["xy"] for s in stars], dtype=float).reshape(-1, 2)
     s_v = np.array([s["v_mag"] for s in stars], dtype=float)
-    planets = [b for b in truth["bodies"] if b["in_fov"] and b["visible"]]
+    in_fov = [b for b in truth["bodies"] if b["in_fov"]]
+    planets = [b for b in in_fov if b["visible"]]
     p_xy = np.array([b["xy"] for b in planets], dtype=float).reshape(-1, 2)
+    b_xy = np.array([b["xy"] for b in in_fov], dtype=float).reshape(-1, 2)
     cr_xy = np.array([c["xy"] for c in truth.get("cosmic_rays", [])], dtype=float).reshape(-1, 2)
     out = []
 
@@ -126,7 +129,7 @@ def _select(truth: dict, cam, v_max: float, skipped: dict):
             d[own] = np.inf
             if np.any((d < STAR_NEIGHBOUR_PX) & (s_v < v + STAR_NEIGHBOUR_DMAG)):
                 return True
-        if len(p_xy) and np.any(np.hypot(*(p_xy - xy).T) < PLANET_NEIGHBOUR_PX) and own is not None:
+        if len(b_xy) and np.any(np.hypot(*(b_xy - xy).T) < PLANET_NEIGHBOUR_PX) and own is not None:
             return True
         return bool(len(cr_xy) and np.any(np.hypot(*(cr_xy - xy).T) < COSMIC_RAY_PX))
 
@@ -138,16 +141,15 @@ def _select(truth: dict, cam, v_max: float, skipped: dict):
             skipped["star_blended"] = skipped.get("star_blended", 0) + 1
         else:
             out.append(("star", str(stars[k]["hip"]), float(s_v[k]), R @ np.asarray(stars[k]["u_icrs"], float), xy))
-    p_v = np.array([b["v_mag"] for b in planets], dtype=float)
-    for i, (b, xy) in enumerate(zip(planets, p_xy)):
-        d_p = np.hypot(*(p_xy - xy).T)
-        d_p[i] = np.inf
+    for b, xy in zip(planets, p_xy):
+        d_p = np.hypot(*(b_xy - xy).T)
+        d_p[d_p == 0.0] = np.inf  # itself
         if b["resolved"]:
             skipped["planet_resolved"] = skipped.get("planet_resolved", 0) + 1
         elif not cam.in_image(xy[None], margin_px=-EDGE_MARGIN_PX)[0]:
             skipped["planet_edge"] = skipped.get("planet_edge", 0) + 1
         elif (len(s_xy) and np.any((np.hypot(*(s_xy - xy).T) < STAR_NEIGHBOUR_PX) & (s_v < b["v_mag"] + STAR_NEIGHBOUR_DMAG))) \
-                or np.any((d_p < PLANET_NEIGHBOUR_PX) & (p_v < b["v_mag"] + STAR_NEIGHBOUR_DMAG)) or crowded(xy):
+                or np.any(d_p < PLANET_NEIGHBOUR_PX) or crowded(xy):
             skipped["planet_blended"] = skipped.get("planet_blended", 0) + 1
         else:
             out.append(("planet", b["name"], float(b["v_mag"]), R @ np.asarray(b["u_icrs"], float), xy))

@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from scipy.special import erf
 
 __all__ = ["SourceMeasurements", "measure_sources"]
@@ -124,6 +125,21 @@ def _fit(win, wt, q0, grid, iterations: int):
     return q
 
 
+def _fit_windows(img, sat, ci, cj, b, h, read_noise_e, iterations):
+    """Fitted (x, y, flux, bg, sigma) in window coordinates for windows of half-size h at (ci, cj)."""
+    win = np.stack([img[i - h:i + h + 1, j - h:j + h + 1] for i, j in zip(ci, cj)])
+    swin = np.stack([sat[i - h:i + h + 1, j - h:j + h + 1] for i, j in zip(ci, cj)])
+    grid = np.arange(-h, h + 1, dtype=float)
+    wsum = np.maximum(win - b[:, None, None], 0.0)
+    f0 = np.maximum(wsum.sum(axis=(1, 2)), 1.0)
+    x0 = (wsum.sum(axis=1) * grid).sum(axis=1) / f0
+    y0 = (wsum.sum(axis=2) * grid).sum(axis=1) / f0
+    q0 = np.stack([np.clip(x0, -1, 1), np.clip(y0, -1, 1), f0, b, np.full(len(ci), 0.7)], -1)
+    var = read_noise_e ** 2 + np.maximum(win - b[:, None, None], 0.0) + np.maximum(b, 0.0)[:, None, None]
+    wt = np.where(swin, 0.0, 1.0 / var)
+    return _fit(win, wt, q0, grid, iterations)
+
+
 def measure_sources(image_e, guess_xy_px, *, saturated=None, read_noise_e: float = 10.0, half_window_px: int = 5,
                     r_ap_px: float = 3.5, r_in_px: float = 6.0, r_out_px: float = 10.0, iterations: int = 25) -> SourceMeasurements:
     """Centroid and aperture photometry of point sources (see the module docstring).
@@ -194,19 +210,34 @@ def measure_sources(image_e, guess_xy_px, *, saturated=None, read_noise_e: float
     c = big[:, R - 2:R + 3, R - 2:R + 3].reshape(len(idx), -1).argmax(axis=1)
     ci = gi[idx] + c // 5 - 2
     cj = gj[idx] + c % 5 - 2
-    win = np.stack([img[i - h:i + h + 1, j - h:j + h + 1] for i, j in zip(ci, cj)])
-    swin = np.stack([sat[i - h:i + h + 1, j - h:j + h + 1] for i, j in zip(ci, cj)])
-    grid = np.arange(-h, h + 1, dtype=float)
-    wsum = np.maximum(win - b[:, None, None], 0.0)
-    f0 = np.maximum(wsum.sum(axis=(1, 2)), 1.0)
-    x0 = (wsum.sum(axis=1) * grid).sum(axis=1) / f0
-    y0 = (wsum.sum(axis=2) * grid).sum(axis=1) / f0
-    q0 = np.stack([np.clip(x0, -1, 1), np.clip(y0, -1, 1), f0, b, np.full(len(idx), 0.7)], -1)
-    var = read_noise_e ** 2 + np.maximum(win - b[:, None, None], 0.0) + np.maximum(b, 0.0)[:, None, None]
-    wt = np.where(swin, 0.0, 1.0 / var)
-    q = _fit(win, wt, q0, grid, iterations)
-    fx, fy = cj + q[:, 0], ci + q[:, 1]
+    q = _fit_windows(img, sat, ci, cj, b, h, read_noise_e, iterations)
     good = (np.abs(q[:, 0]) < h - 1) & (np.abs(q[:, 1]) < h - 1) & (q[:, 2] > 0) & np.all(np.isfinite(q), axis=1)
+    # a failed fit of a saturated source (a plateau wider than the window leaves too few wing pixels):
+    # once more in a window twice as large, centred on the plateau's centre
+    retry = np.flatnonzero(~good & np.array([sat[i - 2:i + 3, j - 2:j + 3].any() for i, j in zip(ci, cj)], dtype=bool))
+    if len(retry):
+        h2 = min(2 * h, R)
+        for k in retry:
+            lab, _ = ndimage.label(sat[ci[k] - R:ci[k] + R + 1, cj[k] - R:cj[k] + R + 1])
+            core = lab[R - 2:R + 3, R - 2:R + 3]
+            sy, sx = np.nonzero(lab == np.bincount(core[core > 0]).argmax())
+            ci[k] += int(np.clip(np.round(sy.mean()) - R, -2, 2))
+            cj[k] += int(np.clip(np.round(sx.mean()) - R, -2, 2))
+        q2 = _fit_windows(img, sat, ci[retry], cj[retry], b[retry], h2, read_noise_e, 2 * iterations)
+        ok2 = (np.abs(q2[:, 0]) < h2 - 1) & (np.abs(q2[:, 1]) < h2 - 1) & (q2[:, 2] > 0) & np.all(np.isfinite(q2), axis=1)
+        # a plateau too wide for a Gaussian (a source spread over many screen pixels): the
+        # background-subtracted first moment of the window, unbiased for a symmetric spot
+        for n, k in enumerate(retry):
+            if not ok2[n]:
+                w = img[ci[k] - h2:ci[k] + h2 + 1, cj[k] - h2:cj[k] + h2 + 1] - b[k]
+                w = np.where(w > 0, w, 0.0)
+                g = np.arange(-h2, h2 + 1, dtype=float)
+                if w.sum() > 0:
+                    q2[n, :2] = (w.sum(axis=0) @ g) / w.sum(), (w.sum(axis=1) @ g) / w.sum()
+                    q2[n, 2] = w.sum()
+                    ok2[n] = bool(np.all(np.abs(q2[n, :2]) < h2 - 1))
+        q[retry], good[retry] = q2, ok2
+    fx, fy = cj + q[:, 0], ci + q[:, 1]
     # aperture photometry about the fitted centre, background from the annulus
     ra = int(np.ceil(r_ap_px)) + 1
     ay, ax = np.mgrid[-ra:ra + 1, -ra:ra + 1]
