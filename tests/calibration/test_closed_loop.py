@@ -91,3 +91,14 @@ def test_issue_12_closed_loop_acceptance(tmp_path):
     assert planet["n"] >= 10
     assert planet["vs_photocentre_within_5_arcsec"] == 1.0 and planet["vs_photocentre_rms_arcsec"] <= 2.0
     assert star["dmag_rms"] <= 0.03 and abs(star["dmag_bias"]) <= 0.01
+
+
+def test_power_meter_readings_are_dense_at_low_counts(small_captures):
+    """Issue 12 asks the radiometric model be measured densely at low counts, where faint stars'
+    screen pixels sit: at least 10 distinct digital counts below 10 % of full scale, including the
+    first few steps above black (DN 1-3), which set the curve's foot."""
+    from skynav.calibration.radiometric import read_measurements
+
+    d, _, _ = read_measurements(small_captures / "power_meter.csv")
+    low = np.unique(d[d < 0.1 * 1023])
+    assert len(low) >= 10 and {1, 2, 3} <= set(low.astype(int).tolist())
