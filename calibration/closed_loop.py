@@ -24,8 +24,11 @@ the software frame's noise-free ``electrons`` channel: the bench's systematic er
 Sources left out, with the reason counted: too near the image edge for the measurement windows,
 or blended (another catalogued star within 10 px and less than 4 mag fainter, a planet or moon
 within 20 px whatever its brightness: next to a saturated planet even a faint moon sits in the
-wings that locate it; or a cosmic-ray hit of the software frame within 6 px). The truth decides only the
-selection and the scoring, never the measurement.
+wings that locate it; or a cosmic-ray hit of the software frame within 6 px).
+
+The truth decides the selection and the scoring; in the measurement, its pixel position only seeds
+the window (on the brightest pixel within 2 px of it, as a predicted position from the attitude
+and the catalogue would), and the fitted centre does not depend on it.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import numpy as np
 
 from skynav.scenes.facility import ARCSEC
 
+from .errors import CalibrationInputError
 from .measure import measure_sources
 
 #: blend rules (px, mag): see the module docstring
@@ -197,12 +201,12 @@ def closed_loop_dataset(bench, dataset_dir, export_dir, *, seed: int = 0, v_max:
         truth = rec.truth
         cam = Camera.from_dict(truth["camera"])
         if cam != bench.facility.camera:
-            raise ValueError(f"{dataset_dir}: frame {k}'s camera differs from the bench's; export a dataset made with the facility's camera")
+            raise CalibrationInputError(f"{dataset_dir}: frame {k}'s camera differs from the bench's; export a dataset made with the facility's camera")
         src = _select(truth, cam, v_max, skipped)
         screen_png = Path(export_dir) / "frames" / f"{k:06d}.png"
         hil = json.loads((Path(export_dir) / "frames" / f"{k:06d}.json").read_text())
         if hil["source"]["frame"] != k:
-            raise ValueError(f"{screen_png}: exported from frame {hil['source']['frame']}, not {k}")
+            raise CalibrationInputError(f"{screen_png}: exported from frame {hil['source']['frame']}, not {k}")
         if not src:
             continue
         sp = cam.sensor
