@@ -1,7 +1,19 @@
 """Export frames as bench screen frames: ``DIR/frames/NNNNNN.png`` (screen resolution and bit
 depth) + ``NNNNNN.json`` (``schema: skynav.hil_frame/1``: the source frame, where each source was
-placed on the screen, its intended electrons and peak DN, what was clipped), resumable (a frame
-whose PNG and JSON exist is skipped) and parallel over local processes.
+placed on the screen, its intended electrons and peak DN, what was clipped).
+
+Run like ``dataset generate`` (:mod:`skynav.datasets.runner`), with the same pieces:
+
+- crash-safe and resumable: each file is written atomically, then the frame's checksum record
+  ``frames/NNNNNN.sha256`` (:mod:`skynav.datasets.journal`); a re-run keeps a frame only when its
+  record exists, both files match it and decode, and makes every other frame again;
+- one export per folder: ``DIR/export.json`` names the source dataset (its manifest's SHA-256),
+  the facility (the SHA-256 of its canonical mapping) and the skynav version; a re-run with
+  another dataset or facility is refused with one line, as is a second process on the same
+  folder (the dataset lock);
+- in this process, in spawned local processes (threads sized ``cores // workers``), or as Dask
+  tasks (``dask_scheduler``); a screen frame depends on its source frame and the facility alone
+  (seed = frame index), so the bytes are the same whatever the executor.
 
 The scene of each source frame is rebuilt from its ground truth (epoch, observer, attitude,
 camera, visibility, catalogue limit) and drawn by :func:`skynav.renderer.display.screen_frame`.
@@ -10,7 +22,6 @@ camera, visibility, catalogue limit) and drawn by :func:`skynav.renderer.display
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +52,6 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
     """Render and write one screen frame; returns its JSON record."""
     from skynav.renderer.display import screen_frame
 
-    t0 = time.perf_counter()
     sf = screen_frame(scene, facility, rng=np.random.default_rng(seed), options=options)
     frames = Path(out_dir) / "frames"
     frames.mkdir(parents=True, exist_ok=True)
@@ -60,47 +70,173 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
         "bodies": sf.bodies,
         "clipped": {"too_bright_px": sf.clipped_bright_px, "too_faint_sources": sf.clipped_faint_sources},
         "black_pedestal_e_per_camera_px": sf.black_pedestal_e_per_camera_px,
-        "seconds": round(time.perf_counter() - t0, 3),
     }
     write_png(frames / f"{name}.png", sf.dn, bit_depth=sc.bit_depth)
     atomic_write_bytes(frames / f"{name}.json", json.dumps(rec, indent=1).encode())
     return rec
 
 
+EXPORT_MANIFEST = "export.json"
+EXPORT_SCHEMA = "skynav.hil_export/1"
+FORMATS = ("png", "json")
+
+
 def _export_one(job):
-    facility, root, out, k, path_png = job
+    """Make screen frame k (files, then the checksum record); returns ``(k, {relpath: sha256})``."""
+    facility, root, out, k = job
     from . import open_dataset
+    from .frame_files import sha256_file
+    from .journal import write_record
+    from .layout import frame_relpaths
 
     ds = open_dataset(root)
     truth = ds[k].truth  # the raw ground-truth dict
     scene = scene_from_truth(truth)
     name = f"{k:06d}"
     write_screen_frame(facility, scene, out, name, source={"dataset": str(root), "frame": int(k)}, seed=k)
-    return k
+    files = {rel: sha256_file(Path(out) / rel) for rel in frame_relpaths(k, FORMATS).values()}
+    # the checksum record is the frame's commit point (the frame JSON holds no timing, so a
+    # frame's bytes depend on the source frame and the facility alone)
+    return k, {**files, **write_record(out, k, files)}
 
 
-def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, progress=None) -> dict:
-    """Export every frame of a dataset; frames already exported are skipped (resume)."""
+def _export_dask(k, *, facility, root, out):
+    import os
+
+    if "SKYNAV_THREADS" not in os.environ:
+        from distributed import get_worker
+
+        os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
+    return _export_one((facility, root, out, k))
+
+
+def facility_sha256(facility) -> str:
+    """SHA-256 of the facility's canonical mapping (what a facility file holds)."""
+    import hashlib
+
+    return hashlib.sha256(json.dumps(facility.to_mapping(), sort_keys=True, default=str).encode()).hexdigest()
+
+
+def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_scheduler: str | None = None,
+                   client=None, progress=None) -> dict:
+    """Export every frame of a dataset as a screen frame; complete frames already there are kept.
+
+    Returns ``{"frames", "exported", "skipped", "workers", "executor"}``.
+
+    Raises
+    ------
+    skynav.datasets.DatasetError
+        Not a dataset; the folder holds an export of another dataset or facility
+        (:class:`~skynav.datasets.errors.DatasetMismatchError`); another process is exporting
+        into it (:class:`~skynav.datasets.lock.DatasetLockedError`); no Dask scheduler there.
+    """
+    import hashlib
+
+    from skynav import __version__
+
     from . import open_dataset
+    from .errors import DatasetMismatchError
+    from .journal import frame_problem
+    from .layout import MANIFEST_NAME
+    from .lock import dataset_lock
 
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     ds = open_dataset(dataset_path)
+    root = str(Path(dataset_path).resolve())
     out = Path(out_dir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
-    todo = [k for k in range(len(ds)) if not ((out / "frames" / f"{k:06d}.png").is_file() and (out / "frames" / f"{k:06d}.json").is_file())]
-    jobs = [(facility, str(dataset_path), str(out), k, None) for k in todo]
-    done = 0
-    if workers > 1 and len(jobs) > 1:
-        from concurrent.futures import ProcessPoolExecutor
+    ident = {"schema": EXPORT_SCHEMA,
+             "dataset": {"path": root, "manifest_sha256": hashlib.sha256((Path(root) / MANIFEST_NAME).read_bytes()).hexdigest(),
+                         "frames": len(ds)},
+             "facility": {"name": facility.name, "sha256": facility_sha256(facility)},
+             "skynav_version": __version__}
+    with dataset_lock(out):
+        mpath = out / EXPORT_MANIFEST
+        if mpath.is_file():
+            try:
+                old = json.loads(mpath.read_bytes())
+            except (OSError, ValueError):
+                old = None
+            if isinstance(old, dict):
+                for what, a, b in (("source dataset", (old.get("dataset") or {}).get("manifest_sha256"),
+                                    ident["dataset"]["manifest_sha256"]),
+                                   ("facility", (old.get("facility") or {}).get("sha256"), ident["facility"]["sha256"]),
+                                   ("skynav version", old.get("skynav_version"), ident["skynav_version"])):
+                    if a != b:
+                        raise DatasetMismatchError(
+                            f"{out}: holds a screen export of another {what} ({EXPORT_MANIFEST}); "
+                            f"export into a new folder, or delete this one to start again")
+        atomic_write_bytes(mpath, json.dumps(dict(ident, complete=False), indent=1).encode())
+        todo, checksums = [], {}
+        for k in range(len(ds)):
+            problem, files, record = frame_problem(out, k, FORMATS)
+            if problem is None:
+                checksums.update(files)
+                checksums.update(record)
+            else:
+                todo.append(k)
+        done = 0
 
-        with ProcessPoolExecutor(workers) as ex:
-            for _ in ex.map(_export_one, jobs):
-                done += 1
-                if progress:
-                    progress(done, len(jobs))
-    else:
-        for j in jobs:
-            _export_one(j)
+        def accept(result):
+            nonlocal done
+            _, files = result
+            checksums.update(files)
             done += 1
             if progress:
-                progress(done, len(jobs))
-    return {"frames": len(ds), "exported": len(jobs), "skipped": len(ds) - len(jobs)}
+                progress(done, len(todo))
+
+        jobs = [(facility, root, str(out), k) for k in todo]
+        if dask_scheduler is not None or client is not None:
+            n_workers, executor = _run_dask(jobs, accept, client, dask_scheduler)
+        elif workers > 1 and len(jobs) > 1:
+            n_workers, executor = _run_pool(jobs, accept, workers)
+        else:
+            for j in jobs:
+                accept(_export_one(j))
+            n_workers, executor = 1, "in-process"
+        atomic_write_bytes(mpath, json.dumps(dict(ident, complete=True, checksums=dict(sorted(checksums.items()))),
+                                             indent=1).encode())
+    return {"frames": len(ds), "exported": len(todo), "skipped": len(ds) - len(todo), "workers": n_workers,
+            "executor": executor}
+
+
+def _run_pool(jobs, accept, n_workers):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .execute import _worker_threads
+
+    with _worker_threads(n_workers), \
+            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+        futs = [ex.submit(_export_one, j) for j in jobs]
+        try:
+            for fut in as_completed(futs):
+                accept(fut.result())
+        except BaseException:
+            for f in futs:
+                f.cancel()
+            raise
+    return n_workers, "processes (spawn)"
+
+
+def _run_dask(jobs, accept, client, address):
+    from .runner import connect_dask
+
+    own = client is None
+    if own:
+        client = connect_dask(address)
+    try:
+        from distributed import as_completed
+
+        n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))
+        if jobs:
+            facility, root, out = jobs[0][:3]
+            fac_f = client.scatter(facility, broadcast=True)
+            futs = client.map(_export_dask, [j[3] for j in jobs], facility=fac_f, root=root, out=out, pure=False)
+            for fut in as_completed(futs):
+                accept(fut.result())
+        return n_workers, "dask"
+    finally:
+        if own:
+            client.close()

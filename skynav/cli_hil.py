@@ -30,8 +30,10 @@ def cmd_export(args) -> int:
         return 2
     fac = load_facility(args.facility)
     fac.check_coverage()
-    s = export_dataset(fac, args.dataset, args.output, workers=args.workers, progress=None if args.quiet else _progress("exporting"))
-    print(f"{s['exported']} screen frames written to {args.output}/frames ({s['skipped']} already there) of {s['frames']}")
+    s = export_dataset(fac, args.dataset, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
+                       progress=None if args.quiet else _progress("exporting"))
+    print(f"{s['exported']} screen frames written to {args.output}/frames ({s['skipped']} already there) of {s['frames']}"
+          f" on {s['workers']} worker(s) ({s['executor']})")
     return 0
 
 
@@ -71,6 +73,7 @@ def add_parser(sub) -> None:
     e.add_argument("dataset")
     e.add_argument("--facility", required=True)
     e.add_argument("-o", "--output", required=True)
-    e.add_argument("--workers", type=int, default=1)
+    e.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
+    e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     e.add_argument("-q", "--quiet", action="store_true")
     e.set_defaults(func=cmd_export)
