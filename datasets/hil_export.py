@@ -132,12 +132,10 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
     """
     import hashlib
 
-    from skynav import __version__
-
     from . import open_dataset
     from .errors import DatasetMismatchError
     from .journal import frame_problem
-    from .layout import MANIFEST_NAME
+    from .layout import MANIFEST_NAME, package_version
     from .lock import dataset_lock
 
     if workers < 1:
@@ -150,7 +148,7 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
              "dataset": {"path": root, "manifest_sha256": hashlib.sha256((Path(root) / MANIFEST_NAME).read_bytes()).hexdigest(),
                          "frames": len(ds)},
              "facility": {"name": facility.name, "sha256": facility_sha256(facility)},
-             "skynav_version": __version__}
+             "skynav_version": package_version()}
     with dataset_lock(out):
         mpath = out / EXPORT_MANIFEST
         if mpath.is_file():
