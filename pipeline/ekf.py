@@ -89,7 +89,8 @@ class NavFilter:
         self.t = float(t_tdb_s)
 
     def update(self, measured_xy_px, planet_position_km, planet_velocity_km_s, R_cam_icrs, camera,
-               sigma_px: float, *, sun_position_km=None, planet_radius_km: float = 0.0) -> UpdateResult:
+               sigma_px: float, *, sun_position_km=None, planet_radius_km: float = 0.0,
+               photocentre: str = "lambert") -> UpdateResult:
         """Correct every run with its planet centroid.
 
         Parameters
@@ -104,7 +105,7 @@ class NavFilter:
             Calibrated camera.
         sigma_px : float
             Measurement noise (1 sigma per axis), px.
-        sun_position_km, planet_radius_km : optional
+        sun_position_km, planet_radius_km, photocentre : optional
             Aim the model at the planet's Lambert centre of light
             (:func:`skynav.pipeline.measurement.planet_pixel`).
         """
@@ -127,7 +128,7 @@ class NavFilter:
                 z = deaberrate_pixel(z, v, R_all[i], camera)
             m = planet_pixel(r, v, planet_position_km, planet_velocity_km_s, R_all[i], camera,
                              corrections=self.corrections, sun_position_km=sun_position_km,
-                             planet_radius_km=planet_radius_km)
+                             planet_radius_km=planet_radius_km, photocentre=photocentre)
             H = np.zeros((2, STATE_SIZE))
             H[:, :6] = m.H
             nu = z - m.xy_px
