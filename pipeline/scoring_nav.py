@@ -383,12 +383,13 @@ class CampaignResult:
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
-               progress_q=None):
+               progress_q=None, synthetic_seed=None):
     import skynav.datasets as sdat
     from skynav.scenes.constants import SECONDS_PER_DAY
     from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
     from . import OnboardCatalog, PredictedState, process_frame
+    from .measurement import planet_pixel
     from .pairs import candidates_from_state, optimal_pair
 
     ds = sdat.open(plan.root)
@@ -444,13 +445,22 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
             radius = BODY_RADII_KM[plan.target[i]]
             sigma_px = noise.sigma_px(diameter_px(radius, np.linalg.norm(rp - mean[:3]), obs.camera),
                                       f"{plan.target[i]}/{use}", track_frames[(int(plan.leg[i]), plan.phase[i])])
-            z = np.broadcast_to(np.asarray(b.xy_px, dtype=float), (n_runs, 2))
+            zxy = np.asarray(b.xy_px, dtype=float)
+            if synthetic_seed is not None:
+                # reference mode: the exact model (case 1, this photocentre law) at the TRUE state
+                # plus white noise of exactly the filter's R; the same draw in every worker
+                m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs,
+                                      obs.camera, corrections=CASES[1], sun_position_km=eph.position("sun", t[i]),
+                                      planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
+                g = np.random.default_rng(np.random.SeedSequence([int(synthetic_seed), 0x5E, i]))
+                zxy = m_true.xy_px + sigma_px * g.standard_normal(2)
+            z = np.broadcast_to(zxy, (n_runs, 2))
             u = kf.update(z, rp, vp, fr.attitude.R_cam_icrs, obs.camera, sigma_px,
                           sun_position_km=eph.position("sun", t[i]),
                           planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
             res[:, i], acc[:, i] = u.residual_px, u.accepted
         if b is not None:
-            meas[i] = np.asarray(b.xy_px) - plan.target_xy_px[i]
+            meas[i] = (zxy if use is not None else np.asarray(b.xy_px)) - plan.target_xy_px[i]
         truth = np.concatenate([plan.position_km[i], plan.velocity_km_s[i]])
         err[:, i] = kf.x[:, :6] - truth
         cov[:, i] = kf.P[:, :6, :6]
@@ -469,10 +479,13 @@ def _chunk_worker(args):
 
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
-                 progress=None) -> CampaignResult:
+                 progress=None, synthetic_seed: int | None = None) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (paper 002 Eq. 45-46 initial errors, 001 Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
+    ``synthetic_seed``: reference mode; every centroid the filter would use is replaced by the
+    measurement model at the true state plus white noise of the filter's own R (seeded): what a
+    consistent filter shows on ONE realisation shared by the runs (``benchmarks/nav_consistency.py``).
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
@@ -486,10 +499,10 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
-        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress)]
+        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed)]
     else:
         with ProcessPoolExecutor(workers) as ex:
-            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None)
+            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None, synthetic_seed)
                                                     for c in chunks]))
     cat = lambda k: np.concatenate([o[k] for o in outs], 0)  # noqa: E731
     return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("err"),
