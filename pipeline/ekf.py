@@ -15,7 +15,7 @@ Core module. :class:`NavFilter` holds N filters (one per run) on the 12-state mo
   propagates: the caller passes ``None`` for that run.
 
 ``R = sigma_px^2 I`` with ``sigma_px`` the measured planet-centroid error (the benchmark measures
-it on the dataset's frames, see :mod:`skynav.pipeline.nav_scoring`); never a guess inside here.
+it on the dataset's frames, see :mod:`skynav.pipeline.scoring_nav`); never a guess inside here.
 """
 
 from __future__ import annotations
