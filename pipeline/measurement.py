@@ -39,7 +39,7 @@ import numpy as np
 from skynav.scenes.constants import C_KM_S
 
 __all__ = ["LightCorrections", "CASES", "PlanetMeasurement", "planet_pixel", "deaberrate_pixel",
-           "lambert_photocentre_offset"]
+           "lambert_photocentre_offset", "saturated_photocentre_offset", "PHOTOCENTRE_LAWS", "spot_saturated"]
 
 
 def lambert_photocentre_offset(phase_angle_rad):
@@ -55,6 +55,42 @@ def lambert_photocentre_offset(phase_angle_rad):
     with np.errstate(invalid="ignore", divide="ignore"):
         out = 3.0 * np.pi / 16.0 * np.sin(a) * (1.0 + np.cos(a)) / den
     return np.where(a > np.pi - 1e-6, 9.0 * np.pi / 32.0, np.where(a < 1e-9, 0.0, out))
+
+
+def saturated_photocentre_offset(phase_angle_rad):
+    """Offset of the centroid of a SATURATED resolved disc from its centre, towards the Sun, in radii.
+
+    When every lit pixel of a resolved planet sits at full scale (the Earth early in the cruise
+    holds ~1e5 full wells per pixel), a flux-weighted centroid no longer sees the Lambert
+    brightness: it returns the centroid of the lit AREA (the PSF, symmetric, does not move it).
+    The lit region is the half disc on the Sun's side plus (phase < 90 deg) or minus (> 90 deg)
+    the half ellipse of semi-axes ``(|cos a|, 1)``: area ``pi / 2 (1 + cos a)``, first moment
+    ``2 / 3 (1 - cos^2 a)``, so the centroid is at ``4 / (3 pi) (1 - cos a)`` radii (0 at full
+    phase, 8 / (3 pi) = 0.85 towards new phase). At 120 deg: 0.64 radius against Lambert's 0.75,
+    0.26 px for the Earth at 4.9 px, which the campaign's centroids show (docs/pipeline.md).
+    """
+    a = np.asarray(phase_angle_rad, dtype=float)
+    return 4.0 / (3.0 * np.pi) * (1.0 - np.cos(a))
+
+
+#: Photocentre laws ``name -> offset(phase) in radii`` that :func:`planet_pixel` can aim at.
+PHOTOCENTRE_LAWS = {"lambert": lambert_photocentre_offset, "saturated": saturated_photocentre_offset}
+
+
+def spot_saturated(dn, xy_px, radius_px: float, max_dn: float) -> bool:
+    """Whether any pixel within ``radius_px`` of ``xy_px`` of the image ``dn`` is at ``max_dn``.
+
+    Image-side test for :func:`saturated_photocentre_offset` (the on-board image, no truth).
+    """
+    img = np.asarray(dn)
+    x, y = float(xy_px[0]), float(xy_px[1])
+    r = max(1.0, float(radius_px))
+    h, w = img.shape[:2]
+    x0, x1 = max(0, int(np.floor(x - r))), min(w, int(np.ceil(x + r)) + 1)
+    y0, y1 = max(0, int(np.floor(y - r))), min(h, int(np.ceil(y + r)) + 1)
+    if x0 >= x1 or y0 >= y1:
+        return False
+    return bool(np.any(img[y0:y1, x0:x1] >= max_dn))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -129,7 +165,7 @@ def _projection_jacobian(camera, v_cam):
 
 def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity_km_s, R_cam_icrs, camera,
                  *, corrections: LightCorrections = CASES[1], sun_position_km=None,
-                 planet_radius_km: float = 0.0) -> PlanetMeasurement:
+                 planet_radius_km: float = 0.0, photocentre: str = "lambert") -> PlanetMeasurement:
     """Modelled pixel position of a planet and its Jacobian wrt the spacecraft state.
 
     Parameters
@@ -150,6 +186,9 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
         its centre (an addition to paper 002). The Jacobian treats the offset as constant (its
         derivative is ~ offset / distance, < 1e-3 of ``H``).
     planet_radius_km : float
+    photocentre : str
+        Which centre of light (:data:`PHOTOCENTRE_LAWS`): ``"lambert"`` (the brightness-weighted
+        one) or ``"saturated"`` (the lit area's, for a resolved disc whose pixels are at full scale).
 
     Returns
     -------
@@ -185,7 +224,7 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
         across = to_sun - (to_sun @ lhat) * lhat
         na = np.linalg.norm(across)
         if na > 0:
-            d = d + float(lambert_photocentre_offset(phase)) * planet_radius_km * across / na
+            d = d + float(PHOTOCENTRE_LAWS[photocentre](phase)) * planet_radius_km * across / na
     nd = np.linalg.norm(d)
     l = d / nd
     dl_dd = (eye - np.outer(l, l)) / nd

@@ -14,18 +14,28 @@ do that). What each part sees:
 
 Measurement noise ``R = sigma_px^2 I``: measured, not guessed (paper 002 Sec. 5.1 did the same
 with its image-processing Monte Carlo): before the filter runs, the image processing is run on
-every ``calibration_stride``-th frame with a predicted state drawn from P0 about the truth, and
-the target's centroid minus the measurement model at the true state gives the errors; their
-mean square per axis is fitted as ``sigma0^2 + (kappa D)^2`` with ``D`` the planet's apparent
-diameter in px (:class:`CentroidNoise`; non-negative least squares with iterated 99.7 % clipping of
-outliers such as a star blended with the planet, which the filter's innovation gate rejects); the filter evaluates ``D`` from its own estimate.
-``--sigma-px`` gives a constant instead.
+every ``calibration_stride``-th frame (default: every frame; with every 4th the per-class sigmas
+came out 10-15 % low on the reference campaign, e.g. Mars 0.061 against 0.070 px from all frames,
+within their sampling error but enough to show in the NEES) with a predicted state drawn from P0
+about the truth, and
+the target's centroid minus the measurement model at the true state gives the errors
+(:class:`CentroidNoise`): per class of measurement (target and photocentre law) with at least
+:data:`MIN_CLASS_FRAMES` frames, the class's mean square per axis and the part of it constant over
+a track (:func:`track_bias_sigma`); otherwise ``sigma0^2 + (kappa D)^2`` with ``D`` the planet's
+apparent diameter in px, fitted on all frames by non-negative least squares. Both with iterated
+99.7 % clipping of outliers such as a star blended with the planet, which the filter's innovation
+gate rejects; the filter evaluates ``D`` from its own estimate. ``--sigma-px`` gives a constant
+instead.
 
 Phase: the renderer draws planets as lit discs, whose centre of light sits up to ~0.4 diameter
-from the centre towards the Sun (1.5 px for the Earth early in the cruise, 0.2 px for Venus). By
-default the measurement model aims at the Lambert photocentre
-(:func:`skynav.pipeline.measurement.lambert_photocentre_offset`); ``phase_offset=False`` keeps
-paper 002's centre-of-planet model.
+from the centre towards the Sun (1.8 px for the Earth early in the cruise, 0.2 px for Venus). By
+default the measurement model aims at the photocentre: the Lambert one
+(:func:`skynav.pipeline.measurement.lambert_photocentre_offset`), or for a resolved disc whose
+spot is saturated the lit area's centroid
+(:func:`skynav.pipeline.measurement.saturated_photocentre_offset`; :func:`centroid_usable`
+decides from the image); ``phase_offset=False`` keeps paper 002's centre-of-planet model. A
+centroid with another body predicted within :data:`BLEND_PX` is not used (the Earth and the Moon
+in one spot).
 
 The image processing runs once per frame for all the runs of a worker (the predicted state it
 gets is the runs' mean, with the runs' mean covariance plus their spread); with ``workers > 1``
@@ -45,30 +55,49 @@ import numpy as np
 from .ekf import NavFilter, initial_covariance
 from .errors import BenchInputError
 from .filter_dynamics import FilterDynamics
-from .measurement import CASES
+from .measurement import CASES, spot_saturated
 
 __all__ = ["NavInputError", "NavPlan", "CampaignResult", "CentroidNoise", "load_plan", "calibrate_sigma_px",
-           "run_campaign", "icrs_to_ecliptic"]
+           "run_campaign", "icrs_to_ecliptic", "centroid_usable", "track_bias_sigma", "BLEND_PX"]
 
 
 @dataclass(frozen=True, kw_only=True)
 class CentroidNoise:
-    """Measurement noise per axis, ``sigma^2 = sigma0_px^2 + (kappa D)^2`` with ``D`` the planet's
-    predicted apparent diameter in px (a lit disc's centroid is noisier and its phase model less
-    exact the larger it is). Fitted on the calibration frames by non-negative least squares."""
+    """Measurement noise per axis. Per class of measurement (``"<target>/<photocentre law>"``, e.g.
+    ``"earth/saturated"``, ``"mars/lambert"``) with enough calibration frames: the class's measured
+    sigma (the planets' centroids differ: Venus's 0.04 px against the Earth's 0.11 px, both
+    saturated points); else ``sigma^2 = sigma0_px^2 + (kappa D)^2`` with ``D`` the planet's
+    predicted apparent diameter in px, fitted on all calibration frames by non-negative least squares."""
 
     sigma0_px: float
     kappa: float = 0.0
     mean_px: tuple = (0.0, 0.0)
     frames: int = 0
     clipped: int = 0
+    classes: tuple = ()     # ((key, sigma_px, frames, track_bias_sigma_px), ...)
 
-    def sigma_px(self, diameter_px: float) -> float:
+    def sigma_px(self, diameter_px: float, key: str | None = None, track_frames: int = 1) -> float:
+        """Per-frame sigma. A class whose error has a part constant over a track (sigma_b, e.g. the
+        saturated Earth disc's residual photocentre error) gets ``sigma^2 + n sigma_b^2`` for a track
+        of ``n`` frames, so that the filter, which takes the frames as independent, gives the
+        track's MEAN the variance it has, ``sigma^2 / n + sigma_b^2`` (conservative per frame)."""
+        for k, sig, _, sig_b in self.classes:
+            if k == key:
+                return math.sqrt(sig**2 + max(1, int(track_frames)) * sig_b**2)
         return math.sqrt(self.sigma0_px**2 + (self.kappa * diameter_px) ** 2)
 
     def describe(self) -> str:
+        if not self.frames:
+            return f"{self.sigma0_px:g} px (given)"
+        per = "; ".join(f"{k} {sig:.3f} px, track bias {sb:.3f} px ({n})" for k, sig, n, sb in self.classes)
         return (f"sigma = sqrt({self.sigma0_px:.3f}^2 + ({self.kappa:.3f} D)^2) px, measured on {self.frames} frames "
-                f"({self.clipped} clipped as outliers; mean error {np.round(self.mean_px, 3).tolist()} px)") if self.frames else f"{self.sigma0_px:g} px (given)"
+                f"({self.clipped} clipped as outliers; mean error {np.round(self.mean_px, 3).tolist()} px)"
+                + (f"; per class: {per}" if per else ""))
+
+
+#: A class of measurements needs this many calibration frames for its own sigma (18 degrees of
+#: freedom per 9 frames: the sigma is then known to ~ +-17 %, 1 sigma).
+MIN_CLASS_FRAMES = 9
 
 
 def diameter_px(radius_km: float, distance_km: float, camera) -> float:
@@ -189,7 +218,7 @@ def _observation(ds, plan: NavPlan, i):
     return replace(obs, dn=dn)
 
 
-def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_position_km: float = 1e4,
+def calibrate_sigma_px(plan: NavPlan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
                        sigma_velocity_km_s: float = 0.1, phase_offset: bool = True):
     """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
 
@@ -210,6 +239,8 @@ def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_p
     cat = None
     errs = []
     diam = []
+    keys = []
+    tracks = []
     prev = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
@@ -223,13 +254,19 @@ def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_p
         fr = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prev)
         prev = fr.attitude.R_cam_icrs
         b = _target_beacon(fr, plan.target[i])
-        if b is not None:
+        # the filter's view (estimate drawn about the truth) decides blends and the photocentre law
+        use = None if b is None else centroid_usable(obs, fr, b, plan.target[i], t=plan.t_tdb_s[i],
+                                                     position_km=ps.position_km, ephemeris=eph)
+        if use is not None:
             t = plan.t_tdb_s[i]
             rp, vp = eph.position_velocity(plan.target[i], t)
             m = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs, obs.camera,
                              corrections=CASES[1], sun_position_km=eph.position("sun", t),
-                             planet_radius_km=BODY_RADII_KM[plan.target[i]] if phase_offset else 0.0)
+                             planet_radius_km=BODY_RADII_KM[plan.target[i]] if phase_offset else 0.0,
+                             photocentre=use)
             errs.append(np.asarray(b.xy_px) - m.xy_px)
+            keys.append(f"{plan.target[i]}/{use}")
+            tracks.append((int(plan.leg[i]), plan.phase[i]))
             diam.append(diameter_px(BODY_RADII_KM[plan.target[i]], np.linalg.norm(rp - plan.position_km[i]), obs.camera))
     if not errs:
         raise NavInputError(f"{plan.root}: the image processing found no target planet on the calibration frames")
@@ -247,8 +284,84 @@ def calibrate_sigma_px(plan: NavPlan, *, stride: int = 8, seed: int = 0, sigma_p
         if np.array_equal(new, keep) or new.sum() < 3:
             break
         keep = new
+    classes = []
+    keys = np.array(keys)
+    for k in sorted(set(keys.tolist())):
+        sel = keys == k
+        if sel.sum() < MIN_CLASS_FRAMES:
+            continue
+        ck = np.ones(int(sel.sum()), dtype=bool)
+        for _ in range(10):   # the same 99.7 % clipping, within the class
+            s2 = float(np.mean(e2[sel][ck]))
+            new = 2.0 * e2[sel] / s2 <= 11.6
+            if np.array_equal(new, ck) or new.sum() < MIN_CLASS_FRAMES:
+                break
+            ck = new
+        sb = track_bias_sigma(e[sel][ck], [tracks[j] for j in np.flatnonzero(sel)[ck]], s2)
+        classes.append((str(k), math.sqrt(s2), int(ck.sum()), sb))
     return CentroidNoise(sigma0_px=float(np.sqrt(coef[0])), kappa=float(np.sqrt(coef[1])), mean_px=tuple(e[keep].mean(0)),
-                         frames=int(keep.sum()), clipped=int((~keep).sum()))
+                         frames=int(keep.sum()), clipped=int((~keep).sum()), classes=tuple(classes))
+
+
+#: Iterated EKF update in the campaign: after the first 10-day propagation the position is known to
+#: ~1e5 km only and the first Earth fix is nonlinear over that spread; with the one-step EKF 2 of 6
+#: runs (seed 3, synthetic centroids) were left 4 sigma off and then gated out every later
+#: measurement (final error 4e6 km); 3 iterations keep them all (tests/pipeline/test_ekf_iterated.py).
+UPDATE_ITERATIONS = 3
+
+#: A centroid is not used when another body is predicted closer than this to the target: the two
+#: make one spot (the IP's ``ProcessOptions.blend_px``). Measured: the Earth with the Moon 3.6 px
+#: away (leg 8 of the reference campaign) is off by 0.9 px, with the Moon 12 px away by 0.05 px.
+BLEND_PX = 8.0
+
+
+def centroid_usable(obs, fr, beacon, target, *, t, position_km, ephemeris):
+    """How the filter may use the target's centroid: None (not at all: another body is predicted
+    within :data:`BLEND_PX`), else the photocentre law of
+    :func:`skynav.pipeline.measurement.planet_pixel` (``"saturated"`` when the disc is resolved,
+    wider than four PSF sigmas, and its spot has pixels at full scale; else ``"lambert"``).
+    On-board knowledge only: the image, the estimate ``position_km``, the ephemeris, the camera.
+    """
+    from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
+
+    cam = obs.camera
+    R = fr.attitude.R_cam_icrs
+    r = np.asarray(position_km, dtype=float)
+
+    def pixel(name):
+        u = R @ (ephemeris.position(name, t) - r)
+        return None if u[2] <= 0 else cam.project(u.reshape(1, 3))[0]
+
+    xy_t = pixel(target)
+    if xy_t is None:
+        return None
+    for name in BODY_RADII_KM:
+        if name in (target, "sun"):
+            continue
+        xy = pixel(name)
+        if xy is not None and np.all(np.isfinite(xy)) and float(np.hypot(*(xy - xy_t))) < BLEND_PX:
+            return None
+    d_px = diameter_px(BODY_RADII_KM.get(target, 0.0), float(np.linalg.norm(ephemeris.position(target, t) - r)), cam)
+    if d_px > 4.0 * float(getattr(cam, "defocus_sigma_px", 0.5)) and spot_saturated(
+            obs.dn, beacon.xy_px, 0.5 * d_px + 1.0, float(cam.sensor.max_dn)):
+        return "saturated"
+    return "lambert"
+
+
+def track_bias_sigma(errors_px, tracks, mean_square_px2: float) -> float:
+    """The part of a class's centroid error that is constant over a track, px (per axis).
+
+    Method of moments: the track means' mean square beyond the ``mean_square / n`` that
+    independent frames would give them; 0 when negative or with fewer than 2 tracks of 2+ frames.
+    ``errors_px`` (M, 2), ``tracks`` M hashable track labels, ``mean_square_px2`` the class's
+    total mean square per axis.
+    """
+    e = np.asarray(errors_px, dtype=float).reshape(-1, 2)
+    groups = {}
+    for j, tr in enumerate(tracks):
+        groups.setdefault(tr, []).append(j)
+    excess = [float(np.mean(e[g].mean(0) ** 2)) - mean_square_px2 / len(g) for g in groups.values() if len(g) >= 2]
+    return math.sqrt(max(0.0, float(np.mean(excess)))) if len(excess) >= 2 else 0.0
 
 
 def _target_beacon(fr, target):
@@ -279,19 +392,20 @@ class CampaignResult:
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
-               progress_q=None):
+               progress_q=None, synthetic_seed=None):
     import skynav.datasets as sdat
     from skynav.scenes.constants import SECONDS_PER_DAY
     from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
     from . import OnboardCatalog, PredictedState, process_frame
+    from .measurement import planet_pixel
     from .pairs import candidates_from_state, optimal_pair
 
     ds = sdat.open(plan.root)
     eph = default_ephemeris()
     t = plan.t_tdb_s
     dyn = dynamics.bind(eph, t[0] - SECONDS_PER_DAY, t[-1] + SECONDS_PER_DAY)
-    kf = NavFilter(dyn, x0, P0, t[0], corrections=CASES[case])
+    kf = NavFilter(dyn, x0, P0, t[0], corrections=CASES[case], iterations=UPDATE_ITERATIONS)
     n_runs, F = kf.n_runs, plan.frames
     err = np.empty((n_runs, F, 6))
     cov = np.empty((n_runs, F, 6, 6))
@@ -302,6 +416,9 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
     cat = None
     prev = None
     ip_s = fl_s = 0.0
+    track_frames = {}   # frames per (leg, phase): the commanded observation plan
+    for lg, ph in zip(plan.leg, plan.phase):
+        track_frames[(int(lg), ph)] = track_frames.get((int(lg), ph), 0) + 1
     pairs = []
     for i in range(F):
         c0 = time.perf_counter()
@@ -327,17 +444,32 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
         prev = fr.attitude.R_cam_icrs
         status.append(fr.status)
         b = _target_beacon(fr, plan.target[i])
+        use = None if b is None else centroid_usable(obs, fr, b, plan.target[i], t=t[i], position_km=mean[:3],
+                                                     ephemeris=eph)
         c2 = time.perf_counter()
-        if b is not None:
+        if b is not None and use is None:
+            status[-1] = "blended"
+        if use is not None:
             rp, vp = eph.position_velocity(plan.target[i], t[i])
             radius = BODY_RADII_KM[plan.target[i]]
-            sigma_px = noise.sigma_px(diameter_px(radius, np.linalg.norm(rp - mean[:3]), obs.camera))
-            z = np.broadcast_to(np.asarray(b.xy_px, dtype=float), (n_runs, 2))
+            sigma_px = noise.sigma_px(diameter_px(radius, np.linalg.norm(rp - mean[:3]), obs.camera),
+                                      f"{plan.target[i]}/{use}", track_frames[(int(plan.leg[i]), plan.phase[i])])
+            zxy = np.asarray(b.xy_px, dtype=float)
+            if synthetic_seed is not None:
+                # reference mode: the exact model (case 1, this photocentre law) at the TRUE state
+                # plus white noise of exactly the filter's R; the same draw in every worker
+                m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs,
+                                      obs.camera, corrections=CASES[1], sun_position_km=eph.position("sun", t[i]),
+                                      planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
+                g = np.random.default_rng(np.random.SeedSequence([int(synthetic_seed), 0x5E, i]))
+                zxy = m_true.xy_px + sigma_px * g.standard_normal(2)
+            z = np.broadcast_to(zxy, (n_runs, 2))
             u = kf.update(z, rp, vp, fr.attitude.R_cam_icrs, obs.camera, sigma_px,
                           sun_position_km=eph.position("sun", t[i]),
-                          planet_radius_km=radius if phase_offset else 0.0)
+                          planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
             res[:, i], acc[:, i] = u.residual_px, u.accepted
-            meas[i] = np.asarray(b.xy_px) - plan.target_xy_px[i]
+        if b is not None:
+            meas[i] = (zxy if use is not None else np.asarray(b.xy_px)) - plan.target_xy_px[i]
         truth = np.concatenate([plan.position_km[i], plan.velocity_km_s[i]])
         err[:, i] = kf.x[:, :6] - truth
         cov[:, i] = kf.P[:, :6, :6]
@@ -356,10 +488,13 @@ def _chunk_worker(args):
 
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
-                 progress=None) -> CampaignResult:
+                 progress=None, synthetic_seed: int | None = None) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (paper 002 Eq. 45-46 initial errors, 001 Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
+    ``synthetic_seed``: reference mode; every centroid the filter would use is replaced by the
+    measurement model at the true state plus white noise of the filter's own R (seeded): what a
+    consistent filter shows on ONE realisation shared by the runs (``benchmarks/nav_consistency.py``).
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
@@ -373,10 +508,10 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
-        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress)]
+        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed)]
     else:
         with ProcessPoolExecutor(workers) as ex:
-            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None)
+            outs = list(ex.map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None, synthetic_seed)
                                                     for c in chunks]))
     cat = lambda k: np.concatenate([o[k] for o in outs], 0)  # noqa: E731
     return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("err"),

@@ -82,7 +82,7 @@ def add_parser(bsub) -> None:
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",
                    help="model the planet's centre, not its Lambert centre of light (paper 002's model)")
-    p.add_argument("--calibration-stride", type=int, default=8, help="frames between calibration frames (default 8)")
+    p.add_argument("--calibration-stride", type=int, default=1, help="frames between calibration frames (default 1: all)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

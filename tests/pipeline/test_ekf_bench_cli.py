@@ -68,3 +68,73 @@ def test_wrong_inputs_one_line_exit_2(seq, tmp_path, capsys):
     assert rc == 2 and len(err) == 1
     rc, err = _err(["bench", "nav", str(tmp_path / "nothing"), "-o", str(tmp_path / "r5")], capsys)
     assert rc == 2 and len(err) == 1
+
+
+def test_images_option_uses_the_given_images(seq, tmp_path):
+    """``--images DIR``: the same frames from another folder (here copies, flat NNNNNN.png) give the
+    same campaign; the copies shifted by one pixel along x (stars and planet alike, as a bench
+    camera offset would) move the measured planet-centroid error (centroid minus the truth's xy) by
+    +1 px in x, to 0.05 px (the centroid noise of these frames is ~0.1 px; the shift is an exact
+    integer roll, so only the image-processing noise differs)."""
+    import numpy as np
+    from PIL import Image
+
+    argv = ["bench", "nav", str(seq), "--runs", "3", "--case", "1", "--seed", "4", "-q", "--calibration-stride", "2"]
+    assert main(argv + ["-o", str(tmp_path / "ref")]) == 0
+    same, shifted = tmp_path / "same", tmp_path / "shifted"
+    same.mkdir()
+    shifted.mkdir()
+    for png in sorted((seq / "frames").glob("*.png")):
+        shutil.copy(png, same / png.name)
+        with Image.open(png) as im:
+            a = np.array(im)
+        Image.fromarray(np.roll(a, 1, axis=1)).save(shifted / png.name)
+    assert main(argv + ["--images", str(same), "-o", str(tmp_path / "same_r")]) == 0
+    assert main(argv + ["--images", str(shifted), "-o", str(tmp_path / "shift_r")]) == 0
+    ref, cp, sh = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("ref", "same_r", "shift_r"))
+    assert cp["final"] == ref["final"] and cp["measurement_error_px"] == ref["measurement_error_px"]
+    assert cp["run"]["images"] == str(same)
+    dx = sh["measurement_error_px"]["mean_xy"][0] - ref["measurement_error_px"]["mean_xy"][0]
+    dy = sh["measurement_error_px"]["mean_xy"][1] - ref["measurement_error_px"]["mean_xy"][1]
+    assert abs(dx - 1.0) < 0.05 and abs(dy) < 0.05
+
+
+@pytest.mark.slow
+def test_nav_report_html_in_headless_chromium(seq, tmp_path):
+    """issue 14: the nav report.html loads in a real browser with no console errors and its plots
+    decode (benchmarks/check_report_html.py, shared with bench ip)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "check_report_html", Path(__file__).resolve().parents[2] / "benchmarks" / "check_report_html.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    if mod.chromium() is None:
+        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
+    out = tmp_path / "rep"
+    assert main(["bench", "nav", str(seq), "--runs", "3", "--case", "1", "-q", "--calibration-stride", "2",
+                 "-o", str(out)]) == 0
+    ok, msg = mod.check(out / "report.html", tmp_path / "shot.png")
+    assert ok, msg
+
+
+def test_synthetic_reference_mode_replaces_the_centroids(seq):
+    """run_campaign(synthetic_seed=...): the filter gets the model at the true state plus seeded
+    white noise of its own R (benchmarks/nav_consistency.py): reproducible per seed, different
+    between seeds and from the images' centroids."""
+    import numpy as np
+
+    from skynav.pipeline.scoring_nav import CentroidNoise, load_plan, run_campaign
+
+    plan = load_plan(seq)
+    noise = CentroidNoise(sigma0_px=0.05, frames=1)
+    real = run_campaign(plan, runs=2, noise=noise, seed=1)
+    a = run_campaign(plan, runs=2, noise=noise, seed=1, synthetic_seed=7)
+    b = run_campaign(plan, runs=2, noise=noise, seed=1, synthetic_seed=7)
+    c = run_campaign(plan, runs=2, noise=noise, seed=1, synthetic_seed=8)
+    ok = np.all(np.isfinite(a.measured_error_px), 1)
+    assert ok.sum() >= 4
+    assert np.array_equal(a.measured_error_px[ok], b.measured_error_px[ok])
+    assert not np.allclose(a.measured_error_px[ok], c.measured_error_px[ok])
+    assert not np.allclose(a.measured_error_px[ok], real.measured_error_px[ok])

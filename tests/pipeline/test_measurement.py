@@ -102,3 +102,52 @@ def test_lambert_photocentre_offset_limits_and_direction():
     assert 0 < np.linalg.norm(shift) < 0.1 and shift @ toward > 0.99 * np.linalg.norm(shift) * np.linalg.norm(toward)
     # the Jacobian that ignores the offset's own derivative stays within 1e-3
     assert np.abs(lit.H - plain.H).max() < 1e-3 * np.abs(plain.H).max()
+
+
+@pytest.mark.parametrize("phase_deg", [30.0, 90.0, 120.6, 146.4])
+def test_saturated_photocentre_is_the_lit_area_centroid(phase_deg):
+    """Independent check of 4/(3 pi)(1 - cos a): the centroid of the lit region of a unit disc,
+    rasterised on a 2001^2 grid (a point of the disc is lit when the sphere's normal there faces
+    the Sun: X sin a + Z cos a > 0). Grid step 1e-3 radius: agreement to 2e-3 radius (0.005 px for
+    the Earth's 2.4 px radius early in the cruise, far below its 0.1 px centroid noise)."""
+    from skynav.pipeline.measurement import saturated_photocentre_offset
+
+    a = np.radians(phase_deg)
+    g = np.linspace(-1.0, 1.0, 2001)
+    X, Y = np.meshgrid(g, g)
+    inside = X * X + Y * Y <= 1.0
+    Z = np.sqrt(np.clip(1.0 - X * X - Y * Y, 0.0, None))
+    lit = inside & (X * np.sin(a) + Z * np.cos(a) > 0.0)
+    assert float(saturated_photocentre_offset(a)) == pytest.approx(float(X[lit].mean()), abs=2e-3)
+    assert float(saturated_photocentre_offset(0.0)) == 0.0
+
+
+def test_saturated_law_moves_the_model_less_than_lambert_at_crescent_phase():
+    from skynav.pipeline.measurement import lambert_photocentre_offset, saturated_photocentre_offset
+
+    cam = paper_camera()
+    r, v, rp, vp, R = _geometry()
+    sun = rp + 1.5e8 * np.array([0.0, 0.0, 1.0])   # Sun behind the planet's side: a crescent
+    plain = planet_pixel(r, v, rp, vp, R, cam)
+    lam = planet_pixel(r, v, rp, vp, R, cam, sun_position_km=sun, planet_radius_km=6000.0)
+    sat = planet_pixel(r, v, rp, vp, R, cam, sun_position_km=sun, planet_radius_km=6000.0, photocentre="saturated")
+    d_lam, d_sat = np.linalg.norm(lam.xy_px - plain.xy_px), np.linalg.norm(sat.xy_px - plain.xy_px)
+    to_sun = (sun - rp) / np.linalg.norm(sun - rp)
+    los = (rp - r) / np.linalg.norm(rp - r)
+    phase = np.arccos(-los @ to_sun)
+    ratio = float(saturated_photocentre_offset(phase) / lambert_photocentre_offset(phase))
+    assert d_sat == pytest.approx(ratio * d_lam, rel=1e-4)   # phase here without light time: 3e-5
+    assert (sat.xy_px - plain.xy_px) @ (lam.xy_px - plain.xy_px) > 0
+
+
+def test_spot_saturated():
+    from skynav.pipeline.measurement import spot_saturated
+
+    img = np.zeros((20, 30), dtype=np.uint8)
+    img[10, 12] = 255
+    assert spot_saturated(img, (12.0, 10.0), 1.5, 255)
+    assert spot_saturated(img, (14.2, 10.0), 2.5, 255)
+    assert not spot_saturated(img, (17.0, 10.0), 2.5, 255)
+    assert not spot_saturated(img, (100.0, 100.0), 3.0, 255)   # off the image
+    img[10, 12] = 254
+    assert not spot_saturated(img, (12.0, 10.0), 3.0, 255)
