@@ -15,6 +15,7 @@ rate, and the region's elongation is reported so the caller can tell streaks fro
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -272,6 +273,7 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     """
     img = np.asarray(image)
     H, W = img.shape
+    flat = img.ravel()
     xy = np.asarray(xy_px, float).reshape(-1, 2)
     n = len(xy)
     out_xy = np.full((n, 2), np.nan)
@@ -286,7 +288,7 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     idx = np.flatnonzero(ok)
     if s > 0 and len(idx):
         d = np.arange(-s, s + 1)
-        box = img[(cy[idx, None] + d)[:, :, None], (cx[idx, None] + d)[:, None, :]].reshape(len(idx), -1)
+        box = flat.take((cy[idx, None] + d)[:, :, None] * W + (cx[idx, None] + d)[:, None, :]).reshape(len(idx), (2 * s + 1) ** 2)
         k = np.argmax(box, axis=1)
         cy[idx] += k // (2 * s + 1) - s
         cx[idx] += k % (2 * s + 1) - s
@@ -299,24 +301,26 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     while len(pending):
         i = pending[(cx[pending] - r - 1 >= 0) & (cx[pending] + r + 1 < W) & (cy[pending] - r - 1 >= 0)
                     & (cy[pending] + r + 1 < H)]
-        # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge
+        # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge;
+        # each box is one row of (2r + 3)^2 pixels, the ROI's pixels and their neighbours are
+        # column indices into it (2-D arrays with long rows: a few contiguous numpy passes)
+        nb, inner, border, ddx, ddy = _roi_tables(r)
         d = np.arange(-r - 1, r + 2)
-        box = img[(cy[i, None] + d)[:, :, None], (cx[i, None] + d)[:, None, :]].astype(np.float32)
+        box = flat.take((cy[i, None] + d)[:, :, None] * W + (cx[i, None] + d)[:, None, :]).reshape(len(i), (2 * r + 3) ** 2)
+        box = box.astype(np.float32)
         above = box > threshold_dn
-        rows = above[:, :-2, :] | above[:, 1:-1, :] | above[:, 2:, :]
-        dil = rows[:, :, :-2] | rows[:, :, 1:-1] | rows[:, :, 2:]          # (n, 2r+1, 2r+1)
-        a_in = above[:, 1:-1, 1:-1]
-        grow = a_in[:, [0, -1], :].any(axis=(1, 2)) | a_in[:, :, [0, -1]].any(axis=(1, 2))
-        I = np.maximum(box[:, 1:-1, 1:-1] - np.float32(background_dn), 0.0) * dil
+        dil = above[:, nb].any(axis=2)                              # (n, (2r+1)^2)
+        a_in = above[:, inner]
+        grow = a_in[:, border].any(axis=1)
+        I = np.maximum(box[:, inner] - np.float32(background_dn), np.float32(0.0)) * dil
         I2 = (I * I).astype(np.float64)
-        m0 = I2.sum(axis=(1, 2))
-        dd = np.arange(-r, r + 1, dtype=np.float64)
+        m0 = I2.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out_xy[i, 0] = cx[i] + I2.sum(axis=1) @ dd / m0
-            out_xy[i, 1] = cy[i] + I2.sum(axis=2) @ dd / m0
-        flux[i] = I.sum(axis=(1, 2), dtype=np.float64)
-        peak[i] = img[cy[i], cx[i]]
-        npx[i] = a_in.sum(axis=(1, 2))
+            out_xy[i, 0] = cx[i] + I2 @ ddx / m0
+            out_xy[i, 1] = cy[i] + I2 @ ddy / m0
+        flux[i] = I.sum(axis=1, dtype=np.float64)
+        peak[i] = flat[cy[i] * W + cx[i]]
+        npx[i] = a_in.sum(axis=1)
         valid[i] = (m0 > 0) & ~grow
         pending = i[grow]
         if r >= max_roi_half_px:
@@ -324,6 +328,22 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
         r = min(2 * r, int(max_roi_half_px))
     out_xy[~valid] = np.nan
     return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
+
+
+@functools.lru_cache(maxsize=8)
+def _roi_tables(r: int):
+    """Index tables of a ROI of half-size ``r`` inside its ``(2r + 3)^2`` box (row-major): the 9
+    neighbours of each ROI pixel (nb, ((2r+1)^2, 9)), the ROI pixels (inner), the ROI's border
+    pixels (positions within the ROI), and the x and y offsets of the ROI pixels."""
+    n = 2 * r + 3
+    yy, xx = np.mgrid[1:n - 1, 1:n - 1]
+    off = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    nb = ((yy.ravel()[:, None] + off[:, 0]) * n + (xx.ravel()[:, None] + off[:, 1])).astype(np.intp)
+    inner = (yy * n + xx).ravel().astype(np.intp)
+    m = 2 * r + 1
+    ry, rx = np.divmod(np.arange(m * m), m)
+    border = np.flatnonzero((ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1))
+    return nb, inner, border, (rx - r).astype(np.float64), (ry - r).astype(np.float64)
 
 
 def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,
@@ -341,7 +361,6 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
     half = np.broadcast_to(np.ceil(np.asarray(half_px, float)), (len(xy),))
     eight = np.ones((3, 3), dtype=bool)
     parts = []
-    seen = set()
     for (x, y), h in zip(xy, half):
         if not (np.isfinite(x) and np.isfinite(y)):
             continue
@@ -357,36 +376,35 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         # the ROI: each region plus its 8-neighbours (a margin pixel shared by two regions goes
         # to the higher label; detect_spots gives it to the first, a sub-threshold pixel either way)
         roi = np.where(lab > 0, lab, ndimage.grey_dilation(lab, footprint=eight, mode="constant", cval=0))
-        I = np.clip(crop.astype(np.float64) - background_dn, 0.0, None)
-        rr, cc = np.mgrid[y0:y1, x0:x1]
-        l = roi.ravel()
-        I1, I2 = I.ravel(), (I * I).ravel()
+        # moments over the ROI pixels only (a beacon's box is mostly background)
+        f = np.flatnonzero(roi)
+        l = roi.ravel()[f]
+        I1 = np.clip(crop.ravel()[f].astype(np.float64) - background_dn, 0.0, None)
+        I2 = I1 * I1
+        rr, cc = np.divmod(f, x1 - x0)
         m0 = np.bincount(l, I2, minlength=n + 1)[1:]
         with np.errstate(invalid="ignore", divide="ignore"):
-            xc = np.bincount(l, I2 * cc.ravel(), minlength=n + 1)[1:] / m0
-            yc = np.bincount(l, I2 * rr.ravel(), minlength=n + 1)[1:] / m0
+            xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:] / m0
+            yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:] / m0
         flux = np.bincount(l, I1, minlength=n + 1)[1:]
         labs = lab.ravel()
         npix = np.bincount(labs, minlength=n + 1)[1:]
-        peak = np.zeros(n + 1)
-        np.maximum.at(peak, labs, crop.ravel().astype(np.float64))
-        peak = peak[1:]
-        sl = ndimage.find_objects(lab)
-        for k, s in enumerate(sl):
-            ys, xs = s
-            touches = ((ys.start == 0 and y0 > 0) or (ys.stop == y1 - y0 and y1 < H)
-                       or (xs.start == 0 and x0 > 0) or (xs.stop == x1 - x0 and x1 < W))
-            if touches or not m0[k] > 0:
-                continue
-            key = (int(round(xc[k] * 16)), int(round(yc[k] * 16)))
-            if key in seen:
-                continue
-            seen.add(key)
-            size = max(ys.stop - ys.start, xs.stop - xs.start)
-            parts.append((xc[k], yc[k], flux[k], peak[k], npix[k], size))
-    if not parts:
+        index = np.arange(1, n + 1)
+        peak = np.asarray(ndimage.maximum(crop, lab, index), dtype=np.float64).reshape(n)
+        # regions cut by a box edge that is not the image's edge
+        cut = np.zeros(n + 1, dtype=bool)
+        for edge, inside in ((lab[0, :], y0 > 0), (lab[-1, :], y1 < H), (lab[:, 0], x0 > 0), (lab[:, -1], x1 < W)):
+            if inside:
+                cut[edge] = True
+        size = np.array([max(sy.stop - sy.start, sx.stop - sx.start) for sy, sx in ndimage.find_objects(lab)], dtype=float)
+        keep = np.flatnonzero(~cut[1:] & (m0 > 0))
+        parts.append(np.column_stack([xc[keep], yc[keep], flux[keep], peak[keep], npix[keep], size[keep]]))
+    a = np.concatenate(parts) if parts else np.zeros((0, 6))
+    if len(a) > 1:  # a spot found in two overlapping boxes is kept once
+        _, first = np.unique(np.rint(a[:, :2] * 16).astype(np.int64), axis=0, return_index=True)
+        a = a[np.sort(first)]
+    if not len(a):
         return Spots.empty(float(threshold_dn))
-    a = np.array(parts, dtype=float)
     a = a[np.argsort(-a[:, 2], kind="stable")]
     sat = a[:, 3] >= max_dn if max_dn is not None else np.zeros(len(a), bool)
     return Spots(xy_px=a[:, :2].copy(), flux_dn=a[:, 2].copy(), peak_dn=a[:, 3].copy(), n_pixels=a[:, 4].astype(int),

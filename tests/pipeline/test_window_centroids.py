@@ -88,3 +88,12 @@ def test_robust_level_of_integer_frames_matches_numpy():
             sd = max(mad, float(np.std(sub[sub <= m + 5 * max(mad, 0.5)])), 0.5)
             assert med == m
             assert np.isclose(thr, m + 5 * sd, rtol=1e-9)
+
+
+def test_windows_all_off_the_image_or_empty_give_no_spot():
+    """Every window outside the image, at the image edge, or none at all: no crash, no spot."""
+    img = np.full((64, 64), 3.0)
+    for xy in (np.zeros((0, 2)), np.array([[-50.0, 10.0], [200.0, 30.0]]), np.array([[0.0, 0.0], [63.0, 63.0]])):
+        for s in (0, 1, 4):
+            w = window_centroids(img + 50.0, xy, threshold_dn=8.0, background_dn=3.0, search_half_px=s)
+            assert w.xy_px.shape == (len(xy), 2) and not w.valid.any()
