@@ -16,14 +16,16 @@ Core module. State (12): ``x = (r, v, eta_R, eta_SRP)``, barycentric ICRS, km, k
   the Gauss-Markov (GM) accelerations absorb the difference, as in paper 002.
 
 Process noise (paper 001 Eq. 7), sized to the model error: the GM processes' steady-state sigma is
-1e-11 km/s^2 per axis each (1.4e-11 for the two together), a quarter of the SRP acceleration at
-1 au (6.2e-11 km/s^2 for the sequence preset's 24 kg, 0.25 m^2, C_R 1.3 spacecraft: the SRP model
-trusted to ~20 %) and 90 times the 1PN term the filter leaves out (the measured gap to the truth's
+5e-12 km/s^2 per axis each (7e-12 for the two together), 8 % of the SRP acceleration at 1 au
+(6.2e-11 km/s^2 for the sequence preset's 24 kg, 0.25 m^2, C_R 1.3 spacecraft: the SRP model
+trusted to ~10 %) and 30 times the 1PN term the filter leaves out (the measured gap to the truth's
 force model; paper 001 Table 2's 5e-10 km/s^2 stays the GM states' INITIAL sigma,
-:func:`skynav.pipeline.ekf.initial_covariance`). With 5e-10 as steady state the GM processes alone
-would wander the velocity by ~0.5 m/s per axis over each 10-day propagation, above the campaign's
-0.35 m/s 3-sigma target; with 2e-11 (SRP to ~45 %) the filter's final velocity 3-sigma is 0.40 m/s,
-with 1e-11 0.31-0.33 m/s, both consistent on the reference campaign (docs/pipeline.md).
+:func:`skynav.pipeline.ekf.initial_covariance`). The value was chosen by the consistency Monte
+Carlo over independent image realisations (``benchmarks/nav_consistency.py --realisations``,
+docs/navigation.md): with 1e-11 the filter's final velocity 3-sigma was 17-21 % above the sample's
+and its time-averaged NEES 4.9 (below 6); with 5e-12, 10-14 % and 5.2-6.0. With 5e-10 as steady
+state the GM processes alone would wander the velocity by ~0.5 m/s per axis over each 10-day
+propagation, above the campaign's 0.35 m/s 3-sigma target.
 The GM driving noises have power spectral densities
 ``q_R = 2 xi sigma_R^2`` and ``q_SRP = 2 xi sigma_SRP^2`` (so ``sigma_*`` is the steady-state
 standard deviation of each GM process), and the velocity gets ``q_a = (q_R + q_SRP) / (2 xi)``
@@ -76,7 +78,7 @@ class FilterDynamics:
     correlation_time_s : float
         ``1 / xi`` of the GM processes (paper 001 does not list it; 10 days).
     sigma_residual_km_s2, sigma_srp_km_s2 : float
-        Steady-state sigmas of the GM processes (1e-11 km/s^2 each: the model error, module notes;
+        Steady-state sigmas of the GM processes (5e-12 km/s^2 each: the model error, module notes;
         paper 001 Table 2's 5e-10 km/s^2 is their initial sigma).
     rtol, atol : float
         Integrator tolerances (non-dimensional).
@@ -85,8 +87,8 @@ class FilterDynamics:
     bodies: tuple = ("sun", "mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
     srp: SpacecraftSRP | None = field(default_factory=SpacecraftSRP)
     correlation_time_s: float = 10 * SECONDS_PER_DAY
-    sigma_residual_km_s2: float = 1e-11
-    sigma_srp_km_s2: float = 1e-11
+    sigma_residual_km_s2: float = 5e-12
+    sigma_srp_km_s2: float = 5e-12
     rtol: float = 1e-9
     atol: float = 1e-12
 
