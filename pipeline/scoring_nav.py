@@ -58,7 +58,7 @@ from .filter_dynamics import FilterDynamics
 from .measurement import CASES, spot_saturated
 
 __all__ = ["NavInputError", "NavPlan", "CampaignResult", "CentroidNoise", "load_plan", "calibrate_sigma_px",
-           "run_campaign", "icrs_to_ecliptic", "centroid_usable", "track_bias_sigma", "BLEND_PX"]
+           "run_campaign", "run_realisations", "check_realisations", "icrs_to_ecliptic", "centroid_usable", "track_bias_sigma", "BLEND_PX"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -389,6 +389,7 @@ class CampaignResult:
     ip_time_s: float
     filter_time_s: float
     pairs: tuple                 # per leg: (leg, plan pair, optimal pair from the estimate)
+    sequences: int = 1           # independent image sequences behind the runs (run_realisations)
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
@@ -498,8 +499,8 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
-    if runs < 2:
-        raise NavInputError(f"--runs {runs}: at least 2 runs are needed for sample statistics")
+    if runs < 1:
+        raise NavInputError(f"--runs {runs}: give at least 1 run")
     dynamics = dynamics or FilterDynamics()
     P0 = initial_covariance()   # paper 001 Table 2
     rng = np.random.default_rng(np.random.SeedSequence([seed, 45]))
@@ -518,3 +519,57 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
                           cov=cat("cov"), residual_px=cat("res"), accepted=cat("acc"), ip_status=outs[0]["status"],
                           measured_error_px=outs[0]["meas"], ip_time_s=max(o["ip_s"] for o in outs),
                           filter_time_s=max(o["fl_s"] for o in outs), pairs=outs[0]["pairs"])
+
+
+def _realisation_worker(args):
+    plan, kw = args
+    return run_campaign(plan, **kw)
+
+
+def check_realisations(plans, reference: NavPlan) -> None:
+    """Raise :class:`NavInputError` (one line) unless every plan renders ``reference``'s cruise."""
+    for p in plans:
+        if p.frames != reference.frames or not np.allclose(p.position_km, reference.position_km, rtol=0, atol=1e-6):
+            raise NavInputError(f"{p.root}: not a rendering of {reference.root}'s cruise (other frames or trajectory); "
+                                "realisations differ only by their --seed")
+
+
+def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers: int = 1, noise: CentroidNoise,
+                     dynamics: FilterDynamics | None = None, phase_offset: bool = True, progress=None,
+                     reference: NavPlan | None = None) -> CampaignResult:
+    """The Monte Carlo with independent measurement noise: ``plans`` are renderings of ONE cruise
+    (the same trajectory, another dataset seed: other image noise, cosmic rays and pointing), the
+    ``runs`` are dealt round-robin over them (``runs == len(plans)``: every run has images of its
+    own, a textbook Monte Carlo whose NEES band is exact), each with its own initial-error draw.
+    ``noise`` is calibrated elsewhere (out of sample), e.g. on ``reference``, the dataset every
+    plan must be a rendering of (same frames, same trajectory). Returns the runs concatenated in one
+    :class:`CampaignResult` (per-frame fields from the first plan). ``progress(1)`` per plan done.
+    """
+    plans = list(plans)
+    if not plans:
+        raise NavInputError("--realisations: give at least one dataset")
+    check_realisations(plans, reference if reference is not None else plans[0])
+    counts = [len(c) for c in np.array_split(np.arange(runs), len(plans))]
+    jobs = [(p, dict(runs=n, case=case, seed=int(np.random.SeedSequence([seed, 0x5EA, k]).generate_state(1)[0]),
+                     noise=noise, dynamics=dynamics, phase_offset=phase_offset))
+            for k, (p, n) in enumerate(zip(plans, counts)) if n > 0]
+    if workers > 1 and len(jobs) > 1:
+        outs = []
+        with ProcessPoolExecutor(min(workers, len(jobs))) as ex:
+            for r in ex.map(_realisation_worker, jobs):
+                outs.append(r)
+                if progress is not None:
+                    progress(1)
+    else:
+        outs = []
+        for j in jobs:
+            outs.append(_realisation_worker(j))
+            if progress is not None:
+                progress(1)
+    cat = lambda k: np.concatenate([getattr(o, k) for o in outs], 0)  # noqa: E731
+    o0 = outs[0]
+    return CampaignResult(case=case, noise=noise, t_tdb_s=o0.t_tdb_s, error=cat("error"), cov=cat("cov"),
+                          residual_px=cat("residual_px"), accepted=cat("accepted"), ip_status=o0.ip_status,
+                          measured_error_px=o0.measured_error_px, ip_time_s=sum(o.ip_time_s for o in outs),
+                          filter_time_s=sum(o.filter_time_s for o in outs), pairs=o0.pairs,
+                          sequences=len(outs))

@@ -9,7 +9,8 @@ import time
 
 
 def cmd_nav(args) -> int:
-    from skynav.pipeline.scoring_nav import CentroidNoise, NavInputError, calibrate_sigma_px, load_plan, run_campaign
+    from skynav.pipeline.scoring_nav import (CentroidNoise, NavInputError, calibrate_sigma_px, load_plan, run_campaign,
+                                             check_realisations, run_realisations)
     from skynav.pipeline.scoring_nav_report import summarise, write_report
 
     cases = list(dict.fromkeys(args.case))
@@ -24,6 +25,12 @@ def cmd_nav(args) -> int:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     t0 = time.perf_counter()
     plan = load_plan(args.dataset, images=args.images, limit=args.limit)
+    realisations = None
+    if args.realisations:
+        if args.images is not None:
+            raise NavInputError("--images and --realisations: give one or the other")
+        realisations = [load_plan(d, limit=args.limit) for d in args.realisations]
+        check_realisations(realisations, plan)
     if args.sigma_px is None:
         noise = calibrate_sigma_px(plan, stride=args.calibration_stride, seed=args.seed,
                                    phase_offset=not args.no_phase_offset)
@@ -34,6 +41,19 @@ def cmd_nav(args) -> int:
     ip_s = fl_s = 0.0
     for c in cases:
         bar = None
+        if realisations is not None:
+            if not args.quiet:
+                from tqdm.auto import tqdm
+
+                bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {c}, {args.runs} runs")
+            results[c] = run_realisations(realisations, runs=args.runs, case=c, seed=args.seed, workers=args.workers,
+                                          noise=noise, phase_offset=not args.no_phase_offset, reference=plan,
+                                          progress=None if bar is None else bar.update)
+            if bar is not None:
+                bar.close()
+            ip_s += results[c].ip_time_s
+            fl_s += results[c].filter_time_s
+            continue
         if not args.quiet and args.workers == 1:
             from tqdm.auto import tqdm
 
@@ -47,7 +67,8 @@ def cmd_nav(args) -> int:
     total = time.perf_counter() - t0
     primary = cases[0]
     summary = summarise(results, primary=primary, time_s=total, plan=plan)
-    info = {"source": str(args.dataset), "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
+    info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
+            "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
             "cases": cases, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
@@ -57,7 +78,8 @@ def cmd_nav(args) -> int:
           f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
           f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); paper 002: 1953 km, 0.41 m/s")
     print(f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
-          f"frames inside); R: {noise.describe()}")
+          f"frames inside; band of the {n['independent_sequences']} independent image sequence(s) "
+          f"{n['band_sequences_low']:.2f}..{n['band_sequences_high']:.2f}); R: {noise.describe()}")
     for c, v in summary["cases"].items():
         print(f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
     print(f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})")
@@ -78,6 +100,10 @@ def add_parser(bsub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the initial-error draws (default 0)")
     p.add_argument("--workers", type=int, default=1, help="processes; the runs are split among them (default 1)")
     p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
+    p.add_argument("--realisations", nargs="+", metavar="SEQ", default=None,
+                   help="other renderings of the same cruise (skynav dataset generate sequence --seed K): the runs are "
+                   "dealt over them, so they have independent image noise (the filter-consistency Monte Carlo); "
+                   "DATASET then only calibrates R (out of sample)")
     p.add_argument("--sigma-px", type=float, default=None,
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",

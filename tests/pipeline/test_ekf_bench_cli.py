@@ -138,3 +138,31 @@ def test_synthetic_reference_mode_replaces_the_centroids(seq):
     assert np.array_equal(a.measured_error_px[ok], b.measured_error_px[ok])
     assert not np.allclose(a.measured_error_px[ok], c.measured_error_px[ok])
     assert not np.allclose(a.measured_error_px[ok], real.measured_error_px[ok])
+
+
+def test_realisations_deal_the_runs_over_independent_sequences(seq, tmp_path, capsys):
+    """``--realisations``: the same cruise rendered with other seeds; one run per sequence gives
+    independent runs, and the summary's band is that of the sequences (chi-square, 6 M dof / M)."""
+    from scipy.stats import chi2
+
+    other = tmp_path / "seq_b"
+    assert main(["dataset", "generate", "sequence", "-o", str(other), "--count", "6", "--seed", "99", "--workers", "1",
+                 "-q"]) == 0
+    out = tmp_path / "rep"
+    rc = main(["bench", "nav", str(seq), "--realisations", str(seq), str(other), "--runs", "2", "-q",
+               "--calibration-stride", "2", "-o", str(out)])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["runs"] == 2 and s["nees"]["independent_sequences"] == 2
+    lo, hi = chi2.ppf([0.025, 0.975], 12) / 2
+    assert abs(s["nees"]["band_sequences_low"] - lo) < 1e-12 and abs(s["nees"]["band_sequences_high"] - hi) < 1e-12
+    assert "independent image sequences" in (out / "report.md").read_text()
+    capsys.readouterr()
+
+    short = tmp_path / "seq_short"
+    assert main(["dataset", "generate", "sequence", "-o", str(short), "--count", "4", "--workers", "1", "-q"]) == 0
+    rc, err = _err(["bench", "nav", str(seq), "--realisations", str(short), "-o", str(tmp_path / "r")], capsys)
+    assert rc == 2 and len(err) == 1 and "not a rendering" in err[0]
+    rc, err = _err(["bench", "nav", str(seq), "--realisations", str(other), "--images", str(seq),
+                    "-o", str(tmp_path / "r2")], capsys)
+    assert rc == 2 and len(err) == 1 and "--realisations" in err[0]
