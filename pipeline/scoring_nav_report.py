@@ -224,10 +224,10 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     md = _markdown(summary, info)
     (out / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     plots = _plots(res, summary)
+    from .report_html import REPORT_CSS, markdown_to_html
+
     html = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench nav</title>",
-            "<style>body{font-family:sans-serif;max-width:1000px;margin:2em auto}table{border-collapse:collapse}"
-            "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}pre{white-space:pre-wrap}</style></head><body>",
-            f"<h1>skynav bench nav</h1><pre>{_esc(chr(10).join(md))}</pre>"]
+            f"<style>{REPORT_CSS}</style></head><body>", markdown_to_html("\n".join(md).splitlines())]
     for key, title in (("position", "Position errors (001 Fig. 7)"), ("velocity", "Velocity errors (001 Fig. 8)"),
                        ("nees", "NEES"), ("residuals", "Measurement residuals")):
         html.append(f"<h2>{title}</h2><img alt=\"{key}\" src=\"data:image/png;base64,{plots[key]}\">")
@@ -236,8 +236,12 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     return out
 
 
-def _esc(s: str) -> str:
-    return s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+def _measurements_line(m: dict) -> str:
+    def xy(v, f="+.3f"):
+        return "-" if v is None else f"{v[0]:{f}}, {v[1]:{f}} px"
+
+    return (f"- measurements: {m['frames_with_centroid']} frames with a centroid, {100 * m['accepted_fraction']:.1f} % "
+            f"accepted by the gate; innovations mean {xy(m['residual_mean_px'])}, std {xy(m['residual_std_px'], '.3f')}")
 
 
 def _markdown(s: dict, info: dict) -> list:
@@ -270,9 +274,10 @@ def _markdown(s: dict, info: dict) -> list:
            f"R calibrated on {info.get('source')}); band of {n['independent_sequences']} independent runs "
            f"{n['band_sequences_low']:.2f} .. {n['band_sequences_high']:.2f}, "
            f"{100 * n['fraction_inside_sequences_band']:.1f} % of the frames inside"),
-          f"- measured centroid error: mean {me['mean']} px, std {me['std']} px over {me['frames']} frames "
-          f"(mean x, y: {me['mean_xy']})",
-          f"- measurements: {s['measurements']}",
+          (f"- measured centroid error (centroid - truth's centre xy): mean {me['mean']:.3f} px, std {me['std']:.3f} px "
+           f"over {me['frames']} frames (mean x, y: {me['mean_xy'][0]:+.3f}, {me['mean_xy'][1]:+.3f} px)"
+           if me["frames"] else "- measured centroid error: no frame with a centroid"),
+          _measurements_line(s["measurements"]),
           f"- image-processing status counts: {s['ip_status_counts']}", "",
           "## Cases (RMSE over the runs and the last leg's frames)", "",
           "| case | corrections | position RMSE [km] | velocity RMSE [m/s] | paper 002 |", "|---|---|---|---|---|"]

@@ -183,10 +183,10 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info)
     import html
 
     body = "".join(f"<h2>{html.escape(t)}</h2><img alt=\"{html.escape(t)}\" src=\"data:image/png;base64,{b}\">" for t, b in plots.items())
-    md_html = "<pre>" + html.escape("\n".join(md)) + "</pre>"
+    from .report_html import REPORT_CSS, markdown_to_html
+
+    md_html = markdown_to_html("\n".join(md).splitlines())
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench ip</title>"
-            "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}img{max-width:100%}"
-            "pre{white-space:pre-wrap;font-size:12px}</style></head><body><h1>skynav bench ip</h1>"
-            f"{md_html}{body}</body></html>\n")
+            f"<style>{REPORT_CSS}</style></head><body>{md_html}{body}</body></html>\n")
     (out / "report.html").write_text(page, encoding="utf-8")
     return out
