@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +76,7 @@ class CentroidNoise:
     clipped: int = 0
     classes: tuple = ()     # ((key, sigma_px, frames, track_bias_sigma_px), ...)
     track_bias_in_r: bool = False
+    renderings: int = 1     # renderings of the cruise the frames were pooled from
 
     def sigma_px(self, diameter_px: float, key: str | None = None, track_frames: int = 1) -> float:
         """Per-frame sigma: the class's measured RMS per axis (its track-constant part included
@@ -97,8 +98,9 @@ class CentroidNoise:
         if not self.frames:
             return f"{self.sigma0_px:g} px (given)"
         per = "; ".join(f"{k} {sig:.3f} px, track bias {sb:.3f} px ({n})" for k, sig, n, sb in self.classes)
-        return (f"sigma = sqrt({self.sigma0_px:.3f}^2 + ({self.kappa:.3f} D)^2) px, measured on {self.frames} frames "
-                f"({self.clipped} clipped as outliers; mean error {np.round(self.mean_px, 3).tolist()} px)"
+        return (f"sigma = sqrt({self.sigma0_px:.3f}^2 + ({self.kappa:.3f} D)^2) px, measured on {self.frames} frames"
+                + (f" of {self.renderings} renderings" if self.renderings > 1 else "")
+                + f" ({self.clipped} clipped as outliers; mean error {np.round(self.mean_px, 3).tolist()} px)"
                 + (f"; per class: {per}" if per else "")
                 + ("; track biases added to R (n sigma_b^2)" if self.track_bias_in_r and per else ""))
 
@@ -226,29 +228,45 @@ def _observation(ds, plan: NavPlan, i):
     return replace(obs, dn=dn)
 
 
-def calibrate_sigma_px(plan: NavPlan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
+def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
                        sigma_velocity_km_s: float = 0.1, phase_offset: bool = True):
     """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
 
     The error is the image processing's target centroid minus the measurement model (case 1,
     with the Lambert photocentre offset if ``phase_offset``) evaluated at the TRUE state with the
     image processing's attitude: what the filter's R must describe.
+
+    ``plan`` may be a list of renderings of the same cruise (``bench nav --calibrate-on``): their
+    frames are pooled, each rendering's tracks kept apart, so that the track-constant part
+    sigma_b is the ensemble's (over sensor and noise realisations) rather than one rendering's
+    draw of it (0 to 0.07 px for the Earth's saturated disc over four renderings).
     """
     import skynav.datasets as sdat
-    from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-
-    from . import OnboardCatalog, PredictedState, process_frame
-    from .measurement import planet_pixel
+    from skynav.scenes.ephemeris_jpl import default_ephemeris
 
     eph = default_ephemeris()
-
-    ds = sdat.open(plan.root)
+    plans = list(plan) if isinstance(plan, (list, tuple)) else [plan]
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
     cat = None
     errs = []
     diam = []
     keys = []
     tracks = []
+    for ip, plan in enumerate(plans):
+        ds = sdat.open(plan.root)
+        cat = _calibrate_rendering(plan, ds, ip, stride=stride, rng=rng, cat=cat, eph=eph, out=(errs, diam, keys, tracks),
+                                   sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
+                                   phase_offset=phase_offset)
+    return replace(_fit_noise(plans[0], errs, diam, keys, tracks), renderings=len(plans))
+
+
+def _calibrate_rendering(plan, ds, ip, *, stride, rng, cat, eph, out, sigma_position_km, sigma_velocity_km_s, phase_offset):
+    from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
+
+    from . import OnboardCatalog, PredictedState, process_frame
+    from .measurement import planet_pixel
+
+    errs, diam, keys, tracks = out
     prev = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
@@ -274,8 +292,12 @@ def calibrate_sigma_px(plan: NavPlan, *, stride: int = 1, seed: int = 0, sigma_p
                              photocentre=use)
             errs.append(np.asarray(b.xy_px) - m.xy_px)
             keys.append(f"{plan.target[i]}/{use}")
-            tracks.append((int(plan.leg[i]), plan.phase[i]))
+            tracks.append((ip, int(plan.leg[i]), plan.phase[i]))
             diam.append(diameter_px(BODY_RADII_KM[plan.target[i]], np.linalg.norm(rp - plan.position_km[i]), obs.camera))
+    return cat
+
+
+def _fit_noise(plan, errs, diam, keys, tracks):
     if not errs:
         raise NavInputError(f"{plan.root}: the image processing found no target planet on the calibration frames")
     from scipy.optimize import nnls

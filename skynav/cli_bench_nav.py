@@ -6,6 +6,7 @@ Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`ad
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 
 def cmd_nav(args) -> int:
@@ -31,8 +32,19 @@ def cmd_nav(args) -> int:
             raise NavInputError("--images and --realisations: give one or the other")
         realisations = [load_plan(d, limit=args.limit) for d in args.realisations]
         check_realisations(realisations, plan)
+    calib = [plan]
+    if args.calibrate_on:
+        if args.sigma_px is not None:
+            raise NavInputError("--sigma-px and --calibrate-on: give one or the other")
+        calib += [load_plan(d, limit=args.limit) for d in args.calibrate_on]
+        check_realisations(calib[1:], plan)
+        if realisations is not None:
+            both = {str(Path(p.root).resolve()) for p in calib} & {str(Path(p.root).resolve()) for p in realisations}
+            if both:
+                raise NavInputError(f"{sorted(both)[0]}: in both --calibrate-on and --realisations; R must be "
+                                    "calibrated out of sample")
     if args.sigma_px is None:
-        noise = calibrate_sigma_px(plan, stride=args.calibration_stride, seed=args.seed,
+        noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
                                    phase_offset=not args.no_phase_offset)
         if args.track_bias_in_r:
             from dataclasses import replace
@@ -73,7 +85,7 @@ def cmd_nav(args) -> int:
     summary = summarise(results, primary=primary, time_s=total, plan=plan)
     info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
             "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
-            "cases": cases, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
+            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
     f = summary["final"]
@@ -108,6 +120,9 @@ def add_parser(bsub) -> None:
                    help="other renderings of the same cruise (skynav dataset generate sequence --seed K): the runs are "
                    "dealt over them, so they have independent image noise (the filter-consistency Monte Carlo); "
                    "DATASET then only calibrates R (out of sample)")
+    p.add_argument("--calibrate-on", nargs="+", metavar="SEQ", default=None,
+                   help="more renderings of the same cruise whose frames are pooled with DATASET's to measure R "
+                   "(the track-constant errors then describe the ensemble of sensors, not one rendering's draw)")
     p.add_argument("--sigma-px", type=float, default=None,
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",

@@ -166,3 +166,29 @@ def test_realisations_deal_the_runs_over_independent_sequences(seq, tmp_path, ca
     rc, err = _err(["bench", "nav", str(seq), "--realisations", str(other), "--images", str(seq),
                     "-o", str(tmp_path / "r2")], capsys)
     assert rc == 2 and len(err) == 1 and "--realisations" in err[0]
+
+
+def test_calibrate_on_pools_renderings_for_r(seq, tmp_path, capsys):
+    """``--calibrate-on``: R measured on the frames of DATASET and of other renderings of the same
+    cruise together (every calibration frame of both, none lost or doubled); it must stay out of
+    sample for ``--realisations`` and cannot be combined with a given ``--sigma-px``."""
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan
+
+    other = tmp_path / "seq_c"
+    assert main(["dataset", "generate", "sequence", "-o", str(other), "--count", "6", "--seed", "98", "--workers", "1",
+                 "-q"]) == 0
+    a, b = load_plan(seq), load_plan(other)
+    na, nb, nab = calibrate_sigma_px(a), calibrate_sigma_px(b), calibrate_sigma_px([a, b])
+    assert nab.renderings == 2 and "of 2 renderings" in nab.describe()
+    assert nab.frames + nab.clipped == na.frames + na.clipped + nb.frames + nb.clipped
+    out = tmp_path / "rep"
+    assert main(["bench", "nav", str(seq), "--calibrate-on", str(other), "--runs", "2", "-q", "-o", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert len(s["run"]["calibrated_on"]) == 2
+    capsys.readouterr()
+    rc, err = _err(["bench", "nav", str(seq), "--calibrate-on", str(other), "--realisations", str(other),
+                    "-o", str(tmp_path / "r")], capsys)
+    assert rc == 2 and len(err) == 1 and "out of sample" in err[0]
+    rc, err = _err(["bench", "nav", str(seq), "--calibrate-on", str(other), "--sigma-px", "0.1",
+                    "-o", str(tmp_path / "r2")], capsys)
+    assert rc == 2 and len(err) == 1 and "--calibrate-on" in err[0]
