@@ -52,6 +52,13 @@ def cmd_nav(args) -> int:
             noise = replace(noise, track_bias_in_r=True)
     else:
         noise = CentroidNoise(sigma0_px=float(args.sigma_px))
+    dynamics = None
+    if args.gm_sigma is not None:
+        if not 0 < args.gm_sigma < 1e-6:
+            raise NavInputError(f"--gm-sigma {args.gm_sigma}: give a steady-state sigma in km/s^2 between 0 and 1e-6")
+        from skynav.pipeline.filter_dynamics import FilterDynamics
+
+        dynamics = FilterDynamics(sigma_residual_km_s2=args.gm_sigma, sigma_srp_km_s2=args.gm_sigma)
     setup_s = time.perf_counter() - t0
     results = {}
     ip_s = fl_s = 0.0
@@ -63,7 +70,7 @@ def cmd_nav(args) -> int:
 
                 bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {c}, {args.runs} runs")
             results[c] = run_realisations(realisations, runs=args.runs, case=c, seed=args.seed, workers=args.workers,
-                                          noise=noise, phase_offset=not args.no_phase_offset, reference=plan,
+                                          noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
                                           progress=None if bar is None else bar.update)
             if bar is not None:
                 bar.close()
@@ -74,7 +81,7 @@ def cmd_nav(args) -> int:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=plan.frames, unit="frame", desc=f"case {c}, {args.runs} runs")
-        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise,
+        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise, dynamics=dynamics,
                                   phase_offset=not args.no_phase_offset, progress=None if bar is None else bar.update)
         if bar is not None:
             bar.close()
@@ -85,7 +92,7 @@ def cmd_nav(args) -> int:
     summary = summarise(results, primary=primary, time_s=total, plan=plan)
     info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
             "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
-            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
+            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
     f = summary["final"]
@@ -130,6 +137,8 @@ def add_parser(bsub) -> None:
     p.add_argument("--track-bias-in-r", action="store_true",
                    help="add each class's measured track-constant error to R as n sigma_b^2 per frame (conservative; "
                    "off by default: it made the filter pessimistic over independent renderings)")
+    p.add_argument("--gm-sigma", type=float, default=None,
+                   help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 5e-12)")
     p.add_argument("--calibration-stride", type=int, default=1, help="frames between calibration frames (default 1: all)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")

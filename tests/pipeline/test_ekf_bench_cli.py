@@ -68,6 +68,8 @@ def test_wrong_inputs_one_line_exit_2(seq, tmp_path, capsys):
     assert rc == 2 and len(err) == 1
     rc, err = _err(["bench", "nav", str(tmp_path / "nothing"), "-o", str(tmp_path / "r5")], capsys)
     assert rc == 2 and len(err) == 1
+    rc, err = _err(["bench", "nav", str(seq), "--gm-sigma", "-1", "-o", str(tmp_path / "r6")], capsys)
+    assert rc == 2 and len(err) == 1 and "--gm-sigma" in err[0]
 
 
 def test_images_option_uses_the_given_images(seq, tmp_path):
