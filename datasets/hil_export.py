@@ -22,6 +22,7 @@ camera, visibility, catalogue limit) and drawn by :func:`skynav.renderer.display
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -203,10 +204,11 @@ def _run_pool(jobs, accept, n_workers):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from .execute import _worker_threads
+    from .execute import _worker_threads, exit_with_parent
 
     with _worker_threads(n_workers), \
-            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
+                                initializer=exit_with_parent, initargs=(os.getpid(),)) as ex:
         futs = [ex.submit(_export_one, j) for j in jobs]
         try:
             for fut in as_completed(futs):

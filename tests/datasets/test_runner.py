@@ -189,3 +189,51 @@ def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
         assert os.environ["OMP_NUM_THREADS"] == "7"
     assert "SKYNAV_THREADS" not in os.environ and "OPENBLAS_NUM_THREADS" not in os.environ
     assert os.environ["OMP_NUM_THREADS"] == "7"
+
+
+def _children(pid: int) -> list:
+    kids = []
+    for st in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = st.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(st.parent.name))
+    return kids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_pool_workers_end_when_the_generator_is_killed(tmp_path):
+    """SIGKILL to ``dataset generate``'s process leaves no worker behind (they used to wait for work
+    forever, holding a Mitsuba process's memory each)."""
+    out = tmp_path / "ds"
+    code = ("import json, sys\n"
+            "from skynav.datasets import generate\n"
+            "generate(json.loads(sys.argv[1]), sys.argv[2], workers=2, progress=False)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(small_recipe(200)), str(out)])
+    try:
+        deadline = time.monotonic() + 180
+        while _count_json(out / "frames") < 2:
+            assert proc.poll() is None, f"the generator ended before it could be killed (rc {proc.returncode})"
+            assert time.monotonic() < deadline, "the generator is too slow"
+            time.sleep(0.05)
+        kids = [k for k in _children(proc.pid) if _alive(k)]
+        assert len(kids) >= 2, kids
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(30)
+    deadline = time.monotonic() + 20   # the watchdog polls every 0.5 s; a worker may be mid-frame
+    while any(_alive(k) for k in kids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [k for k in kids if _alive(k)]
+    for k in left:
+        os.kill(k, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their killed parent"
