@@ -50,21 +50,81 @@ def dn_of_electrons(facility, electrons, xy_grid=None):
     return rm.digital_count(rm.black_w_m2 + np.maximum(w, 0.0)), w > (rm.peak_w_m2 - rm.black_w_m2)
 
 
-def spread_over_full_scale(electrons, facility, *, pad_px: int = 24, max_iterations: int = 3000):
-    """Move the charge that a screen pixel cannot show (above its full scale) to its neighbours.
+def _full_scale_e(facility) -> float:
+    """Camera electrons (per screen pixel over the exposure) of a screen pixel at full scale, flat field 1."""
+    rm = facility.radiometric
+    return (rm.peak_w_m2 - rm.black_w_m2) * facility.electrons_per_s_per_w_m2() * facility.camera.exposure_s
 
-    The excess is convolved, again and again, with a normalised symmetric 3 x 3 kernel and added
-    back until no pixel exceeds its limit. Convolution by such a kernel keeps the total and the first
-    moment, so a source too bright for the screen keeps its electrons and its centroid (the camera,
-    saturated there anyway, locates it by its wings) and only grows wider; plain clipping would
-    cut its core unevenly across the pixels and shift it. The excess falls ~10x per 100 passes; it
-    stops below 1e-9 of the window's charge. Returns (electrons, pixels over the limit).
+
+def _diffuse_excess(win, lim, max_iterations):
+    """Iterative fallback: the excess over ``lim`` convolved with a normalised symmetric 3 x 3 kernel
+    and added back until no pixel exceeds its limit (keeps the total and the first moment)."""
+    from scipy import ndimage
+
+    k = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 16.0
+    for _ in range(max_iterations):
+        ex = np.maximum(win - lim, 0.0)
+        if ex.sum() <= 1e-9 * max(win.sum(), 1.0):
+            break
+        win = win - ex + ndimage.convolve(ex, k, mode="constant")
+    return win
+
+
+def _gaussian_kernel_1d(sigma_px: float) -> np.ndarray:
+    r = int(np.ceil(4.0 * sigma_px))
+    g = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma_px) ** 2)
+    return g / g.sum()
+
+
+def _blur(a, sigma_px: float):
+    """``a`` convolved with a normalised, sampled 2-D Gaussian (zero outside ``a``)."""
+    from scipy import ndimage
+
+    if sigma_px <= 0.0:
+        return a
+    g = _gaussian_kernel_1d(sigma_px)
+    b = ndimage.convolve1d(a, g, axis=0, mode="constant")
+    return ndimage.convolve1d(b, g, axis=1, mode="constant")
+
+
+def spread_over_full_scale(electrons, facility, *, core_dilation_px: int = 4, max_sigma_px: float = 12.0,
+                           max_iterations: int = 3000):
+    """Draw a source that a screen pixel cannot show (above its full scale) wider, around the same centre.
+
+    Each connected group of pixels over the limit, with everything within ``core_dilation_px`` of
+    it (the source's whole light: the screen PSF of 0.5 px falls by e^-32 over 4 px), is convolved
+    with a normalised, sampled circular Gaussian of the smallest width (bisection, to 0.1 %) that
+    brings every pixel to its limit (full scale times the flat field there). A symmetric kernel
+    keeps the source's electrons and its first moment exactly, and, applied to a source symmetric
+    about its sub-pixel position, keeps it symmetric about that position: the spot only grows
+    wider, as if defocused, and stays Gaussian. The camera, saturated there anyway, locates it by
+    its wings. (Plain clipping cuts the core unevenly across the pixels and shifts it; spreading
+    the excess charge to the neighbours keeps the centroid but leaves a plateau whose shape
+    follows the pixel grid, not the source, which biases a fit of the unsaturated wings by up to
+    7 arcsec on the bench preset.) A group that would need a Gaussian wider than ``max_sigma_px``
+    (a resolved disc brighter than full scale over its area: blurring cannot lower a uniform
+    level) falls back to spreading its excess to the neighbouring pixels, again and again with a
+    normalised symmetric 3 x 3 kernel, which also keeps the total and the first moment.
+
+    Parameters
+    ----------
+    electrons : ndarray, shape (H, W), e-
+        Intended camera electrons per screen pixel.
+    facility : Facility
+        Gives the full scale (radiometric curve, exposure) and the flat field.
+    core_dilation_px : int
+        Pixels around a group over the limit that are spread with it.
+    max_sigma_px : float
+        Widest Gaussian, screen px; wider needs fall back to the iterative spreading.
+
+    Returns
+    -------
+    (ndarray, shape (H, W), e-; int)
+        The electrons, and the number of pixels that were over the limit.
     """
     from scipy import ndimage
 
-    cam = facility.camera
-    rm = facility.radiometric
-    e_full = (rm.peak_w_m2 - rm.black_w_m2) * facility.electrons_per_s_per_w_m2() * cam.exposure_s
+    e_full = _full_scale_e(facility)
     # candidates against the flat field's lowest grid value (a spline may dip a little below it)
     f_min = 0.9 * min(min(r) for r in facility.flat_field.relative) if facility.flat_field is not None else 1.0
     over = electrons > e_full * f_min
@@ -72,22 +132,33 @@ def spread_over_full_scale(electrons, facility, *, pad_px: int = 24, max_iterati
         return electrons, 0
     out = np.array(electrons, dtype=float)
     H, W = out.shape
-    k = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 16.0
     n_over = 0
+    pad = core_dilation_px + int(np.ceil(4.0 * max_sigma_px)) + 2
     lab, _ = ndimage.label(ndimage.binary_dilation(over, iterations=2))
-    for sl in ndimage.find_objects(lab):
-        r0, r1 = max(sl[0].start - pad_px, 0), min(sl[0].stop + pad_px, H)
-        c0, c1 = max(sl[1].start - pad_px, 0), min(sl[1].stop + pad_px, W)
+    disc = np.hypot(*np.mgrid[-core_dilation_px:core_dilation_px + 1, -core_dilation_px:core_dilation_px + 1]) <= core_dilation_px
+    for n, sl in enumerate(ndimage.find_objects(lab), start=1):
+        r0, r1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, H)
+        c0, c1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, W)
         yy, xx = np.mgrid[r0:r1, c0:c1].astype(float)
         lim = e_full * facility.flat(np.stack([xx, yy], -1))
         win = out[r0:r1, c0:c1]
-        n_over += int((win > lim).sum())
-        for _ in range(max_iterations):
-            ex = np.maximum(win - lim, 0.0)
-            if ex.sum() <= 1e-9 * max(win.sum(), 1.0):
-                break
-            win = win - ex + ndimage.convolve(ex, k, mode="constant")
-        out[r0:r1, c0:c1] = win
+        hot = (win > lim) & (lab[r0:r1, c0:c1] == n)
+        if not hot.any():
+            continue
+        n_over += int(hot.sum())
+        core = ndimage.binary_dilation(hot, structure=disc)
+        src = np.where(core, win, 0.0)
+        rest = win - src
+        fits = lambda s: bool(np.all(rest + _blur(src, s) <= lim))  # noqa: E731
+        if fits(max_sigma_px):
+            lo, hi = 0.0, max_sigma_px
+            while hi - lo > 1e-3 * hi:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+            new = rest + _blur(src, hi)
+        else:
+            new = _diffuse_excess(win, lim, max_iterations)
+        out[r0:r1, c0:c1] = new
     return out, n_over
 
 
@@ -102,7 +173,7 @@ def screen_frame(scene, facility, *, rng: np.random.Generator, options=None, scr
     exp = expected_image(sc_scene, projection=proj, rng=rng, options=dataclasses.replace(options, background_e_per_px_s=0.0),
                          own_size=True)
     H, W = proj.height, proj.width
-    # charge beyond the screen's full scale goes to the neighbours (total and centroid kept)
+    # a source beyond the screen's full scale is drawn wider about its centre (total and centroid kept)
     electrons, n_over = spread_over_full_scale(exp.electrons, facility)
     # only lit pixels need the curve: the dark sky stays at DN 0 (the black level)
     rows, cols = np.nonzero(electrons > 0)
