@@ -76,7 +76,26 @@ def streak_subsamples(paths_xy, electrons, step_px: float):
     return xy, seg_flux[seg] / npts[seg], seg_source[seg]
 
 
-def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None) -> np.ndarray:
+def _accumulate(image, flat, weights, support=None) -> None:
+    """``image[flat] += weights`` summing repeated indices, in place (``image`` flat). A few
+    stamps on a large image (a bench screen) are summed over their distinct pixels only, not
+    over a full-size ``bincount``; both add each pixel's weights in the same order, then to the
+    image once, so the result is the same to the bit. ``support`` (a list): the flat indices
+    written are appended to it."""
+    if flat.size * 16 < image.size:
+        u, inv = np.unique(flat, return_inverse=True)
+        image[u] += np.bincount(inv.ravel(), weights=weights, minlength=u.size)
+        if support is not None:
+            support.append(u)
+    else:
+        add = np.bincount(flat, weights=weights, minlength=image.size)
+        image += add
+        if support is not None:
+            support.append(np.flatnonzero(add))
+
+
+def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
+              support: list | None = None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -95,6 +114,9 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         Largest fraction of a point's flux allowed outside its stamp.
     step_px : float, optional
         Panel length of the streak quadrature, px (default ``psf.quadrature_step_px()`` or 0.05).
+    support : list, optional
+        Arrays of the flat indices of the pixels drawn are appended to it (every nonzero pixel is
+        among them), so a caller need not scan a large, mostly dark image.
 
     Returns
     -------
@@ -147,12 +169,12 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         base = origin[:, 1] * w_img + origin[:, 0]
         if np.any(full):  # stamps wholly on the image: flat index = base + offsets
             flat = base[full, None] + offsets[None, :]
-            image += np.bincount(flat.ravel(), weights=w[full].ravel(), minlength=image.size)
+            _accumulate(image, flat.ravel(), w[full].ravel(), support)
         if not np.all(full):  # stamps over an edge: keep the pixels on the image
             o = origin[~full]
             cols = o[:, 0:1] + k[None, :]
             rows = o[:, 1:2] + k[None, :]
             inside = (((rows >= 0) & (rows < h_img))[:, :, None] & ((cols >= 0) & (cols < w_img))[:, None, :]).reshape(o.shape[0], per_point)
             flat = (rows[:, :, None] * w_img + cols[:, None, :]).reshape(o.shape[0], per_point)
-            image += np.bincount(flat[inside], weights=w[~full][inside], minlength=image.size)
+            _accumulate(image, flat[inside], w[~full][inside], support)
     return image.reshape(h_img, w_img)

@@ -129,8 +129,8 @@ class ExpectedImage:
     ----------
     electrons : ndarray, shape (H, W), float64
         Expected photo-electrons per pixel over the exposure (sources + background), e-.
-    irradiance_w_m2 : ndarray, shape (H, W), float64
-        In-band irradiance at the pupil per pixel from the sources, W/m^2.
+    irradiance_w_m2 : ndarray, shape (H, W), float64, or None
+        In-band irradiance at the pupil per pixel from the sources, W/m^2 (None when not asked for).
     exposure_s : float
         Exposure the electrons are integrated over, s.
     star_electrons : ndarray, shape (N,), e-
@@ -267,7 +267,7 @@ def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
 
 
 def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions(),
-                   own_size: bool = False) -> ExpectedImage:
+                   own_size: bool = False, with_irradiance: bool = True, support: list | None = None) -> ExpectedImage:
     """Noise-free electrons and pupil irradiance of a scene through a projection.
 
     Parameters
@@ -285,6 +285,12 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     own_size : bool
         True: the image has the projection's size (a bench screen seen through its collimator),
         not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
+    with_irradiance : bool
+        False: skip the irradiance image (``irradiance_w_m2`` is None), e.g. for a screen frame,
+        which needs the electrons only.
+    support : list, optional
+        Arrays of flat indices are appended to it that hold every nonzero pixel of ``electrons``
+        (the point sources' stamps, the resolved bodies' crops; every pixel with a background).
 
     Returns
     -------
@@ -326,8 +332,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
         if np.all(np.isfinite(off)):
             paths[len(star_e) + j] += off
             body_photocentre[b.name] = track[b.name][0] + off
-    electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
-    irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=options.flux_fraction_lost)
+    electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=options.flux_fraction_lost, support=support)
+    irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=options.flux_fraction_lost) if with_irradiance else None
 
     # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
     resolved = {}
@@ -340,15 +346,18 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
                                        rng=body_rng, projection=proj)
             crop, pad = blur_crop(img.electrons, psf, options.flux_fraction_lost)
-            _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad)
+            _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
             scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
-            _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
+            if irradiance is not None:
+                _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
             body_e[b.name] = float(img.electrons_total)
             resolved[b.name] = img
             variant = img.variant
 
     if options.background_e_per_px_s > 0:
         electrons += options.background_e_per_px_s * T
+        if support is not None:
+            support.append(np.arange(electrons.size))
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
                          mitsuba_variant=variant, projection=proj)
@@ -467,8 +476,9 @@ def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0)
     return bool(((x >= -0.5 - margin) & (x < W - 0.5 + margin) & (y >= -0.5 - margin) & (y < H - 0.5 + margin)).any())
 
 
-def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int) -> None:
-    """Add a crop whose top-left pixel is (row y0, col x0), clipped to the image."""
+def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int, support: list | None = None) -> None:
+    """Add a crop whose top-left pixel is (row y0, col x0), clipped to the image (``support``: the
+    flat indices of the pixels covered are appended to it)."""
     h, w = crop.shape
     H, W = image.shape
     ys, xs = max(0, y0), max(0, x0)
@@ -476,4 +486,6 @@ def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int) -> None:
     if ye <= ys or xe <= xs:
         return
     image[ys:ye, xs:xe] += crop[ys - y0:ye - y0, xs - x0:xe - x0]
+    if support is not None:
+        support.append((np.arange(ys, ye)[:, None] * W + np.arange(xs, xe)[None, :]).ravel())
 

@@ -184,3 +184,28 @@ def test_bad_inputs_raise():
         rasterize((10, 10), np.zeros((3, 1, 2)), np.ones(3), GaussianPSF(0.5))
     with pytest.raises(ValueError):
         rasterize((10, 10), np.zeros((3, 2, 2)), np.ones(2), GaussianPSF(0.5))
+
+
+def test_sparse_accumulation_is_bit_identical_and_reports_its_support():
+    """A few stamps on a large image (a bench screen) are summed over their own pixels, not a
+    full-size bincount: the image must be the same to the bit, and ``support`` must hold every
+    nonzero pixel."""
+    from skynav.renderer import raster
+    from skynav.renderer.psf import GaussianPSF
+
+    rng = np.random.default_rng(5)
+    paths = np.repeat(rng.uniform(-3.0, 803.0, (300, 1, 2)), 2, axis=1)  # some over the edges
+    paths[:20, 1] += rng.uniform(-6.0, 6.0, (20, 2))  # streaks
+    e = rng.uniform(10.0, 1e5, 300)
+    support = []
+    img = raster.rasterize((800, 800), paths, e, GaussianPSF(0.5), support=support)
+    assert sum(map(len, support)) * 16 < img.size  # the sparse path
+    orig = raster._accumulate
+    try:  # the same sums through the full-size bincount
+        raster._accumulate = lambda image, flat, w, sup=None: image.__iadd__(np.bincount(flat, weights=w, minlength=image.size))
+        ref = raster.rasterize((800, 800), paths, e, GaussianPSF(0.5))
+    finally:
+        raster._accumulate = orig
+    assert np.array_equal(img, ref)
+    nz = np.flatnonzero(img)
+    assert np.all(np.isin(nz, np.concatenate(support)))
