@@ -130,9 +130,13 @@ def main(argv=None) -> None:
           f"medians of {a.timing_reps} warm runs in this process: ratio {hil / sw:.2f} (target <= 1.5)")
     from skynav.datasets.hil_export import write_screen_frame
 
+    from skynav.datasets.frame_files import write_frame
+
     with tempfile.TemporaryDirectory() as tmp:
+        sw_files = median_s(lambda: write_frame(render(scene, seed=0, options=RenderOptions()), tmp, "sw"))
         files = median_s(lambda: write_screen_frame(fac, scene, tmp, "000000", source={"scene": "default"}))
-    print(f"        with its PNG and JSON written (hil export, one frame): {files:.3f} s")
+    print(f"        with their files written: software frame (PNG, EXR, JSON, as dataset generate) {sw_files:.3f} s, "
+          f"screen frame (PNG, JSON, as hil export) {files:.3f} s: ratio {files / sw_files:.2f} (target <= 1.5)")
 
 
 if __name__ == "__main__":
