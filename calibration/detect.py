@@ -24,6 +24,7 @@ sums the noise of every pixel with a lever arm.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,7 @@ FIT_MARGIN_PX = 2.5
 ANNULUS_PX = 2.5
 GAUSS_NEWTON_ITERATIONS = 8
 OUTLIER_SIGMA = 6.0
+OUTLIER_PASSES = (3, 5)     # iterations before which pixels off the fit are masked
 
 
 @dataclass(frozen=True)
@@ -60,9 +62,15 @@ def detect_dots(image, *, background=None, gain=None, window_px: int | None = No
         Relative response of each pixel to a uniform screen (see :func:`relative_response`): the
         signal is divided by it before detection. Default: 1.
     window_px : int, optional
-        Half-size of the fit window (the fit region and the background annulus are scaled into
-        it); default from each blob's size.
+        Half-size of the window (fit region and background annulus); default from each blob's
+        size.
+
+    Returns
+    -------
+    Blobs
+        Centres in CONVENTIONS pixel coordinates (x = column, the top-left pixel's centre at 0).
     """
+    from scipy import ndimage
     from skimage import measure
 
     img = np.asarray(image, dtype=float)
@@ -74,14 +82,17 @@ def detect_dots(image, *, background=None, gain=None, window_px: int | None = No
     bright = np.percentile(sig, 99.9)
     thr = max(0.3 * bright, 6.0 * noise)
     labels = measure.label(sig > thr, connectivity=2)
-    props = measure.regionprops(labels)
-    if not props:
+    n = int(labels.max())
+    if n == 0:
         return _empty()
-    areas = np.array([p.area for p in props], dtype=float)
-    bbox = np.array([p.bbox for p in props])
-    cyx = np.array([p.centroid for p in props])
     H, W = img.shape
-    keep = (areas >= 0.25 * np.median(areas)) & (bbox[:, 0] > 0) & (bbox[:, 1] > 0) & (bbox[:, 2] < H) & (bbox[:, 3] < W)
+    lab = labels.ravel()
+    areas = np.bincount(lab, minlength=n + 1)[1:].astype(float)
+    rows, cols = np.divmod(np.arange(lab.size), W)
+    cyx = np.stack([np.bincount(lab, rows, n + 1)[1:], np.bincount(lab, cols, n + 1)[1:]], -1) / areas[:, None]
+    edge = np.array([s[0].start == 0 or s[1].start == 0 or s[0].stop == H or s[1].stop == W
+                     for s in ndimage.find_objects(labels)])
+    keep = (areas >= 0.25 * np.median(areas)) & ~edge  # hot pixels, cosmic rays; dots cut by the edge
     areas, cyx = areas[keep], cyx[keep]
     r_blob = np.sqrt(areas / np.pi)
     if window_px is not None:
@@ -97,112 +108,123 @@ def detect_dots(image, *, background=None, gain=None, window_px: int | None = No
     return Blobs(xy[ok], flux[ok], areas[ok])
 
 
+def _row_median(a):
+    """Median of each row of ``a`` (N, P), NaN entries left out (NaN for an all-NaN row)."""
+    srt = np.sort(a, axis=1)  # NaN last
+    k = np.isfinite(srt).sum(axis=1)
+    lo = np.take_along_axis(srt, np.maximum((k - 1) // 2, 0)[:, None], 1)[:, 0]
+    hi = np.take_along_axis(srt, np.maximum(k // 2, 0)[:, None], 1)[:, 0]
+    return np.where(k > 0, 0.5 * (lo + hi), np.nan)
+
+
+def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3):
+    """Row-wise sigma-clipped median of ``a`` (N, P) over the entries where ``valid``; the scale
+    is 1.4826 MAD, at least ``floor``."""
+    a = np.where(valid, a, np.nan)
+    med = _row_median(a)
+    for _ in range(iterations):
+        dev = np.abs(a - med[:, None])
+        a = np.where(dev <= nsigma * np.maximum(1.4826 * _row_median(dev), floor)[:, None], a, np.nan)
+        med = _row_median(a)
+    return med
+
+
 def _fit_windows(sig, cyx, r_blob, h, noise):
     """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``;
     NaN where a window leaves the image or the fit fails."""
+    from scipy.special import erfc
+
     H, W = sig.shape
     n = len(cyx)
     out = np.full((n, 2), np.nan)
     flux = np.zeros(n)
     cy0, cx0 = np.round(cyx[:, 0]).astype(int), np.round(cyx[:, 1]).astype(int)
-    inside = (cy0 - h >= 0) & (cx0 - h >= 0) & (cy0 + h < H) & (cx0 + h < W)
-    idx = np.flatnonzero(inside)
+    idx = np.flatnonzero((cy0 - h >= 0) & (cx0 - h >= 0) & (cy0 + h < H) & (cx0 + h < W))
     if not idx.size:
         return out, flux
+    N = idx.size
     cy0, cx0, r_blob = cy0[idx], cx0[idx], r_blob[idx]
+    # the window's pixels as a flat list of offsets from its centre pixel: windows (N, P)
     d = np.arange(-h, h + 1)
-    win = sig[(cy0[:, None] + d)[:, :, None], (cx0[:, None] + d)[:, None, :]]     # (N, w, w)
-    yy, xx = np.meshgrid(d.astype(float), d.astype(float), indexing="ij")         # window coords
-    # scale the fit region and the annulus into a window that was fixed by the caller
-    span = min(1.0, h / (r_blob.max() + FIT_MARGIN_PX + ANNULUS_PX))
-    r_fit = (r_blob + FIT_MARGIN_PX * span)[:, None, None]
-    r_out = (r_blob + (FIT_MARGIN_PX + ANNULUS_PX) * span)[:, None, None]
+    oyi, oxi = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
+    oy, ox = oyi.astype(float), oxi.astype(float)
+    win = sig[cy0[:, None] + oyi, cx0[:, None] + oxi]
+    span = min(1.0, h / (r_blob.max() + FIT_MARGIN_PX + ANNULUS_PX))  # a window fixed by the caller
+    r_fit = (r_blob + FIT_MARGIN_PX * span)[:, None]
+    r_out = (r_blob + (FIT_MARGIN_PX + ANNULUS_PX) * span)[:, None]
 
-    # first moment of the signal inside the fit region, re-centred twice (start of the fit)
-    x = np.zeros(len(idx))
-    y = np.zeros(len(idx))
+    # first moment inside the fit region, re-centred twice: the fit's start
+    x = np.zeros(N)
+    y = np.zeros(N)
     for _ in range(3):
-        rr = np.hypot(xx - x[:, None, None], yy - y[:, None, None])
-        s = np.where(rr <= r_fit - 1.0, win, 0.0)
-        tot = s.sum(axis=(1, 2))
+        s = np.where(np.hypot(ox - x[:, None], oy - y[:, None]) <= r_fit - 1.0, win, 0.0)
+        tot = s.sum(axis=1)
         good = tot > 0
-        x = np.where(good, (s * xx).sum(axis=(1, 2)) / np.where(good, tot, 1.0), x)
-        y = np.where(good, (s * yy).sum(axis=(1, 2)) / np.where(good, tot, 1.0), y)
-    x, y = np.clip(x, -1.0, 1.0), np.clip(y, -1.0, 1.0)
-    rr = np.hypot(xx - x[:, None, None], yy - y[:, None, None])
+        x = np.clip(np.where(good, s @ ox / np.where(good, tot, 1.0), x), -1.0, 1.0)
+        y = np.clip(np.where(good, s @ oy / np.where(good, tot, 1.0), y), -1.0, 1.0)
+    rr = np.hypot(ox - x[:, None], oy - y[:, None])
 
     # local background: sigma-clipped median of the annulus
-    ann = np.where((rr > r_fit) & (rr <= r_out), win, np.nan).reshape(len(idx), -1)
-    for _ in range(3):
-        med = np.nanmedian(ann, axis=1)
-        mad = 1.4826 * np.nanmedian(np.abs(ann - med[:, None]), axis=1)
-        ann = np.where(np.abs(ann - med[:, None]) <= 3.0 * np.maximum(mad, 0.5 * noise)[:, None], ann, np.nan)
-    b = np.nanmedian(ann, axis=1)
+    b = _clipped_median(win, (rr > r_fit) & (rr <= r_out), floor=0.5 * noise)
     b = np.where(np.isfinite(b), b, 0.0)
-    data = win - b[:, None, None]
-    fitm = (rr <= r_fit).astype(float)
 
-    # blurred-disc fit, all dots at once (damped Gauss-Newton with per-dot step acceptance)
-    q = np.stack([x, y, np.zeros(len(idx)), r_blob, np.full(len(idx), 0.6)], -1)  # x, y, A, R, s
-    top = np.sort(np.where(fitm > 0, data, -np.inf).reshape(len(idx), -1), axis=1)[:, -5:]
-    q[:, 2] = np.maximum(np.mean(top, axis=1), noise)
-    wgt = fitm.copy()
-    lam = np.full(len(idx), 1e-3)
+    # the fit sees only the pixels that can fall in a fit region
+    keep = np.flatnonzero(np.hypot(ox, oy) <= float(r_fit.max()) + 1.5)
+    ox, oy = ox[keep], oy[keep]
+    data = win[:, keep] - b[:, None]
+    fitm = (rr[:, keep] <= r_fit).astype(float)
 
-    def model(q):
-        dx = xx - q[:, 0, None, None]
-        dy = yy - q[:, 1, None, None]
+    # blurred-disc fit, all dots at once: Levenberg-Marquardt steps with per-dot acceptance
+    a0 = np.mean(np.sort(np.where(fitm > 0, data, -np.inf), axis=1)[:, -5:], axis=1)
+    q = np.stack([x, y, np.maximum(a0, noise), r_blob, np.full(N, 0.6)], -1)  # x, y, A, R, s
+    sq2 = math.sqrt(2.0)
+
+    def evaluate(q):
+        dx = ox - q[:, 0, None]
+        dy = oy - q[:, 1, None]
         r = np.maximum(np.hypot(dx, dy), 1e-9)
-        s = q[:, 4, None, None]
-        u = (r - q[:, 3, None, None]) / (np.sqrt(2.0) * s)
-        from scipy.special import erfc
-
+        u = (r - q[:, 3, None]) / (sq2 * q[:, 4, None])
         g = 0.5 * erfc(u)
-        return g, u, r, dx, dy
+        return data - q[:, 2, None] * g, (g, u, r, dx, dy)
 
-    def cost(q, wgt):
-        g, *_ = model(q)
-        res = data - q[:, 2, None, None] * g
-        return (wgt * res * res).sum(axis=(1, 2)), res
-
-    c, res = cost(q, wgt)
+    wgt = fitm
+    res, parts = evaluate(q)
+    c = (wgt * res * res).sum(axis=1)
+    lam = np.full(N, 1e-3)
+    eye = np.eye(5)
     for it in range(GAUSS_NEWTON_ITERATIONS):
-        if it in (3, 5):  # mask outliers (hot pixel, cosmic ray) against the current fit
-            sd = np.maximum(1.4826 * _masked_median_abs(res, fitm), noise)
-            wgt = fitm * (np.abs(res) <= OUTLIER_SIGMA * sd[:, None, None])
-            c, res = cost(q, wgt)
-        g, u, r, dx, dy = model(q)
-        A, s = q[:, 2, None, None], q[:, 4, None, None]
-        dg_du = -np.exp(-u * u) / np.sqrt(np.pi)
-        df_dr = A * dg_du / (np.sqrt(2.0) * s)
-        J = np.stack([-df_dr * dx / r, -df_dr * dy / r, g, -df_dr, -A * dg_du * u / s], -1).reshape(len(idx), -1, 5)
-        wv = wgt.reshape(len(idx), -1)
-        JTJ = np.einsum("npi,np,npj->nij", J, wv, J)
-        JTr = np.einsum("npi,np->ni", J, wv * res.reshape(len(idx), -1))
-        diag = np.einsum("nii->ni", JTJ)
-        M = JTJ + lam[:, None, None] * np.einsum("ni,ij->nij", diag, np.eye(5))
+        if it in OUTLIER_PASSES:  # mask outliers (hot pixel, cosmic ray) against the current fit
+            sd = np.maximum(1.4826 * _row_median(np.where(fitm > 0, np.abs(res), np.nan)), noise)
+            wgt = fitm * (np.abs(res) <= OUTLIER_SIGMA * sd[:, None])
+            c = (wgt * res * res).sum(axis=1)
+        g, u, r, dx, dy = parts
+        A, s = q[:, 2, None], q[:, 4, None]
+        df_du = A * (-np.exp(-u * u) / math.sqrt(math.pi))  # d(model)/du
+        df_dr = df_du / (sq2 * s)
+        J = np.stack([-df_dr * dx / r, -df_dr * dy / r, g, -df_dr, -df_du * u / s], -1)   # (N, P, 5)
+        JwT = (J * wgt[..., None]).transpose(0, 2, 1)
+        JTJ = np.matmul(JwT, J)
+        JTr = np.matmul(JwT, res[..., None])
+        M = JTJ + lam[:, None, None] * JTJ * eye
         try:
-            step = np.linalg.solve(M, JTr[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a degenerate window (no signal): its step is then 0
-            step = np.einsum("nij,nj->ni", np.linalg.pinv(M), JTr)
+            step = np.linalg.solve(M, JTr)[..., 0]
+        except np.linalg.LinAlgError:  # a degenerate window (no signal)
+            step = np.matmul(np.linalg.pinv(M), JTr)[..., 0]
         qn = q + step
-        qn[:, 4] = np.clip(qn[:, 4], 0.1, 5.0)
         qn[:, 3] = np.clip(qn[:, 3], 0.1, h)
-        cn, resn = cost(qn, wgt)
+        qn[:, 4] = np.clip(qn[:, 4], 0.1, 5.0)
+        resn, partsn = evaluate(qn)
+        cn = (wgt * resn * resn).sum(axis=1)
         better = np.isfinite(cn) & (cn <= c)
         q = np.where(better[:, None], qn, q)
         c = np.where(better, cn, c)
-        res = np.where(better[:, None, None], resn, res)
+        res = np.where(better[:, None], resn, res)
+        parts = tuple(np.where(better[:, None], p1, p0) for p0, p1 in zip(parts, partsn))
         lam = np.where(better, lam * 0.3, lam * 10.0)
     good = (np.abs(q[:, 0]) <= 1.5) & (np.abs(q[:, 1]) <= 1.5) & (q[:, 2] > 0) & np.isfinite(c)
     out[idx] = np.where(good[:, None], np.stack([cx0 + q[:, 0], cy0 + q[:, 1]], -1), np.nan)
-    flux[idx] = (fitm * data).sum(axis=(1, 2))
+    flux[idx] = (fitm * data).sum(axis=1)
     return out, flux
-
-
-def _masked_median_abs(res, mask):
-    a = np.where(mask > 0, np.abs(res), np.nan).reshape(len(res), -1)
-    return np.nanmedian(a, axis=1)
 
 
 def relative_response(flats, background, max_dn=None) -> np.ndarray | None:
