@@ -36,6 +36,7 @@ ANNULUS_PX = 2.5
 GAUSS_NEWTON_ITERATIONS = 8
 OUTLIER_SIGMA = 6.0
 OUTLIER_PASSES = (3, 5)     # iterations before which pixels off the fit are masked
+SHAPE_RMS_FACTOR = 10.0     # a fit residual this many times the capture's median is not a dot
 
 
 @dataclass(frozen=True)
@@ -117,16 +118,16 @@ def _row_median(a):
     return np.where(k > 0, 0.5 * (lo + hi), np.nan)
 
 
-def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3):
+def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3, return_kept=False):
     """Row-wise sigma-clipped median of ``a`` (N, P) over the entries where ``valid``; the scale
-    is 1.4826 MAD, at least ``floor``."""
+    is 1.4826 MAD, at least ``floor``. With ``return_kept``, also the mask of the entries kept."""
     a = np.where(valid, a, np.nan)
     med = _row_median(a)
     for _ in range(iterations):
         dev = np.abs(a - med[:, None])
         a = np.where(dev <= nsigma * np.maximum(1.4826 * _row_median(dev), floor)[:, None], a, np.nan)
         med = _row_median(a)
-    return med
+    return (med, np.isfinite(a)) if return_kept else med
 
 
 def _fit_windows(sig, cyx, r_blob, h, noise):
@@ -139,7 +140,8 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
     out = np.full((n, 2), np.nan)
     flux = np.zeros(n)
     cy0, cx0 = np.round(cyx[:, 0]).astype(int), np.round(cyx[:, 1]).astype(int)
-    idx = np.flatnonzero((cy0 - h >= 0) & (cx0 - h >= 0) & (cy0 + h < H) & (cx0 + h < W))
+    # a window may cross the image edge (its pixels there are left out), its centre may not
+    idx = np.flatnonzero((cy0 >= 0) & (cx0 >= 0) & (cy0 < H) & (cx0 < W))
     if not idx.size:
         return out, flux
     N = idx.size
@@ -148,7 +150,9 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
     d = np.arange(-h, h + 1)
     oyi, oxi = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
     oy, ox = oyi.astype(float), oxi.astype(float)
-    win = sig[cy0[:, None] + oyi, cx0[:, None] + oxi]
+    win = np.pad(sig, h, constant_values=np.nan)[cy0[:, None] + oyi + h, cx0[:, None] + oxi + h]
+    valid = np.isfinite(win)
+    win = np.where(valid, win, 0.0)
     span = min(1.0, h / (r_blob.max() + FIT_MARGIN_PX + ANNULUS_PX))  # a window fixed by the caller
     r_fit = (r_blob + FIT_MARGIN_PX * span)[:, None]
     r_out = (r_blob + (FIT_MARGIN_PX + ANNULUS_PX) * span)[:, None]
@@ -157,22 +161,32 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
     x = np.zeros(N)
     y = np.zeros(N)
     for _ in range(3):
-        s = np.where(np.hypot(ox - x[:, None], oy - y[:, None]) <= r_fit - 1.0, win, 0.0)
+        s = np.where(np.hypot(ox - x[:, None], oy - y[:, None]) <= r_fit - 1.0, win, 0.0)  # 0 off the image
         tot = s.sum(axis=1)
         good = tot > 0
         x = np.clip(np.where(good, s @ ox / np.where(good, tot, 1.0), x), -1.0, 1.0)
         y = np.clip(np.where(good, s @ oy / np.where(good, tot, 1.0), y), -1.0, 1.0)
     rr = np.hypot(ox - x[:, None], oy - y[:, None])
 
-    # local background: sigma-clipped median of the annulus
-    b = _clipped_median(win, (rr > r_fit) & (rr <= r_out), floor=0.5 * noise)
+    # local background: the sigma-clipped median of the annulus, and its slope (a plane through
+    # the kept annulus pixels: stray light, a gradient under the dot)
+    b, kept = _clipped_median(win, valid & (rr > r_fit) & (rr <= r_out), floor=0.5 * noise, return_kept=True)
     b = np.where(np.isfinite(b), b, 0.0)
+    u, v = ox - x[:, None], oy - y[:, None]
+    k = kept.astype(float)
+    G = np.stack([np.stack([(k * u * u).sum(1), (k * u * v).sum(1)], -1),
+                  np.stack([(k * u * v).sum(1), (k * v * v).sum(1)], -1)], -2)
+    rhs = np.stack([(k * u * (win - b[:, None])).sum(1), (k * v * (win - b[:, None])).sum(1)], -1)
+    ok = np.linalg.det(G) > 1e-6 * np.maximum(np.einsum("nii->n", G), 1.0) ** 2
+    G = np.where(ok[:, None, None], G, np.eye(2))
+    slope = np.where(ok[:, None], np.linalg.solve(G, rhs[..., None])[..., 0], 0.0)
+    back = b[:, None] + slope[:, :1] * u + slope[:, 1:] * v
 
     # the fit sees only the pixels that can fall in a fit region
     keep = np.flatnonzero(np.hypot(ox, oy) <= float(r_fit.max()) + 1.5)
     ox, oy = ox[keep], oy[keep]
-    data = win[:, keep] - b[:, None]
-    fitm = (rr[:, keep] <= r_fit).astype(float)
+    data = win[:, keep] - back[:, keep]
+    fitm = ((rr[:, keep] <= r_fit) & valid[:, keep]).astype(float)
 
     # blurred-disc fit, all dots at once: Levenberg-Marquardt steps with per-dot acceptance
     a0 = np.mean(np.sort(np.where(fitm > 0, data, -np.inf), axis=1)[:, -5:], axis=1)
@@ -221,7 +235,12 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
         res = np.where(better[:, None], resn, res)
         parts = tuple(np.where(better[:, None], p1, p0) for p0, p1 in zip(parts, partsn))
         lam = np.where(better, lam * 0.3, lam * 10.0)
-    good = (np.abs(q[:, 0]) <= 1.5) & (np.abs(q[:, 1]) <= 1.5) & (q[:, 2] > 0) & np.isfinite(c)
+    # not a dot: a cosmic-ray track or a merged blob the disc model cannot describe (most of its
+    # pixels masked, or a residual far above the other dots')
+    n_fit = fitm.sum(axis=1)
+    rms = np.sqrt(c / np.maximum(wgt.sum(axis=1), 1.0))
+    shaped = (wgt.sum(axis=1) >= 0.7 * n_fit) & (rms <= SHAPE_RMS_FACTOR * max(float(np.median(rms)), noise))
+    good = (np.abs(q[:, 0]) <= 1.5) & (np.abs(q[:, 1]) <= 1.5) & (q[:, 2] > 0) & np.isfinite(c) & shaped
     out[idx] = np.where(good[:, None], np.stack([cx0 + q[:, 0], cy0 + q[:, 1]], -1), np.nan)
     flux[idx] = (fitm * data).sum(axis=1)
     return out, flux
