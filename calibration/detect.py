@@ -1,25 +1,28 @@
 """Sub-pixel detection of dots in a camera capture: threshold and label, then a blurred-disc fit.
 
 1. The capture, less the background level, is divided by the camera's relative response (``gain``,
-   per pixel: the flat captures, so PRNU, vignetting, the screen's non-uniformity and the solid
-   angle of a screen pixel all cancel and a dot becomes the plain image of a disc).
+   per pixel, from the flat captures: PRNU, vignetting, the screen's non-uniformity and the solid
+   angle of a screen pixel all cancel, and a dot becomes the plain image of a disc).
 2. Blobs are found above a threshold halfway between the background and the bright dots and
    labelled (scikit-image, (row, col) order flipped to (x, y) here). Blobs much smaller than the
-   typical dot (hot pixels, cosmic-ray hits) or touching the image edge are dropped, and so is a
-   dot whose window leaves the image.
-3. Each dot gets a square window (all dots of one size are stacked into an ``(N, w, w)`` array:
-   no per-dot Python loop), re-centred on the first moment of its signal, and a local background:
-   the sigma-clipped median of an annulus around the dot.
+   typical dot (hot pixels, cosmic-ray hits) or touching the image edge are dropped.
+3. Each dot gets a square window; all windows of one size are stacked into an ``(N, P)`` array of
+   pixels (no per-dot Python loop; pixels beyond the image edge are left out). The window is
+   centred on the first moment of the dot's signal, and the dot gets a local background from an
+   annulus around it: the sigma-clipped median, plus the slope of a plane through the annulus
+   pixels kept.
 4. The centre is the least-squares fit of a blurred disc, ``A * erfc((r - R) / (sqrt(2) s)) / 2``
    (a disc of radius ``R`` seen through a Gaussian blur ``s``: defocus and pixel footprint), with
-   ``x, y, A, R, s`` free, by a few damped Gauss-Newton iterations over all dots at once, started
-   from the moment centroid. Pixels far off the fitted model (a hot pixel or a cosmic ray next to
-   the dot) are masked out and the fit repeated.
+   ``x, y, A, R, s`` free, by damped Gauss-Newton (Levenberg-Marquardt) steps over all dots at
+   once, started from the moment centroid. Pixels far off the fitted model (a hot pixel or a
+   cosmic ray next to the dot) are masked out and the fit goes on; a blob the model cannot
+   describe (most pixels masked, or a residual far above the other dots': a cosmic-ray track) is
+   dropped.
 
 The model is point-symmetric about its centre, as the image of a small disc is to first order in
 the distortion, so its mismatch with the true dot shape (an ellipse, a non-Gaussian blur) does not
 move the centre; a first moment in a finite window, by contrast, is pulled by the window's edge and
-sums the noise of every pixel with a lever arm.
+by a hot pixel, and sums the noise of every pixel with a lever arm.
 """
 
 from __future__ import annotations

@@ -6,15 +6,14 @@ integral), averaged over an 8 x 8 sub-grid of each pixel; or a Gaussian spot int
 over each pixel (erf differences). It shares nothing with the detector's model (an erfc edge
 profile, point-sampled) and is itself centred to 1e-5 px. The scale of the bounds: on the `bench`
 preset one camera pixel is 71 arcsec, so the 0.5 arcsec p99 of issue 12 is 0.007 px for the whole
-chain (detection, model, residual field).
+chain (detection, model, residual field). The four-scenario acceptance on the `bench` preset
+(held-out p99 <= 0.5 arcsec, max <= 5 arcsec, fit <= 30 s) is the slow test_acceptance_campaign.py.
 """
 
 import dataclasses
 import functools
 
 import numpy as np
-import pytest
-from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from skynav.calibration.detect import detect_dots, relative_response
@@ -105,9 +104,9 @@ def test_noise_free_discs_at_sub_pixel_positions():
     b = detect_dots(render_discs(c) + 2.0, background=2.0)
     assert len(b.xy_px) == len(c)
     err, _ = errors(b, c)
-    # model mismatch only (erfc edge vs the integrated disc): measured 0.0014 px max; 0.003 px
-    # is 0.2 arcsec on the bench camera
-    assert np.abs(err).max() < 0.003
+    # model mismatch only (erfc edge, point-sampled, vs the pixel-integrated disc): measured
+    # 0.00004 px max
+    assert np.abs(err).max() < 0.0005
 
 
 def test_noisy_discs_meet_the_noise_budget():
@@ -122,7 +121,7 @@ def test_noisy_discs_meet_the_noise_budget():
     err = np.concatenate(errs)
     rms = np.sqrt(np.mean(err ** 2))
     # shot noise at ~180 DN peak averaged over 16 frames and 8-bit rounding: measured rms
-    # 0.0012 px per axis, max 0.0035 px; bounds with margin (0.007 px = 0.5 arcsec)
+    # 0.0013 px per axis, max 0.0042 px, mean 0.0002 px; bounds with margin (0.007 px = 0.5 arcsec)
     assert rms < 0.0025
     assert np.abs(err).max() < 0.007
     assert np.abs(err.mean(axis=0)).max() < 0.001  # unbiased
@@ -136,7 +135,7 @@ def test_gaussian_spots_integrated_over_pixels():
     b = detect_dots(render_gaussians(c) + 2.0, background=2.0)
     assert len(b.xy_px) == len(c)
     err, _ = errors(b, c)
-    assert np.abs(err).max() < 0.005
+    assert np.abs(err).max() < 0.006  # measured 0.0037 px
 
 
 def test_background_gradient_is_removed_locally():
@@ -164,10 +163,10 @@ def test_flat_field_response_is_divided_out():
     img = render_discs(c) * gain + 2.0
     b = detect_dots(img, background=2.0, gain=gain)
     err, _ = errors(b, c)
-    assert np.abs(err).max() < 0.003
-    # without it, the gain slope across each dot pulls its centre
+    assert np.abs(err).max() < 0.0005  # measured 0.00004 px
+    # without it, the gain slope across each dot pulls its centre (measured 0.019 px)
     err_raw, _ = errors(detect_dots(img, background=2.0), c)
-    assert np.abs(err_raw).max() > 2 * np.abs(err).max()
+    assert np.abs(err_raw).max() > 0.005
 
 
 def test_relative_response_from_flats_skips_saturated_pixels():
@@ -199,13 +198,13 @@ def test_hot_pixel_and_cosmic_ray_next_to_a_dot():
     # the hit pixels are masked out of the fit: measured 0.0002 px (the previous first moment in
     # a window: 0.49 px); the other dots are untouched
     assert e < 0.003
-    assert np.abs(err[i != 7]).max() < 0.003
+    assert np.abs(err[i != 7]).max() < 0.0005
 
 
 def test_dots_on_the_image_edge_are_dropped():
     c = np.array([[1.5, 40.2], [60.3, 126.8], [64.2, 64.7]])
     b = detect_dots(render_discs(c) + 2.0, background=2.0)
-    assert len(b.xy_px) == 1 and np.abs(b.xy_px[0] - c[2]).max() < 0.003
+    assert len(b.xy_px) == 1 and np.abs(b.xy_px[0] - c[2]).max() < 0.0005
 
 
 def test_bench_small_stress_captures_against_the_true_dot_positions():
@@ -237,22 +236,3 @@ def test_bench_small_stress_captures_against_the_true_dot_positions():
     # arcsec/px); without the flats' response 0.011 / 0.012 px
     assert np.percentile(d, 99) < 0.007 and d.max() < 0.01
 
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["realistic", "stress", "shifted", "roll90"])
-def test_bench_acceptance_all_scenarios(tmp_path_factory, name):
-    """Issue 12 on the `bench` preset, 20 patterns: held-out p99 <= 0.5 arcsec, max <= 5 arcsec,
-    fit <= 30 s (``pytest -m slow tests/calibration/test_detect.py``; minutes per scenario)."""
-    from skynav.calibration.geometric import calibrate_geometric
-    from skynav.calibration.patterns import write_patterns
-    from skynav.calibration.virtual_bench import simulate
-    from skynav.scenes.facility import bench_preset
-
-    fac = bench_preset()
-    d = tmp_path_factory.mktemp(name)
-    write_patterns(fac, d / "pat", phases=4)
-    simulate(fac, d / "pat", d / "cap", scenario_name=name)
-    res = calibrate_geometric(fac, d / "pat", d / "cap")
-    s = res.summary()
-    assert s["p99"] <= 0.5 and s["max"] <= 5.0
-    assert res.seconds <= 30.0
