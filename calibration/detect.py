@@ -134,8 +134,8 @@ def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3, return_kep
 
 
 def _fit_windows(sig, cyx, r_blob, h, noise):
-    """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``;
-    NaN where a window leaves the image or the fit fails."""
+    """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``
+    (pixels beyond the image left out); NaN where the fit fails or the blob is not a dot."""
     from scipy.special import erfc
 
     H, W = sig.shape
