@@ -84,7 +84,7 @@ def read_captures(facility: Facility, patterns_dir, captures_dir):
 
 
 def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observations:
-    from .detect import detect_dots
+    from .detect import detect_dots, relative_response
     from .identify import identify
 
     cam = facility.camera
@@ -92,15 +92,16 @@ def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observatio
     cam_per_screen = cam.focal_length_px / (facility.geometric.focal_length_mm / (sc.pixel_pitch_um * 1e-3))
     dark = next((images[p.file].astype(float) for p in pats if p.kind == "dark"), None)
     bg = float(np.median(dark)) if dark is not None else None
-    gain = pixel_gain(pats, images, bg)
+    # the flats' full relative response (PRNU, vignetting, screen non-uniformity): divided out
+    # before detection, so a dot's image is the plain image of a disc
+    gain = None
+    if bg is not None:
+        gain = relative_response([images[p.file] for p in pats if p.kind == "flat"], bg, max_dn=cam.sensor.max_dn)
     S, C, ids, per = [], [], [], {}
     for k, p in enumerate(pats):
         if p.kind != "dots":
             continue
-        img = images[p.file].astype(float)
-        if gain is not None:
-            img = bg + (img - bg) / gain
-        blobs = detect_dots(img, background=bg)
+        blobs = detect_dots(images[p.file], background=bg, gain=gain)
         m = identify(p.dots, p.fiducials, blobs, step_screen_px=p.grid_step_px, cam_per_screen_px=cam_per_screen,
                      image_size=(cam.width, cam.height), name=p.file)
         S.append(p.dots[m.dot_index])
@@ -110,20 +111,6 @@ def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observatio
     if not S:
         raise CaptureMismatchError("no dot patterns in the pattern set")
     return Observations(np.concatenate(S), np.concatenate(C), np.concatenate(ids), per)
-
-
-def pixel_gain(pats, images, bg):
-    """The camera's pixel-to-pixel response (PRNU) from the flat captures: their sum over its
-    Gaussian-smoothed self (sigma 4 px), or None without flats and a dark."""
-    from scipy import ndimage
-
-    flats = [images[p.file].astype(float) - bg for p in pats if p.kind == "flat"]
-    if not flats or bg is None:
-        return None
-    total = np.sum(flats, axis=0)
-    smooth = ndimage.gaussian_filter(total, 4.0, mode="nearest")
-    ok = smooth > 10.0 * len(flats)
-    return np.where(ok, total / np.where(ok, smooth, 1.0), 1.0)
 
 
 def _initial(facility: Facility, s, v):
