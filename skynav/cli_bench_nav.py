@@ -5,6 +5,7 @@ Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`ad
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 
@@ -46,10 +47,9 @@ def cmd_nav(args) -> int:
     if args.sigma_px is None:
         noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
                                    phase_offset=not args.no_phase_offset)
-        if args.track_bias_in_r:
-            from dataclasses import replace
+        from dataclasses import replace
 
-            noise = replace(noise, track_bias_in_r=True)
+        noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
     else:
         noise = CentroidNoise(sigma0_px=float(args.sigma_px))
     dynamics = None
@@ -134,11 +134,11 @@ def add_parser(bsub) -> None:
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",
                    help="model the planet's centre, not its Lambert centre of light (paper 002's model)")
-    p.add_argument("--track-bias-in-r", action="store_true",
-                   help="add each class's measured track-constant error to R as n sigma_b^2 per frame (conservative; "
-                   "off by default: it made the filter pessimistic over independent renderings)")
+    p.add_argument("--track-bias-in-r", action=argparse.BooleanOptionalAction, default=True,
+                   help="add each class's measured track-constant error to R as n sigma_b^2 per frame (default; "
+                   "--no-track-bias-in-r: the class RMS only)")
     p.add_argument("--gm-sigma", type=float, default=None,
-                   help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 5e-12)")
+                   help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 1e-11)")
     p.add_argument("--calibration-stride", type=int, default=1, help="frames between calibration frames (default 1: all)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")

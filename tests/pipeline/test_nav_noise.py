@@ -9,20 +9,21 @@ from skynav.pipeline.scoring_nav import CentroidNoise
 
 
 def test_class_sigma_and_track_bias():
-    n = CentroidNoise(sigma0_px=0.07, kappa=0.02, frames=100,
+    n = CentroidNoise(sigma0_px=0.07, kappa=0.02, frames=100, track_bias_in_r=False,
                       classes=(("venus/lambert", 0.05, 40, 0.0), ("earth/saturated", 0.12, 20, 0.03)))
     assert n.sigma_px(0.5, "venus/lambert", 36) == pytest.approx(0.05)
     # unknown class: the global fit sqrt(sigma0^2 + (kappa D)^2)
     assert n.sigma_px(3.0, "mars/lambert") == pytest.approx(math.hypot(0.07, 0.06))
-    # by default the class's measured RMS, its track bias not added again
+    # without track_bias_in_r the class's measured RMS, its track bias not added again
     assert n.sigma_px(4.0, "earth/saturated", 36) == pytest.approx(0.12)
-    # with track_bias_in_r, a track bias sigma_b over n frames: the track mean of n independent
+    # with track_bias_in_r (the default), a track bias sigma_b over n frames: the track mean of n independent
     # frames of the returned sigma has the variance sigma^2 / n + sigma_b^2
     import dataclasses
 
     s = dataclasses.replace(n, track_bias_in_r=True).sigma_px(4.0, "earth/saturated", 36)
     assert s**2 / 36 == pytest.approx(0.12**2 / 36 + 0.03**2)
     assert "earth/saturated" in n.describe()
+    assert CentroidNoise(sigma0_px=0.07).track_bias_in_r   # the default
 
 
 @pytest.mark.parametrize("bias", [0.0, 0.05])
