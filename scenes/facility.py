@@ -256,8 +256,11 @@ class ScreenProjection:
             t0, J = self._local(xy)
             det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
             r = target - t0
-            dx = (J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1]) / det
-            dy = (-J[..., 1, 0] * r[..., 0] + J[..., 0, 0] * r[..., 1]) / det
+            # a direction far outside the screen can meet a flat (singular) model: inf/nan there,
+            # which in_screen rejects, without a warning per frame
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dx = (J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1]) / det
+                dy = (-J[..., 1, 0] * r[..., 0] + J[..., 0, 0] * r[..., 1]) / det
             xy = xy + np.stack([dx, dy], -1)
             step = np.nanmax(np.abs(np.stack([dx, dy]))) if np.any(np.isfinite(dx)) else 0.0
             if step < tol_px:
