@@ -279,72 +279,83 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     out_xy = np.full((n, 2), np.nan)
     flux, peak, npx = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
     valid = np.zeros(n, dtype=bool)
-    finite = np.all(np.isfinite(xy), axis=1)
+    finite = np.isfinite(xy).all(axis=1)
     cxy = np.full((n, 2), -10**6, dtype=np.intp)
     cxy[finite] = np.rint(xy[finite])
     cx, cy = cxy[:, 0], cxy[:, 1]
+    # the brightest pixel of the search box (the box must lie in the image): each box is one
+    # row of a (n, (2s + 1)^2) gather of flat indices
     s = int(search_half_px)
-    ok = (cx - s >= 0) & (cx + s < W) & (cy - s >= 0) & (cy + s < H)
-    idx = np.flatnonzero(ok)
+    idx = np.flatnonzero((cx >= s) & (cx < W - s) & (cy >= s) & (cy < H - s))
     if not len(idx):
         return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
     c0 = cy[idx] * W + cx[idx]
     if s > 0:
-        ns = 2 * s + 1
-        d = np.arange(-s, s + 1)
-        box = flat.take(c0[:, None] + (d[:, None] * W + d[None, :]).ravel())
-        k = np.argmax(box, axis=1)
-        ky, kx = np.divmod(k, ns)
+        box = flat.take(c0[:, None] + _box_offsets(s, W))
+        k = box.argmax(axis=1)
+        ky, kx = np.divmod(k, 2 * s + 1)
         cy[idx] += ky - s
         cx[idx] += kx - s
-        c0 = c0 + (ky - s) * W + (kx - s)
+        c0 += (ky - s) * W + (kx - s)
         pk0 = box[np.arange(len(idx)), k].astype(np.float64)
     else:
         pk0 = flat.take(c0).astype(np.float64)
+    # a peak at or below the threshold is no spot: only the others are measured
     sel = pk0 > threshold_dn
-    pending = idx[sel]
-    c0 = c0[sel]
+    pending, c0 = idx[sel], c0[sel]
+    # distance of each peak to the image's edge: a ROI plus its ring must fit inside
+    edge = np.minimum(np.minimum(cx[pending], W - 1 - cx[pending]), np.minimum(cy[pending], H - 1 - cy[pending]))
     r = int(roi_half_px)
     bg32 = np.float32(background_dn)
-    while len(pending):
-        inb = ((cx[pending] - r - 1 >= 0) & (cx[pending] + r + 1 < W) & (cy[pending] - r - 1 >= 0)
-               & (cy[pending] + r + 1 < H))
-        i = pending[inb]
-        ci = c0[inb]
-        m = 2 * r + 3
-        d = np.arange(-r - 1, r + 2)
-        box = flat.take(ci[:, None] + (d[:, None] * W + d[None, :]).ravel()).astype(np.float32).reshape(len(i), m, m)
-        above = box > threshold_dn
-        h = above[:, :, :-2] | above[:, :, 1:-1] | above[:, :, 2:]
-        dil = h[:, :-2] | h[:, 1:-1] | h[:, 2:]                        # (n, 2r+1, 2r+1)
-        a_in = above[:, 1:-1, 1:-1]
-        grow = a_in[:, 0].any(axis=1) | a_in[:, -1].any(axis=1) | a_in[:, :, 0].any(axis=1) | a_in[:, :, -1].any(axis=1)
-        I = (np.maximum(box[:, 1:-1, 1:-1] - bg32, np.float32(0.0)) * dil).reshape(len(i), (m - 2) ** 2)
-        I2 = (I * I).astype(np.float64)
-        ddx, ddy = _roi_tables(r)
-        m0 = I2.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
+    zero32 = np.float32(0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        while len(pending):
+            inb = edge >= r + 1
+            i, ci, edge = pending[inb], c0[inb], edge[inb]
+            ni, m = len(i), 2 * r + 1
+            # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's
+            # edge: one (2r + 3)^2 row per window; the dilation and the border test are
+            # separable ORs / one border gather on it
+            box = flat.take(ci[:, None] + _box_offsets(r + 1, W)).astype(np.float32)
+            above = box > threshold_dn
+            a3 = above.reshape(ni, m + 2, m + 2)
+            h = a3[:, :, :-2] | a3[:, :, 1:-1] | a3[:, :, 2:]
+            dil = h[:, :-2] | h[:, 1:-1] | h[:, 2:]                                   # (ni, m, m)
+            ddx, ddy, border = _roi_tables(r)
+            grow = above[:, border].any(axis=1)
+            I = (np.maximum(box.reshape(ni, m + 2, m + 2)[:, 1:-1, 1:-1] - bg32, zero32) * dil).reshape(ni, m * m)
+            I2 = (I * I).astype(np.float64)
+            m0 = I2.sum(axis=1)
             out_xy[i, 0] = cx[i] + I2 @ ddx / m0
             out_xy[i, 1] = cy[i] + I2 @ ddy / m0
-        flux[i] = I.sum(axis=1, dtype=np.float64)
-        peak[i] = flat.take(ci)
-        npx[i] = np.count_nonzero(a_in, axis=(1, 2))
-        valid[i] = (m0 > 0) & ~grow
-        pending = i[grow]
-        c0 = ci[grow]
-        if r >= max_roi_half_px:
-            break
-        r = min(2 * r, int(max_roi_half_px))
+            flux[i] = I.sum(axis=1, dtype=np.float64)
+            peak[i] = flat.take(ci)
+            npx[i] = a3[:, 1:-1, 1:-1].sum(axis=(1, 2))
+            valid[i] = (m0 > 0) & ~grow
+            pending, c0, edge = i[grow], ci[grow], edge[grow]
+            if r >= max_roi_half_px:
+                break
+            r = min(2 * r, int(max_roi_half_px))
     out_xy[~valid] = np.nan
     return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
 
 
+@functools.lru_cache(maxsize=32)
+def _box_offsets(h: int, W: int) -> np.ndarray:
+    """Flat-index offsets (row-major) of the (2h + 1)^2 box around a pixel of a W-wide image."""
+    d = np.arange(-h, h + 1)
+    return (d[:, None] * W + d[None, :]).ravel()
+
+
 @functools.lru_cache(maxsize=8)
 def _roi_tables(r: int):
-    """The x and y offsets (float64, row-major) of the pixels of a ROI of half-size ``r``."""
+    """The x and y offsets (float64, row-major) of the pixels of a ROI of half-size ``r``, and
+    the positions of the ROI's border pixels in its (2r + 3)^2 box (ROI plus a one-pixel ring)."""
     m = 2 * r + 1
     ry, rx = np.divmod(np.arange(m * m), m)
-    return (rx - r).astype(np.float64), (ry - r).astype(np.float64)
+    on_border = (ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1)
+    border = ((ry + 1) * (m + 2) + rx + 1)[on_border]
+    return (rx - r).astype(np.float64), (ry - r).astype(np.float64), border.astype(np.intp)
 
 
 def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,

@@ -250,7 +250,8 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
             match = _clip_outliers(match, b, deep, star_dirs, half_fov)
             ref_hip, ref_vmag = np.asarray(deep.hip), np.asarray(deep.v_mag)
     A = match.R_cam_icrs
-    bm = cam.line_of_sight(spots.xy_px[match.spot_index])
+    # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
+    bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
     n_st = len(match.spot_index)
     rms = float(np.sqrt(np.mean(match.residual_rad**2))) if n_st > 3 else opt.inlier_px * ifov / 2
     sigma = max(rms * np.sqrt(n_st / max(n_st - 3, 1)) / np.sqrt(2.0), 0.05 * ifov)
@@ -301,7 +302,8 @@ def _robust_level(img, T):
     row and column. Integer frames (every camera's) take the same statistics from a histogram
     of the counts: the same median and MAD as :func:`numpy.median`, ~5x faster."""
     sub = img[::8, ::8]
-    if np.issubdtype(sub.dtype, np.integer) and sub.size and int(sub.min()) >= 0 and int(sub.max()) < 1 << 17:
+    small_uint = sub.dtype.kind == "u" and sub.dtype.itemsize <= 2  # 0 <= counts < 2^16: no range check
+    if np.issubdtype(sub.dtype, np.integer) and sub.size and (small_uint or (int(sub.min()) >= 0 and int(sub.max()) < 1 << 17)):
         counts = np.bincount(sub.ravel())
         values = np.flatnonzero(counts)
         counts = counts[values]
@@ -353,7 +355,8 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     kept within ``refine_px``; Wahba, residual clip (:func:`_clip_residuals`). Pass 3: the beacons'
     windows (``track_window_px`` + their 3-sigma reach; beyond ``track_window_max_px`` the full
     frame is needed) through :func:`~skynav.pipeline.centroids.spots_in_boxes`, so a planet
-    gets the same region and centroid as in a full-frame pass. Returns ``(spots, b, match, source, beacon predictions)`` or None (the caller
+    gets the same region and centroid as in a full-frame pass. Returns ``(spots, b, match, source, beacon predictions)``
+    (``b``: the lines of sight of the star spots, the first rows of ``spots``) or None (the caller
     then runs the full frame: tracking, then lost in space).
     """
     from .attitude import wahba_svd
@@ -438,13 +441,12 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
             beacon_spots = spots_in_boxes(img, np.asarray(win), np.asarray(half), threshold_dn=thr, background_dn=med,
                                           max_dn=max_dn)
     spots = _concat_spots(star_spots, beacon_spots)
-    b_all = np.concatenate([b, cam.line_of_sight(beacon_spots.xy_px)]) if len(beacon_spots) else b
     sp = np.flatnonzero(keep)
     st = idx[star_rows[keep]]
     r = u[star_rows[keep]]
     residual = np.arccos(np.clip(np.einsum("ij,ij->i", r @ A.T, b[keep]), -1.0, 1.0))
     match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
-    return spots, b_all, match, source, preds
+    return spots, b, match, source, preds
 
 
 def _clip_residuals(b, u, A, *, floor_rad):
