@@ -97,14 +97,13 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     Returns a list of dicts ``name, xy_px (2,), cov_px2 (2, 2), v_mag, distance_km``.
     """
     from skynav.scenes.ephemeris_jpl import default_ephemeris
-    from skynav.scenes.photometry import phase_angle_rad, planet_v_mag
+    from skynav.scenes.photometry import planet_v_mag
 
     eph = _CachedEphemeris.wrap(ephemeris if ephemeris is not None else default_ephemeris(), epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)
     A = np.asarray(R_cam_icrs, float)
-    q = quat_from_dcm(A)
     K = camera.K
     fx, fy = float(K[0, 0]), float(K[1, 1])
     out = []
@@ -127,16 +126,16 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         vc = A @ u
         if vc[2] <= 0:
             continue
-        xy = camera.project(vc[None])[0]
+        xy = _project_one(camera, vc)
         if not np.all(np.isfinite(xy)) or not camera.in_image(xy[None], max(margin_px, camera.width))[0]:
             continue
         kept.append((name, u, p, xy))
     if not kept:
         return out
     sun = eph.position("sun", epoch_tdb_s)
+    q = quat_from_dcm(A)
     A_q = dcm_from_quat(q)  # the Jacobian's attitude (Eq. 14 of q), once per call
-    p_all = np.array([k[2] for k in kept])
-    phase = phase_angle_rad(p_all, sun, r)  # (n,), row by row as for one body
+    phase = _phase_angles(np.array([k[2] for k in kept]), sun, r)
     for (name, u, p, xy), alpha in zip(kept, phase.tolist()):
         # Jacobian at the apparent point: put the body along u at its distance
         dist = np.linalg.norm(p - r)
@@ -174,6 +173,32 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
 
 
 _FLOOR_PX2 = np.eye(2) * 0.25**2
+
+
+def _project_one(camera, v):
+    """``camera.project(v[None])[0]`` for one camera-frame vector (3,): the pinhole arithmetic of
+    :meth:`~skynav.scenes.camera.Camera.project` without its array overhead when the lens has
+    no distortion (the same operations, so the same bits), else ``camera.project`` itself."""
+    if not camera.distortion.is_identity:
+        return camera.project(v[None])[0]
+    z = float(v[2])
+    if not z > 0:
+        return np.array([np.nan, np.nan])
+    return np.array([camera.fx_px * (float(v[0]) / z) + camera.cx, camera.fy_px * (float(v[1]) / z) + camera.cy])
+
+
+def _phase_angles(p, sun, r):
+    """Sun-body-observer angles (n,) of the bodies at ``p`` (n, 3):
+    :func:`skynav.scenes.photometry.phase_angle_rad` with the cross product written out (the
+    same products and differences as :func:`numpy.cross`, the same sums as its norm and dot)."""
+    a = np.asarray(sun, float)[None] - p
+    b = np.asarray(r, float)[None] - p
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    c0 = a1 * b2 - a2 * b1
+    c1 = a2 * b0 - a0 * b2
+    c2 = a0 * b1 - a1 * b0
+    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
 
 
 def _max_eig_2x2(P) -> float:
