@@ -404,10 +404,15 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     # one spot per star and one star per spot: two predictions landing on the same peak
     # (a close pair) both drop
     pk = np.rint(w2.xy_px[got]).astype(np.intp) if got.any() else np.zeros((0, 2), np.intp)
-    if len(pk):
-        _, inv, cnt = np.unique(pk[:, 1] * cam.width + pk[:, 0], return_inverse=True, return_counts=True)
-        g = np.flatnonzero(got)
-        got[g[cnt[inv] > 1]] = False
+    if len(pk) > 1:
+        key = pk[:, 1] * cam.width + pk[:, 0]
+        order = np.argsort(key, kind="stable")
+        same = key[order[1:]] == key[order[:-1]]  # neighbours in sorted order sharing a pixel
+        if same.any():
+            dup = np.zeros(len(key), dtype=bool)
+            dup[order[1:][same]] = True
+            dup[order[:-1][same]] = True
+            got[np.flatnonzero(got)[dup]] = False
     if got.sum() < opt.min_matches:
         return None
     star_rows = inside[got]
