@@ -370,7 +370,9 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
     img = np.asarray(image)
     H, W = img.shape
     xy = np.asarray(centres_xy, float).reshape(-1, 2)
-    half = np.broadcast_to(np.ceil(np.asarray(half_px, float)), (len(xy),))
+    half = np.ceil(np.asarray(half_px, float))
+    if half.ndim == 0:
+        half = np.full(len(xy), float(half))
     parts = []
     thr = float(threshold_dn)
     bg = float(background_dn)
@@ -400,29 +402,28 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         I2 = I1 * I1
         rr, cc = np.divmod(f, w_)
         m0 = np.bincount(l, I2, minlength=n + 1)[1:]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:] / m0
-            yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:] / m0
-        flux = np.bincount(l, I1, minlength=n + 1)[1:]
+        # regions cut by a box edge that is not the image's edge
+        edges = [e for e, inside in ((lab[0, :], y0 > 0), (lab[-1, :], y1 < H), (lab[:, 0], x0 > 0),
+                                     (lab[:, -1], x1 < W)) if inside]
+        cut = np.zeros(n + 1, dtype=bool)
+        if edges:
+            cut[np.concatenate(edges)] = True
+        keep = np.flatnonzero(~cut[1:] & (m0 > 0))
+        if not len(keep):
+            continue
+        m0k = m0[keep]
+        xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:][keep] / m0k
+        yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:][keep] / m0k
+        flux = np.bincount(l, I1, minlength=n + 1)[1:][keep]
         fa = np.flatnonzero(above)
         la = lab.ravel()[fa]
-        npix = np.bincount(la, minlength=n + 1)[1:]
+        npix = np.bincount(la, minlength=n + 1)[1:][keep]
         peak = np.zeros(n + 1)
         np.maximum.at(peak, la, crop.ravel()[fa])
-        peak = peak[1:]
-        # regions cut by a box edge that is not the image's edge
-        cut = np.zeros(n + 1, dtype=bool)
-        if y0 > 0:
-            cut[lab[0, :]] = True
-        if y1 < H:
-            cut[lab[-1, :]] = True
-        if x0 > 0:
-            cut[lab[:, 0]] = True
-        if x1 < W:
-            cut[lab[:, -1]] = True
-        size = np.array([max(sy.stop - sy.start, sx.stop - sx.start) for sy, sx in ndimage.find_objects(lab)], dtype=float)
-        keep = np.flatnonzero(~cut[1:] & (m0 > 0))
-        parts.append(np.column_stack([xc[keep], yc[keep], flux[keep], peak[keep], npix[keep], size[keep]]))
+        objs = ndimage.find_objects(lab)
+        size = np.array([max(objs[k][0].stop - objs[k][0].start, objs[k][1].stop - objs[k][1].start) for k in keep.tolist()],
+                        dtype=float)
+        parts.append(np.column_stack([xc, yc, flux, peak[1:][keep], npix, size]))
     a = np.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else np.zeros((0, 6)))
     if len(a) > 1:  # a spot found in two overlapping boxes is kept once (first occurrence, 1/16 px)
         k = np.rint(a[:, :2] * 16).astype(np.int64)
