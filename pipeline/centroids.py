@@ -308,29 +308,42 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     r = int(roi_half_px)
     bg32 = np.float32(background_dn)
     zero32 = np.float32(0.0)
+    # the test "float32(I) > threshold" (the threshold rounded to float32) on integer counts is
+    # "I > floor(float32 threshold)": compared in the image's own dtype, without a float copy
+    int_thr = None
+    t32 = float(np.float32(threshold_dn))
+    if flat.dtype.kind in "ui" and np.isfinite(t32):
+        info = np.iinfo(flat.dtype)
+        if info.min <= np.floor(t32) < info.max:
+            int_thr = flat.dtype.type(np.floor(t32))
     with np.errstate(invalid="ignore", divide="ignore"):
         while len(pending):
             inb = edge >= r + 1
             i, ci, edge = pending[inb], c0[inb], edge[inb]
             ni, m = len(i), 2 * r + 1
             # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's
-            # edge: one (2r + 3)^2 row per window; the dilation and the border test are
-            # separable ORs / one border gather on it
-            box = flat.take(ci[:, None] + _box_offsets(r + 1, W)).astype(np.float32)
-            above = box > threshold_dn
-            a3 = above.reshape(ni, m + 2, m + 2)
-            h = a3[:, :, :-2] | a3[:, :, 1:-1] | a3[:, :, 2:]
-            dil = h[:, :-2] | h[:, 1:-1] | h[:, 2:]                                   # (ni, m, m)
-            ddx, ddy, border = _roi_tables(r)
+            # edge: one (2r + 3)^2 row per window (row-major). The 3 x 3 dilation is two ORs of
+            # shifted copies of the whole row (horizontal, then vertical by one box row), read
+            # at each ROI pixel's top-left neighbour; long contiguous rows, few numpy passes
+            box = flat.take(ci[:, None] + _box_offsets(r + 1, W))
+            if int_thr is None:
+                box = box.astype(np.float32)
+                above = box > threshold_dn
+            else:
+                above = box > int_thr
+            ddx, ddy, border, roi, top_left = _roi_tables(r)
+            wb = m + 2
+            h = above[:, :-2] | above[:, 1:-1] | above[:, 2:]
+            dil = (h[:, :-2 * wb] | h[:, wb:-wb] | h[:, 2 * wb:])[:, top_left]       # (ni, m * m)
             grow = above[:, border].any(axis=1)
-            I = (np.maximum(box.reshape(ni, m + 2, m + 2)[:, 1:-1, 1:-1] - bg32, zero32) * dil).reshape(ni, m * m)
+            I = np.maximum(box[:, roi].astype(np.float32) - bg32, zero32) * dil
             I2 = (I * I).astype(np.float64)
             m0 = I2.sum(axis=1)
             out_xy[i, 0] = cx[i] + I2 @ ddx / m0
             out_xy[i, 1] = cy[i] + I2 @ ddy / m0
             flux[i] = I.sum(axis=1, dtype=np.float64)
             peak[i] = flat.take(ci)
-            npx[i] = a3[:, 1:-1, 1:-1].sum(axis=(1, 2))
+            npx[i] = above[:, roi].sum(axis=1)
             valid[i] = (m0 > 0) & ~grow
             pending, c0, edge = i[grow], ci[grow], edge[grow]
             if r >= max_roi_half_px:
@@ -349,13 +362,15 @@ def _box_offsets(h: int, W: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _roi_tables(r: int):
-    """The x and y offsets (float64, row-major) of the pixels of a ROI of half-size ``r``, and
-    the positions of the ROI's border pixels in its (2r + 3)^2 box (ROI plus a one-pixel ring)."""
+    """Index tables of a ROI of half-size ``r`` (row-major) inside its (2r + 3)^2 box (the ROI
+    plus a one-pixel ring): the pixels' x and y offsets (float64), the positions in the box of
+    the ROI's border pixels, of the ROI's pixels, and of each ROI pixel's top-left neighbour."""
     m = 2 * r + 1
     ry, rx = np.divmod(np.arange(m * m), m)
     on_border = (ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1)
-    border = ((ry + 1) * (m + 2) + rx + 1)[on_border]
-    return (rx - r).astype(np.float64), (ry - r).astype(np.float64), border.astype(np.intp)
+    roi = (ry + 1) * (m + 2) + rx + 1
+    return ((rx - r).astype(np.float64), (ry - r).astype(np.float64), roi[on_border].astype(np.intp),
+            roi.astype(np.intp), (roi - (m + 2) - 1).astype(np.intp))
 
 
 def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,
