@@ -436,8 +436,8 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         peak = np.zeros(n + 1)
         np.maximum.at(peak, la, crop.ravel()[fa])
         objs = ndimage.find_objects(lab)
-        size = np.array([max(objs[k][0].stop - objs[k][0].start, objs[k][1].stop - objs[k][1].start) for k in keep.tolist()],
-                        dtype=float)
+        size = np.array([max(objs[k][0].stop - objs[k][0].start, objs[k][1].stop - objs[k][1].start)
+                         for k in keep.tolist()], dtype=float)
         parts.append(np.column_stack([xc, yc, flux, peak[1:][keep], npix, size]))
     a = np.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else np.zeros((0, 6)))
     if len(a) > 1:  # a spot found in two overlapping boxes is kept once (first occurrence, 1/16 px)

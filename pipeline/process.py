@@ -302,8 +302,10 @@ def _robust_level(img, T):
     row and column. Integer frames (every camera's) take the same statistics from a histogram
     of the counts: the same median and MAD as :func:`numpy.median`, ~5x faster."""
     sub = img[::8, ::8]
-    small_uint = sub.dtype.kind == "u" and sub.dtype.itemsize <= 2  # 0 <= counts < 2^16: no range check
-    if np.issubdtype(sub.dtype, np.integer) and sub.size and (small_uint or (int(sub.min()) >= 0 and int(sub.max()) < 1 << 17)):
+    counts_ok = np.issubdtype(sub.dtype, np.integer) and sub.size > 0
+    if counts_ok and not (sub.dtype.kind == "u" and sub.dtype.itemsize <= 2):  # 8/16-bit: 0 <= counts < 2^16
+        counts_ok = int(sub.min()) >= 0 and int(sub.max()) < 1 << 17
+    if counts_ok:
         counts = np.bincount(sub.ravel())
         values = np.flatnonzero(counts)
         counts = counts[values]
