@@ -36,8 +36,9 @@ def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
     r = np.asarray(r_icrs, dtype=float)
     B = b.T @ r if weights is None else (b * np.asarray(weights, dtype=float)[:, None]).T @ r
     U, _, Vt = np.linalg.svd(B)
-    d = np.linalg.det(U) * np.linalg.det(Vt)
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
+    dU, dV = np.linalg.det(np.stack([U, Vt]))  # one LAPACK call, each matrix as det(U), det(Vt)
+    d = dU * dV
+    return (U * np.array([1.0, 1.0, d])) @ Vt  # U diag(1, 1, d) V^T (the diagonal product is exact)
 
 
 def attitude_covariance(b_cam, sigma_rad) -> np.ndarray:

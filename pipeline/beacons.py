@@ -97,68 +97,113 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     Returns a list of dicts ``name, xy_px (2,), cov_px2 (2, 2), v_mag, distance_km``.
     """
     from skynav.scenes.ephemeris_jpl import default_ephemeris
-    from skynav.scenes.photometry import phase_angle_rad, planet_v_mag
+    from skynav.scenes.photometry import planet_v_mag
 
     eph = _CachedEphemeris.wrap(ephemeris if ephemeris is not None else default_ephemeris(), epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)
     A = np.asarray(R_cam_icrs, float)
-    q = quat_from_dcm(A)
     K = camera.K
-    sun = eph.position("sun", epoch_tdb_s)
+    fx, fy = float(K[0, 0]), float(K[1, 1])
     out = []
     boresight = A[2]
     cos_reach = camera.half_diagonal_fov_rad
     sig_r = float(np.sqrt(max(np.trace(Pr), 0.0)))
-    for name in bodies:
-        # cheap rejection first: the geometric direction far outside the field (plus 3 sigma of
-        # the position error seen from the body's distance, plus light-time and aberration slack)
-        pos = eph.position(name, epoch_tdb_s)
-        rho = pos - r
-        dist0 = float(np.linalg.norm(rho))
-        slack = 3.0 * sig_r / dist0 + 1e-3
-        if rho @ boresight < dist0 * np.cos(min(cos_reach + slack, np.pi)):
-            continue
+    # cheap rejection first, all bodies at once: the geometric direction far outside the field
+    # (plus 3 sigma of the position error seen from the body's distance, plus light-time and
+    # aberration slack); a body kept here is decided by the exact tests below
+    bodies = tuple(bodies)
+    pos_all = eph.positions(bodies, epoch_tdb_s)
+    rho_all = pos_all - r
+    dist0 = np.sqrt(np.einsum("ij,ij->i", rho_all, rho_all))
+    slack = 3.0 * sig_r / dist0 + 1e-3
+    near = ~(rho_all @ boresight < dist0 * np.cos(np.minimum(cos_reach + slack, np.pi)))
+    kept = []
+    for name in (b for b, ok in zip(bodies, near.tolist()) if ok):
         pos, vel = eph.position_velocity(name, epoch_tdb_s)
         u, p = apparent_direction(r, v, pos, vel)
         vc = A @ u
         if vc[2] <= 0:
             continue
-        xy = camera.project(vc[None])[0]
+        xy = _project_one(camera, vc)
         if not np.all(np.isfinite(xy)) or not camera.in_image(xy[None], max(margin_px, camera.width))[0]:
             continue
+        kept.append((name, u, p, xy))
+    if not kept:
+        return out
+    sun = eph.position("sun", epoch_tdb_s)
+    q = quat_from_dcm(A)
+    A_q = dcm_from_quat(q)  # the Jacobian's attitude (Eq. 14 of q), once per call
+    phase = _phase_angles(np.array([k[2] for k in kept]), sun, r)
+    for (name, u, p, xy), alpha in zip(kept, phase.tolist()):
         # Jacobian at the apparent point: put the body along u at its distance
         dist = np.linalg.norm(p - r)
         pb = r + u * dist
-        F = projection_jacobian(q, r, pb, K)
         if mode == "paper":
+            F = projection_jacobian(q, r, pb, K)
             sr2 = float(np.trace(Pr) / 3.0)
             S = np.diag([0.0] + [sigma_qv**2] * 3 + [sr2] * 3 + [sigma_rbc_km**2] * 3)
             P = F @ S @ F.T
         else:
-            # attitude: small rotation phi (camera frame) -> pixel; position: full covariance
-            Fr = F[:, 4:7]
+            # position: F[:, 4:7] of Eq. 19, d(pixel)/d(r) = -dproj A(q); full covariance
+            w = A_q @ (pb - r)
+            Fr = np.array([[fx / w[2], 0.0, -fx * w[0] / w[2] ** 2], [0.0, fy / w[2], -fy * w[1] / w[2] ** 2]]) @ -A_q
             P = Fr @ Pr @ Fr.T
+            # attitude: small rotation phi (camera frame) -> pixel
             # d(pixel)/d(phi) for A' = (I - [phi x]) A: d v_cam = -phi x v_cam = [v_cam x] phi
             vcam = A @ (pb - r)
-            dproj = np.array([[K[0, 0] / vcam[2], 0.0, -K[0, 0] * vcam[0] / vcam[2] ** 2],
-                              [0.0, K[1, 1] / vcam[2], -K[1, 1] * vcam[1] / vcam[2] ** 2]])
+            dproj = np.array([[fx / vcam[2], 0.0, -fx * vcam[0] / vcam[2] ** 2],
+                              [0.0, fy / vcam[2], -fy * vcam[1] / vcam[2] ** 2]])
             Fa = dproj @ _skew(vcam)
             if attitude_cov_rad2 is not None:
                 P = P + Fa @ attitude_cov_rad2 @ Fa.T
-            P = P + np.eye(2) * 0.25**2  # centroid and first-order model error floor, px^2
+            P = P + _FLOOR_PX2  # centroid and first-order model error floor, px^2
         try:
-            vm = float(planet_v_mag(name, np.linalg.norm(p - sun), dist, phase_angle_rad(p, sun, r)))
+            vm = float(planet_v_mag(name, np.linalg.norm(p - sun), dist, alpha))
         except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
             vm = float("nan")
         # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
-        reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(P)[-1], 0.0)))
+        reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(P), 0.0)))
         if not camera.in_image(xy[None], margin_px + (reach if mode == "improved" else 0.0))[0]:
             continue
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist,
                     "attitude_jacobian_px_rad": Fa if mode != "paper" else None})
     return out
+
+
+_FLOOR_PX2 = np.eye(2) * 0.25**2
+
+
+def _project_one(camera, v):
+    """``camera.project(v[None])[0]`` for one camera-frame vector (3,): the pinhole arithmetic of
+    :meth:`~skynav.scenes.camera.Camera.project` without its array overhead when the lens has
+    no distortion (the same operations, so the same bits), else ``camera.project`` itself."""
+    if not camera.distortion.is_identity:
+        return camera.project(v[None])[0]
+    z = float(v[2])
+    if not z > 0:
+        return np.array([np.nan, np.nan])
+    return np.array([camera.fx_px * (float(v[0]) / z) + camera.cx, camera.fy_px * (float(v[1]) / z) + camera.cy])
+
+
+def _phase_angles(p, sun, r):
+    """Sun-body-observer angles (n,) of the bodies at ``p`` (n, 3):
+    :func:`skynav.scenes.photometry.phase_angle_rad` with the cross product written out (the
+    same products and differences as :func:`numpy.cross`, the same sums as its norm and dot)."""
+    a = np.asarray(sun, float)[None] - p
+    b = np.asarray(r, float)[None] - p
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    c0 = a1 * b2 - a2 * b1
+    c1 = a2 * b0 - a0 * b2
+    c2 = a0 * b1 - a1 * b0
+    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
+
+
+def _max_eig_2x2(P) -> float:
+    """Largest eigenvalue of a symmetric 2 x 2 matrix (:func:`numpy.linalg.eigvalsh`'s last)."""
+    return float(np.linalg.eigvalsh(P)[-1])
 
 
 class _CachedEphemeris:
@@ -186,6 +231,16 @@ class _CachedEphemeris:
 
     def position(self, name, t):
         return self.position_velocity(name, t)[0]
+
+    def positions(self, names, t):
+        """Positions (n, 3) of several bodies at ``t`` (one array; cached per tuple of names)."""
+        key = ("__stack__", names)
+        if float(t) == self.epoch and key in self._pv:
+            return self._pv[key]
+        out = np.array([self.position(n, t) for n in names]).reshape(-1, 3)
+        if float(t) == self.epoch:
+            self._pv[key] = out
+        return out
 
     def position_velocity(self, name, t):
         if float(t) != self.epoch:

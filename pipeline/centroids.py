@@ -279,71 +279,98 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     out_xy = np.full((n, 2), np.nan)
     flux, peak, npx = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
     valid = np.zeros(n, dtype=bool)
-    finite = np.all(np.isfinite(xy), axis=1)
-    cx = np.where(finite, np.rint(np.where(finite, xy[:, 0], 0.0)), -10**6).astype(np.intp)
-    cy = np.where(finite, np.rint(np.where(finite, xy[:, 1], 0.0)), -10**6).astype(np.intp)
-    # the brightest pixel of the search box (the box must lie in the image)
+    finite = np.isfinite(xy).all(axis=1)
+    cxy = np.full((n, 2), -10**6, dtype=np.intp)
+    cxy[finite] = np.rint(xy[finite])
+    cx, cy = cxy[:, 0], cxy[:, 1]
+    # the brightest pixel of the search box (the box must lie in the image): each box is one
+    # row of a (n, (2s + 1)^2) gather of flat indices
     s = int(search_half_px)
-    ok = (cx - s >= 0) & (cx + s < W) & (cy - s >= 0) & (cy + s < H)
-    idx = np.flatnonzero(ok)
-    if s > 0 and len(idx):
-        d = np.arange(-s, s + 1)
-        box = flat.take((cy[idx, None] + d)[:, :, None] * W + (cx[idx, None] + d)[:, None, :]).reshape(len(idx), (2 * s + 1) ** 2)
-        k = np.argmax(box, axis=1)
-        cy[idx] += k // (2 * s + 1) - s
-        cx[idx] += k % (2 * s + 1) - s
+    idx = np.flatnonzero((cx >= s) & (cx < W - s) & (cy >= s) & (cy < H - s))
+    if not len(idx):
+        return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
+    c0 = cy[idx] * W + cx[idx]
+    if s > 0:
+        box = flat.take(c0[:, None] + _box_offsets(s, W))
+        k = box.argmax(axis=1)
+        ky, kx = np.divmod(k, 2 * s + 1)
+        cy[idx] += ky - s
+        cx[idx] += kx - s
+        c0 += (ky - s) * W + (kx - s)
+        pk0 = box[np.arange(len(idx)), k].astype(np.float64)
+    else:
+        pk0 = flat.take(c0).astype(np.float64)
     # a peak at or below the threshold is no spot: only the others are measured
-    pk0 = np.zeros(len(idx), dtype=np.float64)
-    if len(idx):
-        pk0 = img[cy[idx], cx[idx]].astype(np.float64)
-    pending = idx[pk0 > threshold_dn]
+    sel = pk0 > threshold_dn
+    pending, c0 = idx[sel], c0[sel]
+    # distance of each peak to the image's edge: a ROI plus its ring must fit inside
+    edge = np.minimum(np.minimum(cx[pending], W - 1 - cx[pending]), np.minimum(cy[pending], H - 1 - cy[pending]))
     r = int(roi_half_px)
-    while len(pending):
-        i = pending[(cx[pending] - r - 1 >= 0) & (cx[pending] + r + 1 < W) & (cy[pending] - r - 1 >= 0)
-                    & (cy[pending] + r + 1 < H)]
-        # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge;
-        # each box is one row of (2r + 3)^2 pixels, the ROI's pixels and their neighbours are
-        # column indices into it (2-D arrays with long rows: a few contiguous numpy passes)
-        nb, inner, border, ddx, ddy = _roi_tables(r)
-        d = np.arange(-r - 1, r + 2)
-        box = flat.take((cy[i, None] + d)[:, :, None] * W + (cx[i, None] + d)[:, None, :]).reshape(len(i), (2 * r + 3) ** 2)
-        box = box.astype(np.float32)
-        above = box > threshold_dn
-        dil = above[:, nb].any(axis=2)                              # (n, (2r+1)^2)
-        a_in = above[:, inner]
-        grow = a_in[:, border].any(axis=1)
-        I = np.maximum(box[:, inner] - np.float32(background_dn), np.float32(0.0)) * dil
-        I2 = (I * I).astype(np.float64)
-        m0 = I2.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
+    bg32 = np.float32(background_dn)
+    zero32 = np.float32(0.0)
+    # the test "float32(I) > threshold" (the threshold rounded to float32) on integer counts is
+    # "I > floor(float32 threshold)": compared in the image's own dtype, without a float copy
+    int_thr = None
+    t32 = float(np.float32(threshold_dn))
+    if flat.dtype.kind in "ui" and np.isfinite(t32):
+        info = np.iinfo(flat.dtype)
+        if info.min <= np.floor(t32) < info.max:
+            int_thr = flat.dtype.type(np.floor(t32))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        while len(pending):
+            inb = edge >= r + 1
+            i, ci, edge = pending[inb], c0[inb], edge[inb]
+            ni, m = len(i), 2 * r + 1
+            # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's
+            # edge: one (2r + 3)^2 row per window (row-major). The 3 x 3 dilation is two ORs of
+            # shifted copies of the whole row (horizontal, then vertical by one box row), read
+            # at each ROI pixel's top-left neighbour; long contiguous rows, few numpy passes
+            box = flat.take(ci[:, None] + _box_offsets(r + 1, W))
+            if int_thr is None:
+                box = box.astype(np.float32)
+                above = box > threshold_dn
+            else:
+                above = box > int_thr
+            ddx, ddy, border, roi, top_left = _roi_tables(r)
+            wb = m + 2
+            h = above[:, :-2] | above[:, 1:-1] | above[:, 2:]
+            dil = (h[:, :-2 * wb] | h[:, wb:-wb] | h[:, 2 * wb:])[:, top_left]       # (ni, m * m)
+            grow = above[:, border].any(axis=1)
+            I = np.maximum(box[:, roi].astype(np.float32) - bg32, zero32) * dil
+            I2 = (I * I).astype(np.float64)
+            m0 = I2.sum(axis=1)
             out_xy[i, 0] = cx[i] + I2 @ ddx / m0
             out_xy[i, 1] = cy[i] + I2 @ ddy / m0
-        flux[i] = I.sum(axis=1, dtype=np.float64)
-        peak[i] = flat[cy[i] * W + cx[i]]
-        npx[i] = a_in.sum(axis=1)
-        valid[i] = (m0 > 0) & ~grow
-        pending = i[grow]
-        if r >= max_roi_half_px:
-            break
-        r = min(2 * r, int(max_roi_half_px))
+            flux[i] = I.sum(axis=1, dtype=np.float64)
+            peak[i] = flat.take(ci)
+            npx[i] = above[:, roi].sum(axis=1)
+            valid[i] = (m0 > 0) & ~grow
+            pending, c0, edge = i[grow], ci[grow], edge[grow]
+            if r >= max_roi_half_px:
+                break
+            r = min(2 * r, int(max_roi_half_px))
     out_xy[~valid] = np.nan
     return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
 
 
+@functools.lru_cache(maxsize=32)
+def _box_offsets(h: int, W: int) -> np.ndarray:
+    """Flat-index offsets (row-major) of the (2h + 1)^2 box around a pixel of a W-wide image."""
+    d = np.arange(-h, h + 1)
+    return (d[:, None] * W + d[None, :]).ravel()
+
+
 @functools.lru_cache(maxsize=8)
 def _roi_tables(r: int):
-    """Index tables of a ROI of half-size ``r`` inside its ``(2r + 3)^2`` box (row-major): the 9
-    neighbours of each ROI pixel (nb, ((2r+1)^2, 9)), the ROI pixels (inner), the ROI's border
-    pixels (positions within the ROI), and the x and y offsets of the ROI pixels."""
-    n = 2 * r + 3
-    yy, xx = np.mgrid[1:n - 1, 1:n - 1]
-    off = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
-    nb = ((yy.ravel()[:, None] + off[:, 0]) * n + (xx.ravel()[:, None] + off[:, 1])).astype(np.intp)
-    inner = (yy * n + xx).ravel().astype(np.intp)
+    """Index tables of a ROI of half-size ``r`` (row-major) inside its (2r + 3)^2 box (the ROI
+    plus a one-pixel ring): the pixels' x and y offsets (float64), the positions in the box of
+    the ROI's border pixels, of the ROI's pixels, and of each ROI pixel's top-left neighbour."""
     m = 2 * r + 1
     ry, rx = np.divmod(np.arange(m * m), m)
-    border = np.flatnonzero((ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1))
-    return nb, inner, border, (rx - r).astype(np.float64), (ry - r).astype(np.float64)
+    on_border = (ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1)
+    roi = (ry + 1) * (m + 2) + rx + 1
+    return ((rx - r).astype(np.float64), (ry - r).astype(np.float64), roi[on_border].astype(np.intp),
+            roi.astype(np.intp), (roi - (m + 2) - 1).astype(np.intp))
 
 
 def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,
@@ -358,10 +385,13 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
     img = np.asarray(image)
     H, W = img.shape
     xy = np.asarray(centres_xy, float).reshape(-1, 2)
-    half = np.broadcast_to(np.ceil(np.asarray(half_px, float)), (len(xy),))
-    eight = np.ones((3, 3), dtype=bool)
+    half = np.ceil(np.asarray(half_px, float))
+    if half.ndim == 0:
+        half = np.full(len(xy), float(half))
     parts = []
-    for (x, y), h in zip(xy, half):
+    thr = float(threshold_dn)
+    bg = float(background_dn)
+    for (x, y), h in zip(xy.tolist(), half.tolist()):
         if not (np.isfinite(x) and np.isfinite(y)):
             continue
         x0, x1 = max(int(round(x - h)), 0), min(int(round(x + h)) + 1, W)
@@ -369,43 +399,58 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         if x1 <= x0 or y1 <= y0:
             continue
         crop = img[y0:y1, x0:x1]
-        above = crop > threshold_dn
-        if not above.any():
+        above = crop > thr
+        lab, n = ndimage.label(above, structure=_EIGHT)
+        if n == 0:
             continue
-        lab, n = ndimage.label(above, structure=eight)
         # the ROI: each region plus its 8-neighbours (a margin pixel shared by two regions goes
-        # to the higher label; detect_spots gives it to the first, a sub-threshold pixel either way)
-        roi = np.where(lab > 0, lab, ndimage.grey_dilation(lab, footprint=eight, mode="constant", cval=0))
-        # moments over the ROI pixels only (a beacon's box is mostly background)
+        # to the higher label; detect_spots gives it to the first, a sub-threshold pixel either
+        # way): a 3x3 grey dilation of the labels, as two separable 1-D maxima (zero outside)
+        h_, w_ = lab.shape
+        pad = np.zeros((h_ + 2, w_ + 2), dtype=lab.dtype)
+        pad[1:-1, 1:-1] = lab
+        rowmax = np.maximum(np.maximum(pad[:, :-2], pad[:, 1:-1]), pad[:, 2:])
+        roi = np.maximum(np.maximum(rowmax[:-2], rowmax[1:-1]), rowmax[2:])
         f = np.flatnonzero(roi)
         l = roi.ravel()[f]
-        I1 = np.clip(crop.ravel()[f].astype(np.float64) - background_dn, 0.0, None)
+        I1 = np.clip(crop.ravel()[f].astype(np.float64) - bg, 0.0, None)
         I2 = I1 * I1
-        rr, cc = np.divmod(f, x1 - x0)
+        rr, cc = np.divmod(f, w_)
         m0 = np.bincount(l, I2, minlength=n + 1)[1:]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:] / m0
-            yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:] / m0
-        flux = np.bincount(l, I1, minlength=n + 1)[1:]
-        labs = lab.ravel()
-        npix = np.bincount(labs, minlength=n + 1)[1:]
-        index = np.arange(1, n + 1)
-        peak = np.asarray(ndimage.maximum(crop, lab, index), dtype=np.float64).reshape(n)
         # regions cut by a box edge that is not the image's edge
+        edges = [e for e, inside in ((lab[0, :], y0 > 0), (lab[-1, :], y1 < H), (lab[:, 0], x0 > 0),
+                                     (lab[:, -1], x1 < W)) if inside]
         cut = np.zeros(n + 1, dtype=bool)
-        for edge, inside in ((lab[0, :], y0 > 0), (lab[-1, :], y1 < H), (lab[:, 0], x0 > 0), (lab[:, -1], x1 < W)):
-            if inside:
-                cut[edge] = True
-        size = np.array([max(sy.stop - sy.start, sx.stop - sx.start) for sy, sx in ndimage.find_objects(lab)], dtype=float)
+        if edges:
+            cut[np.concatenate(edges)] = True
         keep = np.flatnonzero(~cut[1:] & (m0 > 0))
-        parts.append(np.column_stack([xc[keep], yc[keep], flux[keep], peak[keep], npix[keep], size[keep]]))
-    a = np.concatenate(parts) if parts else np.zeros((0, 6))
-    if len(a) > 1:  # a spot found in two overlapping boxes is kept once
-        _, first = np.unique(np.rint(a[:, :2] * 16).astype(np.int64), axis=0, return_index=True)
-        a = a[np.sort(first)]
+        if not len(keep):
+            continue
+        m0k = m0[keep]
+        xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:][keep] / m0k
+        yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:][keep] / m0k
+        flux = np.bincount(l, I1, minlength=n + 1)[1:][keep]
+        fa = np.flatnonzero(above)
+        la = lab.ravel()[fa]
+        npix = np.bincount(la, minlength=n + 1)[1:][keep]
+        peak = np.zeros(n + 1)
+        np.maximum.at(peak, la, crop.ravel()[fa])
+        objs = ndimage.find_objects(lab)
+        size = np.array([max(objs[k][0].stop - objs[k][0].start, objs[k][1].stop - objs[k][1].start)
+                         for k in keep.tolist()], dtype=float)
+        parts.append(np.column_stack([xc, yc, flux, peak[1:][keep], npix, size]))
+    a = np.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else np.zeros((0, 6)))
+    if len(a) > 1:  # a spot found in two overlapping boxes is kept once (first occurrence, 1/16 px)
+        k = np.rint(a[:, :2] * 16).astype(np.int64)
+        _, first = np.unique((k[:, 0] << 32) + k[:, 1], return_index=True)
+        if len(first) < len(a):
+            a = a[np.sort(first)]
     if not len(a):
         return Spots.empty(float(threshold_dn))
     a = a[np.argsort(-a[:, 2], kind="stable")]
     sat = a[:, 3] >= max_dn if max_dn is not None else np.zeros(len(a), bool)
     return Spots(xy_px=a[:, :2].copy(), flux_dn=a[:, 2].copy(), peak_dn=a[:, 3].copy(), n_pixels=a[:, 4].astype(int),
                  saturated=sat, elongation=np.ones(len(a)), size_px=a[:, 5].copy(), threshold_dn=float(threshold_dn))
+
+
+_EIGHT = np.ones((3, 3), dtype=bool)

@@ -250,7 +250,8 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
             match = _clip_outliers(match, b, deep, star_dirs, half_fov)
             ref_hip, ref_vmag = np.asarray(deep.hip), np.asarray(deep.v_mag)
     A = match.R_cam_icrs
-    bm = cam.line_of_sight(spots.xy_px[match.spot_index])
+    # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
+    bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
     n_st = len(match.spot_index)
     rms = float(np.sqrt(np.mean(match.residual_rad**2))) if n_st > 3 else opt.inlier_px * ifov / 2
     sigma = max(rms * np.sqrt(n_st / max(n_st - 3, 1)) / np.sqrt(2.0), 0.05 * ifov)
@@ -301,7 +302,10 @@ def _robust_level(img, T):
     row and column. Integer frames (every camera's) take the same statistics from a histogram
     of the counts: the same median and MAD as :func:`numpy.median`, ~5x faster."""
     sub = img[::8, ::8]
-    if np.issubdtype(sub.dtype, np.integer) and sub.size and int(sub.min()) >= 0 and int(sub.max()) < 1 << 17:
+    counts_ok = np.issubdtype(sub.dtype, np.integer) and sub.size > 0
+    if counts_ok and not (sub.dtype.kind == "u" and sub.dtype.itemsize <= 2):  # 8/16-bit: 0 <= counts < 2^16
+        counts_ok = int(sub.min()) >= 0 and int(sub.max()) < 1 << 17
+    if counts_ok:
         counts = np.bincount(sub.ravel())
         values = np.flatnonzero(counts)
         counts = counts[values]
@@ -353,7 +357,8 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     kept within ``refine_px``; Wahba, residual clip (:func:`_clip_residuals`). Pass 3: the beacons'
     windows (``track_window_px`` + their 3-sigma reach; beyond ``track_window_max_px`` the full
     frame is needed) through :func:`~skynav.pipeline.centroids.spots_in_boxes`, so a planet
-    gets the same region and centroid as in a full-frame pass. Returns ``(spots, b, match, source, beacon predictions)`` or None (the caller
+    gets the same region and centroid as in a full-frame pass. Returns ``(spots, b, match, source, beacon predictions)``
+    (``b``: the lines of sight of the star spots, the first rows of ``spots``) or None (the caller
     then runs the full frame: tracking, then lost in space).
     """
     from .attitude import wahba_svd
@@ -401,10 +406,15 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     # one spot per star and one star per spot: two predictions landing on the same peak
     # (a close pair) both drop
     pk = np.rint(w2.xy_px[got]).astype(np.intp) if got.any() else np.zeros((0, 2), np.intp)
-    if len(pk):
-        _, inv, cnt = np.unique(pk[:, 1] * cam.width + pk[:, 0], return_inverse=True, return_counts=True)
-        g = np.flatnonzero(got)
-        got[g[cnt[inv] > 1]] = False
+    if len(pk) > 1:
+        key = pk[:, 1] * cam.width + pk[:, 0]
+        order = np.argsort(key, kind="stable")
+        same = key[order[1:]] == key[order[:-1]]  # neighbours in sorted order sharing a pixel
+        if same.any():
+            dup = np.zeros(len(key), dtype=bool)
+            dup[order[1:][same]] = True
+            dup[order[:-1][same]] = True
+            got[np.flatnonzero(got)[dup]] = False
     if got.sum() < opt.min_matches:
         return None
     star_rows = inside[got]
@@ -438,13 +448,12 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
             beacon_spots = spots_in_boxes(img, np.asarray(win), np.asarray(half), threshold_dn=thr, background_dn=med,
                                           max_dn=max_dn)
     spots = _concat_spots(star_spots, beacon_spots)
-    b_all = np.concatenate([b, cam.line_of_sight(beacon_spots.xy_px)]) if len(beacon_spots) else b
     sp = np.flatnonzero(keep)
     st = idx[star_rows[keep]]
     r = u[star_rows[keep]]
     residual = np.arccos(np.clip(np.einsum("ij,ij->i", r @ A.T, b[keep]), -1.0, 1.0))
     match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
-    return spots, b_all, match, source, preds
+    return spots, b, match, source, preds
 
 
 def _clip_residuals(b, u, A, *, floor_rad):
@@ -486,68 +495,101 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     n = len(spots)
     candidate = np.ones(n, dtype=bool)
     candidate[match.spot_index] = False  # spots matched to catalog stars are not beacons
-    if mode == "improved" and n:
+    if mode != "improved":
+        out = []
+        for p in preds:
+            k = select_spot(p, spots.xy_px, candidate, mode=mode, spot_mag=None, mag_sigma=opt.mag_sigma)
+            if k is not None:
+                candidate[k] = False
+            out.append(_beacon_result(p, spots, k))
+        return tuple(out)
+    if not preds:
+        return ()
+    # the deep stars that may lie on a spot a beacon can take: those within each beacon's
+    # 3-sigma reach plus the exclusion radius (from its covariance before the blend widening)
+    deep_cones = []
+    if n:
+        deep_cones = [(A.T @ cam.line_of_sight(p["xy_px"][None])[0],
+                       (np.sqrt(CHI2_2DOF_3SIGMA * np.linalg.eigvalsh(p["cov_px2"])[-1])
+                        + opt.deep_star_radius_px + 2.0) * cam.ifov_rad * 1.5) for p in preds]
+    # blends: two beacons predicted within a few pixels (the Earth and the Moon) make one spot
+    # whose centroid lies between them; widen both gates by half the separation, and predict
+    # the blend's total brightness
+    for i in range(len(preds)):
+        for j in range(i + 1, len(preds)):
+            sep = float(np.hypot(*(preds[i]["xy_px"] - preds[j]["xy_px"])))
+            if sep < opt.blend_px:
+                for a in (i, j):
+                    preds[a] = dict(preds[a], cov_px2=preds[a]["cov_px2"] + np.eye(2) * (0.5 * sep) ** 2)
+                mi, mj = preds[i]["v_mag"], preds[j]["v_mag"]
+                if np.isfinite(mi) and np.isfinite(mj):
+                    m = -2.5 * np.log10(10 ** (-0.4 * mi) + 10 ** (-0.4 * mj))
+                    preds[i] = dict(preds[i], v_mag=m)
+                    preds[j] = dict(preds[j], v_mag=m)
+    # only the candidates inside some beacon's 3-sigma ellipse can be chosen: the deep-star test
+    # and the brightness model are evaluated for those alone
+    cand = np.flatnonzero(candidate)
+    m2 = _mahalanobis2(preds, spots.xy_px[cand])
+    cand_in = np.any(m2 <= CHI2_2DOF_3SIGMA, axis=0)
+    cand, m2 = cand[cand_in], m2[:, cand_in]
+    if len(cand):
         # ... nor spots on fainter catalog stars (the deep catalog, V < deep_v_mag), predicted
         # with the solved attitude: the field's faint stars are the usual wrong beacons
         deep = catalog.deep_stars()
-        if preds is None:
-            idx = deep.cone(A[2], cam.half_diagonal_fov_rad, margin_rad=2e-3)
-        else:
-            # windowed tracking: only the spots inside a beacon's 3-sigma ellipse can be chosen,
-            # so only the deep stars within its reach (plus the exclusion radius) matter
-            cones = [deep.cone(A.T @ cam.line_of_sight(p["xy_px"][None])[0],
-                               (np.sqrt(CHI2_2DOF_3SIGMA * np.linalg.eigvalsh(p["cov_px2"])[-1])
-                                + opt.deep_star_radius_px + 2.0) * cam.ifov_rad * 1.5, margin_rad=2e-3)
-                     for p in preds]
-            idx = np.unique(np.concatenate(cones)) if cones else np.zeros(0, dtype=np.intp)
+        idx = np.unique(np.concatenate([deep.cone(c, r, margin_rad=2e-3) for c, r in deep_cones]))
         xy = cam.project(deep.u_icrs[idx] @ A.T)
-        ok = np.all(np.isfinite(xy), axis=1)
-        if ok.any():
-            from scipy.spatial import cKDTree
-
-            d, _ = cKDTree(xy[ok]).query(spots.xy_px, distance_upper_bound=opt.deep_star_radius_px)
-            candidate &= ~np.isfinite(d)
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if len(xy):
+            on_star = _near_any(spots.xy_px[cand], xy, opt.deep_star_radius_px)
+            cand, m2 = cand[~on_star], m2[:, ~on_star]
     spot_mag = None
-    if mode == "improved" and n:
+    if len(cand):
         # photometric zero point from the matched, unsaturated stars: m = zp - 2.5 log10(flux)
         ms = match.spot_index
         good = (~spots.saturated[ms]) & (spots.flux_dn[ms] > 0)
         vm = np.asarray(ref_vmag)[match.star_index]
         with np.errstate(divide="ignore"):
             zp = np.median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
-            spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn, 1e-9))
+            spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn[cand], 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
-        spot_mag = np.where(spots.saturated, np.nan, spot_mag)
-    if mode == "improved":
-        # blends: two beacons predicted within a few pixels (the Earth and the Moon) make one spot
-        # whose centroid lies between them; widen both gates by half the separation, and predict
-        # the blend's total brightness
-        for i in range(len(preds)):
-            for j in range(i + 1, len(preds)):
-                sep = float(np.hypot(*(preds[i]["xy_px"] - preds[j]["xy_px"])))
-                if sep < opt.blend_px:
-                    for a in (i, j):
-                        preds[a] = dict(preds[a], cov_px2=preds[a]["cov_px2"] + np.eye(2) * (0.5 * sep) ** 2)
-                    mi, mj = preds[i]["v_mag"], preds[j]["v_mag"]
-                    if np.isfinite(mi) and np.isfinite(mj):
-                        m = -2.5 * np.log10(10 ** (-0.4 * mi) + 10 ** (-0.4 * mj))
-                        preds[i] = dict(preds[i], v_mag=m)
-                        preds[j] = dict(preds[j], v_mag=m)
-        chosen = _assign_beacons(preds, spots.xy_px, candidate, spot_mag, opt.mag_sigma)
-    out = []
+        spot_mag = np.where(spots.saturated[cand], np.nan, spot_mag)
+    chosen = _assign_from_m2(preds, m2, spot_mag, opt.mag_sigma)
+    return tuple(_beacon_result(p, spots, None if k is None else int(cand[k])) for p, k in zip(preds, chosen))
+
+
+def _beacon_result(p, spots, k):
+    if k is None:
+        return BeaconResult(name=p["name"], xy_px=None, predicted_xy_px=p["xy_px"], predicted_cov_px2=p["cov_px2"],
+                            status="not_found")
+    return BeaconResult(name=p["name"], xy_px=spots.xy_px[k].copy(), predicted_xy_px=p["xy_px"],
+                        predicted_cov_px2=p["cov_px2"], status="found")
+
+
+def _near_any(xy, ref, radius):
+    """True where a point of ``xy`` (M, 2) has a point of ``ref`` (K, 2) closer than ``radius``
+    (strictly, squared distances compared as :class:`scipy.spatial.cKDTree` with
+    ``distance_upper_bound`` does)."""
+    d0 = xy[:, None, 0] - ref[None, :, 0]
+    d1 = xy[:, None, 1] - ref[None, :, 1]
+    return np.any(d0 * d0 + d1 * d1 < radius * radius, axis=1)
+
+
+def _mahalanobis2(preds, xy):
+    """``m2[i, j] = d^T P_i^-1 d`` with ``d = xy[j] - preds[i]["xy_px"]``, shape (nb, M); a row
+    of ``inf`` where ``P_i`` is singular (that beacon can take no spot)."""
+    nb, m = len(preds), len(xy)
+    if m == 0 or nb == 0:
+        return np.zeros((nb, m))
+    out = np.empty((nb, m))
     for i, p in enumerate(preds):
-        if mode == "improved":
-            k = chosen[i]
-        else:
-            k = select_spot(p, spots.xy_px, candidate, mode=mode, spot_mag=spot_mag, mag_sigma=opt.mag_sigma)
-        if k is None:
-            out.append(BeaconResult(name=p["name"], xy_px=None, predicted_xy_px=p["xy_px"], predicted_cov_px2=p["cov_px2"],
-                                    status="not_found"))
-        else:
-            candidate[k] = False
-            out.append(BeaconResult(name=p["name"], xy_px=spots.xy_px[k].copy(), predicted_xy_px=p["xy_px"],
-                                    predicted_cov_px2=p["cov_px2"], status="found"))
-    return tuple(out)
+        try:
+            Pinv = np.linalg.inv(p["cov_px2"])
+        except np.linalg.LinAlgError:
+            out[i] = np.inf
+            continue
+        d = xy - p["xy_px"][None]
+        out[i] = np.einsum("ni,ij,nj->n", d, Pinv, d)
+    return out
 
 
 def _assign_beacons(preds, spots_xy, candidate, spot_mag, mag_sigma):
@@ -555,35 +597,40 @@ def _assign_beacons(preds, spots_xy, candidate, spot_mag, mag_sigma):
     ellipse must not take the spot of one with a small ellipse, as the paper's one-at-a-time
     closest-spike rule lets it). Cost of beacon i on spot j inside its 3-sigma ellipse:
     ``m2_ij + ((m_j - m_pred_i) / mag_sigma)^2``; "not found" costs the ellipse's edge plus a
-    3-sigma brightness mismatch, so any spot inside the ellipse is preferred over none."""
-    from scipy.optimize import linear_sum_assignment
-
-    from .beacons import CHI2_2DOF_3SIGMA
-
-    nb = len(preds)
+    3-sigma brightness mismatch, so any spot inside the ellipse is preferred over none.
+    Returns the chosen spot index (into ``spots_xy``) of each beacon, or None."""
     cand = np.flatnonzero(candidate)
+    if len(preds) == 0:
+        return []
+    chosen = _assign_from_m2(preds, _mahalanobis2(preds, spots_xy[cand]), None if spot_mag is None else spot_mag[cand],
+                             mag_sigma)
+    return [None if k is None else int(cand[k]) for k in chosen]
+
+
+def _assign_from_m2(preds, m2, spot_mag, mag_sigma):
+    """:func:`_assign_beacons` on the candidates' Mahalanobis^2 ``m2`` (nb, M) and magnitudes
+    ``spot_mag`` (M,) or None; returns column indices into ``m2`` or None. A spot outside every
+    ellipse has only forbidden entries, so leaving it out does not change the assignment."""
+    nb, m = m2.shape
     if nb == 0:
         return []
-    BIG = 1e9
-    cost = np.full((nb, len(cand) + nb), BIG)
-    for i, p in enumerate(preds):
-        cost[i, len(cand) + i] = CHI2_2DOF_3SIGMA + 9.0
-        if len(cand) == 0:
-            continue
-        d = spots_xy[cand] - p["xy_px"][None]
-        try:
-            Pinv = np.linalg.inv(p["cov_px2"])
-        except np.linalg.LinAlgError:
-            continue
-        m2 = np.einsum("ni,ij,nj->n", d, Pinv, d)
-        c = m2.copy()
-        if spot_mag is not None and np.isfinite(p["v_mag"]):
-            dm = spot_mag[cand] - p["v_mag"]
-            c = c + np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2
-        cost[i, :len(cand)] = np.where(m2 <= CHI2_2DOF_3SIGMA, c, BIG)
-    rows, cols = linear_sum_assignment(cost)
     chosen = [None] * nb
-    for i, j in zip(rows, cols):
-        if j < len(cand) and cost[i, j] < BIG:
-            chosen[i] = int(cand[j])
+    inside = m2 <= CHI2_2DOF_3SIGMA
+    if not inside.any():
+        return chosen
+    from scipy.optimize import linear_sum_assignment
+
+    BIG = 1e9
+    c = m2
+    if spot_mag is not None:
+        vmag = np.array([p["v_mag"] for p in preds], dtype=float)
+        dm = spot_mag[None, :] - vmag[:, None]
+        c = c + np.where(np.isfinite(vmag)[:, None], np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2, 0.0)
+    cost = np.full((nb, m + nb), BIG)
+    cost[:, :m] = np.where(inside, c, BIG)
+    cost[np.arange(nb), m + np.arange(nb)] = CHI2_2DOF_3SIGMA + 9.0
+    rows, cols = linear_sum_assignment(cost)
+    for i, j in zip(rows.tolist(), cols.tolist()):
+        if j < m and cost[i, j] < BIG:
+            chosen[i] = j
     return chosen

@@ -290,6 +290,14 @@ class StarCatalog:
         ``u0 + dt mu - p r_obs / 1 au``. Parallaxes below :data:`MIN_PARALLAX_MAS` use the floor.
         """
         idx = np.asarray(idx, dtype=np.intp)
+        if np.ndim(t_tdb_s) == 0 and np.ndim(observer_position_km) == 1:
+            # one epoch, one observer: the per-star motion terms from the catalog-wide tables
+            # (the same element-wise operations as below, computed once per catalog)
+            pm, plx_rad = self._motion_tables()
+            dt_yr = (np.asarray(t_tdb_s, dtype=float) - self.epoch_tdb_s) / JULIAN_YEAR_S
+            obs_au = np.asarray(observer_position_km, dtype=float) / AU_KM
+            v = self.u_icrs[idx] + dt_yr * pm[idx] - plx_rad[idx][:, None] * obs_au
+            return v / np.linalg.norm(v, axis=-1, keepdims=True)
         ra = self.ra_rad[idx]
         dec = self.dec_rad[idx]
         sa, ca = np.sin(ra), np.cos(ra)
@@ -304,6 +312,23 @@ class StarCatalog:
         obs_au = np.asarray(observer_position_km, dtype=float) / AU_KM
         v = self.u_icrs[idx] + dt_yr * (mu_a * e_a + mu_d * e_d) - plx_rad[:, None] * obs_au
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def _motion_tables(self):
+        """``(mu_a e_a + mu_d e_d (N, 3) rad/yr, parallax (N,) rad)`` of every star, computed on
+        first use and kept on the object: :meth:`directions` then gathers rows instead of
+        evaluating four sines and cosines per star and call."""
+        tables = self.__dict__.get("_motion")
+        if tables is None:
+            ra, dec = np.asarray(self.ra_rad), np.asarray(self.dec_rad)
+            sa, ca = np.sin(ra), np.cos(ra)
+            sd, cd = np.sin(dec), np.cos(dec)
+            e_a = np.stack([-sa, ca, np.zeros_like(ra)], axis=-1)
+            e_d = np.stack([-sd * ca, -sd * sa, cd], axis=-1)
+            mu_a = (self.pm_ra_mas_yr * MAS_TO_RAD)[:, None]
+            mu_d = (self.pm_dec_mas_yr * MAS_TO_RAD)[:, None]
+            tables = (mu_a * e_a + mu_d * e_d, np.maximum(self.parallax_mas, MIN_PARALLAX_MAS) * MAS_TO_RAD)
+            object.__setattr__(self, "_motion", tables)
+        return tables
 
     def subset(self, idx) -> "StarCatalog":
         """A catalog of the stars ``idx`` (in that order; cone queries still work)."""

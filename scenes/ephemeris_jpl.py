@@ -225,18 +225,22 @@ class Ephemeris:
             raise EphemerisRangeError(
                 f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
                 f" epoch {t!r} s outside", time_mask=True, start_jd=self._start_jd, end_jd=self._end_jd)
-        pairs = list(dict.fromkeys(p for k in keys for p in _CHAINS[k]))
+        pairs, rows = self._states_plan(tuple(keys))
         tables = self._cheb_tables()
         cmax = max(tables[p][2].shape[0] for p in pairs)
         coef = np.zeros((cmax, 3, len(pairs)))
         s = np.empty(len(pairs))
         intl = np.empty(len(pairs))
+        # jplephem's interval arithmetic (Segment.generate), scalar, for the same bits (Python
+        # floats: the same IEEE operations and divmod algorithm as numpy's float64 scalars)
+        a1 = (float(jd1) - _T0) * _S_PER_DAY
+        a2 = float(jd2) * _S_PER_DAY
         for j, p in enumerate(pairs):
             init, intlen, c = tables[p]
+            init, intlen = float(init), float(intlen)
             n = c.shape[2]
-            # jplephem's interval arithmetic (Segment.generate), scalar, for the same bits
-            index1, offset1 = divmod((jd1 - _T0) * _S_PER_DAY - init, intlen)
-            index2, offset2 = divmod(jd2 * _S_PER_DAY, intlen)
+            index1, offset1 = divmod(a1 - init, intlen)
+            index2, offset2 = divmod(a2, intlen)
             index3, offset = divmod(offset1 + offset2, intlen)
             index = int(index1 + index2 + index3)
             if index == n:
@@ -262,16 +266,31 @@ class Ephemeris:
         rates /= intl
         rates *= 2.0
         rates *= _S_PER_DAY
+        # each body: the sum of its chain's segments, 0 + first + second (a zero column pads the
+        # shorter chains; adding +0.0 leaves the sum's bits unchanged), all bodies at once
+        pos = np.concatenate([pos, np.zeros((3, 1))], axis=1)
+        rates = np.concatenate([rates, np.zeros((3, 1))], axis=1)
+        r = np.zeros((3, len(keys)))
+        v = np.zeros((3, len(keys)))
+        for row in rows:
+            r += pos[:, row]
+            v += rates[:, row]
+        r = r.T.copy()
+        v = (v / SECONDS_PER_DAY).T.copy()
+        return {b: (r[j], v[j]) for j, b in enumerate(bodies)}
+
+    @staticmethod
+    @functools.lru_cache(maxsize=16)
+    def _states_plan(keys: tuple):
+        """The segments of ``keys``' chains (each once, in first-use order) and, per chain
+        position, the column of each body's segment (``len(pairs)``, a zero column, where its
+        chain is shorter)."""
+        pairs = list(dict.fromkeys(p for k in keys for p in _CHAINS[k]))
         col = {p: j for j, p in enumerate(pairs)}
-        out = {}
-        for k, b in zip(keys, bodies):
-            r = np.zeros(3)
-            v = np.zeros(3)
-            for p in _CHAINS[k]:
-                r += pos[:, col[p]]
-                v += rates[:, col[p]]
-            out[b] = (r, v / SECONDS_PER_DAY)
-        return out
+        depth = max(len(_CHAINS[k]) for k in keys)
+        rows = tuple(np.array([col[_CHAINS[k][i]] if i < len(_CHAINS[k]) else len(pairs) for k in keys], dtype=np.intp)
+                     for i in range(depth))
+        return pairs, rows
 
     def _cheb_tables(self) -> dict:
         """``{(center, target): (init_s, intlen_s, coefficients (C, 3, N))}`` of every chained
