@@ -36,16 +36,30 @@ def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
     r = np.asarray(r_icrs, dtype=float)
     B = b.T @ r if weights is None else (b * np.asarray(weights, dtype=float)[:, None]).T @ r
     U, _, Vt = np.linalg.svd(B)
-    dU, dV = np.linalg.det(np.stack([U, Vt]))  # one LAPACK call, each matrix as det(U), det(Vt)
-    d = dU * dV
-    return (U * np.array([1.0, 1.0, d])) @ Vt  # U diag(1, 1, d) V^T (the diagonal product is exact)
+    # det(U) det(V) is +-1 exactly in theory; its sign, from the triple products in Python floats
+    # (|det| = 1 +- 1e-15, never near 0 for orthogonal factors), picks diag(1, 1, +-1) of Eq. 12
+    if _det3(U.tolist()) * _det3(Vt.tolist()) < 0.0:
+        U = U * _FLIP
+    return U @ Vt  # U diag(1, 1, d) V^T
+
+
+_FLIP = np.array([1.0, 1.0, -1.0])
+
+
+def _det3(m) -> float:
+    """Determinant of a 3 x 3 matrix given as nested lists (cofactor expansion)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def attitude_covariance(b_cam, sigma_rad) -> np.ndarray:
     """Covariance (3, 3), rad^2, of the attitude error (camera frame) from N directions."""
     b = np.asarray(b_cam, dtype=float)
-    s = np.broadcast_to(np.asarray(sigma_rad, dtype=float), (len(b),))
-    F = np.einsum("n,nij->ij", 1.0 / s**2, np.eye(3)[None] - np.einsum("ni,nj->nij", b, b))
+    if np.ndim(sigma_rad) == 0:  # one sigma: sum (I - b b^T) / s^2 = (n I - B^T B) / s^2
+        F = (len(b) * np.eye(3) - b.T @ b) / float(sigma_rad) ** 2
+    else:
+        w = 1.0 / np.broadcast_to(np.asarray(sigma_rad, dtype=float), (len(b),)) ** 2
+        F = w.sum() * np.eye(3) - (b * w[:, None]).T @ b
     return np.linalg.inv(F)
 
 

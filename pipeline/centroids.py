@@ -310,45 +310,42 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     zero32 = np.float32(0.0)
     # the test "float32(I) > threshold" (the threshold rounded to float32) on integer counts is
     # "I > floor(float32 threshold)": compared in the image's own dtype, without a float copy
-    int_thr = None
-    t32 = float(np.float32(threshold_dn))
-    if flat.dtype.kind in "ui" and np.isfinite(t32):
-        info = np.iinfo(flat.dtype)
-        if info.min <= np.floor(t32) < info.max:
-            int_thr = flat.dtype.type(np.floor(t32))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        while len(pending):
-            inb = edge >= r + 1
-            i, ci, edge = pending[inb], c0[inb], edge[inb]
-            ni, m = len(i), 2 * r + 1
-            # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's
-            # edge: one (2r + 3)^2 row per window (row-major). The 3 x 3 dilation is two ORs of
-            # shifted copies of the whole row (horizontal, then vertical by one box row), read
-            # at each ROI pixel's top-left neighbour; long contiguous rows, few numpy passes
-            box = flat.take(ci[:, None] + _box_offsets(r + 1, W))
-            if int_thr is None:
-                box = box.astype(np.float32)
-                above = box > threshold_dn
-            else:
-                above = box > int_thr
-            ddx, ddy, border, roi, top_left = _roi_tables(r)
-            wb = m + 2
-            h = above[:, :-2] | above[:, 1:-1] | above[:, 2:]
-            dil = (h[:, :-2 * wb] | h[:, wb:-wb] | h[:, 2 * wb:])[:, top_left]       # (ni, m * m)
-            grow = above[:, border].any(axis=1)
-            I = np.maximum(box[:, roi].astype(np.float32) - bg32, zero32) * dil
-            I2 = (I * I).astype(np.float64)
-            m0 = I2.sum(axis=1)
-            out_xy[i, 0] = cx[i] + I2 @ ddx / m0
-            out_xy[i, 1] = cy[i] + I2 @ ddy / m0
-            flux[i] = I.sum(axis=1, dtype=np.float64)
-            peak[i] = flat.take(ci)
-            npx[i] = above[:, roi].sum(axis=1)
-            valid[i] = (m0 > 0) & ~grow
-            pending, c0, edge = i[grow], ci[grow], edge[grow]
-            if r >= max_roi_half_px:
-                break
-            r = min(2 * r, int(max_roi_half_px))
+    int_thr = _int_threshold(flat.dtype, threshold_dn)
+    while len(pending):
+        inb = edge >= r + 1
+        i, ci, edge = pending[inb], c0[inb], edge[inb]
+        # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge:
+        # one (2r + 3)^2 row per window (row-major). The 3 x 3 dilation is two ORs of shifted
+        # copies of the whole row (horizontal, then vertical by one box row); element j of the
+        # result is the dilation at box position j + wb + 1, so the box's middle slice lines up
+        # with it. Ring positions in that slice carry zero weights (wrap-around is harmless).
+        box = flat.take(ci[:, None] + _box_offsets(r + 1, W))
+        if int_thr is None:
+            box = box.astype(np.float32)
+            above = box > threshold_dn
+        else:
+            above = box > int_thr
+        wb = 2 * r + 3
+        h = above[:, :-2] | above[:, 1:-1] | above[:, 2:]
+        dil = h[:, :-2 * wb] | h[:, wb:-wb] | h[:, 2 * wb:]
+        mid = slice(wb + 1, wb * wb - wb - 1)
+        weights, in_roi, on_border = _roi_weights(r)
+        grow = (above[:, mid] & on_border).any(axis=1)
+        I = np.maximum(box[:, mid].astype(np.float32) - bg32, zero32) * dil     # float32, as detect_spots
+        mom = (I * I).astype(np.float64) @ weights                               # (ni, 3): sum I^2 x, y, 1
+        m0 = mom[:, 2]
+        ok = (m0 > 0) & ~grow
+        m0 = np.where(ok, m0, 1.0)
+        out_xy[i, 0] = cx[i] + mom[:, 0] / m0
+        out_xy[i, 1] = cy[i] + mom[:, 1] / m0
+        flux[i] = I.astype(np.float64) @ weights[:, 2]
+        peak[i] = flat.take(ci)
+        npx[i] = (above[:, mid] & in_roi).sum(axis=1)
+        valid[i] = ok
+        pending, c0, edge = i[grow], ci[grow], edge[grow]
+        if r >= max_roi_half_px:
+            break
+        r = min(2 * r, int(max_roi_half_px))
     out_xy[~valid] = np.nan
     return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
 
@@ -361,16 +358,39 @@ def _box_offsets(h: int, W: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _roi_tables(r: int):
-    """Index tables of a ROI of half-size ``r`` (row-major) inside its (2r + 3)^2 box (the ROI
-    plus a one-pixel ring): the pixels' x and y offsets (float64), the positions in the box of
-    the ROI's border pixels, of the ROI's pixels, and of each ROI pixel's top-left neighbour."""
-    m = 2 * r + 1
-    ry, rx = np.divmod(np.arange(m * m), m)
-    on_border = (ry == 0) | (ry == m - 1) | (rx == 0) | (rx == m - 1)
-    roi = (ry + 1) * (m + 2) + rx + 1
-    return ((rx - r).astype(np.float64), (ry - r).astype(np.float64), roi[on_border].astype(np.intp),
-            roi.astype(np.intp), (roi - (m + 2) - 1).astype(np.intp))
+def _roi_weights(r: int):
+    """Tables of a ROI of half-size ``r`` inside its (2r + 3)^2 box (the ROI plus a one-pixel
+    ring), over the box's middle slice ``[wb + 1, wb^2 - wb - 1)`` (``wb = 2r + 3``, row-major):
+    weights (n, 3) with the pixel's x and y offsets from the centre and 1 on ROI pixels, 0 on
+    the ring; the ROI mask; the mask of the ROI's border pixels."""
+    wb = 2 * r + 3
+    pos = np.arange(wb + 1, wb * wb - wb - 1)
+    by, bx = np.divmod(pos, wb)
+    in_roi = (by >= 1) & (by <= wb - 2) & (bx >= 1) & (bx <= wb - 2)
+    border = in_roi & ((by == 1) | (by == wb - 2) | (bx == 1) | (bx == wb - 2))
+    w = np.zeros((len(pos), 3))
+    w[in_roi, 0] = bx[in_roi] - (r + 1)
+    w[in_roi, 1] = by[in_roi] - (r + 1)
+    w[in_roi, 2] = 1.0
+    return w, in_roi, border
+
+
+@functools.lru_cache(maxsize=16)
+def _int_threshold_cached(dtype, t32: float):
+    info = np.iinfo(dtype)
+    if info.min <= np.floor(t32) < info.max:
+        return dtype.type(np.floor(t32))
+    return None
+
+
+def _int_threshold(dtype, threshold_dn):
+    """The test ``float32(I) > threshold`` (the threshold rounded to float32) on integer counts
+    is ``I > floor(float32 threshold)``: the threshold in the image's own dtype (no float copy of
+    the pixels), or None for float images and thresholds outside the dtype's range."""
+    t32 = float(np.float32(threshold_dn))
+    if dtype.kind not in "ui" or not np.isfinite(t32):
+        return None
+    return _int_threshold_cached(dtype, t32)
 
 
 def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, background_dn: float,
