@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 
@@ -379,40 +380,45 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     idx, u = star_dirs(R_prev[2], half_fov, source)
     if len(idx) < opt.min_matches:
         return None
-    vmag = np.asarray(source.v_mag)[idx]
+    vmag = np.asarray(source.v_mag).take(idx)
     med, thr = _robust_level(img, opt.T)
+    # (rows of small 2-D arrays are selected with take / compress throughout: the same rows,
+    # several times faster than fancy or boolean indexing on (N, 3) arrays)
 
     # pass 1: bright stars, wide search
-    sel = np.flatnonzero(vmag <= catalog.limiting_v_mag)
-    xy = cam.project(u[sel] @ R_prev.T)
-    inside = np.all(np.isfinite(xy), axis=1) & cam.in_image(xy, -float(hw))
-    sel, xy = sel[inside], xy[inside]
+    sel = (vmag <= catalog.limiting_v_mag).nonzero()[0]
+    xy = cam.project(u.take(sel, axis=0) @ R_prev.T)
+    inside = _finite_rows(xy) & cam.in_image(xy, -float(hw))
+    sel, xy = sel.compress(inside), xy.compress(inside, axis=0)
     if len(sel) > opt.track_coarse_stars:  # the brightest suffice for the coarse attitude
-        b_ord = np.argsort(vmag[sel], kind="stable")[:opt.track_coarse_stars]
-        sel, xy = sel[b_ord], xy[b_ord]
+        b_ord = np.argsort(vmag.take(sel), kind="stable")[:opt.track_coarse_stars]
+        sel, xy = sel.take(b_ord), xy.take(b_ord, axis=0)
     w1 = window_centroids(img, xy, threshold_dn=thr, background_dn=med, search_half_px=hw)
-    sel = sel[w1.valid]
+    sel = sel.compress(w1.valid)
     if len(sel) < opt.min_matches:
         return None
-    b1 = cam.line_of_sight(w1.xy_px[w1.valid])
-    A, keep = _clip_residuals(b1, u[sel], wahba_svd(b1, u[sel]), floor_rad=opt.inlier_px * ifov)
+    b1 = cam.line_of_sight(w1.xy_px.compress(w1.valid, axis=0))
+    u1 = u.take(sel, axis=0)
+    A, keep = _clip_residuals(b1, u1, wahba_svd(b1, u1), floor_rad=opt.inlier_px * ifov)
     if keep.sum() < opt.min_matches:
         return None
     dR = A @ R_prev.T
-    if float(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))) > max(hw - 4.0, 1.0) * ifov:
+    if math.acos(min(max((dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0) / 2.0, -1.0), 1.0)) > max(hw - 4.0, 1.0) * ifov:
         return None
 
     # pass 2: every catalog star to refine_v_mag, from the pass-1 attitude
-    xy = cam.project(u @ A.T)
-    inside = np.flatnonzero(np.all(np.isfinite(xy), axis=1) & cam.in_image(xy, -2.0))
-    w2 = window_centroids(img, xy[inside], threshold_dn=thr, background_dn=med, search_half_px=1)
+    ua = u @ A.T
+    xy = cam.project(ua)
+    inside = (_finite_rows(xy) & cam.in_image(xy, -2.0)).nonzero()[0]
+    w2 = window_centroids(img, xy.take(inside, axis=0), threshold_dn=thr, background_dn=med, search_half_px=1)
     b2 = cam.line_of_sight(np.where(w2.valid[:, None], w2.xy_px, 0.0))
-    res = np.arccos(np.clip(np.einsum("ij,ij->i", u[inside] @ A.T, b2), -1.0, 1.0))
+    res = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", ua.take(inside, axis=0), b2), -1.0), 1.0))
     got = w2.valid & (res <= opt.refine_px * ifov)
     # one spot per star and one star per spot: two predictions landing on the same peak
     # (a close pair) both drop
-    pk = np.rint(w2.xy_px[got]).astype(np.intp) if got.any() else np.zeros((0, 2), np.intp)
-    if len(pk) > 1:
+    got_i = got.nonzero()[0]
+    if len(got_i) > 1:
+        pk = np.rint(w2.xy_px.take(got_i, axis=0)).astype(np.intp)
         key = pk[:, 1] * cam.width + pk[:, 0]
         order = np.argsort(key, kind="stable")
         same = key[order[1:]] == key[order[:-1]]  # neighbours in sorted order sharing a pixel
@@ -420,19 +426,22 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
             dup = np.zeros(len(key), dtype=bool)
             dup[order[1:][same]] = True
             dup[order[:-1][same]] = True
-            got[np.flatnonzero(got)[dup]] = False
-    if got.sum() < opt.min_matches:
+            got[got_i[dup]] = False
+            got_i = got.nonzero()[0]
+    if len(got_i) < opt.min_matches:
         return None
-    star_rows = inside[got]
-    b = b2[got]
-    A, keep = _clip_residuals(b, u[star_rows], wahba_svd(b, u[star_rows]), floor_rad=0.0)
+    star_rows = inside.take(got_i)
+    b = b2.take(got_i, axis=0)
+    u2 = u.take(star_rows, axis=0)
+    A, keep = _clip_residuals(b, u2, wahba_svd(b, u2), floor_rad=0.0)
     if keep.sum() < opt.min_matches:
         return None
-    n_st = int(got.sum())
-    star_spots = Spots(xy_px=w2.xy_px[got], flux_dn=w2.flux_dn[got], peak_dn=w2.peak_dn[got],
-                       n_pixels=w2.n_pixels[got], saturated=w2.peak_dn[got] >= max_dn,
-                       elongation=np.ones(n_st), size_px=np.sqrt(np.maximum(w2.n_pixels[got], 1.0)),
-                       threshold_dn=thr)
+    n_st = len(got_i)
+    npx = w2.n_pixels.take(got_i)
+    peak = w2.peak_dn.take(got_i)
+    star_spots = Spots(xy_px=w2.xy_px.take(got_i, axis=0), flux_dn=w2.flux_dn.take(got_i), peak_dn=peak,
+                       n_pixels=npx, saturated=peak >= max_dn, elongation=np.ones(n_st),
+                       size_px=np.sqrt(np.maximum(npx, 1.0)), threshold_dn=thr)
 
     # pass 3: the beacons' windows
     beacon_spots = Spots.empty(thr)
@@ -454,12 +463,18 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
             beacon_spots = spots_in_boxes(img, np.asarray(win), np.asarray(half), threshold_dn=thr, background_dn=med,
                                           max_dn=max_dn)
     spots = _concat_spots(star_spots, beacon_spots)
-    sp = np.flatnonzero(keep)
-    st = idx[star_rows[keep]]
-    r = u[star_rows[keep]]
-    residual = np.arccos(np.clip(np.einsum("ij,ij->i", r @ A.T, b[keep]), -1.0, 1.0))
+    sp = keep.nonzero()[0]
+    rows = star_rows.take(sp)
+    st = idx.take(rows)
+    residual = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", u.take(rows, axis=0) @ A.T, b.take(sp, axis=0)),
+                                               -1.0), 1.0))
     match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
     return spots, b, match, source, preds
+
+
+def _finite_rows(xy):
+    """True for the rows of ``xy`` (N, 2) with both coordinates finite."""
+    return np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
 
 
 def _clip_residuals(b, u, A, *, floor_rad):
@@ -469,9 +484,10 @@ def _clip_residuals(b, u, A, *, floor_rad):
 
     res = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", u @ A.T, b), -1.0), 1.0))
     keep = res <= max(3.5 * _median(res), floor_rad)
-    if keep.all() or keep.sum() < 3:
-        return A, keep if keep.sum() >= 3 else np.ones(len(b), bool)
-    return wahba_svd(b[keep], u[keep]), keep
+    n_keep = int(np.count_nonzero(keep))
+    if n_keep == len(keep) or n_keep < 3:
+        return A, keep if n_keep >= 3 else np.ones(len(b), bool)
+    return wahba_svd(b.compress(keep, axis=0), u.compress(keep, axis=0)), keep
 
 
 def _median(a) -> float:

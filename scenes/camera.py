@@ -211,6 +211,9 @@ class Camera:
             object.__setattr__(self, "cy", (self.height - 1) / 2.0)
         for name in ("response_wavelengths_nm", "response_qe_t"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        # (fx, fy) and (cx, cy) as arrays for project / back_project (not fields: derived)
+        object.__setattr__(self, "_f_xy", np.array([self.fx_px, self.fy_px], dtype=float))
+        object.__setattr__(self, "_c_xy", np.array([self.cx, self.cy], dtype=float))
 
     # ----------------------------------------------------------------- constructors
     @classmethod
@@ -292,22 +295,23 @@ class Camera:
         """Pixel coordinates (N, 2) of camera-frame directions (N, 3); NaN where z <= 0."""
         v = np.asarray(v_cam, dtype=float)
         z = v[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xn = np.where(z > 0, v[..., 0] / z, np.nan)
-            yn = np.where(z > 0, v[..., 1] / z, np.nan)
+        # x / z and y / z where z > 0, NaN elsewhere (x / NaN: no division warning)
+        n = v[..., :2] / np.where(z > 0, z, np.nan)[..., None]
         if distort and not self.distortion.is_identity:
-            xn, yn = self.distortion.distort(xn, yn)
-        return np.stack([self.fx_px * xn + self.cx, self.fy_px * yn + self.cy], -1)
+            xn, yn = self.distortion.distort(n[..., 0], n[..., 1])
+            return np.stack([self.fx_px * xn + self.cx, self.fy_px * yn + self.cy], -1)
+        return n * self._f_xy + self._c_xy  # fx xn + cx, fy yn + cy (the same operations)
 
     def back_project(self, xy_px, *, distorted: bool = True):
         """Unit camera-frame directions (N, 3) of pixel coordinates (N, 2)."""
         xy = np.asarray(xy_px, dtype=float)
-        xn = (xy[..., 0] - self.cx) / self.fx_px
-        yn = (xy[..., 1] - self.cy) / self.fy_px
+        v = np.empty(xy.shape[:-1] + (3,))
+        v[..., :2] = (xy - self._c_xy) / self._f_xy  # (x - cx) / fx, (y - cy) / fy
+        v[..., 2] = 1.0
         if distorted and not self.distortion.is_identity:
-            xn, yn = self.distortion.undistort(xn, yn)
-        v = np.stack([xn, yn, np.ones_like(xn)], -1)
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+            v[..., 0], v[..., 1] = self.distortion.undistort(v[..., 0], v[..., 1])
+        # numpy.linalg.norm's operations (sqrt of the sum of squares), without its wrapper
+        return v / np.sqrt(np.add.reduce(v * v, axis=-1))[..., None]
 
     def line_of_sight(self, xy_px):
         """Unit camera-frame directions (N, 3) seen at pixel coordinates (N, 2), through the lens
