@@ -155,7 +155,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
             if aberr:
                 beta = v_km_s / C_KM_S
                 u = u + beta - (u @ beta)[:, None] * u
-                u /= np.linalg.norm(u, axis=1, keepdims=True)
+                u /= np.sqrt(np.add.reduce(u * u, axis=1))[:, None]  # numpy.linalg.norm's operations
         dirs_cache[key] = (np.asarray(boresight, float) / np.linalg.norm(boresight), idx, u)
         return idx, u
 

@@ -250,10 +250,10 @@ class StarCatalog:
             i0 = np.searchsorted(self._dec_sorted, dec_c - r - eps, side="left")
             i1 = np.searchsorted(self._dec_sorted, dec_c + r + eps, side="right")
             if self._order is None:
-                idx = np.flatnonzero(self.u_icrs[i0:i1] @ c >= np.cos(r)) + i0
+                idx = (self.u_icrs[i0:i1] @ c >= np.cos(r)).nonzero()[0] + i0
             else:
                 band = self._order[i0:i1]
-                idx = band[self.u_icrs[band] @ c >= np.cos(r)]
+                idx = band.compress(self._u_dec_sorted()[i0:i1] @ c >= np.cos(r))
         if limiting_v_mag is not None:
             idx = idx[self.v_mag[idx] <= limiting_v_mag]
         return np.sort(idx) if self._order is not None else idx
@@ -296,8 +296,9 @@ class StarCatalog:
             pm, plx_rad = self._motion_tables()
             dt_yr = (np.asarray(t_tdb_s, dtype=float) - self.epoch_tdb_s) / JULIAN_YEAR_S
             obs_au = np.asarray(observer_position_km, dtype=float) / AU_KM
-            v = self.u_icrs[idx] + dt_yr * pm[idx] - plx_rad[idx][:, None] * obs_au
-            return v / np.linalg.norm(v, axis=-1, keepdims=True)
+            # rows by take (fancy indexing of (N, 3) rows costs ~4x more; the same rows)
+            v = self.u_icrs.take(idx, axis=0) + dt_yr * pm.take(idx, axis=0) - plx_rad.take(idx)[:, None] * obs_au
+            return v / np.sqrt(np.add.reduce(v * v, axis=-1))[:, None]  # numpy.linalg.norm's operations
         ra = self.ra_rad[idx]
         dec = self.dec_rad[idx]
         sa, ca = np.sin(ra), np.cos(ra)
@@ -312,6 +313,15 @@ class StarCatalog:
         obs_au = np.asarray(observer_position_km, dtype=float) / AU_KM
         v = self.u_icrs[idx] + dt_yr * (mu_a * e_a + mu_d * e_d) - plx_rad[:, None] * obs_au
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def _u_dec_sorted(self):
+        """``u_icrs`` in declination order (computed on first use, kept on the object): a cone's
+        declination band is then one contiguous slice instead of a gather of its rows."""
+        u = self.__dict__.get("_u_sorted")
+        if u is None:
+            u = np.ascontiguousarray(self.u_icrs[self._order])
+            object.__setattr__(self, "_u_sorted", u)
+        return u
 
     def _motion_tables(self):
         """``(mu_a e_a + mu_d e_d (N, 3) rad/yr, parallax (N,) rad)`` of every star, computed on
