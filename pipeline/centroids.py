@@ -279,32 +279,31 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     out_xy = np.full((n, 2), np.nan)
     flux, peak, npx = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
     valid = np.zeros(n, dtype=bool)
-    finite = np.isfinite(xy).all(axis=1)
-    cxy = np.full((n, 2), -10**6, dtype=np.intp)
-    cxy[finite] = np.rint(xy[finite])
-    cx, cy = cxy[:, 0], cxy[:, 1]
-    # the brightest pixel of the search box (the box must lie in the image): each box is one
-    # row of a (n, (2s + 1)^2) gather of flat indices
+    # the brightest pixel of the search box (the box must lie in the image; NaN positions fail
+    # every comparison): each box is one row of a (n, (2s + 1)^2) gather of flat indices.
+    # Below, every per-window array is compact (the windows still measured), scattered once.
     s = int(search_half_px)
-    idx = np.flatnonzero((cx >= s) & (cx < W - s) & (cy >= s) & (cy < H - s))
+    c = np.rint(xy)
+    idx = ((c[:, 0] >= s) & (c[:, 0] < W - s) & (c[:, 1] >= s) & (c[:, 1] < H - s)).nonzero()[0]
     if not len(idx):
         return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
-    c0 = cy[idx] * W + cx[idx]
+    c = c.take(idx, axis=0).astype(np.intp)
+    cx, cy = c[:, 0], c[:, 1]
     if s > 0:
-        box = flat.take(c0[:, None] + _box_offsets(s, W))
+        box = flat.take((cy * W + cx)[:, None] + _box_offsets(s, W))
         k = box.argmax(axis=1)
         ky, kx = np.divmod(k, 2 * s + 1)
-        cy[idx] += ky - s
-        cx[idx] += kx - s
-        c0 += (ky - s) * W + (kx - s)
-        pk0 = box[np.arange(len(idx)), k].astype(np.float64)
+        cy = cy + (ky - s)
+        cx = cx + (kx - s)
+        pk0 = box[np.arange(len(idx)), k]
     else:
-        pk0 = flat.take(c0).astype(np.float64)
+        pk0 = flat.take(cy * W + cx)
     # a peak at or below the threshold is no spot: only the others are measured
-    sel = pk0 > threshold_dn
-    pending, c0 = idx[sel], c0[sel]
+    sel = (pk0.astype(np.float64) > threshold_dn).nonzero()[0]
+    pending, cx, cy = idx.take(sel), cx.take(sel), cy.take(sel)
+    c0 = cy * W + cx
     # distance of each peak to the image's edge: a ROI plus its ring must fit inside
-    edge = np.minimum(np.minimum(cx[pending], W - 1 - cx[pending]), np.minimum(cy[pending], H - 1 - cy[pending]))
+    edge = np.minimum(np.minimum(cx, W - 1 - cx), np.minimum(cy, H - 1 - cy))
     r = int(roi_half_px)
     bg32 = np.float32(background_dn)
     zero32 = np.float32(0.0)
@@ -312,8 +311,9 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     # "I > floor(float32 threshold)": compared in the image's own dtype, without a float copy
     int_thr = _int_threshold(flat.dtype, threshold_dn)
     while len(pending):
-        inb = edge >= r + 1
-        i, ci, edge = pending[inb], c0[inb], edge[inb]
+        inb = (edge >= r + 1).nonzero()[0]
+        i, ci, edge = pending.take(inb), c0.take(inb), edge.take(inb)
+        cxi, cyi = cx.take(inb), cy.take(inb)
         # the ROI plus a one-pixel ring, so the 8-neighbour dilation sees past the ROI's edge:
         # one (2r + 3)^2 row per window (row-major). The 3 x 3 dilation is two ORs of shifted
         # copies of the whole row (horizontal, then vertical by one box row); element j of the
@@ -330,19 +330,21 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
         dil = h[:, :-2 * wb] | h[:, wb:-wb] | h[:, 2 * wb:]
         mid = slice(wb + 1, wb * wb - wb - 1)
         weights, in_roi, on_border = _roi_weights(r)
-        grow = (above[:, mid] & on_border).any(axis=1)
+        above_mid = above[:, mid]
+        grow = (above_mid & on_border).any(axis=1)
         I = np.maximum(box[:, mid].astype(np.float32) - bg32, zero32) * dil     # float32, as detect_spots
         mom = (I * I).astype(np.float64) @ weights                               # (ni, 3): sum I^2 x, y, 1
         m0 = mom[:, 2]
         ok = (m0 > 0) & ~grow
         m0 = np.where(ok, m0, 1.0)
-        out_xy[i, 0] = cx[i] + mom[:, 0] / m0
-        out_xy[i, 1] = cy[i] + mom[:, 1] / m0
+        out_xy[i, 0] = cxi + mom[:, 0] / m0
+        out_xy[i, 1] = cyi + mom[:, 1] / m0
         flux[i] = I.astype(np.float64) @ weights[:, 2]
         peak[i] = flat.take(ci)
-        npx[i] = (above[:, mid] & in_roi).sum(axis=1)
+        npx[i] = (above_mid & in_roi).sum(axis=1)
         valid[i] = ok
-        pending, c0, edge = i[grow], ci[grow], edge[grow]
+        g = grow.nonzero()[0]
+        pending, c0, edge, cx, cy = i.take(g), ci.take(g), edge.take(g), cxi.take(g), cyi.take(g)
         if r >= max_roi_half_px:
             break
         r = min(2 * r, int(max_roi_half_px))
