@@ -433,9 +433,9 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         pad[1:-1, 1:-1] = lab
         rowmax = np.maximum(np.maximum(pad[:, :-2], pad[:, 1:-1]), pad[:, 2:])
         roi = np.maximum(np.maximum(rowmax[:-2], rowmax[1:-1]), rowmax[2:])
-        f = np.flatnonzero(roi)
-        l = roi.ravel()[f]
-        I1 = np.clip(crop.ravel()[f].astype(np.float64) - bg, 0.0, None)
+        f = roi.ravel().nonzero()[0]
+        l = roi.ravel().take(f)
+        I1 = np.maximum(crop.ravel().take(f).astype(np.float64) - bg, 0.0)
         I2 = I1 * I1
         rr, cc = np.divmod(f, w_)
         m0 = np.bincount(l, I2, minlength=n + 1)[1:]
@@ -445,22 +445,24 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
         cut = np.zeros(n + 1, dtype=bool)
         if edges:
             cut[np.concatenate(edges)] = True
-        keep = np.flatnonzero(~cut[1:] & (m0 > 0))
+        keep = (~cut[1:] & (m0 > 0)).nonzero()[0]
         if not len(keep):
             continue
         m0k = m0[keep]
         xc = x0 + np.bincount(l, I2 * cc, minlength=n + 1)[1:][keep] / m0k
         yc = y0 + np.bincount(l, I2 * rr, minlength=n + 1)[1:][keep] / m0k
         flux = np.bincount(l, I1, minlength=n + 1)[1:][keep]
-        fa = np.flatnonzero(above)
-        la = lab.ravel()[fa]
+        fa = above.ravel().nonzero()[0]
+        la = lab.ravel().take(fa)
         npix = np.bincount(la, minlength=n + 1)[1:][keep]
         peak = np.zeros(n + 1)
-        np.maximum.at(peak, la, crop.ravel()[fa])
+        np.maximum.at(peak, la, crop.ravel().take(fa))
         objs = ndimage.find_objects(lab)
         size = np.array([max(objs[k][0].stop - objs[k][0].start, objs[k][1].stop - objs[k][1].start)
                          for k in keep.tolist()], dtype=float)
-        parts.append(np.column_stack([xc, yc, flux, peak[1:][keep], npix, size]))
+        part = np.empty((len(keep), 6))
+        part[:, 0], part[:, 1], part[:, 2], part[:, 3], part[:, 4], part[:, 5] = xc, yc, flux, peak[1:][keep], npix, size
+        parts.append(part)
     a = np.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else np.zeros((0, 6)))
     if len(a) > 1:  # a spot found in two overlapping boxes is kept once (first occurrence, 1/16 px)
         k = np.rint(a[:, :2] * 16).astype(np.int64)
@@ -469,7 +471,7 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
             a = a[np.sort(first)]
     if not len(a):
         return Spots.empty(float(threshold_dn))
-    a = a[np.argsort(-a[:, 2], kind="stable")]
+    a = a.take(np.argsort(-a[:, 2], kind="stable"), axis=0)
     sat = a[:, 3] >= max_dn if max_dn is not None else np.zeros(len(a), bool)
     return Spots(xy_px=a[:, :2].copy(), flux_dn=a[:, 2].copy(), peak_dn=a[:, 3].copy(), n_pixels=a[:, 4].astype(int),
                  saturated=sat, elongation=np.ones(len(a)), size_px=a[:, 5].copy(), threshold_dn=float(threshold_dn))
