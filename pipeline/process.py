@@ -123,8 +123,8 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     # the saturated fraction from 1 pixel in 64, the rows and columns the robust level reads next
     # (a 1024^2 frame: 16384 pixels, +-0.4 % at 1 sigma near the 50 % limit; the frame is cold
     # in memory here, so every pixel read costs)
-    sub = img[::8, ::8]
-    if np.count_nonzero(sub >= max_dn) > opt.saturated_fraction * sub.size:
+    levels = _Levels(img, histogram=(mode == "improved"))
+    if levels.count_at_least(max_dn) > opt.saturated_fraction * levels.sub.size:
         return _fail("saturated", np.zeros((0, 2)), t0, timings, mode)
 
     v_km_s = None if predicted_state is None else np.asarray(predicted_state.velocity_km_s, float)
@@ -171,7 +171,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     if previous_attitude is not None and mode == "improved" and opt.track_window_px > 0:
         tc0 = time.perf_counter()
         got = _track_windowed(img, observation, catalog, np.asarray(previous_attitude, float), star_dirs,
-                              predicted_state, opt, max_dn, ephemeris)
+                              predicted_state, opt, max_dn, ephemeris, level=levels.level(opt.T))
         if got is not None:
             spots, b, match, windowed_source, windowed_preds = got
             method = "tracking"
@@ -182,7 +182,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         if mode == "paper":
             spots = detect_spots(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, stats_stride=2)
         else:
-            spots = _detect_robust(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1)
+            spots = _detect_robust(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, level=levels.level(T))
         t_c += time.perf_counter() - tc0
         if len(spots) > opt.max_spots:
             status = "too_many_spots"
@@ -303,21 +303,51 @@ def _clip_outliers(match, b, source, star_dirs, half_fov):
     return StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=res)
 
 
-def _robust_level(img, T):
-    """(background, threshold) of the improved mode: median + T x robust sigma (1.4826 MAD,
-    floored at 0.5 DN for 8-bit frames whose dark background is one or two DN), from every 8th
-    row and column. Integer frames (every camera's) take the same statistics from a histogram
-    of the counts: the same median and MAD as :func:`numpy.median`, ~5x faster."""
-    sub = img[::8, ::8]
+class _Levels:
+    """The frame's sample of every 8th row and column, read once: the saturated fraction and the
+    robust level (:func:`_robust_level`) of one frame from the same histogram of its counts
+    (integer frames; ``histogram=False`` or other frames: counted directly)."""
+
+    def __init__(self, img, *, histogram: bool):
+        self.img = img
+        self.sub = img[::8, ::8]
+        self.counts = _sample_histogram(self.sub) if histogram else None
+        self._levels = {}
+
+    def count_at_least(self, value: float) -> int:
+        """Number of sample pixels >= ``value`` (``np.count_nonzero(sub >= value)``)."""
+        if self.counts is None:
+            return int(np.count_nonzero(self.sub >= value))
+        return int(self.counts[max(int(np.ceil(value)), 0):].sum())
+
+    def level(self, T: float):
+        if T not in self._levels:
+            self._levels[T] = _robust_level(self.img, T, counts=self.counts)
+        return self._levels[T]
+
+
+def _sample_histogram(sub):
+    """``np.bincount`` of an integer sample with counts in [0, 2^17), else None."""
     counts_ok = np.issubdtype(sub.dtype, np.integer) and sub.size > 0
     if counts_ok and not (sub.dtype.kind == "u" and sub.dtype.itemsize <= 2):  # 8/16-bit: 0 <= counts < 2^16
         counts_ok = int(sub.min()) >= 0 and int(sub.max()) < 1 << 17
-    if counts_ok:
-        counts = np.bincount(sub.ravel())
-        values = np.flatnonzero(counts)
+    return np.bincount(sub.ravel()) if counts_ok else None
+
+
+def _robust_level(img, T, *, counts=None):
+    """(background, threshold) of the improved mode: median + T x robust sigma (1.4826 MAD,
+    floored at 0.5 DN for 8-bit frames whose dark background is one or two DN), from every 8th
+    row and column. Integer frames (every camera's) take the same statistics from a histogram
+    of the counts (``counts``, :func:`_sample_histogram` of that sample, when already made): the
+    same median and MAD as :func:`numpy.median`, ~5x faster."""
+    sub = img[::8, ::8]
+    if counts is None:
+        counts = _sample_histogram(sub)
+    if counts is not None:
+        values = counts.nonzero()[0]
         counts = counts[values]
         values = values.astype(np.float64)
-        med = _weighted_median(values, counts)
+        med = _weighted_median(values, counts, ascending=True)
         dev = np.abs(values - med)
         mad = _weighted_median(dev, counts) * 1.4826
         inl = counts * (values <= med + 5 * max(mad, 0.5))
@@ -332,26 +362,30 @@ def _robust_level(img, T):
     return med, med + T * sd
 
 
-def _weighted_median(values, counts) -> float:
+def _weighted_median(values, counts, *, ascending=False) -> float:
     """:func:`numpy.median` of the sample holding ``counts[i]`` copies of ``values[i]`` (the mean
-    of the two middle order statistics when the sample size is even)."""
-    order = np.argsort(values, kind="stable")
-    cum = np.cumsum(counts[order])
+    of the two middle order statistics when the sample size is even); ``ascending``: the values
+    are sorted already."""
+    if not ascending:
+        order = np.argsort(values, kind="stable")
+        values, counts = values.take(order), counts.take(order)
+    cum = np.cumsum(counts)
     n = int(cum[-1])
-    lo = values[order][np.searchsorted(cum, (n - 1) // 2, side="right")]
-    hi = values[order][np.searchsorted(cum, n // 2, side="right")]
+    lo = values[np.searchsorted(cum, (n - 1) // 2, side="right")]
+    hi = values[np.searchsorted(cum, n // 2, side="right")]
     return float(0.5 * (lo + hi))
 
 
-def _detect_robust(img, *, T, max_dn, max_regions, windows_xy=None, window_half_px=0):
-    """Improved threshold (:func:`_robust_level`), so a resolved body does not lift it."""
-    med, thr = _robust_level(img, T)
+def _detect_robust(img, *, T, max_dn, max_regions, windows_xy=None, window_half_px=0, level=None):
+    """Improved threshold (:func:`_robust_level`, or ``level`` = its result), so a resolved body
+    does not lift it."""
+    med, thr = _robust_level(img, T) if level is None else level
     return detect_spots(img, T=T, max_dn=max_dn, max_regions=max_regions, background="median",
                         threshold_dn=thr, background_dn=med, stats_stride=8, windows_xy=windows_xy,
                         window_half_px=window_half_px)
 
 
-def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state, opt, max_dn, ephemeris):
+def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state, opt, max_dn, ephemeris, level=None):
     """Tracking without a full-frame pass (improved mode).
 
     Pass 1: the ``track_coarse_stars`` brightest ID-catalog stars (V < the catalog's limit)
@@ -381,7 +415,7 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     if len(idx) < opt.min_matches:
         return None
     vmag = np.asarray(source.v_mag).take(idx)
-    med, thr = _robust_level(img, opt.T)
+    med, thr = _robust_level(img, opt.T) if level is None else level
     # (rows of small 2-D arrays are selected with take / compress throughout: the same rows,
     # several times faster than fancy or boolean indexing on (N, 3) arrays)
 
