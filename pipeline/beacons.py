@@ -14,6 +14,8 @@ ellipse is ``d^T P^-1 d <= 11.8292`` (Eq. 23, chi-square 2 dof at 0.9973).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["dcm_from_quat", "quat_from_dcm", "project_beacon", "projection_jacobian", "predict_beacons",
@@ -79,14 +81,16 @@ def projection_jacobian(q, r_km, r_bc_km, K) -> np.ndarray:
 
 def apparent_direction(r_km, v_km_s, body_pos_km, body_vel_km_s):
     """First-order light-time and aberration: apparent unit vector (3,), ICRS, and the retarded
-    body position used (3,)."""
+    body position used (3,). (Norms as :func:`numpy.linalg.norm` computes a vector's: the
+    square root of its dot product with itself.)"""
     rho = body_pos_km - r_km
-    tau = np.linalg.norm(rho) / C_KM_S
+    tau = math.sqrt(rho.dot(rho)) / C_KM_S
     p = body_pos_km - body_vel_km_s * tau
-    u = (p - r_km) / np.linalg.norm(p - r_km)
+    d = p - r_km
+    u = d / math.sqrt(d.dot(d))
     beta = np.asarray(v_km_s, float) / C_KM_S
     u2 = u + beta - (u @ beta) * u
-    return u2 / np.linalg.norm(u2), p
+    return u2 / math.sqrt(u2.dot(u2)), p
 
 
 def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitude_cov_rad2=None,
@@ -127,14 +131,14 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         if vc[2] <= 0:
             continue
         xy = _project_one(camera, vc)
-        if not np.all(np.isfinite(xy)) or not camera.in_image(xy[None], max(margin_px, camera.width))[0]:
+        if not (math.isfinite(xy[0]) and math.isfinite(xy[1])) or not _in_image(camera, xy, max(margin_px, camera.width)):
             continue
         kept.append((name, u, p, xy))
     if not kept:
         return out
     sun = eph.position("sun", epoch_tdb_s)
-    q = quat_from_dcm(A)
-    A_q = dcm_from_quat(q)  # the Jacobian's attitude (Eq. 14 of q), once per call
+    q = quat_from_dcm(A) if mode == "paper" else None
+    A_q = dcm_from_quat(q) if mode == "paper" else _dcm_of_dcm(A)  # the Jacobian's attitude (Eq. 14 of q)
     phase = _phase_angles(np.array([k[2] for k in kept]), sun, r)
     for (name, u, p, xy), alpha in zip(kept, phase.tolist()):
         # Jacobian at the apparent point: put the body along u at its distance
@@ -165,7 +169,7 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             vm = float("nan")
         # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
         reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(P), 0.0)))
-        if not camera.in_image(xy[None], margin_px + (reach if mode == "improved" else 0.0))[0]:
+        if not _in_image(camera, xy, margin_px + (reach if mode == "improved" else 0.0)):
             continue
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist,
                     "attitude_jacobian_px_rad": Fa if mode != "paper" else None})
@@ -187,6 +191,45 @@ def _project_one(camera, v):
     return np.array([camera.fx_px * (float(v[0]) / z) + camera.cx, camera.fy_px * (float(v[1]) / z) + camera.cy])
 
 
+def _in_image(camera, xy, margin_px) -> bool:
+    """``camera.in_image(xy[None], margin_px)[0]`` for one point, in Python floats."""
+    x, y = float(xy[0]), float(xy[1])
+    return (x >= -0.5 - margin_px) and (x < camera.width - 0.5 + margin_px) and (y >= -0.5 - margin_px) \
+        and (y < camera.height - 0.5 + margin_px)
+
+
+def _dcm_of_dcm(A) -> np.ndarray:
+    """``dcm_from_quat(quat_from_dcm(A))`` (Eq. 14 of A's quaternion: A re-orthogonalised to
+    rounding) in Python floats, for the improved mode's Jacobian: the same formulas, without
+    numpy's per-call overhead on 3 x 3 and 4-vectors."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = np.asarray(A, dtype=float).tolist()
+    tr = a00 + a11 + a22
+    cands = (1 + tr, 1 + 2 * a00 - tr, 1 + 2 * a11 - tr, 1 + 2 * a22 - tr)
+    k = max(range(4), key=cands.__getitem__)
+    M = ((a00, a01, a02), (a10, a11, a12), (a20, a21, a22))
+    q = [0.0, 0.0, 0.0, 0.0]
+    if k == 0:
+        q[0] = 0.5 * math.sqrt(cands[0])
+        q[1] = (a12 - a21) / (4 * q[0])
+        q[2] = (a20 - a02) / (4 * q[0])
+        q[3] = (a01 - a10) / (4 * q[0])
+    else:
+        i = k - 1
+        j, l = (i + 1) % 3, (i + 2) % 3
+        q[1 + i] = 0.5 * math.sqrt(cands[k])
+        q[0] = (M[j][l] - M[l][j]) / (4 * q[1 + i])
+        q[1 + j] = (M[i][j] + M[j][i]) / (4 * q[1 + i])
+        q[1 + l] = (M[i][l] + M[l][i]) / (4 * q[1 + i])
+    if not q[0] >= 0:
+        q = [-x for x in q]
+    q0, q1, q2, q3 = q
+    s = q0 * q0 - (q1 * q1 + q2 * q2 + q3 * q3)
+    t = 2.0 * q0
+    return np.array([[s + 2.0 * (q1 * q1), 2.0 * (q1 * q2) - t * -q3, 2.0 * (q1 * q3) - t * q2],
+                     [2.0 * (q2 * q1) - t * q3, s + 2.0 * (q2 * q2), 2.0 * (q2 * q3) - t * -q1],
+                     [2.0 * (q3 * q1) - t * -q2, 2.0 * (q3 * q2) - t * q1, s + 2.0 * (q3 * q3)]])
+
+
 def _phase_angles(p, sun, r):
     """Sun-body-observer angles (n,) of the bodies at ``p`` (n, 3):
     :func:`skynav.scenes.photometry.phase_angle_rad` with the cross product written out (the
@@ -202,8 +245,11 @@ def _phase_angles(p, sun, r):
 
 
 def _max_eig_2x2(P) -> float:
-    """Largest eigenvalue of a symmetric 2 x 2 matrix (:func:`numpy.linalg.eigvalsh`'s last)."""
-    return float(np.linalg.eigvalsh(P)[-1])
+    """Largest eigenvalue of a symmetric 2 x 2 matrix (:func:`numpy.linalg.eigvalsh`'s last, which
+    reads the lower triangle): ``(a + c) / 2 + hypot((a - c) / 2, b)``, within a few ulp of
+    LAPACK's (tested against it)."""
+    a, c, b = float(P[0, 0]), float(P[1, 1]), float(P[1, 0])
+    return 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)
 
 
 class _CachedEphemeris:

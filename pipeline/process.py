@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, replace
@@ -26,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .attitude import attitude_covariance
-from .beacons import CHI2_2DOF_3SIGMA, predict_beacons, select_spot
+from .beacons import CHI2_2DOF_3SIGMA, _max_eig_2x2, predict_beacons, select_spot
 from .centroids import Spots, detect_spots
 from .results import AttitudeResult, BeaconResult, FrameResult
 from .star_id import C_KM_S, lost_in_space, refine
@@ -488,7 +489,7 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
             return None
         win, half = [], []
         for p in preds:
-            reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(np.linalg.eigvalsh(p["cov_px2"])[-1], 0.0)))
+            reach = math.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(p["cov_px2"]), 0.0))
             if reach + hw > opt.track_window_max_px:
                 return None
             win.append(p["xy_px"])
@@ -576,9 +577,10 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     # 3-sigma reach plus the exclusion radius (from its covariance before the blend widening)
     deep_cones = []
     if n:
-        deep_cones = [(A.T @ cam.line_of_sight(p["xy_px"][None])[0],
-                       (np.sqrt(CHI2_2DOF_3SIGMA * np.linalg.eigvalsh(p["cov_px2"])[-1])
-                        + opt.deep_star_radius_px + 2.0) * cam.ifov_rad * 1.5) for p in preds]
+        los = cam.line_of_sight(np.array([p["xy_px"] for p in preds])) @ A  # rows: A^T b
+        ifov = cam.ifov_rad
+        deep_cones = [(los[k], (math.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(p["cov_px2"]), 0.0)) + opt.deep_star_radius_px + 2.0)
+                       * ifov * 1.5) for k, p in enumerate(preds)]
     # blends: two beacons predicted within a few pixels (the Earth and the Moon) make one spot
     # whose centroid lies between them; widen both gates by half the separation, and predict
     # the blend's total brightness
@@ -616,7 +618,7 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         good = (~spots.saturated[ms]) & (spots.flux_dn[ms] > 0)
         vm = np.asarray(ref_vmag)[match.star_index]
         with np.errstate(divide="ignore"):
-            zp = np.median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
+            zp = _median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
             spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn[cand], 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
         spot_mag = np.where(spots.saturated[cand], np.nan, spot_mag)
@@ -659,6 +661,15 @@ def _mahalanobis2(preds, xy):
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _linear_sum_assignment():
+    """scipy's solver, imported once (``from scipy.optimize import ...`` costs ~20 us a call:
+    scipy resolves its lazily loaded submodule every time)."""
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment
+
+
 def _assign_beacons(preds, spots_xy, candidate, spot_mag, mag_sigma):
     """Improved mode: one spot per beacon and one beacon per spot, jointly (a beacon with a huge
     ellipse must not take the spot of one with a small ellipse, as the paper's one-at-a-time
@@ -685,8 +696,7 @@ def _assign_from_m2(preds, m2, spot_mag, mag_sigma):
     inside = m2 <= CHI2_2DOF_3SIGMA
     if not inside.any():
         return chosen
-    from scipy.optimize import linear_sum_assignment
-
+    linear_sum_assignment = _linear_sum_assignment()
     BIG = 1e9
     c = m2
     if spot_mag is not None:
