@@ -226,28 +226,24 @@ class Ephemeris:
                 f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
                 f" epoch {t!r} s outside", time_mask=True, start_jd=self._start_jd, end_jd=self._end_jd)
         pairs, rows = self._states_plan(tuple(keys))
-        tables = self._cheb_tables()
-        cmax = max(tables[p][2].shape[0] for p in pairs)
-        coef = np.zeros((cmax, 3, len(pairs)))
-        s = np.empty(len(pairs))
-        intl = np.empty(len(pairs))
-        # jplephem's interval arithmetic (Segment.generate), scalar, for the same bits (Python
-        # floats: the same IEEE operations and divmod algorithm as numpy's float64 scalars)
+        inits, intlens, ns, base, big = self._states_tables(tuple(pairs))
+        # jplephem's interval arithmetic (Segment.generate) for every segment at once: numpy's
+        # float64 divmod is CPython's float divmod (the same IEEE operations), so the same bits
         a1 = (float(jd1) - _T0) * _S_PER_DAY
         a2 = float(jd2) * _S_PER_DAY
-        for j, p in enumerate(pairs):
-            init, intlen, c = tables[p]
-            init, intlen = float(init), float(intlen)
-            n = c.shape[2]
-            index1, offset1 = divmod(a1 - init, intlen)
-            index2, offset2 = divmod(a2, intlen)
-            index3, offset = divmod(offset1 + offset2, intlen)
-            index = int(index1 + index2 + index3)
-            if index == n:
-                index, offset = index - 1, offset + intlen
-            coef[cmax - c.shape[0]:, :, j] = c[:, :, index]
-            s[j] = 2.0 * offset / intlen - 1.0
-            intl[j] = intlen
+        index1, offset1 = np.divmod(a1 - inits, intlens)
+        index2, offset2 = np.divmod(a2, intlens)
+        index3, offset = np.divmod(offset1 + offset2, intlens)
+        index = (index1 + index2 + index3).astype(np.intp)
+        last = index == ns
+        if last.any():
+            index = np.where(last, index - 1, index)
+            offset = np.where(last, offset + intlens, offset)
+        # each segment's coefficients of that interval, highest degree first, shorter series
+        # padded with leading zeros: (C, 3, P)
+        coef = big.take(base + index, axis=0).transpose(1, 2, 0)
+        s = 2.0 * offset / intlens - 1.0
+        intl = intlens
         s2 = 2.0 * s
         w0 = w1 = 0.0
         wlist = []
@@ -291,6 +287,27 @@ class Ephemeris:
         rows = tuple(np.array([col[_CHAINS[k][i]] if i < len(_CHAINS[k]) else len(pairs) for k in keys], dtype=np.intp)
                      for i in range(depth))
         return pairs, rows
+
+    def _states_tables(self, pairs: tuple):
+        """For :meth:`states_at`, per tuple of segments (computed once, kept on the object):
+        their ``init`` and ``intlen`` (s) and interval counts, and one table (sum of intervals,
+        C, 3) of every interval's coefficients, highest degree first, zero-padded at the top to
+        the longest series, with each segment's first row (``base``)."""
+        cache = self.__dict__.setdefault("_states_cache", {})
+        hit = cache.get(pairs)
+        if hit is None:
+            tables = self._cheb_tables()
+            cmax = max(tables[p][2].shape[0] for p in pairs)
+            ns = np.array([tables[p][2].shape[2] for p in pairs], dtype=np.intp)
+            base = np.concatenate([[0], np.cumsum(ns)[:-1]]).astype(np.intp)
+            big = np.zeros((int(ns.sum()), cmax, 3))
+            for b0, p in zip(base.tolist(), pairs):
+                c = tables[p][2]  # (C, 3, N)
+                big[b0:b0 + c.shape[2], cmax - c.shape[0]:, :] = c.transpose(2, 0, 1)
+            inits = np.array([float(tables[p][0]) for p in pairs])
+            intlens = np.array([float(tables[p][1]) for p in pairs])
+            hit = cache[pairs] = (inits, intlens, ns, base, big)
+        return hit
 
     def _cheb_tables(self) -> dict:
         """``{(center, target): (init_s, intlen_s, coefficients (C, 3, N))}`` of every chained
