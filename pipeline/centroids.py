@@ -352,6 +352,53 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
 
 
+def window_peaks(image, xy_px, *, threshold_dn: float, background_dn: float, search_half_px: int):
+    """Coarse spot positions near predicted positions: ``(xy (N, 2), valid (N,))``.
+
+    The brightest pixel within ``search_half_px`` of each rounded position (the box must lie in
+    the image, as in :func:`window_centroids`), valid when above ``threshold_dn``, refined to the
+    ``I^2``-weighted centre (``I`` above ``background_dn``) of the 3 x 3 pixels around it, read
+    from the same search box (a peak on the box's edge: the 3 x 3 just inside). Good to ~0.1 px
+    for a star: what windowed tracking's first pass needs to re-predict the stars within a
+    pixel, at a fraction of :func:`window_centroids`' cost (no ROI, no growth).
+    """
+    img = np.asarray(image)
+    H, W = img.shape
+    flat = img.ravel()
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    n = len(xy)
+    out = np.full((n, 2), np.nan)
+    valid = np.zeros(n, dtype=bool)
+    s = int(search_half_px)
+    m = 2 * s + 1
+    c = np.rint(xy)
+    idx = ((c[:, 0] >= s) & (c[:, 0] < W - s) & (c[:, 1] >= s) & (c[:, 1] < H - s)).nonzero()[0]
+    if not len(idx) or m < 3:
+        return out, valid
+    c = c.take(idx, axis=0).astype(np.intp)
+    box = flat.take((c[:, 1] * W + c[:, 0])[:, None] + _box_offsets(s, W))
+    k = box.argmax(axis=1)
+    rows = np.arange(len(idx))
+    ok = (box[rows, k].astype(np.float64) > threshold_dn).nonzero()[0]
+    if not len(ok):
+        return out, valid
+    box, k, c, idx = box.take(ok, axis=0), k.take(ok), c.take(ok, axis=0), idx.take(ok)
+    ky, kx = np.divmod(k, m)
+    cy3 = np.minimum(np.maximum(ky, 1), m - 2)
+    cx3 = np.minimum(np.maximum(kx, 1), m - 2)
+    nb = box[np.arange(len(ok))[:, None], (cy3 * m + cx3)[:, None] + _box_offsets(1, m)]   # (n, 9)
+    w = np.maximum(nb.astype(np.float64) - background_dn, 0.0)
+    w *= w
+    w0 = w.sum(axis=1)
+    d = np.arange(-1.0, 2.0)
+    dx = (w.reshape(-1, 3, 3).sum(axis=1) @ d) / np.where(w0 > 0, w0, 1.0)
+    dy = (w.reshape(-1, 3, 3).sum(axis=2) @ d) / np.where(w0 > 0, w0, 1.0)
+    out[idx, 0] = c[:, 0] - s + cx3 + dx
+    out[idx, 1] = c[:, 1] - s + cy3 + dy
+    valid[idx] = True
+    return out, valid
+
+
 @functools.lru_cache(maxsize=32)
 def _box_offsets(h: int, W: int) -> np.ndarray:
     """Flat-index offsets (row-major) of the (2h + 1)^2 box around a pixel of a W-wide image."""

@@ -390,9 +390,9 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     """Tracking without a full-frame pass (improved mode).
 
     Pass 1: the ``track_coarse_stars`` brightest ID-catalog stars (V < the catalog's limit)
-    predicted from ``R_prev``, each
-    measured at the brightest pixel within ``track_window_px`` of its prediction
-    (:func:`~skynav.pipeline.centroids.window_centroids`); Wahba with one residual clip; the
+    predicted from ``R_prev``, each located at the brightest pixel within ``track_window_px`` of
+    its prediction, refined by its 3 x 3 neighbourhood (:func:`~skynav.pipeline.centroids.window_peaks`:
+    ~0.1 px, enough to re-predict every star within a pixel; the Eq. 7-8 centroids are pass 2's); Wahba with one residual clip; the
     attitude check (>= ``min_matches`` stars within ``inlier_px`` after the fit, and the solution
     within the windows' capture range of the prior). Pass 2: every catalog star to
     ``refine_v_mag`` predicted from the pass-1 attitude, measured within 1 px of its prediction,
@@ -404,7 +404,7 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     then runs the full frame: tracking, then lost in space).
     """
     from .attitude import wahba_svd
-    from .centroids import spots_in_boxes, window_centroids
+    from .centroids import spots_in_boxes, window_centroids, window_peaks
     from .star_id import StarMatch
 
     cam = observation.camera
@@ -428,11 +428,11 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     if len(sel) > opt.track_coarse_stars:  # the brightest suffice for the coarse attitude
         b_ord = np.argsort(vmag.take(sel), kind="stable")[:opt.track_coarse_stars]
         sel, xy = sel.take(b_ord), xy.take(b_ord, axis=0)
-    w1 = window_centroids(img, xy, threshold_dn=thr, background_dn=med, search_half_px=hw)
-    sel = sel.compress(w1.valid)
+    xy1, ok1 = window_peaks(img, xy, threshold_dn=thr, background_dn=med, search_half_px=hw)
+    sel = sel.compress(ok1)
     if len(sel) < opt.min_matches:
         return None
-    b1 = cam.line_of_sight(w1.xy_px.compress(w1.valid, axis=0))
+    b1 = cam.line_of_sight(xy1.compress(ok1, axis=0))
     u1 = u.take(sel, axis=0)
     A, keep = _clip_residuals(b1, u1, wahba_svd(b1, u1), floor_rad=opt.inlier_px * ifov)
     if keep.sum() < opt.min_matches:
