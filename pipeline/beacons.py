@@ -142,7 +142,8 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     phase = _phase_angles(np.array([k[2] for k in kept]), sun, r)
     for (name, u, p, xy), alpha in zip(kept, phase.tolist()):
         # Jacobian at the apparent point: put the body along u at its distance
-        dist = np.linalg.norm(p - r)
+        d = p - r
+        dist = math.sqrt(float(d.dot(d)))  # numpy.linalg.norm's operations
         pb = r + u * dist
         if mode == "paper":
             F = projection_jacobian(q, r, pb, K)
@@ -164,7 +165,8 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
                 P = P + Fa @ attitude_cov_rad2 @ Fa.T
             P = P + _FLOOR_PX2  # centroid and first-order model error floor, px^2
         try:
-            vm = float(planet_v_mag(name, np.linalg.norm(p - sun), dist, alpha))
+            ds = p - sun
+            vm = float(planet_v_mag(name, math.sqrt(float(ds.dot(ds))), dist, alpha))
         except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
             vm = float("nan")
         # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)

@@ -146,7 +146,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         src = stars if source is None else source
         key = (id(src), float(radius))
         hit = dirs_cache.get(key)
-        if hit is not None and float(np.dot(hit[0], boresight)) >= np.cos(REUSE_RAD) * np.linalg.norm(boresight):
+        if hit is not None and float(np.dot(hit[0], boresight)) >= np.cos(REUSE_RAD) * _norm(boresight):
             return hit[1], hit[2]
         idx = src.cone(boresight, radius, margin_rad=2e-3 + REUSE_RAD)
         if mode == "paper":
@@ -157,14 +157,14 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
                 beta = v_km_s / C_KM_S
                 u = u + beta - (u @ beta)[:, None] * u
                 u /= np.sqrt(np.add.reduce(u * u, axis=1))[:, None]  # numpy.linalg.norm's operations
-        dirs_cache[key] = (np.asarray(boresight, float) / np.linalg.norm(boresight), idx, u)
+        dirs_cache[key] = (np.asarray(boresight, float) / _norm(boresight), idx, u)
         return idx, u
 
     # ------------------------------------------------------------------ centroids + star ID loop
     T = opt.T
     match = None
     method = ""
-    rel_eps = (np.linalg.norm(v_km_s) / C_KM_S if v_km_s is not None else 2e-4) + 2e-5
+    rel_eps = (_norm(v_km_s) / C_KM_S if v_km_s is not None else 2e-4) + 2e-5
     spots = Spots.empty()
     status = "id_failed"
     t_c = t_id = 0.0
@@ -261,7 +261,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
     bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
     n_st = len(match.spot_index)
-    rms = float(np.sqrt(np.mean(match.residual_rad**2))) if n_st > 3 else opt.inlier_px * ifov / 2
+    rms = math.sqrt(float(np.add.reduce(match.residual_rad * match.residual_rad)) / n_st) if n_st > 3 else opt.inlier_px * ifov / 2
     sigma = max(rms * np.sqrt(n_st / max(n_st - 3, 1)) / np.sqrt(2.0), 0.05 * ifov)
     P = attitude_covariance(bm, sigma)
     att = AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n_st,
@@ -523,6 +523,12 @@ def _clip_residuals(b, u, A, *, floor_rad):
     if n_keep == len(keep) or n_keep < 3:
         return A, keep if n_keep >= 3 else np.ones(len(b), bool)
     return wahba_svd(b.compress(keep, axis=0), u.compress(keep, axis=0)), keep
+
+
+def _norm(v) -> float:
+    """``numpy.linalg.norm`` of a vector, as it computes it (``sqrt(v . v)``), without its wrapper."""
+    v = np.asarray(v, dtype=float)
+    return math.sqrt(float(v.dot(v)))
 
 
 def _median(a) -> float:

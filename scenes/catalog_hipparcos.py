@@ -50,6 +50,7 @@ geometry (no first-order expansion of the proper motion). Stars with ``parallax_
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -240,7 +241,7 @@ class StarCatalog:
         search; a dot product with the band's unit vectors decides.
         """
         c = np.asarray(center_u, dtype=float)
-        c = c / np.linalg.norm(c)
+        c = c / math.sqrt(float(c.dot(c)))  # numpy.linalg.norm's operations
         r = float(radius_rad) + float(margin_rad)
         if r >= np.pi:
             idx = np.arange(len(self))
