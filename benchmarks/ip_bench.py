@@ -27,6 +27,9 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--mode", default="improved", choices=("paper", "improved"))
     ap.add_argument("--sigma-km", type=float, default=1e4)
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="passes over the tracking frames (default 5): the median of every pass's times, "
+                         "and the median over frames of each frame's fastest pass (what a quiet machine gives)")
     args = ap.parse_args(argv)
     try:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
@@ -54,16 +57,25 @@ def main(argv=None):
         lis.append((time.perf_counter() - t0) * 1e3)
         stages.append(r.timings_ms)
         prev.append(r.attitude.R_cam_icrs)
-    for (obs, _), ps, R in zip(frames, states, prev):
-        if R is None:
-            continue
-        t0 = time.perf_counter()
-        r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=R, mode=args.mode)
-        trk.append((time.perf_counter() - t0) * 1e3)
+    passes = []
+    for _ in range(max(args.repeat, 1)):
+        times = []
+        for (obs, _), ps, R in zip(frames, states, prev):
+            if R is None:
+                continue
+            t0 = time.perf_counter()
+            process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=R, mode=args.mode)
+            times.append((time.perf_counter() - t0) * 1e3)
+        passes.append(times)
+    trk = passes[0]
+    trk_all = np.concatenate(passes) if passes and passes[0] else np.zeros(0)
+    trk_min = np.min(passes, axis=0) if passes and passes[0] else np.zeros(0)
     pct = lambda a, q: float(np.percentile(a, q)) if len(a) else float("nan")  # noqa: E731
     print(f"{n} frames, mode {args.mode}, one core")
     print(f"lost in space: median {pct(lis, 50):.2f} ms, p90 {pct(lis, 90):.2f} ms (target <= 10 ms)")
-    print(f"tracking:      median {pct(trk, 50):.2f} ms, p90 {pct(trk, 90):.2f} ms (target <= 3 ms)")
+    print(f"tracking:      median {pct(trk, 50):.2f} ms, p90 {pct(trk, 90):.2f} ms (target <= 3 ms; first pass)")
+    print(f"  over {len(passes)} passes: median {pct(trk_all, 50):.2f} ms, p90 {pct(trk_all, 90):.2f} ms; "
+          f"median of each frame's fastest pass {pct(trk_min, 50):.2f} ms")
     for key in ("centroids", "star_id", "attitude", "beacons"):
         print(f"  stage {key:<9}: median {np.median([s.get(key, 0.0) for s in stages]):.2f} ms")
     print(f"k-vector build: {min(builds):.3f} s (best of 3; {cat!r}) (target <= 5 s)")
