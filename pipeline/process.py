@@ -423,7 +423,7 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     # pass 1: bright stars, wide search
     sel = (vmag <= catalog.limiting_v_mag).nonzero()[0]
     xy = cam.project(u.take(sel, axis=0) @ R_prev.T)
-    inside = _finite_rows(xy) & cam.in_image(xy, -float(hw))
+    inside = cam.in_image(xy, -float(hw))  # NaN (behind the camera) compares False: not inside
     sel, xy = sel.compress(inside), xy.compress(inside, axis=0)
     if len(sel) > opt.track_coarse_stars:  # the brightest suffice for the coarse attitude
         b_ord = np.argsort(vmag.take(sel), kind="stable")[:opt.track_coarse_stars]
@@ -444,7 +444,7 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
     # pass 2: every catalog star to refine_v_mag, from the pass-1 attitude
     ua = u @ A.T
     xy = cam.project(ua)
-    inside = (_finite_rows(xy) & cam.in_image(xy, -2.0)).nonzero()[0]
+    inside = cam.in_image(xy, -2.0).nonzero()[0]
     w2 = window_centroids(img, xy.take(inside, axis=0), threshold_dn=thr, background_dn=med, search_half_px=1)
     b2 = cam.line_of_sight(np.where(w2.valid[:, None], w2.xy_px, 0.0))
     res = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", ua.take(inside, axis=0), b2), -1.0), 1.0))
@@ -505,11 +505,6 @@ def _track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_stat
                                                -1.0), 1.0))
     match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
     return spots, b, match, source, preds
-
-
-def _finite_rows(xy):
-    """True for the rows of ``xy`` (N, 2) with both coordinates finite."""
-    return np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
 
 
 def _clip_residuals(b, u, A, *, floor_rad):
