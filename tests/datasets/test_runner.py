@@ -61,6 +61,10 @@ def _count_json(frames_dir: Path) -> int:
     return sum(1 for p in frames_dir.glob("*.json")) if frames_dir.is_dir() else 0
 
 
+def _count_records(frames_dir: Path) -> int:
+    return sum(1 for p in frames_dir.glob("*.sha256")) if frames_dir.is_dir() else 0
+
+
 def test_sigkill_then_resume_identical(reference_dataset, tmp_path):
     _, _, ref = reference_dataset
     out = tmp_path / "ds"
@@ -70,7 +74,9 @@ def test_sigkill_then_resume_identical(reference_dataset, tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(small_recipe()), str(out)])
     try:
         deadline = time.monotonic() + 180
-        while _count_json(out / "frames") < 12:
+        # wait for 12 committed frames: a frame's record (NNNNNN.sha256) is written after its
+        # files, so counting JSON files could count a frame the kill leaves uncommitted
+        while _count_records(out / "frames") < 12:
             assert proc.poll() is None, f"the generator ended before it could be killed (rc {proc.returncode})"
             assert time.monotonic() < deadline, "the generator is too slow"
             time.sleep(0.02)
