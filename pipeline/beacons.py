@@ -22,8 +22,11 @@ __all__ = ["dcm_from_quat", "quat_from_dcm", "project_beacon", "projection_jacob
            "CHI2_2DOF_3SIGMA", "BEACON_BODIES"]
 
 CHI2_2DOF_3SIGMA = 11.8292
-from skynav.scenes.constants import C_KM_S  # noqa: E402
+from skynav.scenes.constants import AU_KM as _AU_KM, C_KM_S  # noqa: E402
+from skynav.scenes.photometry import PHASE_RANGE_DEG as _PHASE_RANGE_DEG  # noqa: E402
 BEACON_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
+_LAW_BODIES = frozenset(BEACON_BODIES)
+_MOON_V10 = float(-12.73 - 5.0 * np.log10(384400.0 / _AU_KM))  # photometry._moon's v10 (numpy's log10)
 
 
 def _skew(v):
@@ -101,7 +104,6 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     Returns a list of dicts ``name, xy_px (2,), cov_px2 (2, 2), v_mag, distance_km``.
     """
     from skynav.scenes.ephemeris_jpl import default_ephemeris
-    from skynav.scenes.photometry import planet_v_mag
 
     eph = _CachedEphemeris.wrap(ephemeris if ephemeris is not None else default_ephemeris(), epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
@@ -166,7 +168,7 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             P = P + _FLOOR_PX2  # centroid and first-order model error floor, px^2
         try:
             ds = p - sun
-            vm = float(planet_v_mag(name, math.sqrt(float(ds.dot(ds))), dist, alpha))
+            vm = _v_mag(name, math.sqrt(float(ds.dot(ds))), dist, alpha)
         except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
             vm = float("nan")
         # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
@@ -244,6 +246,72 @@ def _phase_angles(p, sun, r):
     c1 = a2 * b0 - a0 * b2
     c2 = a0 * b1 - a1 * b0
     return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
+
+
+def _log10(x: float) -> float:
+    """:func:`numpy.log10` of one float under ``errstate(divide/invalid="ignore")``: ``-inf`` at
+    0, NaN below 0 and at NaN (libm's log10 above 0, as numpy's float64 loop)."""
+    if x > 0.0:
+        return math.log10(x)
+    return -math.inf if x == 0.0 else math.nan
+
+
+def _horner(a: float, coeffs) -> float:
+    """:func:`skynav.scenes.photometry._poly` for one float (from 0.0: the same products and sums)."""
+    out = 0.0
+    for c in reversed(coeffs):
+        out = out * a + c
+    return out
+
+
+def _phase_law(key: str, a: float) -> float:
+    """The phase law ``V(1, alpha)`` of :func:`skynav.scenes.photometry.planet_v_mag` with its
+    default options (no Saturn ring tilt, Uranus sub-latitude 0, Neptune after 2000) at one
+    phase angle ``a`` (deg): the branch its ``numpy.where`` keeps, in Python floats (the same
+    IEEE operations in the same order)."""
+    if key == "mercury":
+        return _horner(a, (-0.613, 6.3280e-02, -1.6336e-03, 3.3644e-05, -3.4265e-07, 1.6893e-09, -3.0334e-12))
+    if key == "venus":
+        if a <= 163.7:
+            return _horner(a, (-4.384, -1.044e-03, 3.687e-04, -2.814e-06, 8.938e-09))
+        return _horner(a, (236.05828, -2.81914, 8.39034e-03))
+    if key == "earth":
+        return _horner(a, (-3.99, -1.060e-03, 2.054e-04))
+    if key == "mars":
+        if a <= 50.0:
+            return _horner(a, (-1.601, 2.267e-02, -1.302e-04))
+        return _horner(a, (-0.367, -0.02573, 3.445e-04))
+    if key == "jupiter":
+        if a <= 12.0:
+            return _horner(a, (-9.395, -3.7e-04, 6.16e-04))
+        return -9.428 - 2.5 * _log10(_horner(a / 180.0, (1.0, -1.507, -0.363, -0.062, 2.809, -1.876)))
+    if key == "saturn":
+        if a <= 6.0:
+            return _horner(a, (-8.95, -3.7e-04, 6.16e-04))
+        return _horner(a, (-8.94, 2.446e-04, 2.672e-04, -1.505e-06, 4.767e-09))
+    if key == "uranus":
+        return (-7.110 - 8.4e-04 * 0.0) + (_horner(a, (0.0, 6.587e-03, 1.045e-04)) if a > 3.1 else 0.0)
+    if key == "neptune":
+        return -7.00 + (_horner(a, (0.0, 7.944e-03, 9.617e-05)) if a > 1.9 else 0.0)
+    return (_MOON_V10 + 0.026 * a) + 4e-9 * a**4  # moon
+
+
+def _v_mag(name: str, sun_distance_km: float, observer_distance_km: float, phase_angle_rad: float) -> float:
+    """``float(planet_v_mag(name, r, delta, alpha))`` for one body, in Python floats: the same
+    operations in the same order without numpy's per-call overhead (~50 us there, ~2 us here;
+    :func:`math.degrees` is numpy's ``rad2deg``, ``x * (180 / pi)``). Bodies outside
+    :data:`BEACON_BODIES` go to ``planet_v_mag`` itself."""
+    key = name.lower() if isinstance(name, str) else name
+    if key not in _LAW_BODIES:
+        from skynav.scenes.photometry import planet_v_mag
+
+        return float(planet_v_mag(name, sun_distance_km, observer_distance_km, phase_angle_rad))
+    r_au = float(sun_distance_km) / _AU_KM
+    d_au = float(observer_distance_km) / _AU_KM
+    a = math.degrees(float(phase_angle_rad))
+    lo, hi = _PHASE_RANGE_DEG[key]
+    law = _phase_law(key, a) if (a >= lo and a <= hi) else math.nan
+    return 5.0 * _log10(r_au * d_au) + law
 
 
 def _max_eig_2x2(P) -> float:
