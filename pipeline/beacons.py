@@ -26,6 +26,7 @@ from skynav.scenes.constants import AU_KM as _AU_KM, C_KM_S  # noqa: E402
 from skynav.scenes.photometry import PHASE_RANGE_DEG as _PHASE_RANGE_DEG  # noqa: E402
 BEACON_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
 _LAW_BODIES = frozenset(BEACON_BODIES)
+_STATE_BODIES = ("sun",) + BEACON_BODIES
 _MOON_V10 = float(-12.73 - 5.0 * np.log10(384400.0 / _AU_KM))  # photometry._moon's v10 (numpy's log10)
 
 
@@ -325,18 +326,22 @@ def _max_eig_2x2(P) -> float:
 class _CachedEphemeris:
     """Body states at one epoch, computed once: tracking predicts the beacons twice per frame
     (windows from the previous attitude, then the identification), and the states do not change
-    within a frame. An ephemeris with ``states_at`` (skynav's DE421 adapter) gives every body in
-    one vectorised evaluation (~0.1 ms instead of ~1 ms body by body); any other object with
-    ``position`` / ``position_velocity`` is asked body by body. The last epoch of the last
-    ephemeris object is kept (module level; the default ephemeris is one object per process)."""
+    within a frame. An ephemeris with ``epoch_states`` (skynav's DE421 adapter) gives every
+    body's position in one vectorised evaluation and each velocity when asked (only the bodies
+    near the field need one); one with ``states_at`` every body's state in one call; any other
+    object with ``position`` / ``position_velocity`` is asked body by body. The last epoch of
+    the last ephemeris object is kept (module level; the default ephemeris is one object per
+    process)."""
 
     _last = None
 
     def __init__(self, eph, epoch):
-        self.eph, self.epoch, self._pv = eph, float(epoch), {}
-        if hasattr(eph, "states_at"):
+        self.eph, self.epoch, self._pv, self._st = eph, float(epoch), {}, None
+        if hasattr(eph, "epoch_states"):
+            self._st = eph.epoch_states(self.epoch, _STATE_BODIES)
+        elif hasattr(eph, "states_at"):
             self._pv = {k: (np.asarray(r), np.asarray(v)) for k, (r, v) in
-                        eph.states_at(self.epoch, ("sun",) + tuple(BEACON_BODIES)).items()}
+                        eph.states_at(self.epoch, _STATE_BODIES).items()}
 
     @classmethod
     def wrap(cls, eph, epoch):
@@ -346,10 +351,14 @@ class _CachedEphemeris:
         return last
 
     def position(self, name, t):
+        if self._st is not None and float(t) == self.epoch and name in self._st._col:
+            return self._st.position(name)
         return self.position_velocity(name, t)[0]
 
     def positions(self, names, t):
         """Positions (n, 3) of several bodies at ``t`` (one array; cached per tuple of names)."""
+        if self._st is not None and names == BEACON_BODIES and float(t) == self.epoch:
+            return self._st.positions[1:]  # _STATE_BODIES[1:]
         key = ("__stack__", names)
         if float(t) == self.epoch and key in self._pv:
             return self._pv[key]
@@ -362,8 +371,11 @@ class _CachedEphemeris:
         if float(t) != self.epoch:
             return self.eph.position_velocity(name, t)
         if name not in self._pv:
-            p, v = self.eph.position_velocity(name, t)
-            self._pv[name] = (np.array(p), np.array(v))
+            if self._st is not None and name in self._st._col:
+                self._pv[name] = (self._st.position(name), self._st.velocity(name))
+            else:
+                p, v = self.eph.position_velocity(name, t)
+                self._pv[name] = (np.array(p), np.array(v))
         return self._pv[name]
 
 

@@ -212,6 +212,32 @@ class Ephemeris:
         same interval arithmetic as ``jplephem``; shorter series are padded with leading zeros,
         which leave the recurrence's bits unchanged).
         """
+        st = self.epoch_states(t_tdb_s, bodies)
+        W, s, s2, n = st._W, st._s, st._s2, st._n
+        dw0 = dw1 = 0.0
+        for i in range(1, n):  # the recurrence's w1 of each step, W[1] .. W[n - 1]
+            dw2 = dw1
+            dw1 = dw0
+            dw0 = 2.0 * W[i] + dw1 * s2 - dw2
+        rates = W[n] + s * dw0 - dw1
+        rates /= st._intl
+        rates *= 2.0
+        rates *= _S_PER_DAY
+        # each body: the sum of its chain's segments, 0 + first + second (a zero column pads the
+        # shorter chains; adding +0.0 leaves the sum's bits unchanged), all bodies at once
+        rates = np.concatenate([rates, np.zeros((3, 1))], axis=1)
+        v = np.zeros((3, len(st.bodies)))
+        for row in st._rows:
+            v += rates[:, row]
+        v = (v / SECONDS_PER_DAY).T.copy()
+        r = st.positions
+        return {b: (r[j], v[j]) for j, b in enumerate(bodies)}
+
+    def epoch_states(self, t_tdb_s: float, bodies=BODIES) -> "EpochStates":
+        """The positions of several bodies at one epoch now (:attr:`EpochStates.positions`, the
+        bits of :meth:`states_at`), each velocity when asked (:meth:`EpochStates.velocity`, the
+        bits of :meth:`states_at`): the Clenshaw recurrence of every segment's position in numpy,
+        its derivative only for the segments of the bodies whose velocity is used."""
         keys = [b.lower() if isinstance(b, str) else b for b in bodies]
         for k, b in zip(keys, bodies):
             if k not in _CHAINS:
@@ -243,37 +269,19 @@ class Ephemeris:
         # padded with leading zeros: (C, 3, P)
         coef = big.take(base + index, axis=0).transpose(1, 2, 0)
         s = 2.0 * offset / intlens - 1.0
-        intl = intlens
         s2 = 2.0 * s
-        w0 = w1 = 0.0
-        wlist = []
-        for c in coef[:-1]:
-            w2 = w1
-            w1 = w0
-            w0 = c + (s2 * w1 - w2)
-            wlist.append(w1)
-        pos = coef[-1] + (s * w0 - w1)
-        dw0 = dw1 = 0.0
-        for w1_ in wlist:
-            dw2 = dw1
-            dw1 = dw0
-            dw0 = 2.0 * w1_ + dw1 * s2 - dw2
-        rates = w0 + s * dw0 - dw1
-        rates /= intl
-        rates *= 2.0
-        rates *= _S_PER_DAY
-        # each body: the sum of its chain's segments, 0 + first + second (a zero column pads the
-        # shorter chains; adding +0.0 leaves the sum's bits unchanged), all bodies at once
+        # Clenshaw: W[i + 2] = c_i + (s2 W[i + 1] - W[i]) from W[0] = W[1] = 0 (the recurrence's
+        # w0 after step i; zeros for the initial 0.0 give the same bits elementwise)
+        n = coef.shape[0]
+        W = np.zeros((n + 1, 3, len(pairs)))
+        for i in range(n - 1):
+            np.add(coef[i], s2 * W[i + 1] - W[i], out=W[i + 2])
+        pos = coef[-1] + (s * W[n] - W[n - 1])
         pos = np.concatenate([pos, np.zeros((3, 1))], axis=1)
-        rates = np.concatenate([rates, np.zeros((3, 1))], axis=1)
         r = np.zeros((3, len(keys)))
-        v = np.zeros((3, len(keys)))
         for row in rows:
             r += pos[:, row]
-            v += rates[:, row]
-        r = r.T.copy()
-        v = (v / SECONDS_PER_DAY).T.copy()
-        return {b: (r[j], v[j]) for j, b in enumerate(bodies)}
+        return EpochStates(tuple(bodies), r.T.copy(), W, s, s2, intlens, n, rows)
 
     @staticmethod
     @functools.lru_cache(maxsize=16)
@@ -362,6 +370,52 @@ class Ephemeris:
 
     def _name(self) -> str:
         return self.path.replace("\\", "/").rsplit("/", 1)[-1]
+
+
+class EpochStates:
+    """Positions of several bodies at one epoch, and each body's velocity on demand
+    (:meth:`Ephemeris.epoch_states`). ``positions`` (n, 3): km, barycentric ICRS, in the order
+    of ``bodies``."""
+
+    __slots__ = ("bodies", "positions", "_W", "_s", "_s2", "_intl", "_n", "_rows", "_col", "_v")
+
+    def __init__(self, bodies, positions, W, s, s2, intl, n, rows):
+        self.bodies, self.positions = bodies, positions
+        self._W, self._s, self._s2, self._intl, self._n, self._rows = W, s, s2, intl, n, rows
+        self._col = {b: j for j, b in enumerate(bodies)}
+        self._v = {}
+
+    def position(self, body):
+        return self.positions[self._col[body]]
+
+    def velocity(self, body):
+        """Velocity (3,), km/s, of one of ``bodies``: the derivative recurrence of
+        :meth:`Ephemeris.states_at` for that body's segments only, in Python floats (the same
+        operations elementwise, so the same bits)."""
+        v = self._v.get(body)
+        if v is None:
+            j = self._col[body]
+            n, W = self._n, self._W
+            out = [0.0, 0.0, 0.0]
+            for row in self._rows:
+                seg = int(row[j])
+                if seg >= W.shape[2]:  # the zero column of a shorter chain: + 0.0
+                    out = [o + 0.0 for o in out]
+                    continue
+                s, s2, intl = float(self._s[seg]), float(self._s2[seg]), float(self._intl[seg])
+                for k, w in enumerate(W[:, k_, seg].tolist() for k_ in range(3)):
+                    dw0 = dw1 = 0.0
+                    for i in range(1, n):
+                        dw2 = dw1
+                        dw1 = dw0
+                        dw0 = 2.0 * w[i] + dw1 * s2 - dw2
+                    rate = w[n] + s * dw0 - dw1
+                    rate = rate / intl
+                    rate = rate * 2.0
+                    rate = rate * _S_PER_DAY
+                    out[k] = out[k] + rate
+            v = self._v[body] = np.array([o / SECONDS_PER_DAY for o in out])
+        return v
 
 
 @functools.lru_cache(maxsize=1)

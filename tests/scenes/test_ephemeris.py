@@ -129,3 +129,24 @@ def test_states_at_refuses_epochs_outside_the_kernel_and_unknown_bodies():
         eph.states_at(eph.span_tdb_s[1] + 86400.0 * 400)
     with pytest.raises(UnknownBodyError):
         eph.states_at(0.0, ("pluto",))
+
+
+def test_epoch_states_repeat_states_at_bit_for_bit():
+    """Positions now and each velocity on demand (the derivative recurrence of one body's
+    segments in Python floats) give the bits of jplephem's per-segment evaluation, for every
+    body and for a subset in another order."""
+    from skynav.scenes.ephemeris_jpl import BODIES, default_ephemeris
+
+    eph = default_ephemeris()
+    lo, hi = eph.span_tdb_s
+    rng = np.random.default_rng(12)
+    epochs = np.concatenate([rng.uniform(lo + 1.0, hi - 1.0, 60), [0.0, 86400.0 * 32, -86400.0 * 16.5]])
+    for bodies in (BODIES, ("moon", "sun", "saturn", "mercury")):
+        for t in epochs:
+            st = eph.epoch_states(t, bodies)
+            assert st.positions.shape == (len(bodies), 3)
+            for j, b in enumerate(bodies):
+                r, v = eph.position_velocity(b, t)
+                assert np.array_equal(st.positions[j], r), (b, t)
+                assert np.array_equal(st.position(b), r), (b, t)
+                assert np.array_equal(st.velocity(b), v), (b, t)
