@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from .attitude import attitude_covariance
 from .beacons import CHI2_2DOF_3SIGMA, _max_eig_2x2, predict_beacons, select_spot
@@ -600,15 +601,17 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     # and the brightness model are evaluated for those alone
     cand = np.flatnonzero(candidate)
     m2 = _mahalanobis2(preds, spots.xy_px[cand])
-    cand_in = np.any(m2 <= CHI2_2DOF_3SIGMA, axis=0)
+    cand_in = m2[0] <= CHI2_2DOF_3SIGMA if len(m2) == 1 else np.logical_or.reduce(m2 <= CHI2_2DOF_3SIGMA, axis=0)
     cand, m2 = cand[cand_in], m2[:, cand_in]
     if len(cand):
         # ... nor spots on fainter catalog stars (the deep catalog, V < deep_v_mag), predicted
         # with the solved attitude: the field's faint stars are the usual wrong beacons
         deep = catalog.deep_stars()
-        idx = np.unique(np.concatenate([deep.cone(c, r, margin_rad=2e-3) for c, r in deep_cones]))
-        xy = cam.project(deep.u_icrs[idx] @ A.T)
-        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        cones = [deep.cone(c, r, margin_rad=2e-3) for c, r in deep_cones]
+        # a cone's indices are ascending and unique already (StarCatalog.cone sorts them)
+        idx = cones[0] if len(cones) == 1 else np.unique(np.concatenate(cones))
+        xy = cam.project(deep.u_icrs.take(idx, axis=0) @ A.T)
+        xy = xy.compress(np.logical_and.reduce(np.isfinite(xy), axis=1), axis=0)
         if len(xy):
             on_star = _near_any(spots.xy_px[cand], xy, opt.deep_star_radius_px)
             cand, m2 = cand[~on_star], m2[:, ~on_star]
@@ -616,13 +619,15 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     if len(cand):
         # photometric zero point from the matched, unsaturated stars: m = zp - 2.5 log10(flux)
         ms = match.spot_index
-        good = (~spots.saturated[ms]) & (spots.flux_dn[ms] > 0)
-        vm = np.asarray(ref_vmag)[match.star_index]
-        with np.errstate(divide="ignore"):
-            zp = _median(vm[good] + 2.5 * np.log10(spots.flux_dn[ms][good])) if good.sum() >= 3 else np.nan
-            spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn[cand], 1e-9))
+        flux_ms = spots.flux_dn.take(ms)
+        good = (~spots.saturated.take(ms)) & (flux_ms > 0)
+        vm = np.asarray(ref_vmag).take(match.star_index)
+        # every log10 argument is > 0 (NaN fluxes are not good; the rest clipped at 1e-9): no
+        # division by zero to silence
+        zp = _median(vm.compress(good) + 2.5 * np.log10(flux_ms.compress(good))) if np.count_nonzero(good) >= 3 else np.nan
+        spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn.take(cand), 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
-        spot_mag = np.where(spots.saturated[cand], np.nan, spot_mag)
+        spot_mag = np.where(spots.saturated.take(cand), np.nan, spot_mag)
     chosen = _assign_from_m2(preds, m2, spot_mag, opt.mag_sigma)
     return tuple(_beacon_result(p, spots, None if k is None else int(cand[k])) for p, k in zip(preds, chosen))
 
@@ -651,15 +656,36 @@ def _mahalanobis2(preds, xy):
     if m == 0 or nb == 0:
         return np.zeros((nb, m))
     out = np.empty((nb, m))
-    for i, p in enumerate(preds):
-        try:
-            Pinv = np.linalg.inv(p["cov_px2"])
-        except np.linalg.LinAlgError:
+    for i, (p, Pinv) in enumerate(zip(preds, _inv_2x2_stack([p["cov_px2"] for p in preds]))):
+        if Pinv is None:
             out[i] = np.inf
             continue
         d = xy - p["xy_px"][None]
         out[i] = np.einsum("ni,ij,nj->n", d, Pinv, d)
     return out
+
+
+def _inv_2x2_stack(mats):
+    """``[numpy.linalg.inv(M) for M in mats]`` with None where ``inv`` raises LinAlgError
+    (singular), by one call of the gufunc behind ``numpy.linalg.inv`` on the stack (the same
+    LAPACK ``gesv`` per matrix, so the same bits, without the wrapper's ~8 us a call). The gufunc
+    fills a singular matrix's inverse with NaN and raises the invalid flag, which
+    ``numpy.linalg.inv`` turns into LinAlgError."""
+    a = np.asarray(mats, dtype=float)
+    with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
+        try:
+            inv = _umath_linalg.inv(a, signature="d->d")
+        except FloatingPointError:  # some matrix singular: each one alone, as numpy.linalg.inv
+            inv = None
+    if inv is None:
+        out = []
+        for M in a:
+            try:
+                out.append(np.linalg.inv(M))
+            except np.linalg.LinAlgError:
+                out.append(None)
+        return out
+    return list(inv)
 
 
 @functools.lru_cache(maxsize=1)
@@ -697,17 +723,27 @@ def _assign_from_m2(preds, m2, spot_mag, mag_sigma):
     inside = m2 <= CHI2_2DOF_3SIGMA
     if not inside.any():
         return chosen
-    linear_sum_assignment = _linear_sum_assignment()
     BIG = 1e9
     c = m2
     if spot_mag is not None:
         vmag = np.array([p["v_mag"] for p in preds], dtype=float)
         dm = spot_mag[None, :] - vmag[:, None]
         c = c + np.where(np.isfinite(vmag)[:, None], np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2, 0.0)
+    if nb == 1:
+        # one row: scipy's shortest augmenting path takes, at its first step, the column of the
+        # least cost and, among equal costs, the lowest index (it scans the columns from the
+        # last, and an equal unassigned column replaces the one held): numpy's argmin, over
+        # the spots inside the ellipse and "not found" (test_beacon_assignment checks it
+        # against linear_sum_assignment, ties included)
+        row = np.where(inside[0], c[0], BIG)
+        j = int(np.argmin(row)) if m else 0
+        if m and row[j] <= CHI2_2DOF_3SIGMA + 9.0 and row[j] < BIG:
+            chosen[0] = j
+        return chosen
     cost = np.full((nb, m + nb), BIG)
     cost[:, :m] = np.where(inside, c, BIG)
     cost[np.arange(nb), m + np.arange(nb)] = CHI2_2DOF_3SIGMA + 9.0
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = _linear_sum_assignment()(cost)
     for i, j in zip(rows.tolist(), cols.tolist()):
         if j < m and cost[i, j] < BIG:
             chosen[i] = j

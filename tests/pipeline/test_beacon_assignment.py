@@ -105,3 +105,64 @@ def test_dcm_of_dcm_is_eq14_of_the_quaternion_bit_for_bit():
     mats += [Rotation.from_rotvec(np.pi * 0.999 * e).as_matrix() for e in np.eye(3)] + [np.eye(3)]
     for A in mats:
         np.testing.assert_array_equal(_dcm_of_dcm(A), dcm_from_quat(quat_from_dcm(A)))
+
+
+def test_one_beacon_assignment_equals_linear_sum_assignment_ties_included():
+    """Reference: scipy.optimize.linear_sum_assignment on the cost matrix _assign_from_m2 builds
+    for several beacons (one row plus its "not found" column). Costs drawn from a few integers,
+    so that equal costs (between spots, and with "not found") are common."""
+    from scipy.optimize import linear_sum_assignment
+
+    from skynav.pipeline.process import _assign_from_m2
+
+    rng = np.random.default_rng(21)
+    nf = CHI2_2DOF_3SIGMA + 9.0
+    for _ in range(3000):
+        m = int(rng.integers(1, 8))
+        m2 = rng.choice([0.5, 2.0, 2.0, CHI2_2DOF_3SIGMA, 20.0, np.inf], size=(1, m))
+        vmag = float(rng.choice([1.0, np.nan]))
+        spot_mag = None
+        if rng.random() < 0.7:
+            spot_mag = rng.choice([1.0, 2.0, 1.0 + np.sqrt(9.0 + CHI2_2DOF_3SIGMA - 2.0), 4.0, np.nan], size=m)
+        got = _assign_from_m2([{"v_mag": vmag}], m2, spot_mag, 1.0)
+        inside = m2 <= CHI2_2DOF_3SIGMA
+        c = m2.copy()
+        if spot_mag is not None and np.isfinite(vmag):
+            dm = spot_mag - vmag
+            c = c + np.where(np.isfinite(dm), dm, 0.0) ** 2
+        cost = np.full((1, m + 1), 1e9)
+        cost[:, :m] = np.where(inside, c, 1e9)
+        cost[0, m] = nf
+        rows, cols = linear_sum_assignment(cost)
+        want = [int(cols[0])] if cols[0] < m and cost[0, cols[0]] < 1e9 and inside.any() else [None]
+        assert got == want, (m2, spot_mag, vmag, cost)
+
+
+def test_inv_2x2_stack_is_numpy_inv_bit_for_bit():
+    """Reference: numpy.linalg.inv one matrix at a time (None where it raises LinAlgError)."""
+    from skynav.pipeline.process import _inv_2x2_stack
+
+    rng = np.random.default_rng(22)
+    for _ in range(500):
+        k = int(rng.integers(1, 4))
+        mats = []
+        for _ in range(k):
+            L = rng.normal(size=(2, 2)) * 10.0 ** rng.uniform(-3, 3)
+            M = L @ L.T + np.eye(2) * 0.0625
+            r = rng.random()
+            if r < 0.1:
+                M = np.zeros((2, 2))
+            elif r < 0.2:
+                M = np.outer(L[0], L[0])
+                M[1] = M[0]  # exactly singular rows
+            mats.append(M)
+        got = _inv_2x2_stack(mats)
+        for M, g in zip(mats, got):
+            try:
+                want = np.linalg.inv(M)
+            except np.linalg.LinAlgError:
+                want = None
+            if want is None:
+                assert g is None
+            else:
+                np.testing.assert_array_equal(g, want)
