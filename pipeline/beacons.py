@@ -111,12 +111,13 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)
     A = np.asarray(R_cam_icrs, float)
-    K = camera.K
-    fx, fy = float(K[0, 0]), float(K[1, 1])
+    K = camera.K if mode == "paper" else None
+    fx, fy = float(camera.fx_px), float(camera.fy_px)  # K[0, 0], K[1, 1]
     out = []
     boresight = A[2]
     cos_reach = camera.half_diagonal_fov_rad
-    sig_r = float(np.sqrt(max(np.trace(Pr), 0.0)))
+    (p00, _, _), (_, p11, _), (_, _, p22) = Pr.tolist()
+    sig_r = math.sqrt(max(p00 + p11 + p22, 0.0))  # numpy.trace's sum (in order), its square root
     # cheap rejection first, all bodies at once: the geometric direction far outside the field
     # (plus 3 sigma of the position error seen from the body's distance, plus light-time and
     # aberration slack); a body kept here is decided by the exact tests below
@@ -127,58 +128,89 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     slack = 3.0 * sig_r / dist0 + 1e-3
     near = ~(rho_all @ boresight < dist0 * np.cos(np.minimum(cos_reach + slack, np.pi)))
     kept = []
+    rl, vl = r.tolist(), v.tolist()
     for name in (b for b, ok in zip(bodies, near.tolist()) if ok):
         pos, vel = eph.position_velocity(name, epoch_tdb_s)
-        u, p = apparent_direction(r, v, pos, vel)
+        ul, pl, dist = _apparent_one(rl, vl, pos.tolist(), vel.tolist())
+        u = np.array(ul)
         vc = A @ u
         if vc[2] <= 0:
             continue
         xy = _project_one(camera, vc)
         if not (math.isfinite(xy[0]) and math.isfinite(xy[1])) or not _in_image(camera, xy, max(margin_px, camera.width)):
             continue
-        kept.append((name, u, p, xy))
+        kept.append((name, u, ul, pl, dist, xy))
     if not kept:
         return out
-    sun = eph.position("sun", epoch_tdb_s)
+    sun = eph.position("sun", epoch_tdb_s).tolist()
     q = quat_from_dcm(A) if mode == "paper" else None
     A_q = dcm_from_quat(q) if mode == "paper" else _dcm_of_dcm(A)  # the Jacobian's attitude (Eq. 14 of q)
-    phase = _phase_angles(np.array([k[2] for k in kept]), sun, r)
-    for (name, u, p, xy), alpha in zip(kept, phase.tolist()):
-        # Jacobian at the apparent point: put the body along u at its distance
-        d = p - r
-        dist = math.sqrt(float(d.dot(d)))  # numpy.linalg.norm's operations
-        pb = r + u * dist
+    minus_A_q = -A_q
+    for name, u, ul, pl, dist, xy in kept:
+        alpha = _phase_angle_one(pl, sun, rl)
+        # Jacobian at the apparent point: put the body along u at its distance (dist: |p - r|,
+        # numpy.linalg.norm's operations)
+        rel = np.array([(rk + uk * dist) - rk for rk, uk in zip(rl, ul)])  # pb - r, pb = r + u dist
         if mode == "paper":
+            pb = r + u * dist
             F = projection_jacobian(q, r, pb, K)
             sr2 = float(np.trace(Pr) / 3.0)
             S = np.diag([0.0] + [sigma_qv**2] * 3 + [sr2] * 3 + [sigma_rbc_km**2] * 3)
             P = F @ S @ F.T
         else:
             # position: F[:, 4:7] of Eq. 19, d(pixel)/d(r) = -dproj A(q); full covariance
-            w = A_q @ (pb - r)
-            Fr = np.array([[fx / w[2], 0.0, -fx * w[0] / w[2] ** 2], [0.0, fy / w[2], -fy * w[1] / w[2] ** 2]]) @ -A_q
+            w0, w1, w2 = (A_q @ rel).tolist()
+            Fr = np.array([[fx / w2, 0.0, -fx * w0 / w2 ** 2], [0.0, fy / w2, -fy * w1 / w2 ** 2]]) @ minus_A_q
             P = Fr @ Pr @ Fr.T
             # attitude: small rotation phi (camera frame) -> pixel
             # d(pixel)/d(phi) for A' = (I - [phi x]) A: d v_cam = -phi x v_cam = [v_cam x] phi
-            vcam = A @ (pb - r)
-            dproj = np.array([[fx / vcam[2], 0.0, -fx * vcam[0] / vcam[2] ** 2],
-                              [0.0, fy / vcam[2], -fy * vcam[1] / vcam[2] ** 2]])
-            Fa = dproj @ _skew(vcam)
+            c0, c1, c2 = (A @ rel).tolist()
+            dproj = np.array([[fx / c2, 0.0, -fx * c0 / c2 ** 2], [0.0, fy / c2, -fy * c1 / c2 ** 2]])
+            Fa = dproj @ np.array([[0.0, -c2, c1], [c2, 0.0, -c0], [-c1, c0, 0.0]])  # dproj [v_cam x]
             if attitude_cov_rad2 is not None:
                 P = P + Fa @ attitude_cov_rad2 @ Fa.T
             P = P + _FLOOR_PX2  # centroid and first-order model error floor, px^2
         try:
-            ds = p - sun
-            vm = _v_mag(name, math.sqrt(float(ds.dot(ds))), dist, alpha)
+            d0, d1, d2 = pl[0] - sun[0], pl[1] - sun[1], pl[2] - sun[2]
+            vm = _v_mag(name, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), dist, alpha)
         except Exception:  # noqa: BLE001 - a magnitude law outside its range: no brightness prior
             vm = float("nan")
         # in the field, or its 3-sigma ellipse reaches into it (Eq. 23 semi-major axis)
-        reach = float(np.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(P), 0.0)))
+        reach = math.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(P), 0.0))
         if not _in_image(camera, xy, margin_px + (reach if mode == "improved" else 0.0)):
             continue
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist,
                     "attitude_jacobian_px_rad": Fa if mode != "paper" else None})
     return out
+
+
+def _apparent_one(r, v, pos, vel):
+    """:func:`apparent_direction` on lists of 3 Python floats: ``(u, p, |p - r|)`` as lists and a
+    float, the same element-wise operations in the same order (the dot products as numpy's
+    for 3-vectors, ``(x0 y0 + x1 y1) + x2 y2``)."""
+    r0, r1, r2 = r
+    a0, a1, a2 = pos[0] - r0, pos[1] - r1, pos[2] - r2
+    tau = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) / C_KM_S
+    p = [pos[0] - vel[0] * tau, pos[1] - vel[1] * tau, pos[2] - vel[2] * tau]
+    d0, d1, d2 = p[0] - r0, p[1] - r1, p[2] - r2
+    nd = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    u0, u1, u2 = d0 / nd, d1 / nd, d2 / nd
+    b0, b1, b2 = v[0] / C_KM_S, v[1] / C_KM_S, v[2] / C_KM_S
+    ub = u0 * b0 + u1 * b1 + u2 * b2
+    e0, e1, e2 = (u0 + b0) - ub * u0, (u1 + b1) - ub * u1, (u2 + b2) - ub * u2
+    ne = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    return [e0 / ne, e1 / ne, e2 / ne], p, nd
+
+
+def _phase_angle_one(p, sun, r) -> float:
+    """:func:`_phase_angles` of one body, lists of 3 Python floats in (the same operations;
+    ``math.atan2`` and ``math.sqrt`` are libm's, as numpy's ``arctan2`` and ``sqrt``)."""
+    a0, a1, a2 = sun[0] - p[0], sun[1] - p[1], sun[2] - p[2]
+    b0, b1, b2 = r[0] - p[0], r[1] - p[1], r[2] - p[2]
+    c0 = a1 * b2 - a2 * b1
+    c1 = a2 * b0 - a0 * b2
+    c2 = a0 * b1 - a1 * b0
+    return math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
 
 
 _FLOOR_PX2 = np.eye(2) * 0.25**2

@@ -34,3 +34,32 @@ def test_v_mag_nan_outside_the_laws_range():
     assert np.isnan(_v_mag("mercury", AU_KM, AU_KM, np.deg2rad(lo) * 0.5))
     assert np.isnan(_v_mag("moon", AU_KM, 384400.0, np.deg2rad(170.0)))
     assert _v_mag("Jupiter", 5.2 * AU_KM, 4.2 * AU_KM, 0.0) == float(planet_v_mag("jupiter", 5.2 * AU_KM, 4.2 * AU_KM, 0.0))
+
+
+def test_apparent_one_bit_identical_to_apparent_direction():
+    """Reference: apparent_direction (numpy 3-vectors); observer and bodies from 0.01 to 40 au,
+    velocities up to 100 km/s."""
+    from skynav.pipeline.beacons import _apparent_one, apparent_direction
+
+    rng = np.random.default_rng(31)
+    for _ in range(20000):
+        r = rng.normal(size=3) * AU_KM * 10 ** rng.uniform(-2, 1.6)
+        pos = rng.normal(size=3) * AU_KM * 10 ** rng.uniform(-2, 1.6)
+        v, vel = rng.normal(size=3) * 10 ** rng.uniform(-1, 2), rng.normal(size=3) * 10 ** rng.uniform(-1, 2)
+        u, p = apparent_direction(r, v, pos, vel)
+        ul, pl, dist = _apparent_one(r.tolist(), v.tolist(), pos.tolist(), vel.tolist())
+        assert ul == u.tolist() and pl == p.tolist()
+        assert dist == float(np.linalg.norm(p - r))
+
+
+def test_phase_angle_one_bit_identical_to_phase_angles():
+    """Reference: _phase_angles (numpy, itself photometry.phase_angle_rad's operations)."""
+    from skynav.pipeline.beacons import _phase_angle_one, _phase_angles
+
+    rng = np.random.default_rng(32)
+    p = rng.normal(size=(20000, 3)) * AU_KM * 10 ** rng.uniform(-2, 1.6, (20000, 1))
+    sun = rng.normal(size=3) * 1e6
+    r = rng.normal(size=3) * AU_KM
+    want = _phase_angles(p, sun, r).tolist()
+    got = [_phase_angle_one(pi, sun.tolist(), r.tolist()) for pi in p.tolist()]
+    assert got == want
