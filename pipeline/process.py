@@ -579,7 +579,7 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     # 3-sigma reach plus the exclusion radius (from its covariance before the blend widening)
     deep_cones = []
     if n:
-        los = cam.line_of_sight(np.array([p["xy_px"] for p in preds])) @ A  # rows: A^T b
+        los = _lines_of_sight(cam, [p["xy_px"] for p in preds]) @ A  # rows: A^T b
         ifov = cam.ifov_rad
         deep_cones = [(los[k], (math.sqrt(CHI2_2DOF_3SIGMA * max(_max_eig_2x2(p["cov_px2"]), 0.0)) + opt.deep_star_radius_px + 2.0)
                        * ifov * 1.5) for k, p in enumerate(preds)]
@@ -624,12 +624,39 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         vm = np.asarray(ref_vmag).take(match.star_index)
         # every log10 argument is > 0 (NaN fluxes are not good; the rest clipped at 1e-9): no
         # division by zero to silence
-        zp = _median(vm.compress(good) + 2.5 * np.log10(flux_ms.compress(good))) if np.count_nonzero(good) >= 3 else np.nan
+        zp = _median_1d(vm.compress(good) + 2.5 * np.log10(flux_ms.compress(good))) if np.count_nonzero(good) >= 3 else np.nan
         spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn.take(cand), 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
         spot_mag = np.where(spots.saturated.take(cand), np.nan, spot_mag)
     chosen = _assign_from_m2(preds, m2, spot_mag, opt.mag_sigma)
     return tuple(_beacon_result(p, spots, None if k is None else int(cand[k])) for p, k in zip(preds, chosen))
+
+
+def _lines_of_sight(cam, xys):
+    """``cam.line_of_sight(np.array(xys))`` for a few pixel positions: without lens distortion,
+    :meth:`~skynav.scenes.camera.Camera.back_project`'s operations in Python floats (``(x - cx) /
+    fx``, ``(y - cy) / fy``, 1, divided by the square root of their sum of squares, in order);
+    with distortion, ``line_of_sight`` itself."""
+    if not cam.distortion.is_identity:
+        return cam.line_of_sight(np.array(xys))
+    cx, cy, fx, fy = float(cam.cx), float(cam.cy), float(cam.fx_px), float(cam.fy_px)
+    rows = []
+    for x, y in (xy.tolist() for xy in xys):
+        a, b = (x - cx) / fx, (y - cy) / fy
+        n = math.sqrt(a * a + b * b + 1.0)  # 1.0 * 1.0
+        rows.append((a / n, b / n, 1.0 / n))
+    return np.array(rows)
+
+
+def _median_1d(a) -> float:
+    """:func:`_median` (numpy.median's partition and mean of the two middle values) with the
+    mean of two written out: numpy's ``mean`` of two floats is their sum divided by 2.0."""
+    n = len(a)
+    h = n // 2
+    if n % 2:
+        return float(np.partition(a, h)[h])
+    lo, hi = np.partition(a, (h - 1, h))[h - 1:h + 1].tolist()
+    return (lo + hi) / 2.0
 
 
 def _beacon_result(p, spots, k):
@@ -724,22 +751,33 @@ def _assign_from_m2(preds, m2, spot_mag, mag_sigma):
     if not inside.any():
         return chosen
     BIG = 1e9
+    if nb == 1:
+        # one row: scipy's shortest augmenting path takes, at its first step, the column of the
+        # least cost and, among equal costs, the lowest index (it scans the columns from the
+        # last, and an equal unassigned column replaces the one held): the first minimum over
+        # the spots inside the ellipse and "not found" (test_beacon_assignment checks it
+        # against linear_sum_assignment, ties included). Costs as below, in Python floats
+        # (m2 + ((m - m_pred) / mag_sigma)^2, the square as numpy's x * x)
+        vm = float(preds[0]["v_mag"])
+        mags = spot_mag.tolist() if spot_mag is not None and math.isfinite(vm) else None
+        best, j_best = CHI2_2DOF_3SIGMA + 9.0, None
+        for j, (m2j, ok) in enumerate(zip(m2[0].tolist(), inside[0].tolist())):
+            if not ok:
+                continue  # BIG
+            cj = m2j
+            if mags is not None:
+                dm = mags[j] - vm
+                dm = dm / mag_sigma if math.isfinite(dm) else 0.0
+                cj = m2j + dm * dm
+            if cj < BIG and (cj < best or (cj == best and j_best is None)):
+                best, j_best = cj, j
+        chosen[0] = j_best
+        return chosen
     c = m2
     if spot_mag is not None:
         vmag = np.array([p["v_mag"] for p in preds], dtype=float)
         dm = spot_mag[None, :] - vmag[:, None]
         c = c + np.where(np.isfinite(vmag)[:, None], np.where(np.isfinite(dm), dm / mag_sigma, 0.0) ** 2, 0.0)
-    if nb == 1:
-        # one row: scipy's shortest augmenting path takes, at its first step, the column of the
-        # least cost and, among equal costs, the lowest index (it scans the columns from the
-        # last, and an equal unassigned column replaces the one held): numpy's argmin, over
-        # the spots inside the ellipse and "not found" (test_beacon_assignment checks it
-        # against linear_sum_assignment, ties included)
-        row = np.where(inside[0], c[0], BIG)
-        j = int(np.argmin(row)) if m else 0
-        if m and row[j] <= CHI2_2DOF_3SIGMA + 9.0 and row[j] < BIG:
-            chosen[0] = j
-        return chosen
     cost = np.full((nb, m + nb), BIG)
     cost[:, :m] = np.where(inside, c, BIG)
     cost[np.arange(nb), m + np.arange(nb)] = CHI2_2DOF_3SIGMA + 9.0

@@ -166,3 +166,31 @@ def test_inv_2x2_stack_is_numpy_inv_bit_for_bit():
                 assert g is None
             else:
                 np.testing.assert_array_equal(g, want)
+
+
+def test_median_1d_is_numpy_median_bit_for_bit():
+    """Reference: numpy.median, odd and even lengths, repeated values."""
+    from skynav.pipeline.process import _median_1d
+
+    rng = np.random.default_rng(23)
+    for _ in range(3000):
+        n = int(rng.integers(3, 400))
+        a = rng.normal(size=n) * 10 ** rng.uniform(-3, 3) + rng.uniform(-20, 20)
+        if rng.random() < 0.3:
+            a = np.round(a, 1)
+        assert _median_1d(a.copy()) == float(np.median(a))
+
+
+def test_lines_of_sight_is_camera_line_of_sight_bit_for_bit():
+    """Reference: Camera.line_of_sight (numpy), for the undistorted lens; a distorted one is
+    passed through."""
+    from skynav.pipeline.process import _lines_of_sight
+    from skynav.scenes.camera import Camera
+
+    rng = np.random.default_rng(24)
+    for k in range(3000):
+        cam = Camera(width=1024, height=768, focal_length_mm=float(rng.uniform(20, 200)), pixel_pitch_um=5.5,
+                     pixel_pitch_y_um=None if k % 2 else 5.0, cx=float(rng.uniform(400, 600)),
+                     cy=float(rng.uniform(300, 450)))
+        xys = list(rng.uniform(-2 * cam.width, 3 * cam.width, (int(rng.integers(1, 4)), 2)))
+        np.testing.assert_array_equal(_lines_of_sight(cam, xys), cam.line_of_sight(np.array(xys)))
