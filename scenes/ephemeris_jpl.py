@@ -21,6 +21,7 @@ Bodies and the DE421 segments chained for them
 from __future__ import annotations
 
 import functools
+import math
 import threading
 
 import numpy as np
@@ -238,21 +239,28 @@ class Ephemeris:
         bits of :meth:`states_at`), each velocity when asked (:meth:`EpochStates.velocity`, the
         bits of :meth:`states_at`): the Clenshaw recurrence of every segment's position in numpy,
         its derivative only for the segments of the bodies whose velocity is used."""
-        keys = [b.lower() if isinstance(b, str) else b for b in bodies]
-        for k, b in zip(keys, bodies):
-            if k not in _CHAINS:
-                raise UnknownBodyError(b, BODIES)
-        self._open()
+        bodies = tuple(bodies)
+        plan = self.__dict__.setdefault("_epoch_plans", {}).get(bodies)
+        if plan is None:
+            keys = [b.lower() if isinstance(b, str) else b for b in bodies]
+            for k, b in zip(keys, bodies):
+                if k not in _CHAINS:
+                    raise UnknownBodyError(b, BODIES)
+            self._open()
+            pairs, rows = self._states_plan(tuple(keys))
+            plan = self._epoch_plans[bodies] = (rows, self._states_tables(tuple(pairs)), len(pairs),
+                                                {b: j for j, b in enumerate(bodies)})
+        rows, (inits, intlens, ns, base, big), npairs, col = plan
+        if self._kernel is None:
+            self._open()
         t = float(t_tdb_s)
-        day = np.floor(t / SECONDS_PER_DAY)
+        day = float(math.floor(t / SECONDS_PER_DAY))  # numpy.floor's value
         jd1 = J2000_JD + day
         jd2 = (t - day * SECONDS_PER_DAY) / SECONDS_PER_DAY
         if not (self._start_jd <= jd1 + jd2 <= self._end_jd):
             raise EphemerisRangeError(
                 f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
                 f" epoch {t!r} s outside", time_mask=True, start_jd=self._start_jd, end_jd=self._end_jd)
-        pairs, rows = self._states_plan(tuple(keys))
-        inits, intlens, ns, base, big = self._states_tables(tuple(pairs))
         # jplephem's interval arithmetic (Segment.generate) for every segment at once: numpy's
         # float64 divmod is CPython's float divmod (the same IEEE operations), so the same bits
         a1 = (float(jd1) - _T0) * _S_PER_DAY
@@ -271,17 +279,24 @@ class Ephemeris:
         s = 2.0 * offset / intlens - 1.0
         s2 = 2.0 * s
         # Clenshaw: W[i + 2] = c_i + (s2 W[i + 1] - W[i]) from W[0] = W[1] = 0 (the recurrence's
-        # w0 after step i; zeros for the initial 0.0 give the same bits elementwise)
+        # w0 after step i; zeros for the initial 0.0 give the same bits elementwise); the
+        # buffer's rows and the coefficients as lists of views, the product and the difference
+        # in one scratch array (the same three operations a step)
         n = coef.shape[0]
-        W = np.zeros((n + 1, 3, len(pairs)))
+        W = np.zeros((n + 1, 3, npairs))
+        Wl, cl = list(W), list(coef)
+        tmp = np.empty((3, npairs))
         for i in range(n - 1):
-            np.add(coef[i], s2 * W[i + 1] - W[i], out=W[i + 2])
-        pos = coef[-1] + (s * W[n] - W[n - 1])
-        pos = np.concatenate([pos, np.zeros((3, 1))], axis=1)
-        r = np.zeros((3, len(keys)))
+            np.multiply(s2, Wl[i + 1], out=tmp)
+            np.subtract(tmp, Wl[i], out=tmp)
+            np.add(cl[i], tmp, out=Wl[i + 2])
+        pos = np.empty((3, npairs + 1))
+        pos[:, npairs] = 0.0  # the zero column of the shorter chains
+        np.add(cl[n - 1], s * Wl[n] - Wl[n - 1], out=pos[:, :npairs])
+        r = np.zeros((3, len(bodies)))
         for row in rows:
             r += pos[:, row]
-        return EpochStates(tuple(bodies), r.T.copy(), W, s, s2, intlens, n, rows)
+        return EpochStates(bodies, r.T.copy(), W, s, s2, intlens, n, rows, col)
 
     @staticmethod
     @functools.lru_cache(maxsize=16)
@@ -379,10 +394,10 @@ class EpochStates:
 
     __slots__ = ("bodies", "positions", "_W", "_s", "_s2", "_intl", "_n", "_rows", "_col", "_v")
 
-    def __init__(self, bodies, positions, W, s, s2, intl, n, rows):
+    def __init__(self, bodies, positions, W, s, s2, intl, n, rows, col):
         self.bodies, self.positions = bodies, positions
         self._W, self._s, self._s2, self._intl, self._n, self._rows = W, s, s2, intl, n, rows
-        self._col = {b: j for j, b in enumerate(bodies)}
+        self._col = col  # {body: row}, shared by every epoch of one body tuple (read only)
         self._v = {}
 
     def position(self, body):
@@ -403,12 +418,11 @@ class EpochStates:
                     out = [o + 0.0 for o in out]
                     continue
                 s, s2, intl = float(self._s[seg]), float(self._s2[seg]), float(self._intl[seg])
-                for k, w in enumerate(W[:, k_, seg].tolist() for k_ in range(3)):
+                for k, w in enumerate(W[:, :, seg].T.tolist()):
                     dw0 = dw1 = 0.0
-                    for i in range(1, n):
-                        dw2 = dw1
-                        dw1 = dw0
-                        dw0 = 2.0 * w[i] + dw1 * s2 - dw2
+                    for wi in w[1:n]:  # the recurrence's w1 of each step, W[1] .. W[n - 1]
+                        # dw2 = dw1; dw1 = dw0; dw0 = 2.0 w1 + dw1 s2 - dw2
+                        dw0, dw1 = 2.0 * wi + dw0 * s2 - dw1, dw0
                     rate = w[n] + s * dw0 - dw1
                     rate = rate / intl
                     rate = rate * 2.0
