@@ -112,10 +112,9 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
     Pr = np.asarray(predicted_state.position_cov_km2, float)
     A = np.asarray(R_cam_icrs, float)
     K = camera.K if mode == "paper" else None
-    fx, fy = float(camera.fx_px), float(camera.fy_px)  # K[0, 0], K[1, 1]
+    fx, fy, cos_reach = _camera_constants(camera)  # K[0, 0], K[1, 1], half_diagonal_fov_rad
     out = []
     boresight = A[2]
-    cos_reach = camera.half_diagonal_fov_rad
     (p00, _, _), (_, p11, _), (_, _, p22) = Pr.tolist()
     sig_r = math.sqrt(max(p00 + p11 + p22, 0.0))  # numpy.trace's sum (in order), its square root
     # cheap rejection first, all bodies at once: the geometric direction far outside the field
@@ -182,6 +181,21 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         out.append({"name": name, "xy_px": xy, "cov_px2": P, "v_mag": vm, "distance_km": dist,
                     "attitude_jacobian_px_rad": Fa if mode != "paper" else None})
     return out
+
+
+_LAST_CAMERA = [None]
+
+
+def _camera_constants(camera):
+    """``(fx_px, fy_px, half_diagonal_fov_rad)`` of a camera, as floats; kept for the last
+    camera object (a frozen dataclass: the same object, the same values; one tuple swapped in
+    whole, so threads never see one camera's object with another's values), so that tracking
+    frames of one camera do not recompute the field's half-diagonal (atan, hypot) every time."""
+    hit = _LAST_CAMERA[0]
+    if hit is None or hit[0] is not camera:
+        hit = (camera, (float(camera.fx_px), float(camera.fy_px), float(camera.half_diagonal_fov_rad)))
+        _LAST_CAMERA[0] = hit
+    return hit[1]
 
 
 def _apparent_one(r, v, pos, vel):

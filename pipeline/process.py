@@ -610,8 +610,10 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         cones = [deep.cone(c, r, margin_rad=2e-3) for c, r in deep_cones]
         # a cone's indices are ascending and unique already (StarCatalog.cone sorts them)
         idx = cones[0] if len(cones) == 1 else np.unique(np.concatenate(cones))
-        xy = cam.project(deep.u_icrs.take(idx, axis=0) @ A.T)
-        xy = xy.compress(np.logical_and.reduce(np.isfinite(xy), axis=1), axis=0)
+        xy = np.zeros((0, 2))
+        if len(idx):  # no deep star near any beacon (the usual case): nothing to project
+            xy = cam.project(deep.u_icrs.take(idx, axis=0) @ A.T)
+            xy = xy.compress(np.logical_and.reduce(np.isfinite(xy), axis=1), axis=0)
         if len(xy):
             on_star = _near_any(spots.xy_px[cand], xy, opt.deep_star_radius_px)
             cand, m2 = cand[~on_star], m2[:, ~on_star]

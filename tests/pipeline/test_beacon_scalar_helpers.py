@@ -63,3 +63,14 @@ def test_phase_angle_one_bit_identical_to_phase_angles():
     want = _phase_angles(p, sun, r).tolist()
     got = [_phase_angle_one(pi, sun.tolist(), r.tolist()) for pi in p.tolist()]
     assert got == want
+
+
+def test_camera_constants_follow_the_camera_object():
+    """Reference: the Camera properties themselves, for two cameras used in turn."""
+    from skynav.pipeline.beacons import _camera_constants
+    from skynav.scenes.camera import Camera
+
+    a = Camera(width=1024, height=1024, focal_length_mm=50.0, pixel_pitch_um=5.5)
+    b = Camera(width=640, height=480, focal_length_mm=20.0, pixel_pitch_um=4.8, pixel_pitch_y_um=5.0)
+    for cam in (a, b, a, a, b):
+        assert _camera_constants(cam) == (cam.fx_px, cam.fy_px, cam.half_diagonal_fov_rad)
