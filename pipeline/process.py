@@ -634,6 +634,25 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     return tuple(_beacon_result(p, spots, None if k is None else int(cand[k])) for p, k in zip(preds, chosen))
 
 
+def _clearly_invertible(a) -> bool:
+    """True when every 2 x 2 matrix of the stack ``a`` (k, 2, 2) is finite, with entries 0 or of
+    magnitude in [1e-30, 1e30], and ``|ad - bc| > 1e-8 (|ad| + |bc|)``: LU with partial pivoting
+    (LAPACK gesv) then meets no zero pivot (the second pivot is ``det / p`` within a relative
+    rounding far below 1e-8) and no product, quotient or inverse entry leaves [1e-130, 1e130], so
+    no overflow, underflow, division by zero or invalid operation is raised."""
+    if a.ndim != 3 or a.shape[1:] != (2, 2):
+        return False
+    for (p, q), (r, t) in a.tolist():
+        for x in (p, q, r, t):
+            ax = abs(x)
+            if not (ax == 0.0 or 1e-30 <= ax <= 1e30):  # NaN fails too
+                return False
+        ad, bc = p * t, q * r
+        if not abs(ad - bc) > 1e-8 * (abs(ad) + abs(bc)):
+            return False
+    return True
+
+
 def _lines_of_sight(cam, xys):
     """``cam.line_of_sight(np.array(xys))`` for a few pixel positions: without lens distortion,
     :meth:`~skynav.scenes.camera.Camera.back_project`'s operations in Python floats (``(x - cx) /
@@ -701,6 +720,10 @@ def _inv_2x2_stack(mats):
     fills a singular matrix's inverse with NaN and raises the invalid flag, which
     ``numpy.linalg.inv`` turns into LinAlgError."""
     a = np.asarray(mats, dtype=float)
+    if _clearly_invertible(a):
+        # no zero pivot and no floating-point exception can occur: the gufunc's values are the
+        # same under any error state, so it runs under the caller's (no errstate to enter)
+        return list(_umath_linalg.inv(a, signature="d->d"))
     with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
         try:
             inv = _umath_linalg.inv(a, signature="d->d")

@@ -194,3 +194,26 @@ def test_lines_of_sight_is_camera_line_of_sight_bit_for_bit():
                      cy=float(rng.uniform(300, 450)))
         xys = list(rng.uniform(-2 * cam.width, 3 * cam.width, (int(rng.integers(1, 4)), 2)))
         np.testing.assert_array_equal(_lines_of_sight(cam, xys), cam.line_of_sight(np.array(xys)))
+
+
+def test_inv_2x2_stack_fast_path_raises_nothing_and_matches():
+    """Matrices _clearly_invertible accepts invert without any floating-point exception (under
+    errstate(all="raise")) to numpy.linalg.inv's bits; singular, non-finite and extreme ones
+    are refused (and go through numpy.linalg.inv's error handling)."""
+    from skynav.pipeline.process import _clearly_invertible, _inv_2x2_stack
+
+    rng = np.random.default_rng(25)
+    for _ in range(2000):
+        L = rng.normal(size=(2, 2)) * 10.0 ** rng.uniform(-14, 14)
+        M = L @ L.T * (1.0 if rng.random() < 0.8 else -1.0)
+        if rng.random() < 0.2:
+            M[0, 1] = M[1, 0] = 0.0
+        if not _clearly_invertible(M[None]):
+            continue
+        with np.errstate(all="raise"):
+            got = _inv_2x2_stack([M])[0]
+        np.testing.assert_array_equal(got, np.linalg.inv(M))
+    for bad in (np.zeros((2, 2)), np.ones((2, 2)), np.array([[1.0, np.nan], [0.0, 1.0]]),
+                np.array([[1e-40, 0.0], [0.0, 1.0]]), np.array([[1e31, 0.0], [0.0, 1.0]]),
+                np.array([[1.0, 1.0], [1.0, 1.0 + 1e-12]])):
+        assert not _clearly_invertible(bad[None])
