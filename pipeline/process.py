@@ -600,9 +600,9 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
     # only the candidates inside some beacon's 3-sigma ellipse can be chosen: the deep-star test
     # and the brightness model are evaluated for those alone
     cand = np.flatnonzero(candidate)
-    m2 = _mahalanobis2(preds, spots.xy_px[cand])
+    m2 = _mahalanobis2(preds, spots.xy_px.take(cand, axis=0))
     cand_in = m2[0] <= CHI2_2DOF_3SIGMA if len(m2) == 1 else np.logical_or.reduce(m2 <= CHI2_2DOF_3SIGMA, axis=0)
-    cand, m2 = cand[cand_in], m2[:, cand_in]
+    cand, m2 = cand.compress(cand_in), m2.compress(cand_in, axis=1)
     if len(cand):
         # ... nor spots on fainter catalog stars (the deep catalog, V < deep_v_mag), predicted
         # with the solved attitude: the field's faint stars are the usual wrong beacons
