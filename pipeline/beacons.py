@@ -104,9 +104,11 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
 
     Returns a list of dicts ``name, xy_px (2,), cov_px2 (2, 2), v_mag, distance_km``.
     """
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
+    if ephemeris is None:
+        from skynav.scenes.ephemeris_jpl import default_ephemeris
 
-    eph = _CachedEphemeris.wrap(ephemeris if ephemeris is not None else default_ephemeris(), epoch_tdb_s)
+        ephemeris = default_ephemeris()
+    eph = _CachedEphemeris.wrap(ephemeris, epoch_tdb_s)
     r = np.asarray(predicted_state.position_km, float)
     v = np.asarray(predicted_state.velocity_km_s, float)
     Pr = np.asarray(predicted_state.position_cov_km2, float)

@@ -25,7 +25,11 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.linalg import _umath_linalg
+
+try:  # the gufunc behind numpy.linalg.inv (numpy's private module: _inv_2x2_stack falls back without it)
+    from numpy.linalg import _umath_linalg
+except ImportError:  # pragma: no cover
+    _umath_linalg = None
 
 from .attitude import attitude_covariance
 from .beacons import CHI2_2DOF_3SIGMA, _max_eig_2x2, predict_beacons, select_spot
@@ -720,6 +724,8 @@ def _inv_2x2_stack(mats):
     fills a singular matrix's inverse with NaN and raises the invalid flag, which
     ``numpy.linalg.inv`` turns into LinAlgError."""
     a = np.asarray(mats, dtype=float)
+    if _umath_linalg is None:  # pragma: no cover - numpy without the private module
+        return [_inv_or_none(M) for M in a]
     if _clearly_invertible(a):
         # no zero pivot and no floating-point exception can occur: the gufunc's values are the
         # same under any error state, so it runs under the caller's (no errstate to enter)
@@ -730,14 +736,15 @@ def _inv_2x2_stack(mats):
         except FloatingPointError:  # some matrix singular: each one alone, as numpy.linalg.inv
             inv = None
     if inv is None:
-        out = []
-        for M in a:
-            try:
-                out.append(np.linalg.inv(M))
-            except np.linalg.LinAlgError:
-                out.append(None)
-        return out
+        return [_inv_or_none(M) for M in a]
     return list(inv)
+
+
+def _inv_or_none(M):
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return None
 
 
 @functools.lru_cache(maxsize=1)
