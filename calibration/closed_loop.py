@@ -2,10 +2,13 @@
 frame shown on the virtual screen and captured by the virtual camera, then measured exactly like
 the dataset's own software frames.
 
-Driver module. What goes in is only what a lab would have: the dataset folder (software frames,
-ground truth), the export folder written by :func:`skynav.datasets.hil_export.export_dataset`
-(``skynav hil export``) with the *calibrated* facility, and a bench that shows PNGs. The virtual
-bench's true parameters are used only to make the captures (like the real hardware would).
+Core module: the source selection, the paired measurement and the statistics. The loop over a
+dataset and its bench export (reading the frames, capturing them on the virtual bench) is
+:func:`skynav.datasets.bench_files.closed_loop_dataset`, the file side. What goes in is only what
+a lab would have: the dataset folder (software frames, ground truth), the export folder written by
+:func:`skynav.datasets.hil_export.export_dataset` (``skynav hil export``) with the *calibrated*
+facility, and a bench that shows PNGs. The virtual bench's true parameters are used only to make
+the captures (like the real hardware would).
 
 For every frame and every selected source (stars brighter than ``v_max``, and the unresolved,
 visible planets in the field), both images are measured by the same
@@ -33,16 +36,13 @@ and the catalogue would), and the fitted centre does not depend on it.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from skynav.scenes.facility import ARCSEC
 
-from .errors import CalibrationInputError
 from .measure import measure_sources
 
 #: blend rules (px, mag): see the module docstring
@@ -114,7 +114,7 @@ class ClosedLoopResult:
         return out
 
 
-def _select(truth: dict, cam, v_max: float, skipped: dict):
+def select_sources(truth: dict, cam, v_max: float, skipped: dict):
     """(kind, name, v_mag, v_cam (3,), xy) of the sources to score in one frame."""
     R = np.asarray(truth["attitude"]["R_cam_icrs"], dtype=float)
     stars = truth["stars"]
@@ -168,107 +168,8 @@ def measure_pair(cam, images: dict, guess_xy):
     return {k: measure_sources(img, guess_xy, saturated=sat, read_noise_e=noise) for k, (img, sat) in images.items()}
 
 
-def _angle_arcsec(cam, xy, v_cam):
+def angle_arcsec(cam, xy, v_cam):
     u = cam.line_of_sight(np.where(np.isfinite(xy), xy, 0.0))
     v = v_cam / np.linalg.norm(v_cam, axis=-1, keepdims=True)
     a = np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("ij,ij->i", u, v)) / ARCSEC
     return np.where(np.all(np.isfinite(xy), axis=1), a, np.nan)
-
-
-def closed_loop_dataset(bench, dataset_dir, export_dir, *, seed: int = 0, v_max: float = 6.0, frames=None,
-                        progress=None) -> ClosedLoopResult:
-    """Capture every exported screen frame of ``export_dir`` (written from ``dataset_dir`` with the
-    calibrated facility) on ``bench`` (a :class:`~skynav.calibration.virtual_bench.VirtualBench`)
-    and compare with the dataset's software frames (see the module docstring). Frame k's camera
-    noise draws from ``SeedSequence([seed, k])``."""
-    from skynav.datasets import open_dataset
-    from skynav.datasets.frame_files import read_png
-    from skynav.renderer.detector import Sensor
-    from skynav.scenes.camera import Camera
-
-    ds = open_dataset(dataset_dir)
-    todo = range(len(ds)) if frames is None else range(min(int(frames), len(ds)))
-    cols = {k: [] for k in ("frame", "kind", "name", "v_mag")}
-    err = {"noisy": [], "noise_free": []}
-    sw_err = {"noisy": [], "noise_free": []}
-    pc_err = {"noisy": [], "noise_free": []}
-    clipped = []
-    dmag = {"noisy": [], "noise_free": []}
-    skipped: dict = {}
-    sensor = None
-    for n_done, k in enumerate(todo):
-        rec = ds[k]
-        truth = rec.truth
-        cam = Camera.from_dict(truth["camera"])
-        if cam != bench.facility.camera:
-            raise CalibrationInputError(f"{dataset_dir}: frame {k}'s camera differs from the bench's; export a dataset made with the facility's camera")
-        src = _select(truth, cam, v_max, skipped)
-        screen_png = Path(export_dir) / "frames" / f"{k:06d}.png"
-        hil = json.loads((Path(export_dir) / "frames" / f"{k:06d}.json").read_text())
-        if hil["source"]["frame"] != k:
-            raise CalibrationInputError(f"{screen_png}: exported from frame {hil['source']['frame']}, not {k}")
-        if not src:
-            continue
-        sp = cam.sensor
-        if sensor is None:
-            sensor = Sensor(sp, (cam.height, cam.width))
-        cap_e = bench.expected_electrons(read_png(screen_png).astype(float))
-        rng = np.random.default_rng(np.random.SeedSequence([seed, k]))
-        cap_dn = sensor.expose(cap_e, cam.exposure_s, rng, backend="numpy")
-        sw_e = np.asarray(rec.electrons, dtype=float)
-        to_e = lambda dn: (dn.astype(float) - sp.offset_dn) / sp.gain_dn_per_e  # noqa: E731
-        full = sp.full_well_e
-        images = {"cap_noisy": (to_e(cap_dn), cap_dn >= sp.max_dn), "sw_noisy": (to_e(rec.dn), rec.dn >= sp.max_dn),
-                  "cap_noise_free": (np.minimum(cap_e, full), cap_e >= full), "sw_noise_free": (np.minimum(sw_e, full), sw_e >= full)}
-        xy = np.array([s[4] for s in src])
-        v_cam = np.array([s[3] for s in src])
-        meas = measure_pair(cam, images, xy)
-        ref = meas["sw_noise_free"].xy_px
-        ref_cam = cam.line_of_sight(np.where(np.isfinite(ref), ref, 0.0))
-        ref_cam[~np.all(np.isfinite(ref), axis=1)] = np.nan
-        maxdn = (1 << int(hil["facility"]["screen"]["bit_depth"])) - 1
-        peaks = {s["hip"]: s["peak_dn"] for s in hil["stars"]} | {b["name"]: b["peak_dn"] for b in hil["bodies"]}
-        clipped += [peaks.get(int(s[1]) if s[0] == "star" else s[1], 0) >= maxdn for s in src]
-        for label in ("noisy", "noise_free"):
-            c, s = meas[f"cap_{label}"], meas[f"sw_{label}"]
-            err[label].append(_angle_arcsec(cam, c.xy_px, v_cam))
-            pc_err[label].append(_angle_arcsec(cam, c.xy_px, ref_cam))
-            sw_err[label].append(_angle_arcsec(cam, s.xy_px, v_cam))
-            phot = c.ok & s.ok & ~c.saturated & ~s.saturated & (c.flux_e > 0) & (s.flux_e > 0)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                dmag[label].append(np.where(phot, -2.5 * np.log10(c.flux_e / s.flux_e), np.nan))
-        cols["frame"] += [k] * len(src)
-        cols["kind"] += [s[0] for s in src]
-        cols["name"] += [s[1] for s in src]
-        cols["v_mag"] += [s[2] for s in src]
-        if progress:
-            progress(n_done + 1, len(todo))
-    cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0)  # noqa: E731
-    rows = LoopRows(frame=np.array(cols["frame"], dtype=int), kind=np.array(cols["kind"], dtype=str),
-                    name=np.array(cols["name"], dtype=str), v_mag=np.array(cols["v_mag"], dtype=float),
-                    err_arcsec={k: cat(v) for k, v in err.items()}, sw_err_arcsec={k: cat(v) for k, v in sw_err.items()},
-                    photocentre_err_arcsec={k: cat(v) for k, v in pc_err.items()}, dmag={k: cat(v) for k, v in dmag.items()},
-                    screen_clipped=np.array(clipped, dtype=bool), skipped=skipped)
-    return ClosedLoopResult(rows=rows, frames=len(todo), v_max=v_max)
-
-
-def run_closed_loop(facility, calibrated, work_dir, *, scenario_name: str = "realistic", frames: int = 100,
-                    dataset_seed: int = 20260101, seed: int = 0, v_max: float = 6.0, progress=False) -> ClosedLoopResult:
-    """The whole loop in ``work_dir``: a ``montecarlo`` dataset of ``frames`` frames made with the
-    facility's camera (as ``skynav dataset generate montecarlo --count N --seed S``), exported for
-    the bench with the ``calibrated`` facility (as ``skynav hil export``), captured on the
-    virtual bench ``scenario_name`` of the nominal ``facility`` and measured
-    (:func:`closed_loop_dataset`). Both folders resume if already there."""
-    from skynav.datasets import generate
-    from skynav.datasets.hil_export import export_dataset
-    from skynav.datasets.recipes import preset_recipe
-
-    from .virtual_bench import VirtualBench, scenario
-
-    work = Path(work_dir)
-    recipe = preset_recipe("montecarlo")
-    recipe.update(frames=int(frames), seed=int(dataset_seed), camera=facility.camera.to_dict())
-    generate(recipe, work / "dataset", workers=1, progress=progress)
-    export_dataset(calibrated, work / "dataset", work / "screen", workers=1)
-    bench = VirtualBench(facility, scenario(scenario_name, facility))
-    return closed_loop_dataset(bench, work / "dataset", work / "screen", seed=seed, v_max=v_max)

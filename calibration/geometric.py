@@ -15,14 +15,13 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from skynav.scenes.facility import ARCSEC, Facility, FlatField, GeometricModel, ResidualField
 
 from .errors import CaptureMismatchError, IdentificationError
-from .patterns import Pattern, read_patterns
+from .patterns import Pattern
 
 
 @dataclass(frozen=True)
@@ -48,39 +47,6 @@ class GeometricResult:
         h = self.holdout_arcsec
         return {"p50": float(np.percentile(h, 50)), "p99": float(np.percentile(h, 99)), "max": float(h.max()),
                 "n_fit": self.n_fit, "n_holdout": self.n_holdout}
-
-
-def read_captures(facility: Facility, patterns_dir, captures_dir):
-    """(patterns, {file: image}) after checking that the captures match the patterns."""
-    from skynav.datasets.frame_files import read_png
-
-    screen, pats = read_patterns(patterns_dir)
-    sc = facility.screen
-    if (screen.get("width_px"), screen.get("height_px"), screen.get("bit_depth")) != (sc.width_px, sc.height_px, sc.bit_depth):
-        raise CaptureMismatchError(f"{patterns_dir}: patterns for a {screen.get('width_px')}x{screen.get('height_px')} "
-                                   f"{screen.get('bit_depth')}-bit screen, but the facility's screen is {sc.width_px}x{sc.height_px} {sc.bit_depth}-bit")
-    cap = Path(captures_dir)
-    if not cap.is_dir():
-        raise CaptureMismatchError(f"{captures_dir}: no such captures folder")
-    missing = [p.file for p in pats if not (cap / p.file).is_file()]
-    if missing:
-        raise CaptureMismatchError(f"{captures_dir}: {len(missing)} of {len(pats)} pattern captures missing "
-                                   f"(first: {missing[0]}); captures must carry the patterns' file names")
-    cam = facility.camera
-    want = np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16
-    images = {}
-    for p in pats:
-        try:
-            img = read_png(cap / p.file)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad input
-            raise CaptureMismatchError(f"{cap / p.file}: not a readable greyscale PNG ({exc})") from None
-        if img.shape != (cam.height, cam.width):
-            raise CaptureMismatchError(f"{cap / p.file}: capture is {img.shape[1]}x{img.shape[0]} px; the camera is {cam.width}x{cam.height}")
-        if img.dtype != want or int(img.max()) > cam.sensor.max_dn:
-            raise CaptureMismatchError(f"{cap / p.file}: capture is {img.dtype} with max {int(img.max())}; the camera is "
-                                       f"{cam.sensor.bit_depth}-bit ({np.dtype(want).name}, <= {cam.sensor.max_dn})")
-        images[p.file] = img
-    return pats, images
 
 
 def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observations:
@@ -224,9 +190,13 @@ def _flat_field(facility: Facility, pats, images, n_nodes: int = 17, block: int 
     return FlatField(x_px=gx, y_px=gy, relative=np.maximum(grid / c, 1e-3))
 
 
-def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdout: float = 0.2, seed: int = 0) -> GeometricResult:
-    t0 = time.perf_counter()
-    pats, images = read_captures(facility, patterns_dir, captures_dir)
+def fit_geometric(facility: Facility, pats, images: dict, *, holdout: float = 0.2, seed: int = 0,
+                  t0: float | None = None, source: tuple = ("", "")) -> GeometricResult:
+    """The geometric (and flat-field) fit from the patterns and their captures (``{file: image}``,
+    as :func:`skynav.datasets.bench_files.read_captures` returns them); ``t0``: when the work
+    began (``time.perf_counter()``) for the result's ``seconds``; ``source``: the patterns' and
+    the captures' folders, for the facility's provenance record."""
+    t0 = time.perf_counter() if t0 is None else t0
     obs = observe(facility, pats, images)
     cam, sc = facility.camera, facility.screen
     v = cam.line_of_sight(obs.camera_xy)
@@ -265,7 +235,7 @@ def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdo
                                                        "p99": round(float(np.percentile(phys_holdout, 99)), 4)},
                 "n_fit": s["n_fit"], "n_holdout": s["n_holdout"], "excluded_outliers": int((~good).sum()),
                 "excluded_holdout_outliers": n_test_outliers},
-        "provenance": {"patterns": str(patterns_dir), "captures": str(captures_dir), "captures_used": len(obs.per_pattern),
+        "provenance": {"patterns": str(source[0]), "captures": str(source[1]), "captures_used": len(obs.per_pattern),
                        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "holdout_fraction": holdout, "seed": seed},
     }
     return dataclasses.replace(res, facility=new.replace(calibrated_geometric=report))

@@ -109,21 +109,6 @@ def draw(pattern: Pattern, width: int, height: int, bit_depth: int) -> np.ndarra
     return img
 
 
-def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
-    from skynav.datasets.frame_files import atomic_write_bytes, write_png
-
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    sc = facility.screen
-    pats = design(facility, **kw)
-    for p in pats:
-        write_png(d / p.file, draw(p, sc.width_px, sc.height_px, sc.bit_depth), bit_depth=sc.bit_depth)
-    doc = {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},
-           "patterns": [p.to_json() for p in pats]}
-    atomic_write_bytes(d / "patterns.json", json.dumps(doc, indent=1).encode())
-    return pats
-
-
 def read_patterns(directory):
     """(screen dict, list of :class:`Pattern`) from ``DIR/patterns.json``."""
     path = Path(directory) / "patterns.json"

@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -163,37 +162,6 @@ class VirtualBench:
             acc += sensor.expose(e, cam.exposure_s * exposure_scale, rng, backend="numpy")
         dtype = np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16
         return np.clip(np.round(acc / frames), 0, cam.sensor.max_dn).astype(dtype)
-
-
-def simulate(facility: Facility, patterns_dir, out_dir, *, scenario_name: str = "realistic", seed: int = 0,
-             frames: int = 16, progress=None) -> dict:
-    """Capture every pattern of ``patterns_dir`` on the virtual bench into ``out_dir`` (same file
-    names) and write ``out_dir/power_meter.csv``. Returns a summary dict."""
-    from skynav.datasets.frame_files import atomic_write_bytes, read_png, write_png
-
-    from .patterns import read_patterns
-
-    screen, pats = read_patterns(patterns_dir)
-    bench = VirtualBench(facility, scenario(scenario_name, facility))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    bd = facility.camera.sensor.bit_depth
-    # the lab sets the exposure so that the brightest dots reach ~75 % of full well
-    scale = 1.0
-    first = next((p for p in pats if p.kind == "dots"), None)
-    if first is not None:
-        peak = float(bench.expected_electrons(read_png(Path(patterns_dir) / first.file).astype(float)).max())
-        scale = float(np.clip(0.75 * facility.camera.sensor.full_well_e / max(peak, 1e-9), 0.1, 10.0))
-    for i, p in enumerate(pats):
-        img = read_png(Path(patterns_dir) / p.file)
-        write_png(out / p.file, bench.capture(img.astype(float), rng, frames=frames, exposure_scale=scale), bit_depth=bd)
-        if progress:
-            progress(i + 1, len(pats))
-    rows = bench.power_meter(rng=rng)
-    text = "digital_count,lit_pixels,irradiance_w_m2\n" + "".join(f"{d},{n},{e:.6e}\n" for d, n, e in rows)
-    atomic_write_bytes(out / "power_meter.csv", text.encode())
-    return {"captures": len(pats), "measurements": len(rows), "scenario": scenario_name, "exposure_scale": scale}
 
 
 def uncalibrated_error_arcsec(facility: Facility, truth: TrueBench, n: int = 41) -> float:

@@ -11,7 +11,7 @@ order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ on
   the **spawn** start method. Dr.Jit/LLVM (the sensor kernel, Mitsuba) start threads and JIT state
   in a process; a fork of a parent that already used them inherits locked mutexes and a
   half-copied JIT (the classic fork-after-threads hazard), so children are spawned fresh and
-  import skynav themselves. The plan travels pickled. Each worker gets ``cores // N`` threads for
+  load the package themselves. The plan travels pickled. Each worker gets ``cores // N`` threads for
   the libraries that start thread pools (Dr.Jit and OpenEXR via ``SKYNAV_THREADS``,
   OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a variable the user set is left alone): N
   processes each with a pool as wide as the machine spin against each other (measured: 2 workers

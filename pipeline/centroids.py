@@ -271,23 +271,16 @@ def window_centroids(image, xy_px, *, threshold_dn: float, background_dn: float,
     bright or saturated spot is not truncated. Every window is one vectorised gather: ~0.1 ms
     for a few hundred stars where a full 1024^2 frame takes ~2.5 ms.
     """
-    img = np.asarray(image)
-    H, W = img.shape
-    flat = img.ravel()
-    xy = np.asarray(xy_px, float).reshape(-1, 2)
-    n = len(xy)
+    # the brightest pixel of the search box: each box is one row of a (n, (2s + 1)^2) gather of
+    # flat indices. Below, every per-window array is compact (the windows still measured),
+    # scattered once.
+    s = int(search_half_px)
+    flat, (H, W), n, idx, c = _search_windows(image, xy_px, s)
     out_xy = np.full((n, 2), np.nan)
     flux, peak, npx = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
     valid = np.zeros(n, dtype=bool)
-    # the brightest pixel of the search box (the box must lie in the image; NaN positions fail
-    # every comparison): each box is one row of a (n, (2s + 1)^2) gather of flat indices.
-    # Below, every per-window array is compact (the windows still measured), scattered once.
-    s = int(search_half_px)
-    c = np.rint(xy)
-    idx = ((c[:, 0] >= s) & (c[:, 0] < W - s) & (c[:, 1] >= s) & (c[:, 1] < H - s)).nonzero()[0]
     if not len(idx):
         return WindowCentroids(xy_px=out_xy, flux_dn=flux, peak_dn=peak, n_pixels=npx, valid=valid)
-    c = c.take(idx, axis=0).astype(np.intp)
     cx, cy = c[:, 0], c[:, 1]
     if s > 0:
         box = flat.take((cy * W + cx)[:, None] + _box_offsets(s, W))
@@ -362,20 +355,13 @@ def window_peaks(image, xy_px, *, threshold_dn: float, background_dn: float, sea
     for a star: what windowed tracking's first pass needs to re-predict the stars within a
     pixel, at a fraction of :func:`window_centroids`' cost (no ROI, no growth).
     """
-    img = np.asarray(image)
-    H, W = img.shape
-    flat = img.ravel()
-    xy = np.asarray(xy_px, float).reshape(-1, 2)
-    n = len(xy)
-    out = np.full((n, 2), np.nan)
-    valid = np.zeros(n, dtype=bool)
     s = int(search_half_px)
     m = 2 * s + 1
-    c = np.rint(xy)
-    idx = ((c[:, 0] >= s) & (c[:, 0] < W - s) & (c[:, 1] >= s) & (c[:, 1] < H - s)).nonzero()[0]
+    flat, (_, W), n, idx, c = _search_windows(image, xy_px, s)
+    out = np.full((n, 2), np.nan)
+    valid = np.zeros(n, dtype=bool)
     if not len(idx) or m < 3:
         return out, valid
-    c = c.take(idx, axis=0).astype(np.intp)
     box = flat.take((c[:, 1] * W + c[:, 0])[:, None] + _box_offsets(s, W))
     k = box.argmax(axis=1)
     rows = np.arange(len(idx))
@@ -397,6 +383,18 @@ def window_peaks(image, xy_px, *, threshold_dn: float, background_dn: float, sea
     out[idx, 1] = c[:, 1] - s + cy3 + dy
     valid[idx] = True
     return out, valid
+
+
+def _search_windows(image, xy_px, s: int):
+    """``(flat image, (H, W), N, idx, c)``: of the N predicted positions (x = column), those whose
+    rounded position's (2s + 1)^2 box lies in the image (NaN positions fail every comparison),
+    as indices ``idx`` and integer centres ``c`` (len(idx), 2)."""
+    img = np.asarray(image)
+    H, W = img.shape
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    c = np.rint(xy)
+    idx = ((c[:, 0] >= s) & (c[:, 0] < W - s) & (c[:, 1] >= s) & (c[:, 1] < H - s)).nonzero()[0]
+    return img.ravel(), (H, W), len(xy), idx, c.take(idx, axis=0).astype(np.intp)
 
 
 @functools.lru_cache(maxsize=32)

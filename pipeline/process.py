@@ -532,14 +532,15 @@ def _norm(v) -> float:
 
 
 def _median(a) -> float:
-    """:func:`numpy.median` of a 1-D float array (the same partition and the same mean of the
-    two middle values), without its wrapper's overhead."""
+    """:func:`numpy.median` of a 1-D float array (the same partition; the mean of the two middle
+    values written out: numpy's ``mean`` of two floats is their sum divided by 2.0), without its
+    wrapper's overhead."""
     n = len(a)
     h = n // 2
     if n % 2:
         return float(np.partition(a, h)[h])
-    p = np.partition(a, (h - 1, h))
-    return float(np.mean(p[h - 1:h + 1]))
+    lo, hi = np.partition(a, (h - 1, h))[h - 1:h + 1].tolist()
+    return (lo + hi) / 2.0
 
 
 def _concat_spots(a, b):
@@ -630,7 +631,7 @@ def _identify_beacons(observation, predicted_state, A, P_att, spots, match, cata
         vm = np.asarray(ref_vmag).take(match.star_index)
         # every log10 argument is > 0 (NaN fluxes are not good; the rest clipped at 1e-9): no
         # division by zero to silence
-        zp = _median_1d(vm.compress(good) + 2.5 * np.log10(flux_ms.compress(good))) if np.count_nonzero(good) >= 3 else np.nan
+        zp = _median(vm.compress(good) + 2.5 * np.log10(flux_ms.compress(good))) if np.count_nonzero(good) >= 3 else np.nan
         spot_mag = zp - 2.5 * np.log10(np.maximum(spots.flux_dn.take(cand), 1e-9))
         # saturated spots are at least as bright as measured: no penalty for a brighter prediction
         spot_mag = np.where(spots.saturated.take(cand), np.nan, spot_mag)
@@ -671,17 +672,6 @@ def _lines_of_sight(cam, xys):
         n = math.sqrt(a * a + b * b + 1.0)  # 1.0 * 1.0
         rows.append((a / n, b / n, 1.0 / n))
     return np.array(rows)
-
-
-def _median_1d(a) -> float:
-    """:func:`_median` (numpy.median's partition and mean of the two middle values) with the
-    mean of two written out: numpy's ``mean`` of two floats is their sum divided by 2.0."""
-    n = len(a)
-    h = n // 2
-    if n % 2:
-        return float(np.partition(a, h)[h])
-    lo, hi = np.partition(a, (h - 1, h))[h - 1:h + 1].tolist()
-    return (lo + hi) / 2.0
 
 
 def _beacon_result(p, spots, k):

@@ -1,4 +1,4 @@
-"""``skynav calibrate``: patterns, simulate, geometric, radiometric (thin wrappers over skynav.calibration)."""
+"""``skynav calibrate``: patterns, simulate, geometric, radiometric (thin wrappers over skynav.calibration and its file side, skynav.datasets.bench_files)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def _progress(label):
 
 def cmd_patterns(args) -> int:
     from skynav.calibration.facility_io import load_facility
-    from skynav.calibration.patterns import write_patterns
+    from skynav.datasets.bench_files import write_patterns
 
     fac = load_facility(args.facility)
     pats = write_patterns(fac, args.output, phases=args.phases)
@@ -29,7 +29,7 @@ def cmd_patterns(args) -> int:
 
 def cmd_simulate(args) -> int:
     from skynav.calibration.facility_io import load_facility
-    from skynav.calibration.virtual_bench import simulate
+    from skynav.datasets.bench_files import simulate
 
     if args.frames < 1:
         print(f"skynav: error: --frames {args.frames}: expected a positive integer", file=sys.stderr)
@@ -44,8 +44,8 @@ def cmd_simulate(args) -> int:
 
 def cmd_geometric(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.calibration.geometric import calibrate_geometric
     from skynav.calibration.plots import residual_plot
+    from skynav.datasets.bench_files import calibrate_geometric
 
     fac = load_facility(args.facility)
     fac.check_coverage()

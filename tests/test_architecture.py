@@ -192,6 +192,15 @@ def test_pipeline_never_imports_renderer_or_calibration(graph):
     assert bad == []
 
 
+def test_calibration_never_imports_datasets_or_pipeline(graph):
+    """The house plan draws calibration apart: it computes on arrays (scenes' facility model, the
+    renderer's sensor and radiometry); its files are read and written by skynav.datasets.bench_files,
+    on the side that owns the file formats."""
+    bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) == "calibration"
+           for n in names if _room_of(n) in ("datasets", "pipeline")]
+    assert bad == []
+
+
 # What of skynav.datasets the pipeline may import: the reader and its observation view; the typed
 # truth only from scoring modules (ARCHITECTURE.md: ground truth enters only in scoring).
 PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors")

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
-    from skynav.calibration.patterns import write_patterns
+    from skynav.datasets.bench_files import write_patterns
     from skynav.scenes.facility import bench_preset
 
     fac = bench_preset()
@@ -22,8 +22,8 @@ def campaign(tmp_path_factory):
 
 @pytest.mark.parametrize("name", ["realistic", "stress", "shifted", "roll90"])
 def test_holdout_residuals(campaign, name):
-    from skynav.calibration.geometric import calibrate_geometric
-    from skynav.calibration.virtual_bench import scenario, simulate, uncalibrated_error_arcsec
+    from skynav.calibration.virtual_bench import scenario, uncalibrated_error_arcsec
+    from skynav.datasets.bench_files import calibrate_geometric, simulate
 
     fac, d = campaign
     truth = scenario(name, fac)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from skynav.calibration.errors import IdentificationError
-from skynav.calibration.geometric import calibrate_geometric
 from skynav.calibration.radiometric import calibrate_radiometric
-from skynav.calibration.virtual_bench import scenario, simulate, uncalibrated_error_arcsec
+from skynav.calibration.virtual_bench import scenario, uncalibrated_error_arcsec
+from skynav.datasets.bench_files import calibrate_geometric, simulate
 
 from .conftest import true_error_arcsec
 

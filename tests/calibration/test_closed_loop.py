@@ -1,5 +1,6 @@
-"""The closed loop on the virtual bench (calibration/closed_loop.py): a montecarlo dataset exported
-with the calibrated facility, captured by the virtual camera and measured like its software frames.
+"""The closed loop on the virtual bench (datasets/bench_files.py, measuring with
+calibration/closed_loop.py): a montecarlo dataset exported with the calibrated facility,
+captured by the virtual camera and measured like its software frames.
 
 Fast tests use ``bench_small`` (256 px camera, 281 arcsec per camera px, 640 px screen) on a few
 frames and check the noise-free loop (the bench's systematic error) in camera pixels, against an
@@ -11,15 +12,15 @@ preset, 71 arcsec per px, with camera noise) are in the ``slow`` test at the end
 import numpy as np
 import pytest
 
-from skynav.calibration.closed_loop import run_closed_loop
+from skynav.datasets.bench_files import run_closed_loop
 
 SMALL_PX_ARCSEC = 281.0
 
 
 @pytest.fixture(scope="module")
 def small_calibrated(small_facility, small_patterns, small_captures):
-    from skynav.calibration.geometric import calibrate_geometric
     from skynav.calibration.radiometric import calibrate_radiometric
+    from skynav.datasets.bench_files import calibrate_geometric
 
     geo = calibrate_geometric(small_facility, small_patterns, small_captures)
     return calibrate_radiometric(geo.facility, small_captures / "power_meter.csv").facility
@@ -73,10 +74,8 @@ def test_issue_12_closed_loop_acceptance(tmp_path):
     5 arcsec of their rendered photocentre (the truth direction of a disc's centre differs from
     its light centre by its phase offset, which the software frame shows too), RMS <= 2 arcsec;
     capture electrons vs software-frame electrons within 0.03 mag RMS, bias <= 0.01 mag."""
-    from skynav.calibration.geometric import calibrate_geometric
-    from skynav.calibration.patterns import write_patterns
     from skynav.calibration.radiometric import calibrate_radiometric
-    from skynav.calibration.virtual_bench import simulate
+    from skynav.datasets.bench_files import calibrate_geometric, simulate, write_patterns
     from skynav.scenes.facility import bench_preset
 
     fac = bench_preset()

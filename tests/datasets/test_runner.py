@@ -61,6 +61,23 @@ def _count_json(frames_dir: Path) -> int:
     return sum(1 for p in frames_dir.glob("*.json")) if frames_dir.is_dir() else 0
 
 
+def _spawn_generator(recipe: dict, out: Path, options: str) -> subprocess.Popen:
+    """``generate(recipe, out, <options>)`` in a separate Python process."""
+    code = ("import json, sys\n"
+            "from skynav.datasets import generate\n"
+            f"generate(json.loads(sys.argv[1]), sys.argv[2], {options})\n")
+    return subprocess.Popen([sys.executable, "-c", code, json.dumps(recipe), str(out)])
+
+
+def _wait_until(proc: subprocess.Popen, done, *, poll_s: float, timeout_s: float = 180.0) -> None:
+    """Poll ``done()`` until true; fail if the generator ends first or takes over ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert proc.poll() is None, f"the generator ended before it could be killed (rc {proc.returncode})"
+        assert time.monotonic() < deadline, "the generator is too slow"
+        time.sleep(poll_s)
+
+
 def _count_records(frames_dir: Path) -> int:
     return sum(1 for p in frames_dir.glob("*.sha256")) if frames_dir.is_dir() else 0
 
@@ -68,18 +85,11 @@ def _count_records(frames_dir: Path) -> int:
 def test_sigkill_then_resume_identical(reference_dataset, tmp_path):
     _, _, ref = reference_dataset
     out = tmp_path / "ds"
-    code = ("import json, sys\n"
-            "from skynav.datasets import generate\n"
-            "generate(json.loads(sys.argv[1]), sys.argv[2], workers=1, progress=False, flush_every_s=0.0)\n")
-    proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(small_recipe()), str(out)])
+    proc = _spawn_generator(small_recipe(), out, "workers=1, progress=False, flush_every_s=0.0")
     try:
-        deadline = time.monotonic() + 180
         # wait for 12 committed frames: a frame's record (NNNNNN.sha256) is written after its
         # files, so counting JSON files could count a frame the kill leaves uncommitted
-        while _count_records(out / "frames") < 12:
-            assert proc.poll() is None, f"the generator ended before it could be killed (rc {proc.returncode})"
-            assert time.monotonic() < deadline, "the generator is too slow"
-            time.sleep(0.02)
+        _wait_until(proc, lambda: _count_records(out / "frames") >= 12, poll_s=0.02)
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(30)
@@ -221,16 +231,9 @@ def test_pool_workers_end_when_the_generator_is_killed(tmp_path):
     """SIGKILL to ``dataset generate``'s process leaves no worker behind (they used to wait for work
     forever, holding a Mitsuba process's memory each)."""
     out = tmp_path / "ds"
-    code = ("import json, sys\n"
-            "from skynav.datasets import generate\n"
-            "generate(json.loads(sys.argv[1]), sys.argv[2], workers=2, progress=False)\n")
-    proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(small_recipe(200)), str(out)])
+    proc = _spawn_generator(small_recipe(200), out, "workers=2, progress=False")
     try:
-        deadline = time.monotonic() + 180
-        while _count_json(out / "frames") < 2:
-            assert proc.poll() is None, f"the generator ended before it could be killed (rc {proc.returncode})"
-            assert time.monotonic() < deadline, "the generator is too slow"
-            time.sleep(0.05)
+        _wait_until(proc, lambda: _count_json(out / "frames") >= 2, poll_s=0.05)
         kids = [k for k in _children(proc.pid) if _alive(k)]
         assert len(kids) >= 2, kids
         os.kill(proc.pid, signal.SIGKILL)

@@ -74,6 +74,18 @@ def _oracle(scene, body, project):
     return e, np.asarray(xy)
 
 
+def _render_against_oracle(scene, body, projection, *, seed, label):
+    """Mitsuba's render of ``body`` through ``projection`` (256 spp, Lambert) and its photocentre
+    error (px) and total-electron error (relative) against :func:`_oracle`'s quadrature."""
+    img = render_resolved_body(scene, body, spp=256, brdf=BRDF(kind="lambert", reflectance_550=K_550),
+                               normalize="none", rng=np.random.default_rng(seed), projection=projection)
+    expected_e, expected_xy = _oracle(scene, body, projection.project)
+    err = float(np.hypot(*(np.asarray(img.photocentre_xy) - expected_xy)))
+    rel = img.electrons_raw_total / expected_e - 1.0
+    print(f"{label}: photocentre error {err:.4f} px, total rel {rel:+.2e}, radius {img.radius_px:.2f} px")
+    return img, err, rel
+
+
 def test_fisheye_is_a_projection():
     fish = EquidistantFisheye(64, 48, 30.0)
     assert isinstance(fish, Projection)
@@ -116,12 +128,7 @@ def test_fisheye_disk_photocentre_where_projection_puts_it(mitsuba_variant, body
     diameter_rad = 60.0 / fish.f_px
     scene, body = body_scene(xy=tuple(pinhole_xy), diameter_px=2.0 * cam.focal_length_px * math.tan(0.5 * diameter_rad),
                              phase_deg=50.0, sun_pa_deg=-120.0, distance_km=4.0e5, camera=cam)
-    img = render_resolved_body(scene, body, spp=256, brdf=BRDF(kind="lambert", reflectance_550=K_550),
-                               normalize="none", rng=np.random.default_rng(6), projection=fish)
-    expected_e, expected_xy = _oracle(scene, body, fish.project)
-    err = float(np.hypot(*(np.asarray(img.photocentre_xy) - expected_xy)))
-    rel = img.electrons_raw_total / expected_e - 1.0
-    print(f"fisheye: photocentre error {err:.4f} px, total rel {rel:+.2e}, radius {img.radius_px:.2f} px")
+    img, err, rel = _render_against_oracle(scene, body, fish, seed=6, label="fisheye")
     assert np.allclose(img.centre_of_figure_xy, target, atol=1e-6)
     assert img.x0 <= target[0] - 30 and img.x0 + img.electrons.shape[1] >= target[0] + 30
     assert img.y0 <= target[1] - 30 and img.y0 + img.electrons.shape[0] >= target[1] + 30
@@ -177,12 +184,7 @@ def test_screen_projection_disk_photocentre_where_the_bench_puts_it(mitsuba_vari
     diameter_rad = 60.0 * scale_rad_per_px
     scene, body = body_scene(xy=tuple(cam.project(v)), diameter_px=2.0 * cam.focal_length_px * math.tan(0.5 * diameter_rad),
                              phase_deg=40.0, sun_pa_deg=70.0, distance_km=4.0e5, camera=cam)
-    img = render_resolved_body(scene, body, spp=256, brdf=BRDF(kind="lambert", reflectance_550=K_550),
-                               normalize="none", rng=np.random.default_rng(7), projection=proj)
-    expected_e, expected_xy = _oracle(scene, body, proj.project)
-    err = float(np.hypot(*(np.asarray(img.photocentre_xy) - expected_xy)))
-    rel = img.electrons_raw_total / expected_e - 1.0
-    print(f"screen: photocentre error {err:.4f} px, total rel {rel:+.2e}, radius {img.radius_px:.2f} px")
+    img, err, rel = _render_against_oracle(scene, body, proj, seed=7, label="screen")
     assert np.allclose(img.centre_of_figure_xy, target, atol=1e-6)
     assert err < 0.02
     assert abs(rel) < 1e-3

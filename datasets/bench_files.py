@@ -1,0 +1,208 @@
+"""The bench's files, the file side of :mod:`skynav.calibration` (which computes on arrays and
+never touches skynav's file formats): calibration patterns written as PNGs with ``patterns.json``,
+camera captures read and checked against them, the virtual bench's captures and power-meter table
+written, and the closed loop over a dataset and its bench export.
+
+Driver module: the calibration fits, the virtual bench and the closed-loop measurement are
+:mod:`skynav.calibration`'s; here their inputs are read and their outputs written with
+:mod:`skynav.datasets.frame_files` (PNG, atomic writes).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skynav.calibration.closed_loop import ClosedLoopResult, LoopRows, angle_arcsec, measure_pair, select_sources
+from skynav.calibration.errors import CalibrationInputError, CaptureMismatchError
+from skynav.calibration.geometric import GeometricResult, fit_geometric
+from skynav.calibration.patterns import SCHEMA, Pattern, design, draw, read_patterns
+from skynav.calibration.virtual_bench import VirtualBench, scenario
+from skynav.scenes.camera import Camera
+from skynav.scenes.facility import Facility
+
+from .frame_files import atomic_write_bytes, read_png, write_png
+
+__all__ = ["write_patterns", "read_captures", "calibrate_geometric", "simulate", "closed_loop_dataset",
+           "run_closed_loop"]
+
+
+def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
+    """Design the calibration patterns (:func:`skynav.calibration.patterns.design`, ``kw``) and
+    write them to ``directory``: one PNG per pattern at the screen's bit depth and ``patterns.json``."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    sc = facility.screen
+    pats = design(facility, **kw)
+    for p in pats:
+        write_png(d / p.file, draw(p, sc.width_px, sc.height_px, sc.bit_depth), bit_depth=sc.bit_depth)
+    doc = {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},
+           "patterns": [p.to_json() for p in pats]}
+    atomic_write_bytes(d / "patterns.json", json.dumps(doc, indent=1).encode())
+    return pats
+
+
+def read_captures(facility: Facility, patterns_dir, captures_dir):
+    """(patterns, {file: image}) after checking that the captures match the patterns."""
+    screen, pats = read_patterns(patterns_dir)
+    sc = facility.screen
+    if (screen.get("width_px"), screen.get("height_px"), screen.get("bit_depth")) != (sc.width_px, sc.height_px, sc.bit_depth):
+        raise CaptureMismatchError(f"{patterns_dir}: patterns for a {screen.get('width_px')}x{screen.get('height_px')} "
+                                   f"{screen.get('bit_depth')}-bit screen, but the facility's screen is {sc.width_px}x{sc.height_px} {sc.bit_depth}-bit")
+    cap = Path(captures_dir)
+    if not cap.is_dir():
+        raise CaptureMismatchError(f"{captures_dir}: no such captures folder")
+    missing = [p.file for p in pats if not (cap / p.file).is_file()]
+    if missing:
+        raise CaptureMismatchError(f"{captures_dir}: {len(missing)} of {len(pats)} pattern captures missing "
+                                   f"(first: {missing[0]}); captures must carry the patterns' file names")
+    cam = facility.camera
+    want = np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16
+    images = {}
+    for p in pats:
+        try:
+            img = read_png(cap / p.file)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad input
+            raise CaptureMismatchError(f"{cap / p.file}: not a readable greyscale PNG ({exc})") from None
+        if img.shape != (cam.height, cam.width):
+            raise CaptureMismatchError(f"{cap / p.file}: capture is {img.shape[1]}x{img.shape[0]} px; the camera is {cam.width}x{cam.height}")
+        if img.dtype != want or int(img.max()) > cam.sensor.max_dn:
+            raise CaptureMismatchError(f"{cap / p.file}: capture is {img.dtype} with max {int(img.max())}; the camera is "
+                                       f"{cam.sensor.bit_depth}-bit ({np.dtype(want).name}, <= {cam.sensor.max_dn})")
+        images[p.file] = img
+    return pats, images
+
+
+def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdout: float = 0.2,
+                        seed: int = 0) -> GeometricResult:
+    """:func:`~skynav.calibration.geometric.fit_geometric` on the captures of ``captures_dir`` of
+    the patterns of ``patterns_dir`` (:func:`read_captures`)."""
+    t0 = time.perf_counter()
+    pats, images = read_captures(facility, patterns_dir, captures_dir)
+    return fit_geometric(facility, pats, images, holdout=holdout, seed=seed, t0=t0, source=(patterns_dir, captures_dir))
+
+
+def simulate(facility: Facility, patterns_dir, out_dir, *, scenario_name: str = "realistic", seed: int = 0,
+             frames: int = 16, progress=None) -> dict:
+    """Capture every pattern of ``patterns_dir`` on the virtual bench into ``out_dir`` (same file
+    names) and write ``out_dir/power_meter.csv``. Returns a summary dict."""
+    screen, pats = read_patterns(patterns_dir)
+    bench = VirtualBench(facility, scenario(scenario_name, facility))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    bd = facility.camera.sensor.bit_depth
+    # the lab sets the exposure so that the brightest dots reach ~75 % of full well
+    scale = 1.0
+    first = next((p for p in pats if p.kind == "dots"), None)
+    if first is not None:
+        peak = float(bench.expected_electrons(read_png(Path(patterns_dir) / first.file).astype(float)).max())
+        scale = float(np.clip(0.75 * facility.camera.sensor.full_well_e / max(peak, 1e-9), 0.1, 10.0))
+    for i, p in enumerate(pats):
+        img = read_png(Path(patterns_dir) / p.file)
+        write_png(out / p.file, bench.capture(img.astype(float), rng, frames=frames, exposure_scale=scale), bit_depth=bd)
+        if progress:
+            progress(i + 1, len(pats))
+    rows = bench.power_meter(rng=rng)
+    text = "digital_count,lit_pixels,irradiance_w_m2\n" + "".join(f"{d},{n},{e:.6e}\n" for d, n, e in rows)
+    atomic_write_bytes(out / "power_meter.csv", text.encode())
+    return {"captures": len(pats), "measurements": len(rows), "scenario": scenario_name, "exposure_scale": scale}
+
+
+def closed_loop_dataset(bench, dataset_dir, export_dir, *, seed: int = 0, v_max: float = 6.0, frames=None,
+                        progress=None) -> ClosedLoopResult:
+    """Capture every exported screen frame of ``export_dir`` (written from ``dataset_dir`` with the
+    calibrated facility) on ``bench`` (a :class:`~skynav.calibration.virtual_bench.VirtualBench`)
+    and compare with the dataset's software frames (see the module docstring). Frame k's camera
+    noise draws from ``SeedSequence([seed, k])``."""
+    from skynav.renderer.detector import Sensor
+
+    from .reader import open_dataset
+
+    ds = open_dataset(dataset_dir)
+    todo = range(len(ds)) if frames is None else range(min(int(frames), len(ds)))
+    cols = {k: [] for k in ("frame", "kind", "name", "v_mag")}
+    err = {"noisy": [], "noise_free": []}
+    sw_err = {"noisy": [], "noise_free": []}
+    pc_err = {"noisy": [], "noise_free": []}
+    clipped = []
+    dmag = {"noisy": [], "noise_free": []}
+    skipped: dict = {}
+    sensor = None
+    for n_done, k in enumerate(todo):
+        rec = ds[k]
+        truth = rec.truth
+        cam = Camera.from_dict(truth["camera"])
+        if cam != bench.facility.camera:
+            raise CalibrationInputError(f"{dataset_dir}: frame {k}'s camera differs from the bench's; export a dataset made with the facility's camera")
+        src = select_sources(truth, cam, v_max, skipped)
+        screen_png = Path(export_dir) / "frames" / f"{k:06d}.png"
+        hil = json.loads((Path(export_dir) / "frames" / f"{k:06d}.json").read_text())
+        if hil["source"]["frame"] != k:
+            raise CalibrationInputError(f"{screen_png}: exported from frame {hil['source']['frame']}, not {k}")
+        if not src:
+            continue
+        sp = cam.sensor
+        if sensor is None:
+            sensor = Sensor(sp, (cam.height, cam.width))
+        cap_e = bench.expected_electrons(read_png(screen_png).astype(float))
+        rng = np.random.default_rng(np.random.SeedSequence([seed, k]))
+        cap_dn = sensor.expose(cap_e, cam.exposure_s, rng, backend="numpy")
+        sw_e = np.asarray(rec.electrons, dtype=float)
+        to_e = lambda dn: (dn.astype(float) - sp.offset_dn) / sp.gain_dn_per_e  # noqa: E731
+        full = sp.full_well_e
+        images = {"cap_noisy": (to_e(cap_dn), cap_dn >= sp.max_dn), "sw_noisy": (to_e(rec.dn), rec.dn >= sp.max_dn),
+                  "cap_noise_free": (np.minimum(cap_e, full), cap_e >= full), "sw_noise_free": (np.minimum(sw_e, full), sw_e >= full)}
+        xy = np.array([s[4] for s in src])
+        v_cam = np.array([s[3] for s in src])
+        meas = measure_pair(cam, images, xy)
+        ref = meas["sw_noise_free"].xy_px
+        ref_cam = cam.line_of_sight(np.where(np.isfinite(ref), ref, 0.0))
+        ref_cam[~np.all(np.isfinite(ref), axis=1)] = np.nan
+        maxdn = (1 << int(hil["facility"]["screen"]["bit_depth"])) - 1
+        peaks = {s["hip"]: s["peak_dn"] for s in hil["stars"]} | {b["name"]: b["peak_dn"] for b in hil["bodies"]}
+        clipped += [peaks.get(int(s[1]) if s[0] == "star" else s[1], 0) >= maxdn for s in src]
+        for label in ("noisy", "noise_free"):
+            c, s = meas[f"cap_{label}"], meas[f"sw_{label}"]
+            err[label].append(angle_arcsec(cam, c.xy_px, v_cam))
+            pc_err[label].append(angle_arcsec(cam, c.xy_px, ref_cam))
+            sw_err[label].append(angle_arcsec(cam, s.xy_px, v_cam))
+            phot = c.ok & s.ok & ~c.saturated & ~s.saturated & (c.flux_e > 0) & (s.flux_e > 0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                dmag[label].append(np.where(phot, -2.5 * np.log10(c.flux_e / s.flux_e), np.nan))
+        cols["frame"] += [k] * len(src)
+        cols["kind"] += [s[0] for s in src]
+        cols["name"] += [s[1] for s in src]
+        cols["v_mag"] += [s[2] for s in src]
+        if progress:
+            progress(n_done + 1, len(todo))
+    cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0)  # noqa: E731
+    rows = LoopRows(frame=np.array(cols["frame"], dtype=int), kind=np.array(cols["kind"], dtype=str),
+                    name=np.array(cols["name"], dtype=str), v_mag=np.array(cols["v_mag"], dtype=float),
+                    err_arcsec={k: cat(v) for k, v in err.items()}, sw_err_arcsec={k: cat(v) for k, v in sw_err.items()},
+                    photocentre_err_arcsec={k: cat(v) for k, v in pc_err.items()}, dmag={k: cat(v) for k, v in dmag.items()},
+                    screen_clipped=np.array(clipped, dtype=bool), skipped=skipped)
+    return ClosedLoopResult(rows=rows, frames=len(todo), v_max=v_max)
+
+
+def run_closed_loop(facility, calibrated, work_dir, *, scenario_name: str = "realistic", frames: int = 100,
+                    dataset_seed: int = 20260101, seed: int = 0, v_max: float = 6.0, progress=False) -> ClosedLoopResult:
+    """The whole loop in ``work_dir``: a ``montecarlo`` dataset of ``frames`` frames made with the
+    facility's camera (as ``skynav dataset generate montecarlo --count N --seed S``), exported for
+    the bench with the ``calibrated`` facility (as ``skynav hil export``), captured on the
+    virtual bench ``scenario_name`` of the nominal ``facility`` and measured
+    (:func:`closed_loop_dataset`). Both folders resume if already there."""
+    from .hil_export import export_dataset
+    from .recipes import preset_recipe
+    from .runner import generate
+
+    work = Path(work_dir)
+    recipe = preset_recipe("montecarlo")
+    recipe.update(frames=int(frames), seed=int(dataset_seed), camera=facility.camera.to_dict())
+    generate(recipe, work / "dataset", workers=1, progress=progress)
+    export_dataset(calibrated, work / "dataset", work / "screen", workers=1)
+    bench = VirtualBench(facility, scenario(scenario_name, facility))
+    return closed_loop_dataset(bench, work / "dataset", work / "screen", seed=seed, v_max=v_max)
