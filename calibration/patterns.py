@@ -3,10 +3,13 @@
 Every dot sits on an integer screen pixel, so its drawn disc is symmetric and its centroid is
 exactly its centre. Fiducials are dots 1.6x larger at grid nodes forming an asymmetric
 constellation (no rotation maps it onto itself), so the identification cannot slip by a grid
-step nor turn by 90 deg. ``patterns.json`` (``schema: skynav.patterns/1``) lists, per pattern, its
+step nor turn by 90 deg. ``patterns.json`` (``schema: skynav.patterns/2``) lists, per pattern, its
 file, its dot centres (screen px, CONVENTIONS pixel centres) and, as extra keys, ``kind``
 (``dots``, ``flat``, ``dark``), ``fiducials`` (indices into ``dots``), ``dot_radius_px``,
-``grid_step_px`` and ``level_dn``.
+``grid_step_px`` and ``level_dn`` (screen DN), and at the top how the PNGs store the screen's DN
+(``png_scaling``: ``"sbit"``, scaled to the PNG's full range with an ``sBIT`` chunk, and
+``significant_bits``; written by :mod:`skynav.datasets.bench_files`). Version 1 (skynav <= 0.3.0)
+had no such keys and stored the DN unscaled; both are read.
 """
 
 from __future__ import annotations
@@ -22,7 +25,9 @@ from skynav.scenes.facility import Facility
 
 from .errors import CalibrationInputError
 
-SCHEMA = "skynav.patterns/1"
+SCHEMA = "skynav.patterns/2"
+#: versions :func:`read_patterns` reads (1: PNGs of unscaled DN; 2: ``png_scaling`` says how)
+READABLE_SCHEMAS = ("skynav.patterns/1", SCHEMA)
 #: grid-node offsets (columns, rows) of the fiducials from the node nearest the screen centre
 FIDUCIAL_NODES = ((0, 0), (3, 0), (0, 2), (-4, -3), (5, -5), (-2, 5), (-6, 2))
 
@@ -116,8 +121,9 @@ def read_patterns(directory):
         raise CalibrationInputError(f"{path}: no patterns.json (make one with `skynav calibrate patterns FACILITY -o DIR`)")
     try:
         doc = json.loads(path.read_text())
-        if doc.get("schema") != SCHEMA:
-            raise CalibrationInputError(f"{path}: schema {doc.get('schema')!r}; expected {SCHEMA!r}")
+        if doc.get("schema") not in READABLE_SCHEMAS:
+            raise CalibrationInputError(f"{path}: schema {doc.get('schema')!r}; expected one of "
+                                        f"{', '.join(map(repr, READABLE_SCHEMAS))}")
         pats = []
         for p in doc["patterns"]:
             dots = np.asarray(p.get("dots", []), dtype=float).reshape(-1, 2)

@@ -24,7 +24,7 @@ from skynav.calibration.virtual_bench import VirtualBench, scenario
 from skynav.scenes.camera import Camera
 from skynav.scenes.facility import Facility
 
-from .frame_files import atomic_write_bytes, read_png, write_png
+from .frame_files import PNG_SCALING, atomic_write_bytes, read_png, write_png
 
 __all__ = ["write_patterns", "read_captures", "calibrate_geometric", "simulate", "closed_loop_dataset",
            "run_closed_loop"]
@@ -32,7 +32,13 @@ __all__ = ["write_patterns", "read_captures", "calibrate_geometric", "simulate",
 
 def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
     """Design the calibration patterns (:func:`skynav.calibration.patterns.design`, ``kw``) and
-    write them to ``directory``: one PNG per pattern at the screen's bit depth and ``patterns.json``."""
+    write them to ``directory``: one PNG per pattern at the screen's bit depth and ``patterns.json``.
+
+    The PNGs hold the screen's DN scaled to the PNG's full range with an ``sBIT`` chunk
+    (:func:`~skynav.datasets.frame_files.write_png`), so a viewer shows the dots;
+    ``patterns.json`` says so (``png_scaling``, ``significant_bits``). :func:`read_captures` and
+    :func:`simulate` read these and the unscaled PNGs of skynav <= 0.3.0 alike
+    (:func:`~skynav.datasets.frame_files.read_png`)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     sc = facility.screen
@@ -40,6 +46,7 @@ def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
     for p in pats:
         write_png(d / p.file, draw(p, sc.width_px, sc.height_px, sc.bit_depth), bit_depth=sc.bit_depth)
     doc = {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},
+           "png_scaling": PNG_SCALING, "significant_bits": int(sc.bit_depth),
            "patterns": [p.to_json() for p in pats]}
     atomic_write_bytes(d / "patterns.json", json.dumps(doc, indent=1).encode())
     return pats

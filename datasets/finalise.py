@@ -16,7 +16,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from . import layout
+from . import frame_files, layout
 from .plan import SEED_SCHEME
 
 __all__ = ["base_manifest", "Progress", "write_checkpoint", "finalise"]
@@ -50,6 +50,8 @@ def base_manifest(recipe: dict, sampler, camera, render_options, backends: dict)
         "render_options": dataclasses.asdict(render_options),
         "backends": dict(backends),
         "formats": list(recipe["formats"]),
+        # how frames/NNNNNN.png store the DN (datasets.frame_files.write_png; docs/conventions.md)
+        "png_scaling": frame_files.PNG_SCALING,
         "layout": {"frames": "frames/NNNNNN.{" + ",".join(recipe["formats"]) + "}", "index": layout.INDEX_NAME},
         "plan": sampler.describe(),
         "counts": {"frames": sampler.n_frames, "frames_done": 0},

@@ -10,8 +10,10 @@ renderer. File contracts are those of CONVENTIONS.md "Files":
   ``source_id``. Compression is ZIP (zlib on blocks of 16 scanlines): lossless for float32 and
   uint32, deterministic, and read by every EXR tool. PIZ was not chosen because its wavelet gains
   come on noisy *half* data; ZIP is as good or better on our float32 noise-free signal maps.
-- **PNG**: greyscale, uint8 for bit depth <= 8, uint16 holding the raw DN (not rescaled) for
-  9-16 bit; an ``sBIT`` chunk records the sensor bit depth when it is given.
+- **PNG**: greyscale, uint8 for bit depth <= 8, uint16 for 9-16 bit; DN of fewer bits than the
+  sample (a 12-bit sensor, a 10-bit screen) are scaled to the full range with an ``sBIT`` chunk
+  naming the significant bits (the PNG specification's way, section 12.4), so viewers show them;
+  :func:`read_png` returns the DN, of these files and of the raw ones of skynav <= 0.3.0.
 - **FITS**: primary HDU, the image as given (uint8/uint16/int/float), plus an optional TAN WCS of
   the *apparent* sky from :func:`tan_wcs_header`.
 - **JSON** ground truth: :mod:`skynav.datasets.truth_schema`.
@@ -54,8 +56,13 @@ __all__ = [
     "write_exr",
     "read_exr",
     "read_exr_header",
+    "PNG_SCALING",
+    "PNG_SCALING_KEY",
+    "scale_dn_to_png",
+    "unscale_png_to_dn",
     "write_png",
     "read_png",
+    "read_png_layout",
     "tan_wcs_header",
     "write_fits",
     "read_fits",
@@ -226,20 +233,80 @@ def read_exr_header(source) -> dict:
 
 
 # ----------------------------------------------------------------------------- PNG
+#: How DN of fewer bits than the PNG sample (e.g. 10 or 12 bit in a 16-bit PNG) are stored: scaled
+#: to the PNG's full range with the PNG specification's recommended linear scaling (PNG 2nd ed.,
+#: section 12.4 "Sample depth scaling"), ``stored = floor(dn * MAX / m + 1/2)`` with
+#: ``m = 2**bits - 1`` and ``MAX`` = 255 or 65535, and an ``sBIT`` chunk naming the significant
+#: bits. Recorded in each file by a ``tEXt`` chunk :data:`PNG_SCALING_KEY` = ``"sbit"`` and in the
+#: JSON beside the files (``png_scaling``, ``significant_bits``).
+PNG_SCALING = "sbit"
+#: ``tEXt`` keyword of the marker (skynav's files of 0.3.0 and before have none: their DN are raw).
+PNG_SCALING_KEY = "skynav.png_scaling"
+
+
+def _png_container_bits(bit_depth: int) -> int:
+    return 8 if bit_depth <= 8 else 16
+
+
+def scale_dn_to_png(dn, bit_depth: int) -> np.ndarray:
+    """DN of ``bit_depth`` bits scaled to the full range of their PNG sample (8 or 16 bit).
+
+    ``stored = floor(dn * MAX / m + 1/2)`` (PNG specification, section 12.4, the recommended
+    linear scaling), ``m = 2**bit_depth - 1``, ``MAX = 2**8 - 1`` or ``2**16 - 1``; exact integer
+    arithmetic. 8- and 16-bit DN are returned unchanged. :func:`unscale_png_to_dn` inverts it
+    exactly, and so does the right shift by ``container - bit_depth`` that the specification
+    names for decoders (``tests/datasets/test_png_scaling.py`` checks both for every value).
+
+    Examples
+    --------
+    >>> scale_dn_to_png(np.array([0, 1, 512, 1023], np.uint16), 10).tolist()
+    [0, 64, 32800, 65535]
+    """
+    a = np.asarray(dn)
+    c = _png_container_bits(bit_depth)
+    if bit_depth == c:
+        return a
+    m, top = (1 << bit_depth) - 1, (1 << c) - 1
+    return ((2 * a.astype(np.int64) * top + m) // (2 * m)).astype(a.dtype)
+
+
+def unscale_png_to_dn(stored, bit_depth: int) -> np.ndarray:
+    """Inverse of :func:`scale_dn_to_png`: ``dn = floor(stored * m / MAX + 1/2)``.
+
+    Exact for every value :func:`scale_dn_to_png` writes (the rounding error of the scaling,
+    at most 1/2 of a stored step, is less than 1/2 DN after division by ``MAX / m`` > 1); it
+    also recovers DN scaled by left-bit replication (another spec-conforming encoder's choice).
+
+    Examples
+    --------
+    >>> unscale_png_to_dn(np.array([0, 64, 32800, 65535], np.uint16), 10).tolist()
+    [0, 1, 512, 1023]
+    """
+    a = np.asarray(stored)
+    c = _png_container_bits(bit_depth)
+    if bit_depth == c:
+        return a
+    m, top = (1 << bit_depth) - 1, (1 << c) - 1
+    return ((2 * a.astype(np.int64) * m + top) // (2 * top)).astype(a.dtype)
+
+
 def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6) -> None:
-    """Write digital counts as a greyscale PNG, atomically; values are stored as is.
+    """Write digital counts as a greyscale PNG, atomically.
 
     Parameters
     ----------
     path : str or os.PathLike
         Destination ``.png``.
     dn : ndarray, shape (H, W), uint8 or uint16
-        Raw digital counts, DN. uint8 gives an 8-bit PNG, uint16 a 16-bit PNG holding the raw DN
-        (a 12-bit sensor's 4095 is stored as 4095, not rescaled to 65535).
+        Digital counts, DN. uint8 gives an 8-bit PNG, uint16 a 16-bit PNG.
     bit_depth : int, optional
-        Sensor bit depth, 1..16. When given, the dtype must match CONVENTIONS.md (uint8 for
-        <= 8, uint16 for 9..16), every value must be <= ``2**bit_depth - 1``, and an ``sBIT``
-        chunk records it for readers.
+        Significant bits of the DN, 1..16 (a 12-bit sensor, a 10-bit screen). When given, the
+        dtype must match (uint8 for <= 8, uint16 for 9..16), every value must be
+        <= ``2**bit_depth - 1``, the DN are scaled to the PNG's full range
+        (:func:`scale_dn_to_png`: a 12-bit 4095 is stored as 65535, so every viewer shows the
+        image), and the file carries an ``sBIT`` chunk with ``bit_depth`` and a ``tEXt``
+        :data:`PNG_SCALING_KEY` = ``"sbit"``. Without it the values are stored as they are.
+        :func:`read_png` gives the DN back either way.
     compress_level : int
         zlib level, 0..9 (the pixels are the same at every level; 6 for dataset frames; screen
         frames, 2.5 times the pixels and mostly black, use 1: a third of the time, files ~10 %
@@ -266,8 +333,10 @@ def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6
             raise OutputFormatError(f"PNG of bit depth {bit_depth} needs {np.dtype(want).name} DN, got {a.dtype}")
         if a.size and int(a.max()) > (1 << bit_depth) - 1:
             raise OutputFormatError(f"PNG DN max {int(a.max())} exceeds {(1 << bit_depth) - 1} for bit depth {bit_depth}")
+        a = scale_dn_to_png(a, int(bit_depth))
         info = PngImagePlugin.PngInfo()
         info.add(b"sBIT", bytes([int(bit_depth)]))  # greyscale sBIT: one byte, significant bits
+        info.add_text(PNG_SCALING_KEY, PNG_SCALING)
     # Pillow maps uint8 -> mode "L" (8-bit) and uint16 -> "I;16" (16-bit greyscale, big-endian
     # in the file); the round trip is pinned by tests. It writes no time stamp.
     image = Image.fromarray(np.ascontiguousarray(a))
@@ -276,16 +345,78 @@ def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6
     atomic_write_bytes(path, buf.getvalue())
 
 
-def read_png(source) -> np.ndarray:
-    """DN of a greyscale PNG, shape (H, W): uint8 for 8-bit files, uint16 for 16-bit ones."""
+def _png_header_chunks(data: bytes) -> dict:
+    """``{chunk type: [payload, ...]}`` of the chunks before the first IDAT."""
+    out, i = {}, 8
+    while i + 8 <= len(data):
+        n = int.from_bytes(data[i:i + 4], "big")
+        kind = data[i + 4:i + 8]
+        if kind == b"IDAT":
+            break
+        out.setdefault(kind, []).append(data[i + 8:i + 8 + n])
+        i += 12 + n
+    return out
+
+
+def _png_layout(data: bytes, stored_max) -> dict:
+    chunks = _png_header_chunks(data)
+    ihdr = chunks.get(b"IHDR", [b""])[0]
+    container = ihdr[8] if len(ihdr) > 8 else None
+    sbit = chunks.get(b"sBIT", [b""])[0]
+    bits = sbit[0] if len(sbit) == 1 else None  # greyscale sBIT is one byte
+    marker = None
+    for t in chunks.get(b"tEXt", []):
+        key, _, value = t.partition(b"\0")
+        if key == PNG_SCALING_KEY.encode():
+            marker = value.decode("latin-1")
+    if marker == PNG_SCALING or (marker is None and bits and container and bits < container and stored_max is not None
+                                 and stored_max > (1 << bits) - 1):
+        # skynav's marker, or a foreign file whose values exceed its sBIT range: by the PNG
+        # specification such a file is scaled (a file written raw could not hold them)
+        if not bits or not container or bits > container:
+            raise OutputFormatError(f"PNG says {PNG_SCALING_KEY} = {marker!r} but has no valid sBIT chunk")
+        return {"png_scaling": PNG_SCALING, "significant_bits": int(bits)}
+    # no marker: skynav <= 0.3.0 (raw DN, sBIT naming the camera's bits) or a plain PNG
+    return {"png_scaling": "raw", "significant_bits": int(bits) if bits else container}
+
+
+def read_png_layout(source) -> dict:
+    """How a PNG stores its DN: ``{"png_scaling": "sbit" | "raw", "significant_bits": int}``.
+
+    ``"sbit"``: scaled to the full range (:func:`scale_dn_to_png`), written by skynav after 0.3.0
+    (``tEXt`` :data:`PNG_SCALING_KEY`), or a foreign file with an ``sBIT`` chunk whose values
+    exceed ``2**sBIT - 1``. ``"raw"``: the values are the DN (files of skynav <= 0.3.0, whose
+    ``sBIT`` named the bit depth of unscaled DN, and PNGs without ``sBIT``).
+    """
     from PIL import Image
 
-    with _open_binary(source) as f, Image.open(f) as image:
+    with _open_binary(source) as f:
+        data = f.read()
+    with Image.open(io.BytesIO(data)) as image:
+        stored_max = int(np.asarray(image).max()) if image.width and image.height else 0
+    return _png_layout(data, stored_max)
+
+
+def read_png(source) -> np.ndarray:
+    """DN of a greyscale PNG, shape (H, W): uint8 for 8-bit files, uint16 for 16-bit ones.
+
+    Scaled files (:func:`read_png_layout` ``"sbit"``) are unscaled (:func:`unscale_png_to_dn`);
+    raw ones (skynav <= 0.3.0, plain PNGs) are returned as stored. Either way the DN are those
+    that were written.
+    """
+    from PIL import Image
+
+    with _open_binary(source) as f:
+        data = f.read()
+    with Image.open(io.BytesIO(data)) as image:
         if image.mode not in ("L", "I;16", "I;16B", "I"):
             raise OutputFormatError(f"PNG mode {image.mode!r}; expected greyscale (L or I;16)")
         a = np.array(image)
     if a.dtype.kind in "iu" and a.dtype.itemsize > 2:  # mode "I": 16-bit data in int32
         a = a.astype(np.uint16)
+    layout = _png_layout(data, int(a.max()) if a.size else 0)
+    if layout["png_scaling"] == PNG_SCALING:
+        a = unscale_png_to_dn(a, layout["significant_bits"])
     return a
 
 

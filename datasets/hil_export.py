@@ -1,6 +1,13 @@
 """Export frames as bench screen frames: ``DIR/frames/NNNNNN.png`` (screen resolution and bit
-depth) + ``NNNNNN.json`` (``schema: skynav.hil_frame/1``: the source frame, where each source was
-placed on the screen, its intended electrons and peak DN, what was clipped).
+depth) + ``NNNNNN.json`` (``schema: skynav.hil_frame/2``: the source frame, where each source was
+placed on the screen, its intended electrons and peak DN, what was clipped, how the PNG stores
+the screen's DN).
+
+The PNG holds the screen's DN scaled to the PNG's full range with an ``sBIT`` chunk naming the
+screen's bit depth (:func:`skynav.datasets.frame_files.scale_dn_to_png`; a 10-bit screen's 1023 is
+stored as 65535), so any viewer shows the stars; ``png_scaling: "sbit"`` and ``significant_bits``
+in the frame JSON and in ``export.json`` say so. Version 1 (skynav <= 0.3.0) stored the DN
+unscaled; :func:`skynav.datasets.frame_files.read_png` returns the screen DN of both.
 
 Run like ``dataset generate`` (:mod:`skynav.datasets.runner`), with the same pieces:
 
@@ -27,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .frame_files import atomic_write_bytes, write_png
+from .frame_files import PNG_SCALING, atomic_write_bytes, write_png
 
-SCHEMA = "skynav.hil_frame/1"
+SCHEMA = "skynav.hil_frame/2"
 
 
 def scene_from_truth(truth: dict):
@@ -65,6 +72,7 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
                      "geometric_fit": (facility.calibrated_geometric or {}).get("fit"),
                      "radiometric_fit": (facility.calibrated_radiometric or {}).get("fit")},
         "pixel_convention": "screen px: x = column, y = row, centre of the top-left pixel at (0, 0)",
+        "png_scaling": PNG_SCALING, "significant_bits": int(sc.bit_depth),
         "stars": [{"hip": int(h), "v_mag": float(v), "screen_xy": [float(x), float(y)], "electrons": float(e), "peak_dn": int(d),
                    "on_screen": bool(o)}
                   for h, v, (x, y), e, d, o in zip(scene.stars.hip, scene.stars.v_mag, sf.stars_xy, sf.stars_electrons, sf.stars_peak_dn, on)],
@@ -82,7 +90,7 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
 SCREEN_PNG_LEVEL = 1
 
 EXPORT_MANIFEST = "export.json"
-EXPORT_SCHEMA = "skynav.hil_export/1"
+EXPORT_SCHEMA = "skynav.hil_export/2"
 FORMATS = ("png", "json")
 
 
@@ -153,6 +161,7 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
              "dataset": {"path": root, "manifest_sha256": hashlib.sha256((Path(root) / MANIFEST_NAME).read_bytes()).hexdigest(),
                          "frames": len(ds)},
              "facility": {"name": facility.name, "sha256": facility_sha256(facility)},
+             "png_scaling": PNG_SCALING, "significant_bits": int(facility.screen.bit_depth),
              "skynav_version": package_version()}
     with dataset_lock(out):
         mpath = out / EXPORT_MANIFEST
@@ -162,7 +171,8 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
             except (OSError, ValueError):
                 old = None
             if isinstance(old, dict):
-                for what, a, b in (("source dataset", (old.get("dataset") or {}).get("manifest_sha256"),
+                for what, a, b in (("file format", old.get("schema"), EXPORT_SCHEMA),
+                                   ("source dataset", (old.get("dataset") or {}).get("manifest_sha256"),
                                     ident["dataset"]["manifest_sha256"]),
                                    ("facility", (old.get("facility") or {}).get("sha256"), ident["facility"]["sha256"]),
                                    ("skynav version", old.get("skynav_version"), ident["skynav_version"])):

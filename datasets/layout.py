@@ -104,12 +104,13 @@ def write_manifest(root, manifest: dict) -> None:
 def check_same_dataset(existing: dict, new: dict, root) -> None:
     """Refuse to resume into a folder that holds a different dataset (one line).
 
-    The recipe, master seed and package version must be equal, and so must what fixes the bits
+    The recipe, master seed, package version and PNG layout (``png_scaling``: absent before the
+    PNGs were scaled to their full range) must be equal, and so must what fixes the bits
     beyond them: the render options (``render_options``, each option named with its old and new
     value) and the backends that run (``backends``: the resolved sensor backend and Mitsuba
     variant).
     """
-    for key in ("recipe", "master_seed", "version"):
+    for key in ("recipe", "master_seed", "version", "png_scaling"):
         if existing.get(key) != new.get(key):
             detail = ""
             if key == "recipe" and isinstance(existing.get(key), dict) and isinstance(new.get(key), dict):

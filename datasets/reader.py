@@ -25,7 +25,27 @@ import numpy as np
 from . import layout
 from .errors import SkynavError, DatasetError, FrameIndexError, IncompleteDatasetError
 
-__all__ = ["Dataset", "FrameRecord", "open_dataset"]
+__all__ = ["Dataset", "FrameRecord", "open_dataset", "read_image_dn"]
+
+
+def read_image_dn(path) -> np.ndarray:
+    """DN of one image file outside a dataset (``bench ip`` folders, ``bench nav --images``).
+
+    A greyscale PNG gives its DN through :func:`skynav.datasets.frame_files.read_png`: scaled
+    files (``sBIT``, skynav after 0.3.0) are unscaled, raw ones returned as stored; a colour
+    PNG gives the mean of its RGB channels (float). Raises ``OSError`` for an unreadable file.
+    """
+    from .errors import OutputFormatError
+    from .frame_files import read_png
+
+    try:
+        return read_png(path)
+    except OutputFormatError:  # not greyscale: read as colour, the mean of R, G, B
+        from PIL import Image
+
+        with Image.open(path) as im:
+            a = np.asarray(im.convert("RGB"), dtype=float)
+        return a.mean(axis=-1)
 
 
 class FrameRecord:

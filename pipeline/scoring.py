@@ -96,21 +96,17 @@ class _FolderSource:
         return d
 
     def observation(self, k):
-        from PIL import Image
-
         from skynav.datasets.observation import Observation
+        from skynav.datasets.reader import read_image_dn
         from skynav.scenes.camera import Camera, SensorParams
 
         d = self._json(k)
         c = d["camera"]
         K = np.asarray(c["K"], float)
         try:
-            with Image.open(self.pairs[k][0]) as im:
-                dn = np.asarray(im)
+            dn = read_image_dn(self.pairs[k][0])  # the DN of scaled (sBIT) and raw PNGs alike
         except OSError as exc:
             raise BenchInputError(f"{self.pairs[k][0]}: not a readable PNG ({exc})") from None
-        if dn.ndim == 3:
-            dn = dn[..., :3].mean(axis=-1)
         pitch_um = 10.0
         cam = Camera(width=int(c["width"]), height=int(c["height"]), focal_length_mm=K[0, 0] * pitch_um * 1e-3,
                      pixel_pitch_um=pitch_um, pixel_pitch_y_um=pitch_um * K[0, 0] / K[1, 1], cx=float(K[0, 2]),

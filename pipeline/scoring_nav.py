@@ -218,10 +218,9 @@ def _observation(ds, plan: NavPlan, i):
         return obs
     from dataclasses import replace
 
-    from PIL import Image
+    from skynav.datasets.reader import read_image_dn
 
-    with Image.open(_image_path(plan.images, i)) as im:
-        dn = np.array(im)
+    dn = read_image_dn(_image_path(plan.images, i))  # the DN of scaled (sBIT) and raw PNGs alike
     if dn.shape != np.shape(obs.dn):
         raise NavInputError(f"--images {plan.images}: frame {i} is {dn.shape}, the dataset's {np.shape(obs.dn)}")
     return replace(obs, dn=dn)

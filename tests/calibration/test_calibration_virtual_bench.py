@@ -21,7 +21,7 @@ def test_patterns_json_has_the_issue_schema(small_facility, small_patterns):
     from skynav.datasets.frame_files import read_png
 
     doc = json.loads((small_patterns / "patterns.json").read_text())
-    assert doc["schema"] == "skynav.patterns/1"
+    assert doc["schema"] == "skynav.patterns/2"
     assert doc["screen"] == {"width_px": 640, "height_px": 640, "bit_depth": 10}
     dots = [p for p in doc["patterns"] if p["dots"]]
     assert len(dots) == 9 and all(set(p) >= {"file", "dots"} for p in doc["patterns"])

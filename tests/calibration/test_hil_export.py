@@ -21,7 +21,7 @@ def test_export_a_dataset_and_resume(tmp_path, capsys):
     png = read_png(out / "frames" / "000000.png")
     assert png.shape == (640, 640) and png.dtype == np.uint16 and png.max() > 0
     rec = json.loads((out / "frames" / "000000.json").read_text())
-    assert rec["schema"] == "skynav.hil_frame/1" and rec["source"]["frame"] == 0
+    assert rec["schema"] == "skynav.hil_frame/2" and rec["source"]["frame"] == 0
     star = max(rec["stars"], key=lambda s: s["electrons"])
     assert set(star) >= {"screen_xy", "electrons", "peak_dn"} and star["peak_dn"] > 0
     assert set(rec["clipped"]) == {"too_bright_px", "too_faint_sources"}

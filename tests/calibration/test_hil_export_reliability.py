@@ -44,7 +44,7 @@ def test_export_writes_records_and_a_complete_manifest(reference):
     for k in range(3):
         assert frame_problem(reference, k, ("png", "json"))[0] is None
     m = json.loads((reference / "export.json").read_text())
-    assert m["complete"] is True and m["schema"] == "skynav.hil_export/1"
+    assert m["complete"] is True and m["schema"] == "skynav.hil_export/2"
     assert m["facility"]["name"] == "bench_small" and len(m["facility"]["sha256"]) == 64
     assert sorted(m["checksums"]) == sorted(f"frames/{k:06d}.{e}" for k in range(3) for e in ("png", "json", "sha256"))
 

@@ -79,7 +79,8 @@ def test_images_option_uses_the_given_images(seq, tmp_path):
     +1 px in x, to 0.05 px (the centroid noise of these frames is ~0.1 px; the shift is an exact
     integer roll, so only the image-processing noise differs)."""
     import numpy as np
-    from PIL import Image
+
+    from skynav.datasets.frame_files import read_png, read_png_layout, write_png
 
     argv = ["bench", "nav", str(seq), "--runs", "3", "--case", "1", "--seed", "4", "-q", "--calibration-stride", "2"]
     assert main(argv + ["-o", str(tmp_path / "ref")]) == 0
@@ -88,9 +89,9 @@ def test_images_option_uses_the_given_images(seq, tmp_path):
     shifted.mkdir()
     for png in sorted((seq / "frames").glob("*.png")):
         shutil.copy(png, same / png.name)
-        with Image.open(png) as im:
-            a = np.array(im)
-        Image.fromarray(np.roll(a, 1, axis=1)).save(shifted / png.name)
+        # the frames' own PNG layout (DN scaled to 16 bits with sBIT), as a lab tool would keep it
+        bits = read_png_layout(png)["significant_bits"]
+        write_png(shifted / png.name, np.roll(read_png(png), 1, axis=1), bit_depth=bits)
     assert main(argv + ["--images", str(same), "-o", str(tmp_path / "same_r")]) == 0
     assert main(argv + ["--images", str(shifted), "-o", str(tmp_path / "shift_r")]) == 0
     ref, cp, sh = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("ref", "same_r", "shift_r"))
