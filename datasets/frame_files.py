@@ -14,8 +14,10 @@ renderer. File contracts are those of CONVENTIONS.md "Files":
   sample (a 12-bit sensor, a 10-bit screen) are scaled to the full range with an ``sBIT`` chunk
   naming the significant bits (the PNG specification's way, section 12.4), so viewers show them;
   :func:`read_png` returns the DN, of these files and of the raw ones of skynav <= 0.3.0.
-- **FITS**: primary HDU, the image as given (uint8/uint16/int/float), plus an optional TAN WCS of
-  the *apparent* sky from :func:`tan_wcs_header`.
+- **FITS**: primary HDU, the image as given (uint8/uint16/int/float, DN not rescaled), plus an
+  optional TAN WCS of the *apparent* sky from :func:`tan_wcs_header` and, for frames, the
+  standard keywords a FITS user expects (:func:`fits_frame_header`: ``DATE-OBS`` UTC, ``MJD-OBS``,
+  ``EXPTIME``, ``BUNIT``, ``GAIN``, ``SATURATE``, the observer's state...).
 - **JSON** ground truth: :mod:`skynav.datasets.truth_schema`.
 
 Atomicity: each writer encodes to memory and hands the bytes to :func:`atomic_write_bytes`
@@ -34,6 +36,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -64,6 +67,7 @@ __all__ = [
     "read_png",
     "read_png_layout",
     "tan_wcs_header",
+    "fits_frame_header",
     "write_fits",
     "read_fits",
     "write_frame",
@@ -489,6 +493,82 @@ def tan_wcs_header(camera_K, width: int, height: int, R_cam_icrs) -> dict:
     }
 
 
+#: Instrument and telescope names of skynav's frames (FITS ``INSTRUME`` / ``TELESCOP``).
+FITS_INSTRUME = "skynav simulated camera"
+FITS_TELESCOP = "skynav simulated spacecraft"
+
+
+def fits_frame_header(truth: Mapping) -> dict:
+    """The standard FITS keywords of a frame, from its ground truth: ``{key: (value, comment)}``.
+
+    Time (FITS 4.0 standard, section 9; Rots et al. 2015, A&A 574, A36): the truth's epoch is
+    mid-exposure, TDB; the header gives UTC (``TIMESYS = 'UTC'``), ``DATE-OBS`` and ``MJD-OBS``
+    at the *start* of the exposure (the standard's meaning), ``DATE-AVG``/``MJD-AVG`` at
+    mid-exposure (the epoch of the WCS and of the truth) and ``DATE-END``/``MJD-END``; ISO 8601 with
+    microseconds. TDB to UTC by astropy/ERFA with its installed leap-second table; an epoch
+    after the table (the future) assumes no further leap second.
+    ``EXPTIME`` (s); ``BUNIT = 'adu'`` (the DN); ``INSTRUME``, ``TELESCOP``, ``ORIGIN``;
+    ``GAIN`` (e-/DN, the inverse of the sensor's ``gain_dn_per_e``), ``RDNOISE`` (e-),
+    ``SATURATE`` (DN: the full-well charge read out, ``floor(K full_well + offset + 1/2)``,
+    at most ``2**bit_depth - 1``).
+
+    The observer (a spacecraft: ``OBSGEO-*`` are for Earth-fixed observatories) in short keys
+    of this project: ``OBSFRAME = 'ICRS'`` (axes ICRS, origin the solar-system barycentre, as
+    the truth's ``observer``), ``OBSPOS-X/Y/Z`` (km) and ``OBSVEL-X/Y/Z`` (km/s).
+
+    Parameters
+    ----------
+    truth : mapping
+        A ``skynav.frame/1`` dict (``epoch``, ``observer``, ``camera`` with its ``sensor``).
+    """
+    from astropy.time import Time, TimeDelta
+
+    from skynav.scenes.camera import Camera
+
+    from .frame_truth import epoch_tdb_seconds
+
+    cam = Camera.from_dict(dict(truth["camera"]))
+    sp = cam.sensor
+    mid = Time(2451545.0, epoch_tdb_seconds(truth["epoch"]) / 86400.0, format="jd", scale="tdb")
+    half = TimeDelta(cam.exposure_s / 2.0, format="sec")
+    with warnings.catch_warnings():
+        # UTC after the installed leap-second table (ERFA: "dubious year") assumes no further
+        # leap second: TAI - UTC stays at its last value (37 s since 2017)
+        warnings.filterwarnings("ignore", message=".*dubious year.*")
+        utc = [t.utc for t in (mid - half, mid, mid + half)]
+        for t in utc:
+            t.precision = 6
+        (start_iso, mid_iso, end_iso), (start_mjd, mid_mjd, end_mjd) = [t.isot for t in utc], [float(t.mjd) for t in utc]
+
+    pos = [float(v) for v in np.asarray(truth["observer"]["position_km"], dtype=float)]
+    vel = [float(v) for v in np.asarray(truth["observer"]["velocity_km_s"], dtype=float)]
+    saturate = min(sp.max_dn, math.floor(sp.gain_dn_per_e * sp.full_well_e + sp.offset_dn + 0.5))
+    h = {
+        "TIMESYS": ("UTC", "time scale of DATE-*, MJD-*"),
+        "DATE-OBS": (start_iso, "start of exposure"),
+        "MJD-OBS": (start_mjd, "[d] start of exposure, UTC"),
+        "DATE-AVG": (mid_iso, "mid-exposure: truth, WCS"),
+        "MJD-AVG": (mid_mjd, "[d] mid-exposure, UTC"),
+        "DATE-END": (end_iso, "end of exposure"),
+        "MJD-END": (end_mjd, "[d] end of exposure, UTC"),
+        "EXPTIME": (float(cam.exposure_s), "[s] exposure time"),
+        "BUNIT": ("adu", "digital counts (DN) of the camera"),
+        "INSTRUME": (FITS_INSTRUME, "rendered, not observed"),
+        "TELESCOP": (FITS_TELESCOP, "rendered, not observed"),
+        "ORIGIN": ("skynav", "software that wrote this file"),
+        "GAIN": (1.0 / float(sp.gain_dn_per_e), "[e-/DN] system gain"),
+        "RDNOISE": (float(sp.read_noise_e), "[e-] read noise"),
+        "SATURATE": (int(saturate), "[DN] saturation level"),
+        "BITDEPTH": (int(sp.bit_depth), "sensor bit depth"),
+        "OBSFRAME": ("ICRS", "OBSPOS/OBSVEL: ICRS, barycentric"),
+    }
+    for axis, p in zip("XYZ", pos):
+        h[f"OBSPOS-{axis}"] = (p, f"[km] observer position {axis}")
+    for axis, v in zip("XYZ", vel):
+        h[f"OBSVEL-{axis}"] = (v, f"[km/s] observer velocity {axis}")
+    return h
+
+
 # Keywords astropy derives from the data array; a caller's header must not contradict them.
 _FITS_STRUCTURAL = frozenset({"SIMPLE", "BITPIX", "NAXIS", "NAXIS1", "NAXIS2", "EXTEND", "BZERO", "BSCALE"})
 
@@ -507,7 +587,8 @@ def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mappin
     wcs_header : mapping, optional
         Output of :func:`tan_wcs_header`; ``NAXIS1/2`` in it must match the image.
     header : mapping, optional
-        Extra keywords (<= 8 characters), e.g. ``{"EXPTIME": 0.4}``.
+        Extra keywords (<= 8 characters), e.g. ``{"EXPTIME": 0.4}`` or ``{"EXPTIME": (0.4,
+        "[s] exposure time")}`` (value, comment); :func:`fits_frame_header` gives a frame's.
 
     Raises
     ------
@@ -607,7 +688,7 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
             t = frame.truth
             hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
                                  np.array(t["attitude"]["R_cam_icrs"]))
-            write_fits(path, frame.dn, wcs_header=hdr)
+            write_fits(path, frame.dn, wcs_header=hdr, header=fits_frame_header(t))
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
         written[fmt] = path
