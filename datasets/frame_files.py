@@ -521,15 +521,16 @@ def fits_frame_header(truth: Mapping) -> dict:
     truth : mapping
         A ``skynav.frame/1`` dict (``epoch``, ``observer``, ``camera`` with its ``sensor``).
     """
-    from astropy.time import Time, TimeDelta
+    from astropy.time import TimeDelta
 
     from skynav.scenes.camera import Camera
+    from skynav.scenes.timescales import time_from_tdb_seconds
 
     from .frame_truth import epoch_tdb_seconds
 
     cam = Camera.from_dict(dict(truth["camera"]))
     sp = cam.sensor
-    mid = Time(2451545.0, epoch_tdb_seconds(truth["epoch"]) / 86400.0, format="jd", scale="tdb")
+    mid = time_from_tdb_seconds(epoch_tdb_seconds(truth["epoch"]))
     half = TimeDelta(cam.exposure_s / 2.0, format="sec")
     with warnings.catch_warnings():
         # UTC after the installed leap-second table (ERFA: "dubious year") assumes no further
