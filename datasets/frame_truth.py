@@ -77,7 +77,7 @@ class StarsTruth:
     v_mag : ndarray, shape (N,)
         V magnitudes.
     u_icrs : ndarray, shape (N, 3)
-        Apparent unit vectors, ICRS.
+        Apparent unit vectors, ICRS (alias ``u_apparent``).
     xy : ndarray, shape (N, 2), px
         Apparent pixel positions at mid-exposure (x = column, y = row).
     electrons : ndarray, shape (N,), e-
@@ -92,6 +92,12 @@ class StarsTruth:
 
     def __len__(self) -> int:
         return len(self.hip)
+
+    @property
+    def u_apparent(self) -> np.ndarray:
+        """Alias of ``u_icrs``, the apparent direction (docs/conventions.md "One name per
+        quantity"; ``BodyDirections.u_apparent`` of scenes was the other name)."""
+        return self.u_icrs
 
     @classmethod
     def from_records(cls, records) -> "StarsTruth":
@@ -111,7 +117,7 @@ class BodyTruth:
         Apparent (light-time + aberration) and geometric pixel positions at mid-exposure;
         NaN where undefined.
     u_icrs : ndarray, shape (3,)
-        Apparent unit vector, ICRS.
+        Apparent unit vector, ICRS (alias ``u_apparent``).
     light_time_s, distance_km, v_mag : float
     phase_angle_rad : float
         Sun-body-observer angle, rad (the file's ``phase_angle_deg``).
@@ -134,6 +140,12 @@ class BodyTruth:
     visible: bool
     resolved: bool
     electrons: float
+
+    @property
+    def u_apparent(self) -> np.ndarray:
+        """Alias of ``u_icrs``, the apparent direction (docs/conventions.md "One name per
+        quantity"; ``BodyDirections.u_apparent`` of scenes was the other name)."""
+        return self.u_icrs
 
     @classmethod
     def from_record(cls, r: dict) -> "BodyTruth":

@@ -74,7 +74,7 @@ def keep_filters_pass(filters, sky, R_cam_icrs, camera, visibility) -> tuple[boo
     in_fov, visible = [], []
     R = np.asarray(R_cam_icrs)
     for b in bodies:
-        p = camera.project((R @ b.directions.u_apparent)[None])[0]
+        p = camera.project((R @ b.directions.u_icrs)[None])[0]
         if bool(camera.in_image(p[None])[0]):
             in_fov.append(b.name)
             if visibility.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad):

@@ -142,7 +142,7 @@ def choose_pair(sky_list, *, limiting_v_mag: float, elongation_min_rad: float, p
         for j in range(i + 1, len(elig)):
             J = np.zeros((3, 3))
             for b in (elig[i], elig[j]):
-                u = np.asarray(b.directions.u_apparent)
+                u = np.asarray(b.directions.u_icrs)
                 J += (np.eye(3) - np.outer(u, u)) / b.directions.distance_km**2
             score = float(np.linalg.eigvalsh(J)[0])
             if best is None or score > best[0]:
@@ -245,7 +245,7 @@ class SequencePlan:
         r, v = self.frame_r[k], self.frame_v[k]
         sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
         body = next(b for b in sky[0] if b.name == target)
-        R_nominal = frames.point_boresight(body.directions.u_apparent, math.radians(s["twist_deg"]))
+        R_nominal = frames.point_boresight(body.directions.u_icrs, math.radians(s["twist_deg"]))
         err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
         jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
         # the camera turned by the small rotation vector err (camera axes): R = exp(-[err x]) R0

@@ -96,6 +96,6 @@ def candidates_from_state(t_tdb_s: float, position_km, velocity_km_s, *, ephemer
     from skynav.scenes.scene import sky_bodies
 
     bodies, _ = sky_bodies(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=PLANETS)
-    return [PairCandidate(name=b.name, los_icrs=tuple(np.asarray(b.directions.u_apparent, dtype=float)),
+    return [PairCandidate(name=b.name, los_icrs=tuple(np.asarray(b.directions.u_icrs, dtype=float)),
                           distance_km=float(b.directions.distance_km), v_mag=float(b.v_mag),
                           elongation_rad=float(b.elongation_rad)) for b in bodies]

@@ -178,8 +178,11 @@ class BodyDirections:
         Unit vector to the body's position at the observation epoch (no light-time).
     u_light_time : ndarray, shape (3,)
         Unit vector to the body where it emitted the light (astrometric direction).
-    u_apparent : ndarray, shape (3,)
-        ``u_light_time`` deflected by the Sun (if asked) and aberrated.
+    u_icrs : ndarray, shape (3,)
+        The apparent direction: ``u_light_time`` deflected by the Sun (if asked) and
+        aberrated; ICRS axes. The name of the truth files (``stars[].u_icrs``,
+        ``bodies[].u_icrs``) and of the scene's views; ``u_apparent`` is an alias
+        (docs/conventions.md "One name per quantity").
     light_time_s : float
         Light travel time, s.
     distance_km : float
@@ -196,13 +199,19 @@ class BodyDirections:
 
     u_geometric: np.ndarray
     u_light_time: np.ndarray
-    u_apparent: np.ndarray
+    u_icrs: np.ndarray
     light_time_s: float
     distance_km: float
     geometric_distance_km: float
     position_km: np.ndarray
     sun_position_km: np.ndarray
     observer_position_km: np.ndarray
+
+    @property
+    def u_apparent(self) -> np.ndarray:
+        """Alias of :attr:`u_icrs` (the apparent direction), kept for code written before the
+        names were unified."""
+        return self.u_icrs
 
 
 def _pv(eph, body, t_tdb_s, offset_s):
@@ -276,7 +285,7 @@ def apparent_body(
     return BodyDirections(
         u_geometric=geo / geo_d,
         u_light_time=u_lt,
-        u_apparent=u_app,
+        u_icrs=u_app,
         light_time_s=float(tau),
         distance_km=distance_km,
         geometric_distance_km=geo_d,

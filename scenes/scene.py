@@ -29,7 +29,7 @@ class StarsInView:
     teff_k : ndarray, shape (N,)
         Effective temperature, K.
     u_icrs : ndarray, shape (N, 3)
-        Apparent unit vectors (ICRS axes) at mid-exposure.
+        Apparent unit vectors (ICRS axes) at mid-exposure (alias ``u_apparent``).
     xy : ndarray, shape (N, 2)
         Apparent pixel positions at mid-exposure (distortion applied), px.
     xy_start, xy_end : ndarray, shape (N, 2)
@@ -51,6 +51,11 @@ class StarsInView:
 
     def __len__(self) -> int:
         return len(self.hip)
+
+    @property
+    def u_apparent(self):
+        """Alias of ``u_icrs``, the apparent direction (docs/conventions.md "One name per quantity")."""
+        return self.u_icrs
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,6 +89,11 @@ class BodyInView:
     in_fov: bool
     visible: bool
     resolved: bool
+
+    @property
+    def u_apparent(self):
+        """Alias of ``u_icrs``, the apparent direction (docs/conventions.md "One name per quantity")."""
+        return self.u_icrs
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -212,11 +222,11 @@ def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
         phase = float(photometry.phase_angle_rad(d.position_km, d.sun_position_km, r))
         sun_dist = float(np.linalg.norm(d.position_km - d.sun_position_km))
         vmag = float(photometry.planet_v_mag(name, sun_dist, d.distance_km, phase))
-        elong = float(np.arccos(np.clip(np.dot(d.u_apparent, sun.u_apparent), -1.0, 1.0)))
+        elong = float(np.arccos(np.clip(np.dot(d.u_icrs, sun.u_icrs), -1.0, 1.0)))
         out.append(SkyBody(name=name, directions=d, radius_km=radius, v_mag=vmag, phase_angle_rad=phase,
                            elongation_rad=elong,
                            angular_diameter_rad=float(photometry.angular_diameter_rad(radius, d.distance_km))))
-    return tuple(out), np.asarray(sun.u_apparent, dtype=float)
+    return tuple(out), np.asarray(sun.u_icrs, dtype=float)
 
 
 def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
@@ -317,22 +327,22 @@ def build_scene(
     bodies = []
     for b in sky_list:
         d = b.directions
-        p = camera.project((R @ d.u_apparent)[None])[0]
+        p = camera.project((R @ d.u_icrs)[None])[0]
         in_fov = bool(camera.in_image(p[None])[0])
         diam_px = b.angular_diameter_rad * camera.focal_length_px
         bodies.append(BodyInView(
             name=b.name,
-            u_icrs=_tup(d.u_apparent), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
+            u_icrs=_tup(d.u_icrs), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
             xy=_tup(p),
             xy_geometric=_tup(camera.project((R @ d.u_geometric)[None])[0]),
             xy_light_time=_tup(camera.project((R @ d.u_light_time)[None])[0]),
-            xy_start=_tup(camera.project((R_start @ d.u_apparent)[None])[0]),
-            xy_end=_tup(camera.project((R_end @ d.u_apparent)[None])[0]),
+            xy_start=_tup(camera.project((R_start @ d.u_icrs)[None])[0]),
+            xy_end=_tup(camera.project((R_end @ d.u_icrs)[None])[0]),
             light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
             elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
-            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_apparent), -1, 1)) * ARCSEC_PER_RAD),
+            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) * ARCSEC_PER_RAD),
             in_fov=in_fov,
             visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
             resolved=bool(diam_px > resolved_threshold_px),
@@ -366,7 +376,7 @@ def resolve_spec(spec, *, ephemeris=None):
             target = brightest_visible_body(sky[0], spec.visibility)
         else:
             target = next(b for b in sky[0] if b.name == a.point_at)
-        R = frames.point_boresight(target.directions.u_apparent, a.twist_rad)
+        R = frames.point_boresight(target.directions.u_icrs, a.twist_rad)
     elif a.q_cam_icrs is not None:
         R = frames.quat_to_dcm(np.asarray(a.q_cam_icrs))
     else:
