@@ -92,3 +92,42 @@ def test_a_folder_holding_another_facilitys_export_is_refused(source, reference,
     assert main(["hil", "export", str(source), "--facility", "bench", "-o", str(out), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another facility" in err[0] and "Traceback" not in err[0]
+
+
+def test_an_export_of_format_1_is_not_resumed(source, reference, tmp_path, capsys):
+    """Version 1 stored the screen DN unscaled: resuming into it would mix two PNG layouts."""
+    import shutil
+
+    out = tmp_path / "screen"
+    shutil.copytree(reference, out)
+    m = json.loads((out / "export.json").read_text())
+    m["schema"] = "skynav.hil_export/1"
+    for key in ("png_scaling", "significant_bits"):
+        m.pop(key)
+    (out / "export.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert main(["hil", "export", str(source), "--facility", "bench_small", "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another file format" in err[0]
+
+
+def test_screen_frames_give_the_same_dn_in_both_layouts(reference, tmp_path):
+    """The closed loop and every other reader see the same screen DN in a 0.3.0-style export
+    (unscaled PNGs with sBIT, no marker) as in this one."""
+    import numpy as np
+    from PIL import Image, PngImagePlugin
+
+    from skynav.datasets.frame_files import read_png
+
+    for k in range(3):
+        png = reference / "frames" / f"{k:06d}.png"
+        m = json.loads((reference / "frames" / f"{k:06d}.json").read_text())
+        assert m["png_scaling"] == "sbit"
+        dn = read_png(png)
+        assert int(dn.max()) <= (1 << m["significant_bits"]) - 1
+        info = PngImagePlugin.PngInfo()
+        info.add(b"sBIT", bytes([m["significant_bits"]]))
+        Image.fromarray(dn).save(tmp_path / "old.png", pnginfo=info)
+        np.testing.assert_array_equal(read_png(tmp_path / "old.png"), dn)
+        with Image.open(png) as im:  # what a viewer sees: the full 16-bit range, not <= 1023
+            assert np.array(im).max() > 1023 or dn.max() == 0
