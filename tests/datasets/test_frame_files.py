@@ -202,12 +202,14 @@ def test_png_uint16_raw_dn_round_trip(tmp_path, rng):
         np.testing.assert_array_equal(rows[:, 1:].copy().view(">u2"), dn)
 
 
-def test_png_12_bit_not_rescaled_and_sbit(tmp_path, rng):
+def test_png_12_bit_dn_come_back_and_sbit(tmp_path, rng):
+    # stored scaled to 16 bits (tests/datasets/test_png_scaling.py); read back as DN
     dn = rng.integers(0, 4096, (16, 16), dtype=np.uint16)
     dn[0, 0] = 4095
     p = tmp_path / "a.png"
     write_png(p, dn, bit_depth=12)
     assert read_png(p).max() == 4095
+    np.testing.assert_array_equal(read_png(p), dn)
     assert _png_chunks(p)[b"sBIT"] == [bytes([12])]
     with pytest.raises(OutputFormatError, match="exceeds 4095"):
         write_png(tmp_path / "b.png", dn + 1, bit_depth=12)
