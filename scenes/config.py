@@ -515,23 +515,32 @@ def load_yaml(fobj):
     return yaml.load(fobj, Loader=_strict_loader())  # noqa: S506 - a SafeLoader subclass
 
 
-def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
-    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+def read_scene_mapping(fobj, name: str = "<scene>"):
+    """Parse a YAML scene file object into its mapping, not yet validated (errors name the file)."""
     import yaml
 
     try:
-        data = load_yaml(fobj)
+        return load_yaml(fobj)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
         raise SceneFileError(f"{name}: malformed YAML{where}: {problem}") from None
-    return scene_spec_from_mapping(data)
 
 
-def load_scene_file(path) -> SceneSpec:
+def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
+    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+    return scene_spec_from_mapping(read_scene_mapping(fobj, name))
+
+
+def load_scene_mapping(path):
+    """The mapping of a scene file at ``path`` (not yet validated)."""
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")
     with open(path, "rb") as f:
-        return read_scene_file(f, str(path))
+        return read_scene_mapping(f, str(path))
+
+
+def load_scene_file(path) -> SceneSpec:
+    return scene_spec_from_mapping(load_scene_mapping(path))
