@@ -16,7 +16,9 @@ def _recipe(arg: str, count, seed, overrides=()):
         from skynav.datasets.errors import RecipeError
 
         raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
-    recipe = apply_overrides(read_recipe_mapping(arg), overrides)
+    recipe = read_recipe_mapping(arg)
+    if overrides:
+        recipe = apply_overrides(recipe, overrides)
     recipe = datasets.validate_recipe(recipe)
     if count is not None:
         recipe["frames"] = count
