@@ -135,8 +135,9 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
                         catalog_limiting_v_mag=req.catalog_limiting_v_mag if req.catalog_limiting_v_mag is not None else catalog_limiting_v_mag,
                         visibility=req.visibility if req.visibility is not None else plan.visibility,
                         sky=req.sky, **extra)
-    if req.cosmic_rays_per_frame is not None:
-        options = dataclasses.replace(options, cosmic_rays_per_frame=req.cosmic_rays_per_frame)
+    own = {k: getattr(req, k) for k in ("cosmic_rays_per_frame", "mitsuba_spp") if getattr(req, k) is not None}
+    if own:  # a scene's own render keys (scenes recipes)
+        options = dataclasses.replace(options, **own)
     t1 = time.perf_counter()
     frame = render(scene, seed=ss, rng=rng, options=options)
     t2 = time.perf_counter()

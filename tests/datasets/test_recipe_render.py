@@ -145,3 +145,20 @@ def test_commented_preset_gives_the_same_plan(tmp_path):
     b = make_plan(validate_recipe(preset_recipe("montecarlo"))).frame_request(0, frame_rng(1, 0))
     assert a.epoch_tdb_s == b.epoch_tdb_s and np.array_equal(a.position_km, b.position_km)
     assert np.array_equal(a.R_cam_icrs, b.R_cam_icrs)
+
+
+def test_scenes_recipe_per_scene_render_keys_win(tmp_path):
+    """A scene's own render.mitsuba_spp / cosmic_rays_per_frame reach its frame; the recipe's the others."""
+    from skynav.datasets.plan import frame_rng
+    from skynav.datasets.samplers import make_plan
+
+    r = preset_recipe("scenes")
+    r["render"] = {"cosmic_rays_per_frame": 0, "resolved_threshold_px": 4.0}
+    r["scenes"][1]["render"] = {"mitsuba_spp": 4, "cosmic_rays_per_frame": 2}
+    r = validate_recipe(r)
+    plan = make_plan(r)
+    first, second = (plan.frame_request(k, frame_rng(1, k)) for k in range(2))
+    assert (first.mitsuba_spp, first.cosmic_rays_per_frame) == (None, None)
+    assert (second.mitsuba_spp, second.cosmic_rays_per_frame) == (4, 2.0)
+    opts = recipe_render_options(r, RenderOptions())
+    assert (opts.cosmic_rays_per_frame, opts.mitsuba_spp) == (0.0, 16)
