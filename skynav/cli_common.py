@@ -17,6 +17,8 @@ import os
 import sys
 import warnings
 
+from skynav.scenes.errors import SkynavError
+
 __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
            "non_negative_int", "run_command", "add_set_argument", "parse_set", "apply_overrides",
            "dataclass_from_overrides", "OverrideError"]
@@ -70,13 +72,7 @@ non_negative_int = _int_type(0, "a non-negative integer")
 
 
 # ----------------------------------------------------------------------------- --set KEY.SUB=VALUE
-def _override_error_base():
-    from skynav.scenes.errors import SkynavError
-
-    return SkynavError
-
-
-class OverrideError(_override_error_base(), ValueError):
+class OverrideError(SkynavError, ValueError):
     """A ``--set`` override that cannot be applied (one line, exit 2)."""
 
 

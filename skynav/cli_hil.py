@@ -34,8 +34,10 @@ def cmd_export(args) -> int:
 
         from .cli_common import apply_overrides
 
-        fac = facility_from_mapping(apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True,
-                                                    what="the facility"))
+        mapping = apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True, what="the facility")
+        if any(path[0] == "camera" and path[1:] != ("K",) for _, path, _ in args.overrides):
+            mapping["camera"].pop("K", None)  # derived from the other camera keys, which an override changed
+        fac = facility_from_mapping(mapping)
     fac.check_coverage()
     s = export_dataset(fac, args.dataset, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                        progress=None if args.quiet else _progress("exporting"))

@@ -167,3 +167,9 @@ def test_dataset_recipe_writes_a_file_generate_reads(tmp_path, capsys):
     _one_line(capsys, main(["dataset", "recipe", "montecarlo", "-o", str(path)]), "exists; give another path, or --force")
     assert main(["dataset", "recipe", "sequence", "-o", str(path), "--force"]) == 0
     assert "kind: sequence" in path.read_text()
+
+
+def test_scene_set_changes_what_is_printed(capsys):
+    assert main(["scene", "--set", "camera.fov_deg=10", "--set", "camera.exposure_s=0.25"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "FOV 10.00 deg, 250 ms" in first, first
