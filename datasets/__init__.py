@@ -6,7 +6,8 @@ Public API (each ``skynav dataset`` sub-command calls one of these):
 - :func:`open` (the reader): ``ds = skynav.datasets.open(path); dn, truth = ds[0]``;
   ``ds.observation(k)`` for the navigation pipeline (no truth), ``ds.truth(k)`` for scoring;
 - :func:`verify`, :func:`info`, :func:`preview` (and :func:`leg_plot` for sequences);
-- recipes: :func:`preset_recipe`, :func:`validate_recipe`, :func:`load_recipe_file`;
+- recipes: :func:`preset_recipe`, :func:`validate_recipe`, :func:`load_recipe_file`, :func:`recipe_yaml`
+  (a preset as a commented YAML file to edit);
 - files: :func:`write_frame` (a rendered frame's PNG/EXR/JSON/FITS), the schemas
   (:func:`load_schema`, :func:`validate_truth`, :func:`validate_manifest`).
 
@@ -38,6 +39,7 @@ open = open_dataset  # noqa: A001 - skynav.datasets.open(path), as asked by the 
 _LAZY = {
     "leg_plot": "contact_sheet", "preview": "contact_sheet",
     "PRESETS": "recipes", "load_recipe_file": "recipes", "preset_recipe": "recipes", "validate_recipe": "recipes",
+    "recipe_yaml": "recipes",
     "GenerateSummary": "runner", "generate": "runner", "regenerate_frame": "runner",
     "VerifyReport": "integrity", "info": "integrity", "verify": "integrity",
     "write_frame": "frame_files",

@@ -94,7 +94,8 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     The random stream is ``default_rng(SeedSequence([master_seed, k]))``: the sampler draws
     first (:mod:`skynav.datasets.samplers`), then the renderer. A frame request's own camera,
     visibility criteria, catalogue limit, resolved-body threshold or cosmic-ray rate (per-scene
-    keys of a ``scenes`` recipe) replace the plan's for this frame.
+    keys of a ``scenes`` recipe) replace the plan's for this frame; without one, the recipe's
+    ``render.resolved_threshold_px`` (if set) replaces the scene model's default.
 
     Parameters
     ----------
@@ -124,15 +125,19 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     ss = frame_seed(master_seed, k)
     rng = np.random.default_rng(ss)
     req = plan.frame_request(k, rng)
-    extra = {} if req.resolved_threshold_px is None else {"resolved_threshold_px": req.resolved_threshold_px}
+    threshold = req.resolved_threshold_px  # a scene's own, else the recipe's render.resolved_threshold_px
+    if threshold is None:
+        threshold = (getattr(plan, "recipe", None) or {}).get("render", {}).get("resolved_threshold_px")
+    extra = {} if threshold is None else {"resolved_threshold_px": threshold}
     scene = build_scene(req.epoch_tdb_s, position_km=req.position_km, velocity_km_s=req.velocity_km_s,
                         R_cam_icrs=req.R_cam_icrs, camera=req.camera if req.camera is not None else plan.camera,
                         angular_velocity_rad_s=req.angular_velocity_rad_s,
                         catalog_limiting_v_mag=req.catalog_limiting_v_mag if req.catalog_limiting_v_mag is not None else catalog_limiting_v_mag,
                         visibility=req.visibility if req.visibility is not None else plan.visibility,
                         sky=req.sky, **extra)
-    if req.cosmic_rays_per_frame is not None:
-        options = dataclasses.replace(options, cosmic_rays_per_frame=req.cosmic_rays_per_frame)
+    own = {k: getattr(req, k) for k in ("cosmic_rays_per_frame", "mitsuba_spp") if getattr(req, k) is not None}
+    if own:  # a scene's own render keys (scenes recipes)
+        options = dataclasses.replace(options, **own)
     t1 = time.perf_counter()
     frame = render(scene, seed=ss, rng=rng, options=options)
     t2 = time.perf_counter()

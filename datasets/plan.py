@@ -88,6 +88,9 @@ class FrameRequest:
     cosmic_rays_per_frame : float or None
         This frame's cosmic-ray rate (per-scene ``render.cosmic_rays_per_frame``); None: the
         dataset's render options.
+    mitsuba_spp : int or None
+        This frame's Mitsuba samples per pixel (per-scene ``render.mitsuba_spp``); None: the
+        dataset's render options.
     """
 
     epoch_tdb_s: float
@@ -102,6 +105,7 @@ class FrameRequest:
     resolved_threshold_px: float | None = None
     visibility: object = None
     cosmic_rays_per_frame: float | None = None
+    mitsuba_spp: int | None = None
 
 
 class SamplerPlan(Protocol):

@@ -13,7 +13,16 @@ Common keys::
     camera: {preset: paper}  # as in scene files (skynav.scenes.config.camera_from_mapping)
     visibility: {limiting_v_mag: 7.0, sun_exclusion_deg: 20.0}   # detection rule (visible flag, filters)
     catalog_limiting_v_mag: 9.0                                   # star catalogue cut
+    render: {cosmic_rays_per_frame: 0}   # the scene file's render: keys (skynav.scenes.config.RENDER_KEYS)
     formats: [png, exr, json]
+
+``render:`` takes every render option a scene file takes and is validated by the same function
+(:func:`~skynav.scenes.config.render_settings_from_mapping`): ``cosmic_rays_per_frame``,
+``resolved_threshold_px``, ``mitsuba_spp`` and ``catalog_limiting_v_mag`` (the scene file's
+spelling of the top-level key; the normalised recipe keeps it at the top). ``render.seed`` is
+refused: frame k draws from ``SeedSequence([seed, k])``. The normalised recipe keeps only the
+render keys that differ from their defaults, so a recipe that writes the defaults out is the same
+dataset as one that leaves them out. :func:`recipe_yaml` writes a preset as a commented YAML file.
 
 Kind-specific sections (``montecarlo:``, ``sequence:``, ``scenes:``) are documented in
 ``docs/datasets.md`` and in :data:`PRESETS`.
@@ -24,13 +33,20 @@ from __future__ import annotations
 import copy
 import math
 
-from skynav.scenes.config import camera_from_mapping, scene_spec_from_mapping, visibility_from_mapping
+from skynav.scenes.config import (RENDER_KEYS, camera_from_mapping, render_settings_from_mapping,
+                                  scene_spec_from_mapping, visibility_from_mapping)
 
 from skynav.scenes.errors import MovedKeyError
 
 from .errors import RecipeError
 
-__all__ = ["KINDS", "PRESETS", "preset_recipe", "validate_recipe", "recipe_camera", "recipe_visibility", "load_recipe_file"]
+__all__ = ["KINDS", "PRESETS", "preset_recipe", "validate_recipe", "recipe_camera", "recipe_visibility", "load_recipe_file",
+           "read_recipe_mapping", "recipe_render", "recipe_yaml", "RECIPE_RENDER_OPTIONS", "RECIPE_RENDER_KEYS"]
+
+#: The ``render:`` keys that set :class:`~skynav.renderer.render.RenderOptions` fields of the same name.
+RECIPE_RENDER_OPTIONS = ("cosmic_rays_per_frame", "mitsuba_spp")
+#: The ``render:`` keys a recipe takes: the scene file's but ``seed`` (frame k's stream is fixed by the recipe's seed).
+RECIPE_RENDER_KEYS = tuple(k for k in RENDER_KEYS if k != "seed")
 
 KINDS = ("montecarlo", "sequence", "scenes")
 FORMATS = ("png", "exr", "json", "fits")
@@ -247,7 +263,7 @@ def validate_recipe(recipe) -> dict:
     kind = recipe.get("kind")
     if kind not in KINDS:
         raise RecipeError("kind", kind, "one of: " + ", ".join(KINDS))
-    allowed = {"kind", "frames", "seed", "camera", "visibility", "catalog_limiting_v_mag", "formats", "name", kind}
+    allowed = {"kind", "frames", "seed", "camera", "visibility", "catalog_limiting_v_mag", "render", "formats", "name", kind}
     for k in recipe:
         if k == "star_mag_limit":
             raise MovedKeyError(k, recipe[k], "catalog_limiting_v_mag")
@@ -260,14 +276,23 @@ def validate_recipe(recipe) -> dict:
         raise RecipeError("seed", None, "a non-negative integer master seed")
     out["seed"] = _num(recipe, "seed", "", lo=0, hi=2**63 - 1, integer=True)
     cam = recipe.get("camera", {"preset": "paper"})
-    camera_from_mapping(cam)  # raises ConfigValueError naming camera.<key>
+    camera = camera_from_mapping(cam)  # raises ConfigValueError naming camera.<key>
     out["camera"] = copy.deepcopy(cam)
     vis = recipe.get("visibility", {})
     visibility_from_mapping(vis)  # raises ConfigValueError naming visibility.<key>
     out["visibility"] = {"limiting_v_mag": float(vis.get("limiting_v_mag", 7.0)),
                          "sun_exclusion_deg": float(vis.get("sun_exclusion_deg", 20.0))}
-    out["catalog_limiting_v_mag"] = _num({"catalog_limiting_v_mag": recipe.get("catalog_limiting_v_mag", 9.0)},
-                                         "catalog_limiting_v_mag", "", lo=-2.0, hi=14.0)
+    render = _validate_render(recipe.get("render"), camera)
+    render_mag = render.pop("catalog_limiting_v_mag", None)  # the scene file's spelling of the same cut
+    mag = recipe.get("catalog_limiting_v_mag", 9.0 if render_mag is None else render_mag)
+    out["catalog_limiting_v_mag"] = _num({"catalog_limiting_v_mag": mag}, "catalog_limiting_v_mag", "", lo=-2.0, hi=14.0)
+    if render_mag is not None and render_mag != out["catalog_limiting_v_mag"]:
+        raise RecipeError("render.catalog_limiting_v_mag", render_mag,
+                          f"left out, or equal to catalog_limiting_v_mag ({out['catalog_limiting_v_mag']:g}): "
+                          "both name the star catalogue cut")
+    render = {k: v for k, v in render.items() if v != RENDER_KEYS[k][0]}
+    if render:
+        out["render"] = render
     fmts = recipe.get("formats", ["png", "exr", "json"])
     if isinstance(fmts, str):
         fmts = [fmts]
@@ -307,6 +332,28 @@ def validate_recipe(recipe) -> dict:
     return out
 
 
+def _validate_render(rd, camera) -> dict:
+    """The keys given in a recipe's ``render:`` mapping, validated as a scene file's are."""
+    if isinstance(rd, dict) and "seed" in rd:  # frame k's stream is SeedSequence([seed, k])
+        raise RecipeError("render.seed", rd["seed"], "no render seed in a recipe (frame k draws from "
+                                                     "SeedSequence([seed, k])); set the recipe's top-level seed")
+    return render_settings_from_mapping(rd, camera, key="render", fill=False, keys=RECIPE_RENDER_KEYS)
+
+
+def recipe_render(recipe: dict) -> dict:
+    """The render settings of a (validated) recipe, every key but ``seed`` (defaults filled).
+
+    Examples
+    --------
+    >>> recipe_render({"render": {"cosmic_rays_per_frame": 0.0}})["cosmic_rays_per_frame"]
+    0.0
+    """
+    given = recipe.get("render") or {}
+    out = {k: given.get(k, RENDER_KEYS[k][0]) for k in RECIPE_RENDER_KEYS}
+    out["catalog_limiting_v_mag"] = recipe.get("catalog_limiting_v_mag", out["catalog_limiting_v_mag"])
+    return out
+
+
 def recipe_camera(recipe: dict):
     """The :class:`~skynav.scenes.camera.Camera` of a (validated) recipe."""
     return camera_from_mapping(recipe.get("camera", {"preset": "paper"}))
@@ -317,8 +364,15 @@ def recipe_visibility(recipe: dict):
     return visibility_from_mapping(recipe.get("visibility", {}))
 
 
-def load_recipe_file(path) -> dict:
-    """Read a YAML (or JSON) recipe file, or a preset name (``montecarlo``...), and validate it."""
+def read_recipe_mapping(path) -> dict:
+    """The mapping of a YAML (or JSON) recipe file, or a fresh copy of a preset (``montecarlo``...),
+    not yet validated (``--set`` overrides apply to it before :func:`validate_recipe`).
+
+    Raises
+    ------
+    RecipeError
+        A missing file (naming the presets) or malformed YAML (naming the line).
+    """
     import os
 
     import yaml
@@ -326,7 +380,7 @@ def load_recipe_file(path) -> dict:
     from skynav.scenes.config import load_yaml
 
     if isinstance(path, str) and path in PRESETS and not os.path.isfile(path):
-        return validate_recipe(preset_recipe(path))
+        return preset_recipe(path)
     try:
         with open(path, "rb") as f:
             data = load_yaml(f)
@@ -336,4 +390,121 @@ def load_recipe_file(path) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise RecipeError("recipe", str(path), f"valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__}{where})") from None
-    return validate_recipe(data)
+    return data
+
+
+def load_recipe_file(path) -> dict:
+    """Read a YAML (or JSON) recipe file, or a preset name (``montecarlo``...), and validate it."""
+    return validate_recipe(read_recipe_mapping(path))
+
+
+# ----------------------------------------------------------------------------- commented presets
+#: One line per key of a recipe file (meaning, unit, allowed values), for :func:`recipe_yaml`.
+KEY_COMMENTS = {
+    "kind": "recipe kind: montecarlo (random scenes), sequence (a cruise's navigation legs) or scenes (a list)",
+    "name": "free text naming the dataset (optional)",
+    "frames": "number of frames, an integer >= 1 (sequence: optional, the first N of the plan; scenes: the list length)",
+    "seed": "master seed, a non-negative integer: frame k draws from SeedSequence([seed, k])",
+    "camera": "the camera, as in scene files: preset: paper (paper 002 table 4), then any key to change, "
+              "e.g. exposure_s: 0.2, width: 256, height: 256, fov_deg: 20, f_number: 2.2, sensor: {read_noise_e: 8}",
+    "camera.preset": "starting camera: paper (20 deg, 1024 x 1024 px, f/2.2, 0.4 s, 8-bit)",
+    "visibility": "the detection rule that sets each body's visible flag (and the keep-filters)",
+    "visibility.limiting_v_mag": "faintest visible body, V mag",
+    "visibility.sun_exclusion_deg": "a body this close to the Sun is not visible, deg, in [0, 180)",
+    "catalog_limiting_v_mag": "faintest catalogue star rendered, V mag, in [-2, 14] (also written "
+                              "render.catalog_limiting_v_mag, the scene file's spelling)",
+    "render": "render options, the scene file's render: keys (a key left out keeps the default shown)",
+    "formats": "files per frame, from: png (counts), exr (electrons, irradiance), json (ground truth, required), fits",
+    "montecarlo": "scene distribution of paper 000 sec. V.A (draws in docs/datasets.md)",
+    "montecarlo.epoch_start_tdb": "first epoch, ISO date in TDB, inside DE421 (1900..2053)",
+    "montecarlo.epoch_end_tdb": "last epoch (uniform in between), ISO date in TDB, >= epoch_start_tdb",
+    "montecarlo.position_sigma_au": "sigma of the Gaussian position about the barycentre, ecliptic x y z, AU, each in [0, 100]",
+    "montecarlo.attitude_frame": "axes of the random pointing: ecliptic or icrs",
+    "montecarlo.dec_3sigma_deg": "3-sigma of the pointing's declination (normal), deg, in [0, 270]",
+    "montecarlo.velocity": "observer velocity: circular (heliocentric circular speed, prograde) or zero (at rest w.r.t. the Sun)",
+    "montecarlo.min_sun_distance_au": "positions closer to the Sun are redrawn, AU, in [0, 100]",
+    "montecarlo.keep": "keep-filters a scene must pass, a list from: " + ", ".join(FILTERS),
+    "montecarlo.max_draws_per_frame": "give up on a frame after this many rejected draws, an integer >= 1",
+    "sequence": "an Earth-Mars cruise (Lambert transfer) cut into tracking legs (papers 001 sec. IV, 002 sec. 4)",
+    "sequence.departure_window_tdb": "departure dates searched, [start, end], ISO dates in TDB",
+    "sequence.tof_days": "times of flight searched, [min, max], days, in [10, 2000]",
+    "sequence.grid_days": "grid step of the departure and time-of-flight search, days, in [0.1, 100]",
+    "sequence.start_offset_days": "first leg this long after departure, days, in [1, tof min]",
+    "sequence.legs": "number of legs (track A, slew, track B, coast), an integer in 1..1000",
+    "sequence.track_s": "length of one tracking window (A or B) of a leg, s, > 0",
+    "sequence.cadence_s": "time between frames within a leg, s, in (0, track_s]",
+    "sequence.slew_s": "time between legs (slew to the next pair of planets), s, >= 0",
+    "sequence.propagate_s": "coast without frames after each leg, s, >= 0",
+    "sequence.pair_limiting_v_mag": "a leg's planets must be brighter than this, V mag",
+    "sequence.pair_elongation_min_deg": "a leg's planets must be this far from the Sun, deg, in [0, 180]",
+    "sequence.pointing_error_deg": "1-sigma pointing error per axis, deg, in [0, 10]",
+    "sequence.jitter_rate_deg_s": "1-sigma attitude jitter rate per axis, deg/s, in [0, 10]",
+    "sequence.angular_velocity_deg_s": "constant camera rate, camera x y z, deg/s, each in [-10, 10]",
+    "sequence.twist_deg": "camera twist about the boresight, deg, in [-360, 360]",
+    "sequence.spacecraft": "spacecraft for solar radiation pressure",
+    "sequence.spacecraft.mass_kg": "mass, kg, > 0",
+    "sequence.spacecraft.area_m2": "area facing the Sun, m^2, >= 0",
+    "sequence.spacecraft.reflectivity_coefficient": "radiation-pressure coefficient C_r, in [0, 2]",
+    "sequence.relativity": "post-Newtonian term of the Sun in the propagation: true or false",
+    "sequence.rtol": "relative tolerance of the integrator, in [1e-14, 1e-6]",
+    "sequence.trajectory_step_s": "spacing of the stored trajectory samples, s, in [1, 1e7]",
+    "scenes": "a list of scenes, each with a scene file's keys (epoch, observer, attitude, camera, visibility, "
+              "render; no render.seed), as in docs/examples/*.yaml",
+}
+KEY_COMMENTS.update({f"render.{k}": text for k, (_, text) in RENDER_KEYS.items() if k in RECIPE_RENDER_KEYS})
+
+
+def _flow(value) -> str:
+    """One YAML value on one line (flow style)."""
+    import yaml
+
+    text = yaml.safe_dump(value, default_flow_style=True, width=10_000, sort_keys=False).strip()
+    return text[:-len("\n...")].strip() if text.endswith("...") else text
+
+
+def _emit(lines: list, mapping: dict, prefix: str, indent: int) -> None:
+    pad = " " * indent
+    for key, value in mapping.items():
+        dotted = f"{prefix}{key}"
+        comment = KEY_COMMENTS.get(dotted)
+        if comment:
+            lines.append(f"{pad}# {comment}")
+        if isinstance(value, dict) and value:
+            lines.append(f"{pad}{key}:")
+            _emit(lines, value, dotted + ".", indent + 2)
+        elif dotted == "scenes":
+            import yaml
+
+            lines.append(f"{pad}{key}:")
+            block = yaml.safe_dump(value, default_flow_style=None, sort_keys=False, width=100)
+            lines.extend(pad + "  " + line for line in block.splitlines())
+        else:
+            lines.append(f"{pad}{key}: {_flow(value)}")
+
+
+def recipe_yaml(kind: str) -> str:
+    """A preset as a commented YAML file to edit: every key, each with a comment line above it.
+
+    The file gives the same normalised recipe as :func:`preset_recipe` (it also writes the
+    ``visibility:`` and ``render:`` defaults out, which normalise to the same values).
+
+    Examples
+    --------
+    >>> text = recipe_yaml("montecarlo")
+    >>> validate_recipe(__import__("yaml").safe_load(text)) == validate_recipe(preset_recipe("montecarlo"))
+    True
+    """
+    recipe = preset_recipe(kind)
+    ordered = {"kind": recipe.pop("kind")}
+    for key in ("name", "frames", "seed", "camera"):
+        if key in recipe:
+            ordered[key] = recipe.pop(key)
+    ordered["visibility"] = {"limiting_v_mag": 7.0, "sun_exclusion_deg": 20.0}
+    ordered["catalog_limiting_v_mag"] = recipe.pop("catalog_limiting_v_mag", 9.0)
+    ordered["render"] = {k: RENDER_KEYS[k][0] for k in RECIPE_RENDER_KEYS if k != "catalog_limiting_v_mag"}
+    ordered.update(recipe)
+    lines = [f"# skynav dataset recipe, kind {kind} (written by: skynav dataset recipe {kind})",
+             "# Edit the values, then: skynav dataset generate THIS_FILE -o DATASET_FOLDER",
+             "# Any key can also be changed on the command line: --set KEY.SUB=VALUE, e.g. --set render.cosmic_rays_per_frame=0", ""]
+    _emit(lines, ordered, "", 0)
+    return "\n".join(lines) + "\n"

@@ -30,6 +30,7 @@ truncated or corrupted file is never kept.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -171,6 +172,16 @@ def make_folder(root) -> Path:
     return root
 
 
+def recipe_render_options(recipe: dict, options):
+    """``options`` with the fields the recipe's ``render:`` mapping sets (``cosmic_rays_per_frame``,
+    ``mitsuba_spp``) replaced: the recipe's keys win over the ``render_options`` argument, and the
+    manifest records the result."""
+    from .recipes import RECIPE_RENDER_OPTIONS
+
+    given = {k: v for k, v in (recipe.get("render") or {}).items() if k in RECIPE_RENDER_OPTIONS}
+    return dataclasses.replace(options, **given) if given else options
+
+
 def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames: int | None = None) -> RunPlan:
     """The *plan* step of :func:`generate`: what to make, with what, and what is there already.
 
@@ -189,7 +200,7 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
     from .samplers import make_plan
 
     recipe = validate_recipe(recipe)
-    options = render_options if render_options is not None else RenderOptions()
+    options = recipe_render_options(recipe, render_options if render_options is not None else RenderOptions())
     root = Path(out_dir)
     make_folder(root)
     camera = recipe_camera(recipe)
@@ -264,7 +275,8 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     progress : bool or callable
         True: a tqdm bar with rate and ETA; a callable ``progress(done, total)``; False: silent.
     render_options : skynav.renderer.render.RenderOptions, optional
-        Recorded in the manifest; a resume must pass the same.
+        Recorded in the manifest; a resume must pass the same. The recipe's ``render:`` keys
+        (``cosmic_rays_per_frame``, ``mitsuba_spp``) replace the fields of the same name.
     flush_every_s : float
         Interval between manifest checkpoints while running.
     max_frames : int, optional

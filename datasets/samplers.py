@@ -236,9 +236,9 @@ class ScenesPlan:
     """Free-form recipe: an explicit list of scenes (same keys as scene files), rendered in order.
 
     A scene's own ``camera`` (size, optics, sensor) and ``visibility`` replace the recipe's for
-    that frame; its ``render.catalog_limiting_v_mag``, ``render.resolved_threshold_px`` and
-    ``render.cosmic_rays_per_frame`` replace the recipe's catalogue limit, the scene model's
-    default threshold and the dataset's cosmic-ray rate. The frame's ground truth records the camera and star limit it was rendered
+    that frame; its ``render.catalog_limiting_v_mag``, ``render.resolved_threshold_px``,
+    ``render.cosmic_rays_per_frame`` and ``render.mitsuba_spp`` replace the recipe's (its
+    ``render:`` mapping, or the defaults) for that frame. The frame's ground truth records the camera and star limit it was rendered
     with, and the scene's ``render`` mapping under ``dataset.render``. (``render.seed`` is refused
     by :func:`~skynav.datasets.recipes.validate_recipe`: frame k's stream is fixed by the
     recipe's seed.)
@@ -277,7 +277,8 @@ class ScenesPlan:
                             catalog_limiting_v_mag=spec.catalog_limiting_v_mag if "catalog_limiting_v_mag" in render else None,
                             resolved_threshold_px=spec.resolved_threshold_px if "resolved_threshold_px" in render else None,
                             visibility=spec.visibility if "visibility" in given else None,
-                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame if "cosmic_rays_per_frame" in render else None)
+                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame if "cosmic_rays_per_frame" in render else None,
+                            mitsuba_spp=spec.mitsuba_spp if "mitsuba_spp" in render else None)
 
     def describe(self) -> dict:
         return {}

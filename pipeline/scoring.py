@@ -194,8 +194,11 @@ def score_frame(result, truth, sigma_km):
 
 
 def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0, progress=True, limit=None,
-                  catalog=None, peers=False):
+                  catalog=None, peers=False, options=None):
     """Process every frame at every sigma; rows of results and the frame count.
+
+    ``options`` (a :class:`~skynav.pipeline.process.ProcessOptions`, default its defaults) is
+    passed to every :func:`process_frame`.
 
     Each (frame, sigma) draws its predicted state from ``SeedSequence([seed, frame, i_sigma])``.
     """
@@ -235,7 +238,7 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
             ps = _predicted_state(truth, float(s), rng)
-            res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode)
+            res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode, options=options)
             row = score_frame(res, truth, float(s))
             row.update(frame=k, sigma_km=float(s))
             rows.append(row)

@@ -17,6 +17,7 @@ import numpy as np
 from .constants import C_KM_S, SECONDS_PER_DAY
 from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
 from .errors import ConfigValueError, MovedKeyError, SceneFileError
+from .scene import RESOLVED_THRESHOLD_PX
 from .visibility import VisibilityCriteria
 
 CAMERA_PRESETS = {"paper": paper_camera}
@@ -238,7 +239,8 @@ class SceneSpec:
 
     ``visibility`` is the file's ``visibility:`` section; ``catalog_limiting_v_mag`` (the star
     catalogue cut), ``resolved_threshold_px``, ``cosmic_rays_per_frame`` (mean hits per frame,
-    for ``RenderOptions``) and ``seed`` come from its ``render:`` section.
+    for ``RenderOptions``), ``mitsuba_spp`` (for ``RenderOptions``) and ``seed`` come from its
+    ``render:`` section (:data:`RENDER_KEYS`).
     """
 
     epoch_tdb_iso: str
@@ -249,14 +251,89 @@ class SceneSpec:
     camera: Camera = field(default_factory=paper_camera)
     visibility: VisibilityCriteria = field(default_factory=VisibilityCriteria)
     catalog_limiting_v_mag: float = 9.0
-    resolved_threshold_px: float = 2.0
+    resolved_threshold_px: float = RESOLVED_THRESHOLD_PX
     cosmic_rays_per_frame: float = 1.0
+    mitsuba_spp: int = 16
     seed: int = 0
 
 
 _SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render"}
-_RENDER_KEYS = {"catalog_limiting_v_mag", "resolved_threshold_px", "cosmic_rays_per_frame", "seed"}
+
+#: The ``render:`` keys of a scene file and of a dataset recipe (one table for both): key ->
+#: (default, meaning with unit and allowed values). The defaults are the scene model's and the
+#: renderer's (``RenderOptions``: 1 cosmic ray per frame as in paper 002, 16 Mitsuba samples).
+RENDER_KEYS = {
+    "catalog_limiting_v_mag": (9.0, "faintest catalogue star rendered, V mag, in [-2, 14] (Hipparcos is "
+                                    "complete to about V = 8)"),
+    "cosmic_rays_per_frame": (1.0, "mean cosmic-ray hits per frame (Poisson), >= 0 and <= 0.01 per pixel; "
+                                   "0 turns them off"),
+    "resolved_threshold_px": (RESOLVED_THRESHOLD_PX, "apparent diameter above which a body is ray-traced by "
+                                                     "Mitsuba instead of drawn as a point, px, > 0"),
+    "mitsuba_spp": (16, "Mitsuba samples per pixel for resolved bodies, an integer >= 1"),
+    "seed": (0, "seed of the frame's noise and cosmic rays, a non-negative integer"),
+}
 _MOVED_RENDER_KEYS = {"star_mag_limit": "render.catalog_limiting_v_mag"}
+
+
+def render_settings_from_mapping(d, camera: Camera, *, key: str = "render", fill: bool = True,
+                                 keys=tuple(RENDER_KEYS)) -> dict:
+    """Validate a ``render:`` mapping (scene files and dataset recipes share it, :data:`RENDER_KEYS`).
+
+    Parameters
+    ----------
+    d : dict or None
+        The mapping as written.
+    camera : Camera
+        The frame's camera (the cosmic-ray limit is per pixel).
+    key : str
+        Dotted prefix for messages (``render``, ``scenes[2].render``).
+    fill : bool
+        True: every key, defaults filled; False: only the keys given.
+    keys : sequence of str
+        The keys allowed in this context (a dataset recipe leaves out ``seed``).
+
+    Returns
+    -------
+    dict
+        ``{key: value}`` with floats, and ints for ``mitsuba_spp`` and ``seed``.
+
+    Raises
+    ------
+    ConfigValueError
+        An unknown key (naming the allowed ones), a value out of range; ``MovedKeyError`` for
+        ``star_mag_limit``.
+    """
+    rd = _mapping(d if d is not None else {}, key)
+    for k in rd:
+        if k in _MOVED_RENDER_KEYS:
+            raise MovedKeyError(f"{key}.{k}", rd[k], _MOVED_RENDER_KEYS[k])
+    _check_keys(rd, key, keys)
+    out = {}
+    for name, (default, _) in RENDER_KEYS.items():
+        if name not in keys or (name not in rd and not fill):
+            continue
+        where = f"{key}.{name}"
+        value = rd.get(name, default)
+        if name == "catalog_limiting_v_mag":
+            value = _number(value, where)
+            if not -2 <= value <= 14:
+                raise ConfigValueError(where, value, "in [-2, 14] (Hipparcos is complete to about V = 8)")
+        elif name == "cosmic_rays_per_frame":
+            value = check_cosmic_rays(_number(value, where), camera, where)
+        elif name == "resolved_threshold_px":
+            value = _number(value, where)
+            if value <= 0:
+                raise ConfigValueError(where, value, "> 0")
+        elif name == "mitsuba_spp":
+            value = _number(value, where, allowed="an integer >= 1", integer=True)
+            if not 1 <= value <= 65536:
+                raise ConfigValueError(where, value, "an integer in 1..65536")
+        else:  # seed
+            value = _number(value, where, allowed="a non-negative integer", integer=True)
+            if value < 0:
+                raise ConfigValueError(where, value, "a non-negative integer")
+        out[name] = value
+    return out
 
 
 #: Farthest observer from the barycentre (or its ``relative_to`` body), km: ~200 AU (Voyager 1 is at
@@ -362,22 +439,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
                             angular_velocity_rad_s=tuple(float(x) for x in w))
     camera = camera_from_mapping(d.get("camera", {"preset": "paper"}))
     visibility = visibility_from_mapping(d.get("visibility", {}))
-    rd = _mapping(d.get("render", {}), "render")
-    for k in rd:
-        if k in _MOVED_RENDER_KEYS:
-            raise MovedKeyError(f"render.{k}", rd[k], _MOVED_RENDER_KEYS[k])
-    _check_keys(rd, "render", _RENDER_KEYS)
-    mag = _number(rd.get("catalog_limiting_v_mag", 9.0), "render.catalog_limiting_v_mag")
-    if not -2 <= mag <= 14:
-        raise ConfigValueError("render.catalog_limiting_v_mag", mag, "in [-2, 14] (Hipparcos is complete to about V = 8)")
-    rays = _number(rd.get("cosmic_rays_per_frame", 1.0), "render.cosmic_rays_per_frame")
-    check_cosmic_rays(rays, camera, "render.cosmic_rays_per_frame")
-    thr = _number(rd.get("resolved_threshold_px", 2.0), "render.resolved_threshold_px")
-    if thr <= 0:
-        raise ConfigValueError("render.resolved_threshold_px", thr, "> 0")
-    seed = _number(rd.get("seed", 0), "render.seed", allowed="a non-negative integer", integer=True)
-    if seed < 0:
-        raise ConfigValueError("render.seed", seed, "a non-negative integer")
+    render = render_settings_from_mapping(d.get("render", {}), camera)
     pos = _vector(obs["position_km"], "observer.position_km")
     if np.linalg.norm(pos) > MAX_DISTANCE_KM:
         raise ConfigValueError("observer.position_km", obs["position_km"],
@@ -395,10 +457,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
         attitude=attitude,
         camera=camera,
         visibility=visibility,
-        catalog_limiting_v_mag=mag,
-        resolved_threshold_px=thr,
-        cosmic_rays_per_frame=rays,
-        seed=seed,
+        **render,
     )
 
 
@@ -456,23 +515,32 @@ def load_yaml(fobj):
     return yaml.load(fobj, Loader=_strict_loader())  # noqa: S506 - a SafeLoader subclass
 
 
-def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
-    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+def read_scene_mapping(fobj, name: str = "<scene>"):
+    """Parse a YAML scene file object into its mapping, not yet validated (errors name the file)."""
     import yaml
 
     try:
-        data = load_yaml(fobj)
+        return load_yaml(fobj)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
         raise SceneFileError(f"{name}: malformed YAML{where}: {problem}") from None
-    return scene_spec_from_mapping(data)
 
 
-def load_scene_file(path) -> SceneSpec:
+def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
+    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+    return scene_spec_from_mapping(read_scene_mapping(fobj, name))
+
+
+def load_scene_mapping(path):
+    """The mapping of a scene file at ``path`` (not yet validated)."""
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")
     with open(path, "rb") as f:
-        return read_scene_file(f, str(path))
+        return read_scene_mapping(f, str(path))
+
+
+def load_scene_file(path) -> SceneSpec:
+    return scene_spec_from_mapping(load_scene_mapping(path))

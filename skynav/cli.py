@@ -23,17 +23,24 @@ def _fail(message: str) -> int:
     return fail(message)
 
 
-def _load_spec(arg: str | None):
+def _load_spec(arg: str | None, overrides=()):
+    """The scene of a file or preset, with the ``--set`` overrides applied to its mapping."""
     from skynav.scenes import config, presets
 
-    if arg is None or arg in presets.PRESETS:
-        return config.scene_spec_from_mapping(presets.preset_mapping(arg or "default"))
-    path = Path(arg)
-    if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
-        from skynav.scenes.errors import SceneFileError
+    from .cli_common import apply_overrides
 
-        raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
-    return config.load_scene_file(path)
+    if arg is None or arg in presets.PRESETS:
+        mapping = presets.preset_mapping(arg or "default")
+    else:
+        path = Path(arg)
+        if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
+            from skynav.scenes.errors import SceneFileError
+
+            raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
+        mapping = config.load_scene_mapping(path)
+    if overrides:
+        mapping = apply_overrides(mapping, overrides)
+    return config.scene_spec_from_mapping(mapping)
 
 
 # ----------------------------------------------------------------------------- scene
@@ -47,7 +54,7 @@ def cmd_scene(args) -> int:
     from skynav.scenes.constants import AU_KM
     from skynav.scenes.scene import build_from_spec
 
-    spec = _load_spec(args.scene)
+    spec = _load_spec(args.scene, args.overrides)
     scene = build_from_spec(spec)
     cam = scene.camera
     ra, dec = (math.degrees(a) for a in __import__("skynav.scenes.frames", fromlist=["x"]).unit_to_radec(scene.R_cam_icrs[2]))
@@ -85,7 +92,7 @@ def cmd_render(args) -> int:
 
     from skynav.datasets.frame_files import check_output_dir, check_stem
 
-    spec = _load_spec(args.scene)
+    spec = _load_spec(args.scene, args.overrides)
     seed = spec.seed if args.seed is None else args.seed
     if seed < 0:
         return _fail(f"--seed {seed}: expected a non-negative integer")
@@ -98,7 +105,7 @@ def cmd_render(args) -> int:
     t0 = time.perf_counter()
     scene = build_from_spec(spec)
     options = RenderOptions(noise=not args.no_noise, backend=args.backend,
-                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame)
+                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame, mitsuba_spp=spec.mitsuba_spp)
     frame = render(scene, seed=seed, options=options)
     t1 = time.perf_counter()
     out = Path(args.output)
@@ -126,7 +133,7 @@ def cmd_render(args) -> int:
 
 # ----------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    from .cli_common import OneLineParser
+    from .cli_common import OneLineParser, add_set_argument
 
     p = OneLineParser(prog="skynav", description="Deep-space optical navigation imagery: "
                                 "render star fields and planets as a spacecraft camera sees them.")
@@ -137,11 +144,14 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Compute a scene and print what the camera sees: bodies with magnitude, "
                        "apparent pixel position, light-time and aberration; star counts by magnitude; Sun angle.")
     s.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
+    add_set_argument(s, "the scene file (or preset), e.g. --set camera.fov_deg=10")
     s.set_defaults(func=cmd_scene)
 
     r = sub.add_parser("render", help="render one frame (PNG, EXR, ground-truth JSON)",
                        description="Render one frame of a scene: PNG (digital counts), EXR (electrons, irradiance), "
-                       "ground-truth JSON; optional FITS with a TAN WCS.")
+                       "ground-truth JSON; optional FITS with a TAN WCS. --set changes any key of the scene file "
+                       "(or preset) before it is read, e.g. --set camera.exposure_s=0.2 --set "
+                       "render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256.")
     r.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
     r.add_argument("-o", "--output", default="skynav-out", help="output folder (default: skynav-out)")
     r.add_argument("--name", default="frame", help="file stem (default: frame)")
@@ -150,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
     r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
     r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
+    add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
     r.set_defaults(func=cmd_render)
 
     try:

@@ -22,8 +22,13 @@ def cmd_ip(args) -> int:
     if any(not (s > 0) for s in args.position_sigma_km):
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
     sigmas = tuple(float(s) for s in args.position_sigma_km)
+    from skynav.pipeline.process import ProcessOptions
+
+    from .cli_common import dataclass_from_overrides
+
+    options = dataclass_from_overrides(ProcessOptions, args.overrides, what="ProcessOptions")
     rows, info = run_benchmark(args.dir, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
-                               limit=args.limit, peers=args.peers)
+                               limit=args.limit, peers=args.peers, options=options)
     summary = summarise(rows, frames=info["frames"], sigmas_km=sigmas)
     peer_rows = info.pop("peer_rows")
     notes = info.pop("peer_notes")
@@ -55,7 +60,9 @@ def cmd_ip(args) -> int:
 def _add_ip(bsub) -> None:
     p = bsub.add_parser("ip", help="score the image processing (stars, attitude, beacons) on a dataset",
                         description="Run the image-processing pipeline on every frame of DIR (a skynav dataset or any "
-                        "folder of NNNNNN.png + .json frames in the frame schema) and score it against the truth.")
+                        "folder of NNNNNN.png + .json frames in the frame schema) and score it against the truth. "
+                        "--set changes a field of the pipeline's options (skynav.pipeline.ProcessOptions: T, inlier_px, "
+                        "n_max, min_matches, refine_v_mag, track_window_px, ...), e.g. --set inlier_px=2.5.")
     p.add_argument("dir", help="dataset folder or folder of frames")
     p.add_argument("--position-sigma-km", type=float, nargs="+", default=[1e4, 1e5, 1e6, 1e7],
                    help="predicted-position errors to test, km per axis (default: 1e4 1e5 1e6 1e7)")
@@ -65,6 +72,9 @@ def _add_ip(bsub) -> None:
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    from .cli_common import add_set_argument
+
+    add_set_argument(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")
     p.set_defaults(func=cmd_ip)
 
 

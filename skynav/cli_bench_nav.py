@@ -115,7 +115,10 @@ def add_parser(bsub) -> None:
     p = bsub.add_parser("nav", help="Monte Carlo EKF navigation campaign on a sequence dataset",
                         description="Run the image processing on every frame of a 'sequence' dataset and the EKF "
                         "(planet centroids, first-order light-time and aberration) over Monte Carlo initial errors; "
-                        "score against the truth and write runs.csv, frames.csv, summary.json, report.md, report.html.")
+                        "score against the truth and write runs.csv, frames.csv, summary.json, report.md, report.html. "
+                        "No --set here: the campaign's settings are the flags below, and its image processing runs "
+                        "with the pipeline's default ProcessOptions (try others on single frames with "
+                        "'skynav bench ip --set'; change the images with 'skynav dataset generate --set').")
     p.add_argument("dataset", help="a 'sequence' dataset folder")
     p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (default 50)")
     p.add_argument("--case", type=int, nargs="+", default=[1],

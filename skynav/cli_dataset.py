@@ -5,18 +5,21 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def _recipe(arg: str, count, seed):
+def _recipe(arg: str, count, seed, overrides=()):
+    """The recipe of a file or preset with the ``--set`` overrides, then ``--count`` and ``--seed``."""
     from skynav import datasets
+    from skynav.datasets.recipes import read_recipe_mapping
 
-    if arg in datasets.PRESETS:
-        recipe = datasets.preset_recipe(arg)
-    else:
-        path = Path(arg)
-        if not path.is_file():
-            from skynav.datasets.errors import RecipeError
+    from .cli_common import apply_overrides
 
-            raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
-        recipe = datasets.load_recipe_file(path)
+    if arg not in datasets.PRESETS and not Path(arg).is_file():
+        from skynav.datasets.errors import RecipeError
+
+        raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
+    recipe = read_recipe_mapping(arg)
+    if overrides:
+        recipe = apply_overrides(recipe, overrides)
+    recipe = datasets.validate_recipe(recipe)
     if count is not None:
         recipe["frames"] = count
     if seed is not None:
@@ -27,11 +30,34 @@ def _recipe(arg: str, count, seed):
 def cmd_generate(args) -> int:
     from skynav import datasets
 
-    recipe = _recipe(args.recipe, args.count, args.seed)
+    recipe = _recipe(args.recipe, args.count, args.seed, args.overrides)
     summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                                 progress=not args.quiet)
     for line in summary.lines():
         print(line)
+    return 0
+
+
+def cmd_recipe(args) -> int:
+    from skynav.datasets.errors import OutputPathError
+    from skynav.datasets.frame_files import check_output_dir
+    from skynav.datasets.recipes import recipe_yaml
+
+    text = recipe_yaml(args.preset)
+    if args.output is None:
+        print(text, end="")
+        return 0
+    out = Path(args.output)
+    if out.is_dir():
+        raise OutputPathError(f"{out}: -o/--output is a folder; give a file path such as {out / (args.preset + '.yaml')}")
+    if out.exists() and not args.force:
+        raise OutputPathError(f"{out}: exists; give another path, or --force to replace it")
+    check_output_dir(out.parent if str(out.parent) else Path("."), what="-o/--output folder")
+    from skynav.datasets.atomic_files import atomic_write_bytes
+
+    atomic_write_bytes(out, text.encode())
+    print(f"wrote {out}: the {args.preset} preset, every key commented; edit it, then: "
+          f"skynav dataset generate {out} -o DATASET")
     return 0
 
 
@@ -83,14 +109,19 @@ def cmd_preview(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from .cli_common import non_negative_int, positive_int
+    from skynav.datasets.recipes import PRESETS
+
+    from .cli_common import add_set_argument, non_negative_int, positive_int
 
     d = sub.add_parser("dataset", help="generate, verify, inspect and preview datasets",
                        description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
     dsub = d.add_subparsers(dest="dataset_command", metavar="ACTION")
     g = dsub.add_parser("generate", help="render a recipe into a dataset folder (resumes a partial one)",
                         description="Render a recipe (YAML file, or a preset: montecarlo, sequence, scenes) into a "
-                        "dataset folder. Re-running the same command on a partly written folder renders only what is missing.")
+                        "dataset folder. Re-running the same command on a partly written folder renders only what is "
+                        "missing. --set changes any key of the recipe before it is read, e.g. "
+                        "--set render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256; "
+                        "'skynav dataset recipe PRESET -o FILE' writes a preset as a commented file to edit.")
     g.add_argument("recipe", help="recipe YAML file or preset name")
     g.add_argument("-o", "--output", required=True, help="dataset folder")
     g.add_argument("--count", type=positive_int, default=None, help="number of frames (overrides the recipe)")
@@ -98,7 +129,18 @@ def add_parser(sub) -> None:
     g.add_argument("--workers", type=positive_int, default=None, help="local worker processes (default: all cores)")
     g.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_set_argument(g, "the recipe: kind-independent keys (camera.*, visibility.*, render.*, formats, ...) "
+                        "and the kind's section (montecarlo.*, sequence.*, scenes.N.*)")
     g.set_defaults(func=cmd_generate)
+    rc = dsub.add_parser("recipe", help="write a preset recipe as a commented YAML file to edit",
+                         description="Write a preset recipe as a YAML file with a comment on every key (meaning, "
+                         "unit, allowed values), including the visibility: and render: defaults. "
+                         "'skynav dataset generate FILE -o DIR' reads it back: unedited, it makes the same dataset "
+                         "as the preset.")
+    rc.add_argument("preset", choices=tuple(PRESETS), help="preset: " + ", ".join(PRESETS))
+    rc.add_argument("-o", "--output", default=None, help="YAML file to write (default: print it)")
+    rc.add_argument("--force", action="store_true", help="replace an existing file")
+    rc.set_defaults(func=cmd_recipe)
     v = dsub.add_parser("verify", help="check checksums, schema and counts", description="Verify a dataset: "
                         "SHA-256 of every file, ground-truth schema, frame counts. Exit code 1 if a problem is found.")
     v.add_argument("path")

@@ -29,6 +29,15 @@ def cmd_export(args) -> int:
         print(f"skynav: error: --workers {args.workers}: expected a positive integer", file=sys.stderr)
         return 2
     fac = load_facility(args.facility)
+    if args.overrides:  # the facility's file form, every key written out (what `skynav hil facility` writes)
+        from skynav.scenes.facility import facility_from_mapping
+
+        from .cli_common import apply_overrides
+
+        mapping = apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True, what="the facility")
+        if any(path[0] == "camera" and path[1:] != ("K",) for _, path, _ in args.overrides):
+            mapping["camera"].pop("K", None)  # derived from the other camera keys, which an override changed
+        fac = facility_from_mapping(mapping)
     fac.check_coverage()
     s = export_dataset(fac, args.dataset, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                        progress=None if args.quiet else _progress("exporting"))
@@ -69,11 +78,19 @@ def add_parser(sub) -> None:
     f.add_argument("preset", nargs="?", default="bench", help="preset name or facility file (default: bench)")
     f.add_argument("-o", "--output", required=True)
     f.set_defaults(func=cmd_facility)
-    e = hs.add_parser("export", help="export a dataset as screen frames")
+    e = hs.add_parser("export", help="export a dataset as screen frames",
+                      description="Export a dataset as the screen frames a bench shows its camera. --set changes "
+                      "a key of the facility (file or preset, in the form 'skynav hil facility' writes), e.g. "
+                      "--set radiometric.parameters.gamma=2.4 or --set screen.bit_depth=8; the dataset itself "
+                      "is read as it is (to change what it shows, regenerate it with 'dataset generate --set').")
     e.add_argument("dataset")
-    e.add_argument("--facility", required=True)
+    e.add_argument("--facility", required=True, help="facility YAML file or preset (bench, bench_small)")
     e.add_argument("-o", "--output", required=True)
     e.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
     e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     e.add_argument("-q", "--quiet", action="store_true")
+    from .cli_common import add_set_argument
+
+    add_set_argument(e, "the facility (screen.*, collimator.*, camera.*, geometric.parameters.*, "
+                        "radiometric.parameters.*; keys as 'skynav hil facility' writes them)")
     e.set_defaults(func=cmd_export)
