@@ -277,7 +277,7 @@ def _rate(x, n):
 
 
 def summarise(rows, *, frames, sigmas_km):
-    """``summary.json`` (the issue's fixed keys, plus details)."""
+    """``summary.json`` (its fixed keys, which readers rely on, plus details)."""
     s0 = [r for r in rows if r["sigma_km"] == float(sigmas_km[0])]
     n = len(s0)
     errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] == "correct"])
