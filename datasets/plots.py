@@ -3,8 +3,14 @@
 Driver-side helper. :func:`leg_magnitudes` computes the apparent V magnitude of every planet
 seen from the cruise; :func:`plot_leg_magnitudes` plots them along the navigation legs;
 :func:`plot_lines_png` draws any set of series on labelled axes. Figures are made with
-:class:`matplotlib.figure.Figure` on an Agg canvas, never through ``pyplot``: no global state, no
-display, safe in worker processes and on headless machines.
+:class:`matplotlib.figure.Figure` on an Agg canvas (:func:`new_figure`), never through ``pyplot``:
+no global state, no display, safe in worker processes and on headless machines;
+:func:`figure_png` gives their PNG bytes (``skynav calibrate`` writes its figures with it too).
+
+Labels are for people: every axis label ends with its unit in parentheses (``time (days)``,
+``share of frames (%)``, ``NEES (no unit)``), legends and titles use words and symbols, never code
+names (``sigma0_px``); tests/cli/test_figures_labelled.py checks it on every figure the commands
+write.
 """
 
 from __future__ import annotations
@@ -16,14 +22,15 @@ import numpy as np
 
 from skynav.scenes.constants import SECONDS_PER_DAY
 
-__all__ = ["plot_lines_png", "leg_magnitudes", "plot_leg_magnitudes", "figure_png"]
+__all__ = ["plot_lines_png", "lines_figure", "leg_magnitudes", "leg_magnitudes_figure", "plot_leg_magnitudes",
+           "figure_png", "new_figure"]
 
 _COLOURS = {"mercury": "#969696", "venus": "#d4a017", "earth": "#3c82ff", "moon": "#a0a0a0",
             "mars": "#e6502f", "jupiter": "#c8874b", "saturn": "#a08c3c", "uranus": "#2ab0b0",
             "neptune": "#5059e6"}
 
 
-def _figure(size_px=(900, 520), dpi: int = 100):
+def new_figure(size_px=(900, 520), dpi: int = 100):
     """A matplotlib Figure of ``size_px`` pixels on an Agg canvas (no pyplot)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -33,16 +40,21 @@ def _figure(size_px=(900, 520), dpi: int = 100):
     return fig
 
 
-def figure_png(fig) -> bytes:
+def figure_png(fig, *, dpi=None) -> bytes:
     """PNG bytes of a matplotlib Figure (Agg; no timestamp or version in the file)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
+    fig.savefig(buf, format="png", metadata={"Software": None}, **({} if dpi is None else {"dpi": dpi}))
     return buf.getvalue()
 
 
-def plot_lines_png(x, series: dict, *, title: str, xlabel: str, ylabel: str, invert_y: bool = False,
-                   spans=(), size=(900, 520), colours=None, hlines=()) -> bytes:
-    """PNG bytes of line plots ``series = {label: y (N,)}`` against ``x (N,)``, with a legend.
+def plot_lines_png(x, series: dict, **kw) -> bytes:
+    """PNG bytes of :func:`lines_figure` (same arguments)."""
+    return figure_png(lines_figure(x, series, **kw))
+
+
+def lines_figure(x, series: dict, *, title: str, xlabel: str, ylabel: str, invert_y: bool = False,
+                 spans=(), size=(900, 520), colours=None, hlines=()):
+    """A Figure of line plots ``series = {label: y (N,)}`` against ``x (N,)``, with a legend.
 
     Parameters
     ----------
@@ -64,7 +76,7 @@ def plot_lines_png(x, series: dict, *, title: str, xlabel: str, ylabel: str, inv
         Dashed horizontal reference lines (e.g. a magnitude limit).
     """
     colours = colours or {}
-    fig = _figure(size)
+    fig = new_figure(size)
     ax = fig.add_subplot()
     labelled = set()
     for a, b, label in spans:
@@ -84,7 +96,7 @@ def plot_lines_png(x, series: dict, *, title: str, xlabel: str, ylabel: str, inv
     ax.set_axisbelow(True)
     ax.margins(x=0.01)
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=9)
-    return figure_png(fig)
+    return fig
 
 
 def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "venus", "earth", "mars", "jupiter", "saturn")):
@@ -103,13 +115,18 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
 
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
-    """PNG of the planets' V magnitudes along the cruise, tracking windows shaded (atomic write).
+    """PNG of :func:`leg_magnitudes_figure` (atomic write)."""
+    from .frame_files import atomic_write_bytes
+
+    atomic_write_bytes(out_png, figure_png(leg_magnitudes_figure(plan, step_s=step_s)))
+
+
+def leg_magnitudes_figure(plan, *, step_s: float = 6 * 3600.0):
+    """The planets' V magnitudes along the cruise, tracking windows shaded (a Figure).
 
     A planet's line is broken while it is inside the pair Sun-angle limit (not trackable); the
     pair magnitude limit ``pair_limiting_v_mag`` is a dashed line.
     """
-    from .frame_files import atomic_write_bytes
-
     days, mags, sun = leg_magnitudes(plan, step_s=step_s)
     limit = plan.s["pair_elongation_min_deg"]
     shown, colours = {}, {}
@@ -119,11 +136,10 @@ def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
         shown[label], colours[label] = y, _COLOURS.get(p)
     spans = [((w.start_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY, (w.end_tdb_s - plan.start_tdb_s) / SECONDS_PER_DAY + 0.6,
               "tracking windows (widened)") for w in plan.windows if w.phase.startswith("track")]
-    png = plot_lines_png(
+    return lines_figure(
         days, shown,
         title=f"Planets' apparent V magnitude along the cruise ({plan.s['legs']} legs)\n"
               f"tracking windows shaded; a line stops within {limit:g} deg of the Sun",
         xlabel="time since cruise start (days)", ylabel="apparent V magnitude (mag)", invert_y=True, spans=spans,
         colours=colours,
         hlines=[(plan.s["pair_limiting_v_mag"], f"pair limit V < {plan.s['pair_limiting_v_mag']:g}")])
-    atomic_write_bytes(out_png, png)

@@ -22,13 +22,36 @@ from __future__ import annotations
 import html
 import re
 
-__all__ = ["markdown_to_html", "REPORT_CSS"]
+__all__ = ["markdown_to_html", "REPORT_CSS", "new_figure", "figure_base64_png"]
 
 #: Style of the reports' pages (inline, so the page stays self-contained).
 REPORT_CSS = ("body{font-family:sans-serif;max-width:1100px;margin:1em auto;padding:0 1em}"
               "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #bbb;padding:2px 8px;"
               "text-align:right}th{background:#eee}td:first-child,th:first-child{text-align:left}"
               "code{background:#f4f4f4}img{max-width:100%}")
+
+
+def new_figure(size_px=(900, 520), dpi: int = 100):
+    """A matplotlib Figure of ``size_px`` pixels on an Agg canvas: no pyplot (no global state, no
+    display; the backend of a user's session is left alone). Axis labels end with their unit in
+    parentheses; legends are words, not code names (tests/cli/test_figures_labelled.py)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(size_px[0] / dpi, size_px[1] / dpi), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def figure_base64_png(fig) -> str:
+    """The figure as a base64 PNG for an ``<img src="data:image/png;base64,...">`` (no timestamp or
+    version in the file)."""
+    import base64
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _inline(text: str) -> str:

@@ -1,7 +1,8 @@
 """``skynav bench nav`` outputs: ``runs.csv``, ``frames.csv``, ``summary.json``, ``report.md`` and a
 self-contained ``report.html`` (matplotlib PNGs embedded as base64; no script, no external file).
 
-Scoring module. Definitions used in the summary (paper 002 Figs. 7-8, Sec. 5.2):
+Scoring module. Definitions used in the summary (Andreis et al. 2024, paper 002, Sec. 5.2; the
+figures follow Figs. 7-8 of Andreis et al. 2023b, paper 001):
 
 - ``final.position_3sigma_km``: the sample 3-sigma at the last frame, ``3 sqrt(mean_runs |e_r|^2)``
   (3 x RMS of the error norm over the runs); ``final.position_error_rms_km`` is the RMS error norm
@@ -16,7 +17,6 @@ Scoring module. Definitions used in the summary (paper 002 Figs. 7-8, Sec. 5.2):
 
 from __future__ import annotations
 
-import base64
 import csv
 import io
 import json
@@ -25,14 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .references import NAVIGATION, VALIDATION, references_md
 from .scoring_nav import icrs_to_ecliptic
 
-__all__ = ["summarise", "write_report", "PAPER_002"]
+__all__ = ["summarise", "write_report", "report_figures", "PAPER_002", "TARGETS"]
 
-#: Paper 002 (software images, case 1, 50 runs, 100-day Earth-Mars leg): final 3-sigma. Its table of
-#: cases 1-5 RMSE is not in our copy of the paper; the text ranks them case 4 > 3 > 5 > 1 ~ 2.
+#: Andreis et al. (2024) (paper 002; software images, case 1, 50 runs, 100-day Earth-Mars leg):
+#: final 3-sigma. The text available to us ranks the cases' RMSE 4 > 3 > 5 > 1 ~ 2 without values.
 PAPER_002 = {"position_3sigma_km": 1953.0, "velocity_3sigma_m_s": 0.41}
+#: The documented accuracy targets of ``skynav bench nav`` (docs/pipeline.md, navigation table).
 TARGETS = {"position_3sigma_km": 1500.0, "velocity_3sigma_m_s": 0.35}
+TARGETS_SOURCE = "docs/pipeline.md"
 
 
 def _clean(x):
@@ -65,7 +68,8 @@ def case_metrics(res, last_leg) -> dict:
 
 
 def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
-    """The summary dict (fixed keys of issue 14) from ``{case: CampaignResult}``."""
+    """The summary dict (its keys are fixed: readers of summary.json rely on them) from
+    ``{case: CampaignResult}``."""
     from scipy.stats import chi2
 
     res = results[primary]
@@ -122,21 +126,10 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
     }
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _plots(res, summary) -> dict:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def report_figures(res, summary) -> list:
+    """The report's figures: a list of ``(title, matplotlib Figure)`` (position and velocity errors
+    as in Figs. 7-8 of Andreis et al. 2023b, NEES, residuals)."""
+    from .report_html import new_figure
     from skynav.scenes.constants import SECONDS_PER_DAY
 
     days = (res.t_tdb_s - res.t_tdb_s[0]) / SECONDS_PER_DAY
@@ -145,44 +138,51 @@ def _plots(res, summary) -> dict:
     ev = np.einsum("ij,rfj->rfi", E, res.error[..., 3:]) * 1e3
     Pr = np.einsum("ij,rfjk,lk->rfil", E, res.cov[..., :3, :3], E)
     Pv = np.einsum("ij,rfjk,lk->rfil", E, res.cov[..., 3:, 3:], E) * 1e6
-    out = {}
+    out = []
     for key, err, P, unit in (("position", e, Pr, "km"), ("velocity", ev, Pv, "m/s")):
-        fig, axs = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+        fig = new_figure((900, 750))
+        axs = fig.subplots(3, 1, sharex=True)
         for k, ax in enumerate(axs):
-            ax.plot(days, err[:, :, k].T, color="tab:blue", lw=0.4, alpha=0.5)
+            lines = ax.plot(days, err[:, :, k].T, color="tab:blue", lw=0.4, alpha=0.5)
+            lines[0].set_label("error, one line per run")
             s3 = 3 * np.sqrt(np.mean(err[:, :, k] ** 2, 0))
             f3 = 3 * np.sqrt(np.mean(P[:, :, k, k], 0))
             ax.plot(days, s3, color="tab:orange", lw=1.4, label="sample 3-sigma")
             ax.plot(days, -s3, color="tab:orange", lw=1.4)
             ax.plot(days, f3, "k--", lw=1.0, label="filter 3-sigma")
             ax.plot(days, -f3, "k--", lw=1.0)
-            ax.set_ylabel(f"{'xyz'[k]} ecl. [{unit}]")
+            ax.set_ylabel(f"{'xyz'[k]} error, ecliptic ({unit})")
             # symmetric log: the first legs (0.1 km/s initial sigma) span 100x the converged bounds
             lin = float(np.nanmedian(f3[len(f3) // 2:])) or 1.0
             ax.set_yscale("symlog", linthresh=lin)
-        axs[0].legend(loc="upper right")
+        axs[0].legend(loc="upper right", fontsize=8)
         axs[0].set_title(f"{key} error, ecliptic J2000 (case {res.case}, {err.shape[0]} runs)")
-        axs[-1].set_xlabel("days since the first frame")
-        out[key] = _png(fig)
+        axs[-1].set_xlabel("time since the first frame (days)")
+        title = {"position": "Position errors", "velocity": "Velocity errors"}[key]
+        fig_no = {"position": 7, "velocity": 8}[key]
+        out.append((f"{title}, as in Fig. {fig_no} of {VALIDATION.cite}", fig))
     nees = _nees(res).mean(0)
-    fig, ax = plt.subplots(figsize=(9, 3.2))
+    fig = new_figure((900, 320))
+    ax = fig.add_subplot()
     ax.semilogy(days, nees, ".", ms=3, label="mean NEES over runs")
     ax.axhline(summary["nees"]["band_low"], color="tab:red", ls="--", label="95 % chi-square band")
     ax.axhline(summary["nees"]["band_high"], color="tab:red", ls="--")
-    ax.set_xlabel("days since the first frame")
+    ax.set_xlabel("time since the first frame (days)")
+    ax.set_ylabel("NEES, 6 degrees of freedom (no unit)")
     ax.legend()
-    out["nees"] = _png(fig)
-    fig, ax = plt.subplots(figsize=(9, 3.2))
+    out.append(("NEES", fig))
+    fig = new_figure((900, 320))
+    ax = fig.add_subplot()
     r = res.residual_px[0]
     ok = np.isfinite(r[:, 0])
     ax.plot(days[ok], r[ok, 0], ".", ms=3, label="x (run 0)")
     ax.plot(days[ok], r[ok, 1], ".", ms=3, label="y (run 0)")
     ax.axhline(3 * res.noise.sigma0_px, color="gray", ls=":")
-    ax.axhline(-3 * res.noise.sigma0_px, color="gray", ls=":", label="3 sigma0_px")
-    ax.set_ylabel("pre-fit residual [px]")
-    ax.set_xlabel("days since the first frame")
+    ax.axhline(-3 * res.noise.sigma0_px, color="gray", ls=":", label="±3 σ0, measurement noise")
+    ax.set_ylabel("pre-fit residual (px)")
+    ax.set_xlabel("time since the first frame (days)")
     ax.legend()
-    out["residuals"] = _png(fig)
+    out.append(("Measurement residuals", fig))
     return out
 
 
@@ -222,15 +222,18 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     full["run"] = info
     (out / "summary.json").write_text(json.dumps(_clean(full), indent=2, allow_nan=False) + "\n", encoding="utf-8")
     md = _markdown(summary, info)
-    (out / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
-    plots = _plots(res, summary)
-    from .report_html import REPORT_CSS, markdown_to_html
+    refs = references_md([VALIDATION, NAVIGATION])
+    (out / "report.md").write_text("\n".join(md + [""] + refs), encoding="utf-8")
+    import html as _html
+
+    from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html
 
     html = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench nav</title>",
             f"<style>{REPORT_CSS}</style></head><body>", markdown_to_html("\n".join(md).splitlines())]
-    for key, title in (("position", "Position errors (001 Fig. 7)"), ("velocity", "Velocity errors (001 Fig. 8)"),
-                       ("nees", "NEES"), ("residuals", "Measurement residuals")):
-        html.append(f"<h2>{title}</h2><img alt=\"{key}\" src=\"data:image/png;base64,{plots[key]}\">")
+    for title, fig in report_figures(res, summary):
+        t = _html.escape(title)
+        html.append(f"<h2>{t}</h2><img alt=\"{t}\" src=\"data:image/png;base64,{figure_base64_png(fig)}\">")
+    html.append(markdown_to_html(refs))
     html.append("</body></html>")
     (out / "report.html").write_text("\n".join(html) + "\n", encoding="utf-8")
     return out
@@ -253,8 +256,8 @@ def _markdown(s: dict, info: dict) -> list:
           f"R: {info.get('noise')}, {s['time_s']:.1f} s "
           f"(image processing {info.get('ip_time_s', float('nan')):.1f} s, filter {info.get('filter_time_s', float('nan')):.1f} s, "
           f"setup {info.get('setup_time_s', float('nan')):.1f} s).", "",
-          "## Final accuracy (3-sigma), next to paper 002 and the issue's targets", "",
-          "| | ours (sample) | ours (filter) | paper 002 | target |", "|---|---|---|---|---|",
+          f"## Final accuracy (3-sigma), next to {NAVIGATION.cite} and the documented targets", "",
+          f"| | ours (sample) | ours (filter) | {NAVIGATION.cite} | target ({TARGETS_SOURCE}) |", "|---|---|---|---|---|",
           f"| position [km] | {f['position_3sigma_km']:.0f} | {f['filter_position_3sigma_km']:.0f} | "
           f"{PAPER_002['position_3sigma_km']:.0f} | <= {TARGETS['position_3sigma_km']:.0f} |",
           f"| velocity [m/s] | {f['velocity_3sigma_m_s']:.3f} | {f['filter_velocity_3sigma_m_s']:.3f} | "
@@ -280,13 +283,13 @@ def _markdown(s: dict, info: dict) -> list:
           _measurements_line(s["measurements"]),
           f"- image-processing status counts: {s['ip_status_counts']}", "",
           "## Cases (RMSE over the runs and the last leg's frames)", "",
-          "| case | corrections | position RMSE [km] | velocity RMSE [m/s] | paper 002 |", "|---|---|---|---|---|"]
+          f"| case | corrections | position RMSE [km] | velocity RMSE [m/s] | {NAVIGATION.cite} |", "|---|---|---|---|---|"]
     names = {"1": "light-time + aberration (model)", "2": "light-time (model) + aberration removed in IP",
              "3": "none", "4": "aberration only", "5": "light-time only"}
     for c, v in s["cases"].items():
         md.append(f"| {c} | {names[c]} | {v['position_rmse_km']:.0f} | {v['velocity_rmse_m_s']:.3f} | "
-                  "not in our copy (ranked 4 > 3 > 5 > 1 ~ 2) |")
-    md += ["", "## Planet pairs per leg (dataset plan vs paper 002 Eq. 1-2 from the filter's estimate)", ""]
+                  "values not given; ranked 4 > 3 > 5 > 1 ~ 2 |")
+    md += ["", f"## Planet pairs per leg (dataset plan vs {NAVIGATION.cite}, Eq. 1-2, from the filter's estimate)", ""]
     for p in s["pairs"]:
         md.append(f"- leg {p['leg']}: plan {p['plan']}, optimal {p['optimal']}{'' if p['same'] else '  (differs)'}")
     return md

@@ -371,7 +371,8 @@ def llvm_available() -> bool:
 
 def select_mitsuba_variant() -> tuple[str, str]:
     """The Mitsuba variant to use: ``cuda_ad_spectral`` if CUDA works, else ``llvm_ad_spectral``
-    if LLVM works, else ``scalar_spectral``; with the reason, logged once per process.
+    if LLVM works, else ``scalar_spectral``; with the reason, logged once per process
+    (INFO).
 
     Returns
     -------
@@ -391,7 +392,9 @@ def select_mitsuba_variant() -> tuple[str, str]:
     with _lock:
         if not _variant_notice_done:
             _variant_notice_done = True
-            log.warning("skynav: Mitsuba variant %s (%s)", variant, reason)
+            # a note, not a problem: the command line shows it (unless -q), a library user
+            # sees it with logging at INFO; spawned workers have no handler, so a run says it once
+            log.info("Mitsuba variant %s (%s)", variant, reason)
             log.debug("CUDA probe: %s", cuda.reason)
     return variant, reason
 

@@ -132,7 +132,8 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
             "q_cam_icrs": frames.dcm_to_quat(R).tolist(),
             "angular_velocity_rad_s": np.asarray(scene.angular_velocity_rad_s).tolist(),
             "ra_deg": math.degrees(ra), "dec_deg": math.degrees(dec), "twist_deg": math.degrees(twist),
-            "quaternion_convention": "scalar first, paper 000 Eq. 14, v_cam = A v_icrs",
+            "quaternion_convention": "scalar first (q0, q1, q2, q3); A = (q0^2 - qv.qv) I + 2 qv qv^T - 2 q0 [qv x] "
+                                     "(Andreis et al. 2023a, Eq. 14); v_cam = A v_icrs",
         },
         "camera": cam.to_dict(),
         "render": render,

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 
+from .cli_common import add_quiet, say
+
 SUBCOMMAND_MODULES = ("skynav.cli_bench_nav",)
 
 
@@ -41,19 +43,18 @@ def cmd_ip(args) -> int:
                  for name, p in summary["peers"].items()]
         lines += [f"- {name}: not run ({why})" for name, why in notes.items()]
         info["peers_note"] = "\n".join(lines)
-        for line in lines:
-            print(line)
+        say(args, *lines)
     out = write_report(args.output, rows, summary, sigmas_km=sigmas, mode=args.mode, seed=args.seed, source=args.dir,
                        info=info)
     a = summary["attitude"]
-    print(f"{summary['frames']} frames ({args.mode}): attitude correct {100 * a['correct_rate']:.2f} %, wrong "
-          f"{100 * a['wrong_rate']:.2f} %, none {100 * a['none_rate']:.2f} %, median {a['error_arcsec_median']:.2f} arcsec; "
-          f"time median {summary['time_ms']['median']:.2f} ms")
+    say(args, f"{summary['frames']} frames ({args.mode}): attitude correct {100 * a['correct_rate']:.2f} %, wrong "
+              f"{100 * a['wrong_rate']:.2f} %, none {100 * a['none_rate']:.2f} %, median {a['error_arcsec_median']:.2f} arcsec; "
+              f"time median {summary['time_ms']['median']:.2f} ms")
     for s in sigmas:
         b = summary["beacon"][f"{s:g}"]
-        print(f"  beacons sigma_r {s:g} km: {b['beacons']} beacons, correct {100 * (b['correct_rate'] or 0):.2f} %, "
-              f"wrong {100 * (b['wrong_rate'] or 0):.2f} %, none {100 * (b['none_rate'] or 0):.2f} %")
-    print(f"report: {out}/report.html")
+        say(args, f"  beacons sigma_r {s:g} km: {b['beacons']} beacons, correct {100 * (b['correct_rate'] or 0):.2f} %, "
+                  f"wrong {100 * (b['wrong_rate'] or 0):.2f} %, none {100 * (b['none_rate'] or 0):.2f} %")
+    say(args, f"report: {out}/report.html")
     return 0
 
 
@@ -71,7 +72,7 @@ def _add_ip(bsub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the predicted-state draws (default 0)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_quiet(p)
     from .cli_common import add_set_argument
 
     add_set_argument(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")

@@ -1,4 +1,4 @@
-"""``skynav bench nav``: Monte Carlo EKF campaign on a ``sequence`` dataset (issue 14).
+"""``skynav bench nav``: Monte Carlo EKF campaign on a ``sequence`` dataset.
 
 Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`add_parser`.
 """
@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+
+from .cli_common import add_quiet, say
 
 
 def cmd_nav(args) -> int:
@@ -95,18 +97,22 @@ def cmd_nav(args) -> int:
             "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
+    from skynav.pipeline.references import NAVIGATION
+    from skynav.pipeline.scoring_nav_report import PAPER_002
+
     f = summary["final"]
     n = summary["nees"]
-    print(f"{summary['runs']} runs x {summary['frames']} frames, case {primary}: final 3-sigma "
-          f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
-          f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); paper 002: 1953 km, 0.41 m/s")
-    print(f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
+    say(args, f"{summary['runs']} runs x {summary['frames']} frames, case {primary}: final 3-sigma "
+              f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
+              f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); {NAVIGATION.cite}: "
+              f"{PAPER_002['position_3sigma_km']:.0f} km, {PAPER_002['velocity_3sigma_m_s']:.2f} m/s")
+    say(args, f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
           f"frames inside; band of the {n['independent_sequences']} independent image sequence(s) "
           f"{n['band_sequences_low']:.2f}..{n['band_sequences_high']:.2f}); R: {noise.describe()}")
     for c, v in summary["cases"].items():
-        print(f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
-    print(f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})")
-    print(f"report: {out}/report.html")
+        say(args, f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
+    say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})",
+        f"report: {out}/report.html")
     return 0
 
 
@@ -122,7 +128,8 @@ def add_parser(bsub) -> None:
     p.add_argument("dataset", help="a 'sequence' dataset folder")
     p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (default 50)")
     p.add_argument("--case", type=int, nargs="+", default=[1],
-                   help="measurement-model cases of paper 002 (1..5; several run in turn; the first is plotted)")
+                   help="measurement-model cases of Andreis et al. (2024), Sec. 5.2 (1..5; several run in turn; "
+                   "the first is plotted)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial-error draws (default 0)")
     p.add_argument("--workers", type=int, default=1, help="processes; the runs are split among them (default 1)")
     p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
@@ -136,7 +143,7 @@ def add_parser(bsub) -> None:
     p.add_argument("--sigma-px", type=float, default=None,
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",
-                   help="model the planet's centre, not its Lambert centre of light (paper 002's model)")
+                   help="model the planet's centre, not its Lambert centre of light (the model of Andreis et al. 2024)")
     p.add_argument("--track-bias-in-r", action=argparse.BooleanOptionalAction, default=True,
                    help="add each class's measured track-constant error to R as n sigma_b^2 per frame (default; "
                    "--no-track-bias-in-r: the class RMS only)")
@@ -145,7 +152,7 @@ def add_parser(bsub) -> None:
     p.add_argument("--calibration-stride", type=int, default=1, help="frames between calibration frames (default 1: all)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_quiet(p)
     p.set_defaults(func=cmd_nav)
 
 

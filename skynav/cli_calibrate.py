@@ -5,13 +5,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .cli_common import ProgressBar, add_quiet, say
 
-def _progress(label):
-    def cb(i, n):
-        width = 30
-        done = int(width * i / n)
-        print(f"\r{label} [{'#' * done}{'.' * (width - done)}] {i}/{n}", end="" if i < n else "\n", file=sys.stderr, flush=True)
-    return cb
+
+def _write_figure(fig, path) -> Path:
+    """Write a calibration figure as PNG (atomic), next to the facility file."""
+    from skynav.datasets.frame_files import atomic_write_bytes
+    from skynav.datasets.plots import figure_png
+
+    atomic_write_bytes(path, figure_png(fig))
+    return Path(path)
 
 
 def cmd_patterns(args) -> int:
@@ -21,7 +24,7 @@ def cmd_patterns(args) -> int:
     fac = load_facility(args.facility)
     pats = write_patterns(fac, args.output, phases=args.phases)
     dots = [p for p in pats if p.kind == "dots"]
-    print(f"wrote {len(pats)} patterns to {args.output}: {len(dots)} dot grids ({len(dots[0].dots)} dots each, step "
+    say(args, f"wrote {len(pats)} patterns to {args.output}: {len(dots)} dot grids ({len(dots[0].dots)} dots each, step "
           f"{dots[0].grid_step_px:g} screen px, {len(dots[0].fiducials)} fiducials), "
           f"{sum(p.kind == 'flat' for p in pats)} flats, 1 dark; {fac.screen.width_px}x{fac.screen.height_px} px, {fac.screen.bit_depth}-bit")
     return 0
@@ -36,15 +39,16 @@ def cmd_simulate(args) -> int:
         return 2
     fac = load_facility(args.facility)
     fac.check_coverage()
-    s = simulate(fac, args.patterns, args.output, scenario_name=args.scenario, seed=args.seed, frames=args.frames,
-                 progress=None if args.quiet else _progress("capturing"))
-    print(f"virtual bench '{s['scenario']}': wrote {s['captures']} captures and power_meter.csv ({s['measurements']} readings) to {args.output}")
+    with ProgressBar("capturing", "capture", quiet=args.quiet) as bar:
+        s = simulate(fac, args.patterns, args.output, scenario_name=args.scenario, seed=args.seed, frames=args.frames,
+                     progress=bar)
+    say(args, f"virtual bench '{s['scenario']}': wrote {s['captures']} captures and power_meter.csv ({s['measurements']} readings) to {args.output}")
     return 0
 
 
 def cmd_geometric(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.calibration.plots import residual_plot
+    from skynav.calibration.plots import residual_figure
     from skynav.datasets.bench_files import calibrate_geometric
 
     fac = load_facility(args.facility)
@@ -52,33 +56,33 @@ def cmd_geometric(args) -> int:
     res = calibrate_geometric(fac, args.patterns, args.captures, holdout=args.holdout, seed=args.seed)
     out = Path(args.output)
     write_facility(res.facility, out)
-    plot = residual_plot(res.holdout_arcsec, res.fit_arcsec, out.with_name(out.stem + "_residuals.png"))
+    plot = _write_figure(residual_figure(res.holdout_arcsec, res.fit_arcsec), out.with_name(out.stem + "_residuals.png"))
     s = res.summary()
-    print(f"identified {sum(v[0] for v in res.per_pattern.values())} dots in {len(res.per_pattern)} captures; "
-          f"fit on {s['n_fit']}, held out {s['n_holdout']}; {res.seconds:.1f} s")
     fit = res.facility.calibrated_geometric["fit"]
-    print(f"held-out line-of-sight residual: p50 {s['p50']:.3f}  p99 {s['p99']:.3f}  max {s['max']:.3f} arcsec "
-          f"({fit['excluded_outliers']} gross outliers excluded, {fit['excluded_holdout_outliers']} of them held out)")
-    print(f"wrote {out} and {plot}")
+    say(args, f"identified {sum(v[0] for v in res.per_pattern.values())} dots in {len(res.per_pattern)} captures; "
+              f"fit on {s['n_fit']}, held out {s['n_holdout']}; {res.seconds:.1f} s",
+        f"held-out line-of-sight residual: p50 {s['p50']:.3f}  p99 {s['p99']:.3f}  max {s['max']:.3f} arcsec "
+        f"({fit['excluded_outliers']} gross outliers excluded, {fit['excluded_holdout_outliers']} of them held out)",
+        f"wrote {out} and {plot}")
     return 0
 
 
 def cmd_radiometric(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.calibration.plots import radiometric_plots
+    from skynav.calibration.plots import radiometric_figure
     from skynav.calibration.radiometric import calibrate_radiometric
 
     fac = load_facility(args.facility)
     res = calibrate_radiometric(fac, args.measurements)
     out = Path(args.output)
     write_facility(res.facility, out)
-    plot = radiometric_plots(res, out.with_name(out.stem + "_radiometric.png"))
+    plot = _write_figure(radiometric_figure(res), out.with_name(out.stem + "_radiometric.png"))
     rm = res.facility.radiometric
-    print(f"fit: black {rm.black_w_m2:.4g} W/m^2, peak {rm.peak_w_m2:.4g} W/m^2 per lit pixel, gamma {rm.gamma:.4f}; "
-          f"rms {100 * res.rms_relative:.2f} % over {len(res.dn)} readings")
-    print(f"usable: DN {res.usable_dn[0]}..{res.usable_dn[1]}, V {res.usable_v_mag[1]:.2f} .. {res.usable_v_mag[0]:.2f} "
-          f"(A0V star over {res.facility.calibrated_radiometric['usable_range']['psf_pixels']:g} screen px)")
-    print(f"wrote {out} and {plot}")
+    say(args, f"fit: black {rm.black_w_m2:.4g} W/m^2, peak {rm.peak_w_m2:.4g} W/m^2 per lit pixel, gamma {rm.gamma:.4f}; "
+              f"rms {100 * res.rms_relative:.2f} % over {len(res.dn)} readings",
+        f"usable: DN {res.usable_dn[0]}..{res.usable_dn[1]}, V {res.usable_v_mag[1]:.2f} .. {res.usable_v_mag[0]:.2f} "
+        f"(A0V star over {res.facility.calibrated_radiometric['usable_range']['psf_pixels']:g} screen px)",
+        f"wrote {out} and {plot}")
     return 0
 
 
@@ -95,6 +99,7 @@ def add_parser(sub) -> None:
     p.add_argument("facility")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--phases", type=int, default=3, help="grid phases per axis (default 3: 9 dot grids)")
+    add_quiet(p)
     p.set_defaults(func=cmd_patterns)
 
     s = cs.add_parser("simulate", help="capture the patterns on a virtual bench (+ power_meter.csv)")
@@ -104,7 +109,7 @@ def add_parser(sub) -> None:
     s.add_argument("--scenario", choices=SCENARIO_NAMES, default="realistic", help="true bench (default realistic)")
     s.add_argument("--frames", type=int, default=16, help="exposures averaged per capture (default 16)")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("-q", "--quiet", action="store_true")
+    add_quiet(s)
     s.set_defaults(func=cmd_simulate)
 
     g = cs.add_parser("geometric", help="fit the geometric model (and flat field) from captures")
@@ -114,10 +119,12 @@ def add_parser(sub) -> None:
     g.add_argument("-o", "--output", required=True, help="calibrated facility YAML")
     g.add_argument("--holdout", type=float, default=0.2, help="fraction of dots held out (default 0.2)")
     g.add_argument("--seed", type=int, default=0)
+    add_quiet(g)
     g.set_defaults(func=cmd_geometric)
 
     r = cs.add_parser("radiometric", help="fit the radiometric curve from power-meter readings")
     r.add_argument("facility")
     r.add_argument("--measurements", required=True, help="CSV: digital_count,lit_pixels,irradiance_w_m2")
     r.add_argument("-o", "--output", required=True, help="calibrated facility YAML")
+    add_quiet(r)
     r.set_defaults(func=cmd_radiometric)

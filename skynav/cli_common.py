@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import logging
 import os
 import sys
 import warnings
@@ -21,7 +22,7 @@ from skynav.scenes.errors import SkynavError
 
 __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
            "non_negative_int", "run_command", "add_set_argument", "parse_set", "apply_overrides",
-           "dataclass_from_overrides", "OverrideError"]
+           "dataclass_from_overrides", "OverrideError", "add_quiet", "say", "ProgressBar"]
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
@@ -37,6 +38,84 @@ def fail(message: str) -> int:
 def warn(message: str) -> None:
     """Print ``skynav: warning: <message>`` (one line) on stderr."""
     print(f"skynav: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def add_quiet(parser) -> None:
+    """Give ``parser`` the ``-q/--quiet`` flag every long-running sub-command shares."""
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar and no informational lines (warnings and errors still print)")
+
+
+def say(args, *lines) -> None:
+    """Print informational lines on stdout, unless the command runs with ``-q/--quiet``."""
+    if not getattr(args, "quiet", False):
+        for line in lines:
+            print(line)
+
+
+class ProgressBar:
+    """One tqdm bar fed by the ``progress(done, total)`` callbacks skynav's long functions call.
+
+    The bar counts what ``unit`` names (``frame``, ``capture``): ``total`` is the number of such
+    things the function will do, as it reports it. Quiet: no bar at all. Use as a context manager so
+    the bar is closed when the work stops early (an error, Ctrl-C).
+
+    >>> with ProgressBar("exporting", "frame", quiet=True) as bar:
+    ...     bar(1, 2); bar(2, 2)
+    """
+
+    def __init__(self, desc: str, unit: str, *, quiet: bool = False):
+        self.desc, self.unit, self.quiet = desc, unit, quiet
+        self._bar = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        if self._bar is None:
+            from tqdm.auto import tqdm
+
+            self._bar = tqdm(total=total, unit=self.unit, desc=self.desc)
+        self._bar.update(done - self._bar.n)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+class _LogFormatter(logging.Formatter):
+    """``skynav: <message>`` for notes, ``skynav: warning: <message>`` for warnings (one line each)."""
+
+    def format(self, record):
+        text = " ".join(record.getMessage().split())
+        return f"skynav: {text}" if record.levelno < logging.WARNING else f"skynav: {record.levelname.lower()}: {text}"
+
+
+def _log_to_stderr(quiet: bool):
+    """Route the ``skynav`` loggers (e.g. the renderer's one-line backend note) to stderr for one
+    command: notes (INFO) unless quiet, warnings always. Returns a function that undoes it."""
+    logger = logging.getLogger("skynav")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LogFormatter())
+    handler.setLevel(logging.WARNING if quiet else logging.INFO)
+    before = (logger.level, logger.propagate)
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+
+    def undo():
+        logger.removeHandler(handler)
+        logger.setLevel(before[0])
+        logger.propagate = before[1]
+
+    return undo
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -223,8 +302,10 @@ def run_command(func, args) -> int:
 
     ``SkynavError`` (bad input), ``OSError`` (a path the system refuses, a full disk) and
     ``MemoryError`` print one line and give :data:`EXIT_BAD_INPUT`; warnings raised by skynav
-    (``SkynavWarning``) print as one ``skynav: warning:`` line each. Anything else is a bug and
-    keeps its traceback.
+    (``SkynavWarning``) print as one ``skynav: warning:`` line each, as do the ``skynav`` loggers'
+    warnings; their notes (INFO, e.g. the renderer's backend) print as ``skynav: ...`` unless the
+    command runs with ``-q``. Worker processes have no handler: a note prints once per run, from
+    this process. Anything else is a bug and keeps its traceback.
     """
     from skynav.scenes.errors import SkynavError, SkynavWarning
 
@@ -236,6 +317,7 @@ def run_command(func, args) -> int:
 
     _default_show = warnings.showwarning
     warnings.showwarning = show
+    undo_logging = _log_to_stderr(bool(getattr(args, "quiet", False)))
     try:
         return int(func(args) or 0)
     except SkynavError as exc:
@@ -254,3 +336,4 @@ def run_command(func, args) -> int:
         return fail("interrupted")
     finally:
         warnings.showwarning = _default_show
+        undo_logging()

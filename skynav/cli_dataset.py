@@ -33,8 +33,9 @@ def cmd_generate(args) -> int:
     recipe = _recipe(args.recipe, args.count, args.seed, args.overrides)
     summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                                 progress=not args.quiet)
-    for line in summary.lines():
-        print(line)
+    from .cli_common import say
+
+    say(args, *summary.lines())
     return 0
 
 
@@ -111,7 +112,7 @@ def cmd_preview(args) -> int:
 def add_parser(sub) -> None:
     from skynav.datasets.recipes import PRESETS
 
-    from .cli_common import add_set_argument, non_negative_int, positive_int
+    from .cli_common import add_quiet, add_set_argument, non_negative_int, positive_int
 
     d = sub.add_parser("dataset", help="generate, verify, inspect and preview datasets",
                        description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
@@ -128,7 +129,7 @@ def add_parser(sub) -> None:
     g.add_argument("--seed", type=non_negative_int, default=None, help="master seed (overrides the recipe)")
     g.add_argument("--workers", type=positive_int, default=None, help="local worker processes (default: all cores)")
     g.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
-    g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_quiet(g)
     add_set_argument(g, "the recipe: kind-independent keys (camera.*, visibility.*, render.*, formats, ...) "
                         "and the kind's section (montecarlo.*, sequence.*, scenes.N.*)")
     g.set_defaults(func=cmd_generate)

@@ -4,6 +4,21 @@ from __future__ import annotations
 
 import sys
 
+from .cli_common import ProgressBar, add_quiet, say, warn
+
+
+def uncalibrated_note(facility, name) -> str | None:
+    """The warning for a facility without a calibration record (None when it has both)."""
+    missing = [what for what, rec in (("geometric", facility.calibrated_geometric),
+                                      ("radiometric", facility.calibrated_radiometric)) if not rec]
+    if not missing:
+        return None
+    if len(missing) == 2:
+        return (f"facility {name} was never calibrated (no geometric or radiometric calibration record): the screen "
+                "frames use its nominal model; calibrate it first (skynav calibrate geometric, then radiometric)")
+    return (f"facility {name} has no {missing[0]} calibration record: the screen frames use its nominal {missing[0]} "
+            f"model; run skynav calibrate {missing[0]} first")
+
 
 def cmd_facility(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
@@ -13,7 +28,7 @@ def cmd_facility(args) -> int:
     write_facility(fac, args.output)
     sc, cam = fac.screen, fac.camera
     scale = fac.geometric.focal_length_mm / (sc.pixel_pitch_um * 1e-3) / cam.focal_length_px
-    print(f"wrote {args.output}: {sc.width_px}x{sc.height_px} px {sc.bit_depth}-bit screen, {sc.pixel_pitch_um:g} um, "
+    say(args, f"wrote {args.output}: {sc.width_px}x{sc.height_px} px {sc.bit_depth}-bit screen, {sc.pixel_pitch_um:g} um, "
           f"collimator {fac.geometric.focal_length_mm:g} mm; camera {cam.width}x{cam.height}; {scale:.2f} screen px per camera px; "
           f"field margin {fac.coverage():.0f} screen px")
     return 0
@@ -22,8 +37,6 @@ def cmd_facility(args) -> int:
 def cmd_export(args) -> int:
     from skynav.calibration.facility_io import load_facility
     from skynav.datasets.hil_export import export_dataset
-
-    from .cli_calibrate import _progress
 
     if args.workers < 1:
         print(f"skynav: error: --workers {args.workers}: expected a positive integer", file=sys.stderr)
@@ -39,9 +52,13 @@ def cmd_export(args) -> int:
             mapping["camera"].pop("K", None)  # derived from the other camera keys, which an override changed
         fac = facility_from_mapping(mapping)
     fac.check_coverage()
-    s = export_dataset(fac, args.dataset, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
-                       progress=None if args.quiet else _progress("exporting"))
-    print(f"{s['exported']} screen frames written to {args.output}/frames ({s['skipped']} already there) of {s['frames']}"
+    with ProgressBar("exporting", "frame", quiet=args.quiet) as bar:
+        s = export_dataset(fac, args.dataset, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
+                           progress=bar)
+    note = uncalibrated_note(fac, args.facility)
+    if note:  # after the work: an error stays one line, and the warning is not lost above the bar
+        warn(note)
+    say(args, f"{s['exported']} screen frames written to {args.output}/frames ({s['skipped']} already there) of {s['frames']}"
           f" on {s['workers']} worker(s) ({s['executor']})")
     return 0
 
@@ -77,6 +94,7 @@ def add_parser(sub) -> None:
     f = hs.add_parser("facility", help="write a facility file from a preset")
     f.add_argument("preset", nargs="?", default="bench", help="preset name or facility file (default: bench)")
     f.add_argument("-o", "--output", required=True)
+    add_quiet(f)
     f.set_defaults(func=cmd_facility)
     e = hs.add_parser("export", help="export a dataset as screen frames",
                       description="Export a dataset as the screen frames a bench shows its camera. --set changes "
@@ -88,7 +106,7 @@ def add_parser(sub) -> None:
     e.add_argument("-o", "--output", required=True)
     e.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
     e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
-    e.add_argument("-q", "--quiet", action="store_true")
+    add_quiet(e)
     from .cli_common import add_set_argument
 
     add_set_argument(e, "the facility (screen.*, collimator.*, camera.*, geometric.parameters.*, "

@@ -26,5 +26,5 @@ def test_export_a_dataset_and_resume(tmp_path, capsys):
     assert set(star) >= {"screen_xy", "electrons", "peak_dn"} and star["peak_dn"] > 0
     assert set(rec["clipped"]) == {"too_bright_px", "too_faint_sources"}
     capsys.readouterr()
-    assert main(["hil", "export", str(tmp_path / "ds"), "--facility", "bench_small", "-o", str(out), "-q"]) == 0
+    assert main(["hil", "export", str(tmp_path / "ds"), "--facility", "bench_small", "-o", str(out)]) == 0
     assert "1 already there" in capsys.readouterr().out
