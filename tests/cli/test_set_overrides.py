@@ -125,6 +125,7 @@ def test_hil_export_set_addresses_the_facility(tiny_dataset, tmp_path, capsys):
     assert main(["hil", "export", str(tiny_dataset), "--facility", "bench_small", "-o", str(out), "-q",
                  "--set", "screen.bit_depth=8"]) == 0
     assert json.loads((out / "frames" / "000000.json").read_text())["facility"]["screen"]["bit_depth"] == 8
+    assert "never calibrated" in capsys.readouterr().err  # the nominal facility's one warning line
     _one_line(capsys, main(["hil", "export", str(tiny_dataset), "--facility", "bench_small", "-o", str(tmp_path / "x"),
                             "--set", "screen.gama=2"]),
               "--set screen.gama=2: the facility has no key screen.gama; allowed keys in screen: bit_depth, height_px")
