@@ -34,6 +34,9 @@ def cmd_simulate(args) -> int:
     if args.frames < 1:
         print(f"skynav: error: --frames {args.frames}: expected a positive integer", file=sys.stderr)
         return 2
+    from skynav.scenes.count_cap import cap_count
+
+    args.frames = cap_count(args.frames, "--frames (exposures averaged per capture)")
     fac = load_facility(args.facility)
     fac.check_coverage()
     s = simulate(fac, args.patterns, args.output, scenario_name=args.scenario, seed=args.seed, frames=args.frames,
