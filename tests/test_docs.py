@@ -120,7 +120,7 @@ class Workspace:
     blocks: list
     done: int = -1                               # index of the last block run
     outputs: dict = field(default_factory=dict)  # block index -> combined stdout + stderr
-    failed: str | None = None                    # id of a block that failed
+    failed: int | None = None                    # index of a block that failed
 
 
 def _env() -> dict:
@@ -157,6 +157,10 @@ def _failure(block: Block, proc: subprocess.CompletedProcess) -> str:
     return f"{block.id}: the documented {block.lang} block exits with {proc.returncode}\n{block.text}--- output (tail)\n{tail}"
 
 
+class BlockFailed(AssertionError):
+    """A documented block exited non-zero (the message names it and shows its output's tail)."""
+
+
 _WORKSPACES: dict = {}
 
 
@@ -176,23 +180,30 @@ def workspaces(tmp_path_factory):
 def run_through(ws: Workspace, index: int) -> None:
     """Run the document's runnable blocks up to and including ``index``, in order, once each.
 
-    Raises ``AssertionError`` naming the block when one fails; a later block of the same document
-    is then skipped (it depends on the failed one) rather than reported twice.
+    Raises :class:`BlockFailed` naming the block when one fails; a later block of the same
+    document is then skipped (it depends on the failed one) rather than reported twice.
     """
+    if ws.failed is not None and ws.failed < index:
+        pytest.skip(f"depends on {ws.blocks[ws.failed].id}, which failed")
     for i in range(ws.done + 1, index + 1):
         b = ws.blocks[i]
-        if ws.failed:
-            break
         ws.done = i
         if b.lang not in RUNNABLE or b.skip_reason is not None:
             continue
         proc = run_block(b, ws.path)
         ws.outputs[i] = proc.stdout
         if proc.returncode != 0:
-            ws.failed = b.id
-            raise AssertionError(_failure(b, proc))
-    if ws.failed and ws.blocks[min(index, len(ws.blocks) - 1)].id != ws.failed:
-        pytest.skip(f"depends on {ws.failed}, which failed")
+            ws.failed = i
+            raise BlockFailed(_failure(b, proc))
+    if ws.failed is not None and ws.failed < index:
+        pytest.skip(f"depends on {ws.blocks[ws.failed].id}, which failed")
+
+
+def _run_through(ws: Workspace, index: int) -> None:
+    try:
+        run_through(ws, index)
+    except BlockFailed as exc:  # the block and its output, without the runner's traceback
+        pytest.fail(str(exc), pytrace=False)
 
 
 # ----------------------------------------------------------------------------- output checks
@@ -292,14 +303,14 @@ def test_documented_block_runs(block, workspaces):
     if block.skip_reason is not None:
         pytest.skip(f"{block.id}: {block.skip_reason}")
     ws = workspaces(block.doc)
-    run_through(ws, ws.blocks.index(block))
+    _run_through(ws, ws.blocks.index(block))
 
 
 @pytest.mark.parametrize("block", CHECK_BLOCKS, ids=lambda b: b.id)
 def test_documented_output_is_what_runs(block, workspaces):
     ws = workspaces(block.doc)
     index = ws.blocks.index(block)
-    run_through(ws, index)
+    _run_through(ws, index)
     problems = check_block(ws, index)
     assert not problems, f"{block.id}: the docs show what the commands do not give:\n" + "\n".join(problems)
 
@@ -361,7 +372,7 @@ def test_a_broken_example_fails(tmp_path):
     blocks = parse_blocks(BROKEN, "broken.md")
     assert [b.lang for b in blocks] == ["bash", "text", "python", "python", "text", "json"]
     ws = Workspace(tmp_path, blocks)
-    with pytest.raises(AssertionError, match=r"broken\.md:3: the documented bash block exits with \d+"):
+    with pytest.raises(BlockFailed, match=r"broken\.md:3: the documented bash block exits with \d+"):
         run_through(ws, 0)
     assert "docs-test: exit 2 at line 5 of broken.md" in ws.outputs[0]   # the failing command, by its line
     assert not (tmp_path / "never").exists() and "never reached" not in ws.outputs[0]
@@ -371,7 +382,7 @@ def test_a_broken_example_fails(tmp_path):
     for i in (2, 3):
         ws.failed, ws.done = None, i - 1
         if i == 2:
-            with pytest.raises(AssertionError, match=r"broken\.md:14: the documented python block exits with 1"):
+            with pytest.raises(BlockFailed, match=r"broken\.md:14: the documented python block exits with 1"):
                 run_through(ws, i)
             assert "a failing example" in ws.outputs[2]
         else:
