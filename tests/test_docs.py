@@ -37,6 +37,8 @@ like ``DATASET`` or ``...``), so a runnable command cannot hide from this test.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import re
@@ -115,12 +117,33 @@ CHECK_BLOCKS = [b for b in ALL_BLOCKS if b.marker and b.marker[0] in ("output", 
 # ----------------------------------------------------------------------------- running
 @dataclass
 class Workspace:
-    """One document's folder and what its blocks printed so far."""
+    """One document's folder and what its blocks printed so far.
+
+    With a ``state`` file, the progress lives on disk under a lock (``fcntl.flock``), so that
+    pytest-xdist workers share one folder per document and run each block once, in order.
+    """
     path: Path
     blocks: list
     done: int = -1                               # index of the last block run
     outputs: dict = field(default_factory=dict)  # block index -> combined stdout + stderr
     failed: int | None = None                    # index of a block that failed
+    state: Path | None = None
+
+    @contextlib.contextmanager
+    def locked(self):
+        if self.state is None:
+            yield self
+            return
+        with open(self.state.with_suffix(".lock"), "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if self.state.is_file():
+                st = json.loads(self.state.read_text())
+                self.done, self.failed = st["done"], st["failed"]
+                self.outputs = {int(k): v for k, v in st["outputs"].items()}
+            try:
+                yield self
+            finally:
+                self.state.write_text(json.dumps({"done": self.done, "failed": self.failed, "outputs": self.outputs}))
 
 
 def _env() -> dict:
@@ -166,13 +189,25 @@ _WORKSPACES: dict = {}
 
 @pytest.fixture(scope="session")
 def workspaces(tmp_path_factory):
-    def get(doc: str, blocks=None, root=None) -> Workspace:
+    """``get(doc)``: the document's workspace, one per test run (shared by pytest-xdist workers)."""
+    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent / f"docs-test-{run_id}" if run_id else base / "docs-test"
+    root.mkdir(parents=True, exist_ok=True)
+
+    def get(doc: str) -> Workspace:
         if doc not in _WORKSPACES:
-            path = tmp_path_factory.mktemp(re.sub(r"\W+", "_", doc))
-            for rel in CARRIED:
-                if (ROOT / rel).is_dir():
-                    shutil.copytree(ROOT / rel, path / rel, ignore=shutil.ignore_patterns("__pycache__"))
-            _WORKSPACES[doc] = Workspace(path, blocks if blocks is not None else _blocks(doc))
+            slug = re.sub(r"\W+", "_", doc)
+            path = root / slug
+            with open(root / f"{slug}.lock", "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                if not path.is_dir():
+                    tmp = root / f"{slug}.tmp"
+                    for rel in CARRIED:
+                        if (ROOT / rel).is_dir():
+                            shutil.copytree(ROOT / rel, tmp / rel, ignore=shutil.ignore_patterns("__pycache__"))
+                    tmp.rename(path)
+            _WORKSPACES[doc] = Workspace(path, _blocks(doc), state=root / f"{slug}.json")
         return _WORKSPACES[doc]
     return get
 
@@ -183,6 +218,11 @@ def run_through(ws: Workspace, index: int) -> None:
     Raises :class:`BlockFailed` naming the block when one fails; a later block of the same
     document is then skipped (it depends on the failed one) rather than reported twice.
     """
+    with ws.locked():
+        _run_through_unlocked(ws, index)
+
+
+def _run_through_unlocked(ws: Workspace, index: int) -> None:
     if ws.failed is not None and ws.failed < index:
         pytest.skip(f"depends on {ws.blocks[ws.failed].id}, which failed")
     for i in range(ws.done + 1, index + 1):
@@ -311,7 +351,8 @@ def test_documented_output_is_what_runs(block, workspaces):
     ws = workspaces(block.doc)
     index = ws.blocks.index(block)
     _run_through(ws, index)
-    problems = check_block(ws, index)
+    with ws.locked():
+        problems = check_block(ws, index)
     assert not problems, f"{block.id}: the docs show what the commands do not give:\n" + "\n".join(problems)
 
 
