@@ -37,6 +37,7 @@ from skynav.scenes.config import (RENDER_KEYS, camera_from_mapping, render_setti
                                   scene_spec_from_mapping, visibility_from_mapping)
 
 from skynav.scenes.errors import MovedKeyError
+from skynav.scenes.count_cap import cap_count
 
 from .errors import RecipeError
 
@@ -304,7 +305,7 @@ def validate_recipe(recipe) -> dict:
     if kind == "montecarlo":
         if "frames" not in recipe:
             raise RecipeError("frames", None, "an integer >= 1 (number of frames)")
-        out["frames"] = _num(recipe, "frames", "", lo=1, hi=1e9, integer=True)
+        out["frames"] = cap_count(_num(recipe, "frames", "", lo=1, hi=1e9, integer=True), "Monte Carlo frames")
         out["montecarlo"] = _validate_montecarlo(recipe)
     elif kind == "sequence":
         if recipe.get("frames") is not None:

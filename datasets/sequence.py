@@ -39,6 +39,7 @@ from skynav.scenes.constants import GM_KM3_S2, SECONDS_PER_DAY
 from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
 from skynav.scenes.errors import LambertError
 from skynav.scenes.lambert import solve_lambert
+from skynav.scenes.count_cap import cap_count
 
 from .errors import SceneSamplingError
 from .recipes import PLANETS
@@ -206,6 +207,7 @@ class SequencePlan:
             from .errors import RecipeError
 
             raise RecipeError("frames", n, f"at most {total} (frames planned by the legs)")
+        n = cap_count(n, "sequence frames")
         rows = rows[:n]
         self.n_frames = n
         self.n_planned = total

@@ -23,6 +23,9 @@ def cmd_nav(args) -> int:
             raise NavInputError(f"--case {c}: give 1, 2, 3, 4 or 5")
     if args.runs < 2:
         raise NavInputError(f"--runs {args.runs}: at least 2 runs are needed for sample statistics")
+    from skynav.scenes.count_cap import cap_count
+
+    args.runs = cap_count(args.runs, "--runs", minimum=2)
     if args.workers < 1:
         raise NavInputError(f"--workers {args.workers}: give at least 1")
     if args.sigma_px is not None and not args.sigma_px > 0:

@@ -37,6 +37,9 @@ def cmd_simulate(args) -> int:
     if args.frames < 1:
         print(f"skynav: error: --frames {args.frames}: expected a positive integer", file=sys.stderr)
         return 2
+    from skynav.scenes.count_cap import cap_count
+
+    args.frames = cap_count(args.frames, "--frames (exposures averaged per capture)")
     fac = load_facility(args.facility)
     fac.check_coverage()
     with ProgressBar("capturing", "capture", quiet=args.quiet) as bar:

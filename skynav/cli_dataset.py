@@ -152,7 +152,8 @@ def add_parser(sub) -> None:
     i.set_defaults(func=cmd_info)
     p = dsub.add_parser("preview", help="write a contact sheet PNG with ground-truth overlays",
                         description="Write a contact sheet PNG of a dataset with star circles and body labels; for a"
-                                    " sequence, also the planets' V along the legs (PREVIEW_legs_vmag.png).")
+                                    " sequence, also the planets' V along the legs, next to the sheet: preview_legs_vmag.png for"
+                                    " the default DATASET/preview.png, STEM_legs_vmag.png for -o STEM.png.")
     p.add_argument("path")
     p.add_argument("-o", "--output", default=None, help="PNG path (default: DATASET/preview.png)")
     p.add_argument("--count", type=positive_int, default=16, help="frames on the sheet (default 16)")
