@@ -30,6 +30,7 @@ def cmd_nav(args) -> int:
         raise NavInputError(f"--workers {args.workers}: give at least 1")
     if args.sigma_px is not None and not args.sigma_px > 0:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
+    _dynamics(args)  # refuse a bad --set or --gm-sigma before reading the dataset
     t0 = time.perf_counter()
     plan = load_plan(args.dataset, images=args.images, limit=args.limit)
     realisations = None
@@ -57,13 +58,7 @@ def cmd_nav(args) -> int:
         noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
     else:
         noise = CentroidNoise(sigma0_px=float(args.sigma_px))
-    dynamics = None
-    if args.gm_sigma is not None:
-        if not 0 < args.gm_sigma < 1e-6:
-            raise NavInputError(f"--gm-sigma {args.gm_sigma}: give a steady-state sigma in km/s^2 between 0 and 1e-6")
-        from skynav.pipeline.filter_dynamics import FilterDynamics
-
-        dynamics = FilterDynamics(sigma_residual_km_s2=args.gm_sigma, sigma_srp_km_s2=args.gm_sigma)
+    dynamics = _dynamics(args)
     setup_s = time.perf_counter() - t0
     results = {}
     ip_s = fl_s = 0.0
@@ -97,7 +92,7 @@ def cmd_nav(args) -> int:
     summary = summarise(results, primary=primary, time_s=total, plan=plan)
     info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
             "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
-            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
+            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "dynamics": {k: getattr(dynamics or _default_dynamics(), k) for k in DYNAMICS_KEYS}, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
     from skynav.pipeline.references import NAVIGATION
@@ -119,14 +114,51 @@ def cmd_nav(args) -> int:
     return 0
 
 
+#: FilterDynamics fields ``--set dynamics.FIELD=VALUE`` may change (the scalar ones)
+DYNAMICS_KEYS = ("correlation_time_s", "sigma_residual_km_s2", "sigma_srp_km_s2", "rtol", "atol")
+
+
+def _default_dynamics():
+    from skynav.pipeline.filter_dynamics import FilterDynamics
+
+    return FilterDynamics()
+
+
+def _dynamics(args):
+    """The filter's FilterDynamics from ``--gm-sigma`` then ``--set dynamics.FIELD=VALUE`` (in order),
+    or None for the defaults. Each value must be a positive finite number."""
+    import dataclasses
+    import math
+
+    from skynav.pipeline.filter_dynamics import FilterDynamics
+    from skynav.pipeline.scoring_nav import NavInputError
+
+    from .cli_common import OverrideError
+
+    kw = {}
+    if args.gm_sigma is not None:
+        if not 0 < args.gm_sigma < 1e-6:
+            raise NavInputError(f"--gm-sigma {args.gm_sigma}: give a steady-state sigma in km/s^2 between 0 and 1e-6")
+        kw.update(sigma_residual_km_s2=args.gm_sigma, sigma_srp_km_s2=args.gm_sigma)
+    for text, path, value in args.overrides:
+        name = ".".join(str(p) for p in path)
+        if len(path) != 2 or path[0] != "dynamics" or path[1] not in DYNAMICS_KEYS:
+            raise OverrideError(f"--set {text}: bench nav has no key {name}; allowed keys: "
+                                + ", ".join(f"dynamics.{k}" for k in DYNAMICS_KEYS))
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise OverrideError(f"--set {text}: {name} = {value!r} is not allowed; expected a positive finite number")
+        kw[path[1]] = float(value)
+    return dataclasses.replace(FilterDynamics(), **kw) if kw else None
+
+
 def add_parser(bsub) -> None:
     """Register ``nav`` on the ``bench`` sub-parsers."""
     p = bsub.add_parser("nav", help="Monte Carlo EKF navigation campaign on a sequence dataset",
                         description="Run the image processing on every frame of a 'sequence' dataset and the EKF "
                         "(planet centroids, first-order light-time and aberration) over Monte Carlo initial errors; "
                         "score against the truth and write runs.csv, frames.csv, summary.json, report.md, report.html. "
-                        "No --set here: the campaign's settings are the flags below, and its image processing runs "
-                        "with the pipeline's default ProcessOptions (try others on single frames with "
+                        "--set dynamics.FIELD=VALUE changes the filter's force and noise model; the image processing "
+                        "runs with the pipeline's default ProcessOptions (try others on single frames with "
                         "'skynav bench ip --set'; change the images with 'skynav dataset generate --set').")
     p.add_argument("dataset", help="a 'sequence' dataset folder")
     p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (default 50)")
@@ -156,6 +188,10 @@ def add_parser(bsub) -> None:
     p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     add_quiet(p)
+    from .cli_common import add_set_argument
+
+    add_set_argument(p, "the filter's dynamics (dynamics." + ", dynamics.".join(DYNAMICS_KEYS)
+                     + "; e.g. dynamics.sigma_residual_km_s2=5e-12), applied after --gm-sigma")
     p.set_defaults(func=cmd_nav)
 
 

@@ -195,3 +195,27 @@ def test_calibrate_on_pools_renderings_for_r(seq, tmp_path, capsys):
     rc, err = _err(["bench", "nav", str(seq), "--calibrate-on", str(other), "--sigma-px", "0.1",
                     "-o", str(tmp_path / "r2")], capsys)
     assert rc == 2 and len(err) == 1 and "--calibrate-on" in err[0]
+
+
+def test_set_changes_the_filter_dynamics(seq, tmp_path, capsys):
+    """``--set dynamics.FIELD=VALUE`` reaches the filter: recorded in summary.json, and a 100x
+    larger process noise gives a larger filter velocity 3-sigma at the end (the covariance grows with Q);
+    bad keys and values are one line, exit 2, before anything is read or written."""
+    common = ["bench", "nav", str(seq), "--runs", "2", "--case", "1", "-q", "--sigma-px", "0.3"]
+    assert main([*common, "-o", str(tmp_path / "base")]) == 0
+    assert main([*common, "--set", "dynamics.sigma_residual_km_s2=1e-9", "--set", "dynamics.sigma_srp_km_s2=1e-9",
+                 "-o", str(tmp_path / "q")]) == 0
+    base = json.loads((tmp_path / "base" / "summary.json").read_text())
+    q = json.loads((tmp_path / "q" / "summary.json").read_text())
+    assert base["run"]["dynamics"]["sigma_residual_km_s2"] == 1e-11
+    assert q["run"]["dynamics"]["sigma_residual_km_s2"] == 1e-9 and q["run"]["dynamics"]["sigma_srp_km_s2"] == 1e-9
+    # 6 frames of one leg: the larger Q shows in the velocity covariance only (position rounds equal)
+    assert q["final"]["filter_velocity_3sigma_m_s"] > base["final"]["filter_velocity_3sigma_m_s"]
+    capsys.readouterr()
+    for bad, says in ((["--set", "dynamics.sigma=1"], "allowed keys: dynamics.correlation_time_s"),
+                      (["--set", "runs=3"], "bench nav has no key runs"),
+                      (["--set", "dynamics.rtol=-1"], "expected a positive finite number"),
+                      (["--set", "dynamics.atol=fast"], "expected a positive finite number")):
+        rc, err = _err([*common, *bad, "-o", str(tmp_path / "bad")], capsys)
+        assert rc == 2 and len(err) == 1 and says in err[0] and err[0].startswith("skynav: error: "), err
+        assert not (tmp_path / "bad").exists()
