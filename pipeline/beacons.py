@@ -203,7 +203,8 @@ def _camera_constants(camera):
 def _apparent_one(r, v, pos, vel):
     """:func:`apparent_direction` on lists of 3 Python floats: ``(u, p, |p - r|)`` as lists and a
     float, the same element-wise operations in the same order (the dot products as numpy's
-    for 3-vectors, ``(x0 y0 + x1 y1) + x2 y2``)."""
+    for 3-vectors, ``(x0 y0 + x1 y1) + x2 y2``). Tested against it within 4 ulps
+    (tests/pipeline/test_beacon_scalar_helpers.py), not for identical bits."""
     r0, r1, r2 = r
     a0, a1, a2 = pos[0] - r0, pos[1] - r1, pos[2] - r2
     tau = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) / C_KM_S
@@ -220,7 +221,8 @@ def _apparent_one(r, v, pos, vel):
 
 def _phase_angle_one(p, sun, r) -> float:
     """:func:`_phase_angles` of one body, lists of 3 Python floats in (the same operations;
-    ``math.atan2`` and ``math.sqrt`` are libm's, as numpy's ``arctan2`` and ``sqrt``)."""
+    ``math.atan2`` and ``math.sqrt`` are libm's; numpy's ``arctan2`` may take a SIMD loop that
+    differs from libm's in the last bit, so the two agree within a few ulps, as tested)."""
     a0, a1, a2 = sun[0] - p[0], sun[1] - p[1], sun[2] - p[2]
     b0, b1, b2 = r[0] - p[0], r[1] - p[1], r[2] - p[2]
     c0 = a1 * b2 - a2 * b1
@@ -235,7 +237,7 @@ _FLOOR_PX2 = np.eye(2) * 0.25**2
 def _project_one(camera, v):
     """``camera.project(v[None])[0]`` for one camera-frame vector (3,): the pinhole arithmetic of
     :meth:`~skynav.scenes.camera.Camera.project` without its array overhead when the lens has
-    no distortion (the same operations, so the same bits), else ``camera.project`` itself."""
+    no distortion (the same operations in the same order), else ``camera.project`` itself."""
     if not camera.distortion.is_identity:
         return camera.project(v[None])[0]
     z = float(v[2])
@@ -254,7 +256,7 @@ def _in_image(camera, xy, margin_px) -> bool:
 def _dcm_of_dcm(A) -> np.ndarray:
     """``dcm_from_quat(quat_from_dcm(A))`` (Eq. 14 of A's quaternion: A re-orthogonalised to
     rounding) in Python floats, for the improved mode's Jacobian: the same formulas, without
-    numpy's per-call overhead on 3 x 3 and 4-vectors."""
+    numpy's per-call overhead on 3 x 3 and 4-vectors (tested within 4 ulps of 1, element-wise)."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = np.asarray(A, dtype=float).tolist()
     tr = a00 + a11 + a22
     cands = (1 + tr, 1 + 2 * a00 - tr, 1 + 2 * a11 - tr, 1 + 2 * a22 - tr)
@@ -299,7 +301,8 @@ def _phase_angles(p, sun, r):
 
 def _log10(x: float) -> float:
     """:func:`numpy.log10` of one float under ``errstate(divide/invalid="ignore")``: ``-inf`` at
-    0, NaN below 0 and at NaN (libm's log10 above 0, as numpy's float64 loop)."""
+    0, NaN below 0 and at NaN (libm's log10 above 0; numpy's float64 loop is libm's on some CPUs
+    and a SIMD loop that may differ in the last bit on others, e.g. AVX-512)."""
     if x > 0.0:
         return math.log10(x)
     return -math.inf if x == 0.0 else math.nan
@@ -317,7 +320,7 @@ def _phase_law(key: str, a: float) -> float:
     """The phase law ``V(1, alpha)`` of :func:`skynav.scenes.photometry.planet_v_mag` with its
     default options (no Saturn ring tilt, Uranus sub-latitude 0, Neptune after 2000) at one
     phase angle ``a`` (deg): the branch its ``numpy.where`` keeps, in Python floats (the same
-    IEEE operations in the same order)."""
+    IEEE operations in the same order; its ``log10`` is libm's, see :func:`_log10`)."""
     if key == "mercury":
         return _horner(a, (-0.613, 6.3280e-02, -1.6336e-03, 3.3644e-05, -3.4265e-07, 1.6893e-09, -3.0334e-12))
     if key == "venus":
@@ -349,7 +352,9 @@ def _v_mag(name: str, sun_distance_km: float, observer_distance_km: float, phase
     """``float(planet_v_mag(name, r, delta, alpha))`` for one body, in Python floats: the same
     operations in the same order without numpy's per-call overhead (~50 us there, ~2 us here;
     :func:`math.degrees` is numpy's ``rad2deg``, ``x * (180 / pi)``). Bodies outside
-    :data:`BEACON_BODIES` go to ``planet_v_mag`` itself."""
+    :data:`BEACON_BODIES` go to ``planet_v_mag`` itself. Not bit-for-bit on every CPU (libm's
+    ``log10`` against numpy's SIMD one): tests/pipeline/test_beacon_scalar_helpers.py holds the
+    two within a few ulps of each ``log10`` (~1e-13 mag), NaN where the reference is NaN."""
     key = name.lower() if isinstance(name, str) else name
     if key not in _LAW_BODIES:
         from skynav.scenes.photometry import planet_v_mag

@@ -534,7 +534,7 @@ def _norm(v) -> float:
 def _median(a) -> float:
     """:func:`numpy.median` of a 1-D float array (the same partition; the mean of the two middle
     values written out: numpy's ``mean`` of two floats is their sum divided by 2.0), without its
-    wrapper's overhead."""
+    wrapper's overhead. Tested within 1 ulp of the middle values, not for identical bits."""
     n = len(a)
     h = n // 2
     if n % 2:
@@ -661,8 +661,8 @@ def _clearly_invertible(a) -> bool:
 def _lines_of_sight(cam, xys):
     """``cam.line_of_sight(np.array(xys))`` for a few pixel positions: without lens distortion,
     :meth:`~skynav.scenes.camera.Camera.back_project`'s operations in Python floats (``(x - cx) /
-    fx``, ``(y - cy) / fy``, 1, divided by the square root of their sum of squares, in order);
-    with distortion, ``line_of_sight`` itself."""
+    fx``, ``(y - cy) / fy``, 1, divided by the square root of their sum of squares, in order;
+    tested within 4 ulps of 1 per component); with distortion, ``line_of_sight`` itself."""
     if not cam.distortion.is_identity:
         return cam.line_of_sight(np.array(xys))
     cx, cy, fx, fy = float(cam.cx), float(cam.cy), float(cam.fx_px), float(cam.fy_px)
@@ -710,7 +710,8 @@ def _mahalanobis2(preds, xy):
 def _inv_2x2_stack(mats):
     """``[numpy.linalg.inv(M) for M in mats]`` with None where ``inv`` raises LinAlgError
     (singular), by one call of the gufunc behind ``numpy.linalg.inv`` on the stack (the same
-    LAPACK ``gesv`` per matrix, so the same bits, without the wrapper's ~8 us a call). The gufunc
+    code: the same LAPACK ``gesv`` per matrix, so the same bits, without the wrapper's ~8 us a
+    call). The gufunc
     fills a singular matrix's inverse with NaN and raises the invalid flag, which
     ``numpy.linalg.inv`` turns into LinAlgError."""
     a = np.asarray(mats, dtype=float)

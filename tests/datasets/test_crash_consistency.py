@@ -1,5 +1,7 @@
 """Crash consistency: whatever kills a run, the resume ends byte-identical or refuses with one line.
 
+(Byte-identical is a determinism demand here: the same code with the same seeds, on one machine.)
+
 - The defect of issue 11: a run killed before it finished, one PNG corrupted and another truncated
   to 0 bytes, then resumed; both must be made again (a resume keeps a frame only if its per-frame
   checksum record, its hashes and its decoding agree), and ``verify`` must catch a damaged image

@@ -3,7 +3,8 @@
 The manifest records the render options (``dataclasses.asdict(RenderOptions)``) and the backends
 that ran, resolved (``sensor``: llvm | numpy; ``mitsuba_variant``). A resume with other options or
 on another backend is refused with one line naming the option, the old and the new value; a resume
-with the same ones finishes byte-identical to the 1-worker reference.
+with the same ones finishes byte-identical to the 1-worker reference (the same code with the
+same seeds: a determinism demand).
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ def test_a_worker_on_another_backend_is_refused():
 
 
 def test_resume_with_the_same_options_is_byte_identical(reference_dataset, tmp_path):
+    """The same code, the same seeds, the same options: the same files."""
     _, _, ref = reference_dataset
     out = _partial(tmp_path)
     s = generate(small_recipe(frames=4), out, workers=1, progress=False, render_options=RenderOptions())

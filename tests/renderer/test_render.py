@@ -56,7 +56,8 @@ def test_same_seed_same_bits(scene):
 # ----------------------------------------------------------------------------- the split
 def test_render_is_expected_image_then_detect(scene):
     """``render`` composes the two halves: the same generator through ``expected_image`` and
-    ``detect`` gives the same bits (the frame's stream feeds only the detection)."""
+    ``detect`` gives the same bits (the same code with the same seed; the frame's stream feeds
+    only the detection)."""
     from skynav.renderer.render import detect, expected_image
 
     opts = RenderOptions(backend="numpy")
@@ -85,7 +86,8 @@ class _NotACamera:
 
 def test_point_sources_placed_through_any_projection(scene):
     """Through a Projection that is not a Camera (here one delegating to the same camera) the
-    stars of a still frame are bit-identical; the unresolved Mars' photocentre offset takes the
+    stars of a still frame are bit-identical (the same code: ``project`` is the camera's own,
+    with the same seed); the unresolved Mars' photocentre offset takes the
     image scale from a finite difference of ``project`` instead of the focal length (1e-6 px
     apart: the offset is 0.014 px, the difference quotient exact to ~1e-6 relative), so its
     pixels agree to 1e-12 of the brightest. A rotating frame samples its streaks with the generic
@@ -151,8 +153,8 @@ def _disk_windows(frame):
 def test_mitsuba_sampling_follows_the_frame_seed(departure):
     """Each frame ray-traces its disks with seeds from its own stream: two frame seeds give
     different Earth and Moon crops whose physical totals agree within the sampling noise, and
-    one seed gives identical frames. (Before, every body was traced with Mitsuba seed 0, so
-    the crops of seeds 1 and 2 were bit-identical.)
+    the same seed gives identical frames (the same code). (Before, every body was traced with
+    Mitsuba seed 0, so the crops of seeds 1 and 2 were bit-identical.)
 
     Noise: the raw (un-normalised) totals scatter by 1.0e-3 (Earth, 31 px) and 3.4e-3 (Moon,
     12 px) at 16 spp (measured over 8 seeds); a difference of two is sqrt(2) that, and the bounds
@@ -234,7 +236,8 @@ def test_truth_carries_every_cosmic_ray_track(scene, track_prob):
 
 def test_truth_records_the_backend_that_ran(scene, departure):
     """``render.backend`` is what was asked, ``render.backend_used`` what ran, and rendering
-    again with the backend that ran gives the same bits; ``render.mitsuba_variant`` names the
+    again with the backend that ran gives the same bits (the same code with the same seed);
+    ``render.mitsuba_variant`` names the
     variant that ray-traced the bodies (None when none was)."""
     from skynav.renderer import jit_backend, mitsuba_backend
 

@@ -94,16 +94,26 @@ def test_offset_is_exact_two_part_time():
 
 @pytest.mark.parametrize("body", BODIES)
 def test_position_equals_position_velocity_bit_for_bit(body, rng):
+    """Exact: the same code (jplephem's one ``Segment.generate``, stopped after the position)."""
     eph = default_ephemeris()
     t = rng.uniform(-50, 50, 5) * YEAR_S
     np.testing.assert_array_equal(eph.position(body, t), eph.position_velocity(body, t)[0])
     np.testing.assert_array_equal(eph.position(body, t[0], offset_s=-123.4), eph.position_velocity(body, t[0], offset_s=-123.4)[0])
 
 
-def test_states_at_repeats_jplephem_bit_for_bit():
+def _assert_state_close(got_r, got_v, r, v, what):
+    """Two implementations of one Chebyshev sum (ours against jplephem's): within 2 ulps of
+    each vector's largest coordinate (60 um on a 1 au position, 2e-15 km/s on 30 km/s; a wrong
+    interval or coefficient is off by kilometres). They use the same IEEE operations in the
+    same order, so they agree exactly today (measured), but that is not the contract."""
+    assert np.all(np.abs(got_r - r) <= 2 * np.spacing(np.abs(r).max())), (what, got_r, r)
+    assert np.all(np.abs(got_v - v) <= 2 * np.spacing(np.abs(v).max())), (what, got_v, v)
+
+
+def test_states_at_repeats_jplephem():
     """The batched evaluation (every segment once, one vectorised Clenshaw recurrence) gives
-    the same bits as jplephem's own per-segment evaluation, at random epochs across DE421 and
-    at interval boundaries (whole days, J2000)."""
+    jplephem's own per-segment evaluation within 2 ulps (:func:`_assert_state_close`), at
+    random epochs across DE421 and at interval boundaries (whole days, J2000)."""
     from skynav.scenes.ephemeris_jpl import BODIES, default_ephemeris
 
     eph = default_ephemeris()
@@ -114,8 +124,7 @@ def test_states_at_repeats_jplephem_bit_for_bit():
         got = eph.states_at(t)
         for b in BODIES:
             r, v = eph.position_velocity(b, t)
-            assert np.array_equal(got[b][0], r), (b, t)
-            assert np.array_equal(got[b][1], v), (b, t)
+            _assert_state_close(got[b][0], got[b][1], r, v, (b, t))
 
 
 def test_states_at_refuses_epochs_outside_the_kernel_and_unknown_bodies():
@@ -131,10 +140,11 @@ def test_states_at_refuses_epochs_outside_the_kernel_and_unknown_bodies():
         eph.states_at(0.0, ("pluto",))
 
 
-def test_epoch_states_repeat_states_at_bit_for_bit():
+def test_epoch_states_repeat_jplephem():
     """Positions now and each velocity on demand (the derivative recurrence of one body's
-    segments in Python floats) give the bits of jplephem's per-segment evaluation, for every
-    body and for a subset in another order."""
+    segments in Python floats) give jplephem's per-segment evaluation within 2 ulps
+    (:func:`_assert_state_close`), for every body and for a subset in another order; the
+    positions array and ``position(body)`` are one array (exact)."""
     from skynav.scenes.ephemeris_jpl import BODIES, default_ephemeris
 
     eph = default_ephemeris()
@@ -147,6 +157,5 @@ def test_epoch_states_repeat_states_at_bit_for_bit():
             assert st.positions.shape == (len(bodies), 3)
             for j, b in enumerate(bodies):
                 r, v = eph.position_velocity(b, t)
-                assert np.array_equal(st.positions[j], r), (b, t)
-                assert np.array_equal(st.position(b), r), (b, t)
-                assert np.array_equal(st.velocity(b), v), (b, t)
+                assert np.array_equal(st.position(b), st.positions[j])  # one array
+                _assert_state_close(st.positions[j], st.velocity(b), r, v, (b, t))

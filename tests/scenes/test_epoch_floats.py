@@ -13,7 +13,7 @@ def test_a_float_epoch_is_tdb_seconds_past_j2000():
     want = Time(2451545.0 + 10.0, 1.5 / 86400.0, format="jd", scale="tdb")
     got = timescales.to_time(t_tdb_s)
     assert abs((got.tdb - want).to_value("s")) < 1e-9
-    assert timescales.tdb_seconds(t_tdb_s) == t_tdb_s  # unchanged, bit for bit
+    assert timescales.tdb_seconds(t_tdb_s) == t_tdb_s  # passed through unchanged: the same code, exact
     assert timescales.tdb_seconds("2000-01-11T12:00:01.5") == pytest.approx(t_tdb_s, abs=1e-6)
     arr = np.array([0.0, t_tdb_s])
     assert np.array_equal(timescales.tdb_seconds(arr), arr)
