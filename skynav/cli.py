@@ -92,6 +92,8 @@ def cmd_render(args) -> int:
 
     from skynav.datasets.frame_files import check_output_dir, check_stem
 
+    from .cli_common import say
+
     spec = _load_spec(args.scene, args.overrides)
     seed = spec.seed if args.seed is None else args.seed
     if seed < 0:
@@ -115,19 +117,19 @@ def cmd_render(args) -> int:
     truth = frame.truth
     stars = truth["stars"]
     maxdn = (1 << scene.camera.sensor.bit_depth) - 1
-    print(f"rendered {scene.camera.width}x{scene.camera.height} frame in {t1 - t0:.2f} s (seed {seed}), wrote in {t2 - t1:.2f} s")
-    print(f"sources: {len(stars)} stars in view, "
+    say(args, f"rendered {scene.camera.width}x{scene.camera.height} frame in {t1 - t0:.2f} s (seed {seed}), wrote in {t2 - t1:.2f} s")
+    say(args, f"sources: {len(stars)} stars in view, "
           f"{sum(b['in_fov'] for b in truth['bodies'])} bodies in view, {len(truth['cosmic_rays'])} cosmic rays")
     for b in truth["bodies"]:
         if b["in_fov"]:
-            print(f"  {b['name']}: V {b['v_mag']:.2f} at ({b['xy'][0]:.2f}, {b['xy'][1]:.2f}) px, "
+            say(args, f"  {b['name']}: V {b['v_mag']:.2f} at ({b['xy'][0]:.2f}, {b['xy'][1]:.2f}) px, "
                   f"{b['electrons']:.4g} e-, {b['rendered_as']}{', visible' if b['visible'] else ''}")
     if stars:
         s = min(stars, key=lambda s: s["v_mag"])
-        print(f"  brightest star: HIP {s['hip']} V {s['v_mag']:.2f} at ({s['xy'][0]:.2f}, {s['xy'][1]:.2f}) px, {s['electrons']:.4g} e-")
-    print(f"saturated pixels: {int((frame.dn >= maxdn).sum())}   max DN {int(frame.dn.max())} of {maxdn}")
+        say(args, f"  brightest star: HIP {s['hip']} V {s['v_mag']:.2f} at ({s['xy'][0]:.2f}, {s['xy'][1]:.2f}) px, {s['electrons']:.4g} e-")
+    say(args, f"saturated pixels: {int((frame.dn >= maxdn).sum())}   max DN {int(frame.dn.max())} of {maxdn}")
     for fmt, path in files.items():
-        print(f"  {fmt:<5} {path}")
+        say(args, f"  {fmt:<5} {path}")
     return 0
 
 
@@ -158,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's render.seed)")
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
+    from .cli_common import add_quiet
+
+    add_quiet(r)
     r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
     r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
     add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")

@@ -82,10 +82,13 @@ def render_hil(args, spec, seed) -> int:
     rec = write_screen_frame(fac, scene, args.output, args.name, source={"scene": args.scene or "default", "seed": seed}, seed=seed)
     seconds = time.perf_counter() - t0  # timed here: the frame's JSON holds no timing (same bytes on every run)
     on = sum(s["on_screen"] for s in rec["stars"])
-    print(f"screen frame {fac.screen.width_px}x{fac.screen.height_px} {fac.screen.bit_depth}-bit in {seconds:.2f} s: "
+    say(args, f"screen frame {fac.screen.width_px}x{fac.screen.height_px} {fac.screen.bit_depth}-bit in {seconds:.2f} s: "
           f"{on} stars placed, {len(rec['bodies'])} bodies; clipped: {rec['clipped']['too_bright_px']} px too bright, "
           f"{rec['clipped']['too_faint_sources']} sources too faint")
-    print(f"  {args.output}/frames/{args.name}.png and .json")
+    say(args, f"  {args.output}/frames/{args.name}.png and .json")
+    note = uncalibrated_note(fac, args.hil)
+    if note:  # after the work, as hil export: an error stays one line
+        warn(note)
     return 0
 
 

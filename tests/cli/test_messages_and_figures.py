@@ -141,6 +141,18 @@ def test_hil_export_warns_once_for_an_uncalibrated_facility(work):
     assert "3 screen frames written" in p.stdout
 
 
+def test_render_quiet_and_render_hil_warns_once(tmp_path):
+    """``skynav render -q`` prints nothing; ``render --hil`` with the nominal preset prints its
+    frame line without -q and, either way, one warning line that the facility is uncalibrated."""
+    q = _ok(skynav("render", "-o", "r", "-q", "--set", "camera.width=128", "--set", "camera.height=128", cwd=tmp_path))
+    assert (q.stdout, q.stderr) == ("", "")
+    assert (tmp_path / "r" / "frame.png").is_file()
+    h = _ok(skynav("render", "--hil", "bench", "-o", "s", cwd=tmp_path))
+    assert "screen frame 2560x2560 10-bit" in h.stdout
+    lines = h.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(WARNING) and "bench was never calibrated" in lines[0], h.stderr
+
+
 def test_hil_export_with_a_calibrated_facility_does_not_warn(work):
     d, _ = work
     p = _ok(skynav("hil", "export", "mc", "--facility", "cal.yaml", "-o", "hilcal", "-q", cwd=d))
