@@ -45,7 +45,10 @@ def _load_spec(arg: str | None, overrides=()):
 
 # ----------------------------------------------------------------------------- scene
 def _fmt(x, spec="8.2f"):
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        width = "".join(c for c in spec.split(".")[0] if c.isdigit())
+        return "-".rjust(int(width) if width else 1)  # a column's dash as wide as its numbers
+    return format(x, spec)
 
 
 def cmd_scene(args) -> int:
