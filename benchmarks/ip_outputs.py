@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/ip_outputs.py dump DATASET OUT.npz [--frames 200]
+    python benchmarks/ip_outputs.py dump DATASET OUT.npz [--frames 200] [--mode improved|paper]
     python benchmarks/ip_outputs.py compare A.npz B.npz
 
 ``dump`` runs each frame lost in space and then in tracking (from the lost-in-space attitude),
@@ -23,7 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 
-def dump(dataset, out, n_frames):
+def dump(dataset, out, n_frames, mode="improved"):
     from skynav.pipeline import OnboardCatalog, process_frame
     from skynav.pipeline.scoring import _predicted_state, open_frames
 
@@ -39,7 +39,7 @@ def dump(dataset, out, n_frames):
             for tag in ("lis", "trk"):
                 if tag == "trk" and prior is None:
                     continue
-                r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prior)
+                r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prior, mode=mode)
                 p = f"{sig:g}/{k}/{tag}/"
                 rec[p + "status"] = np.array(r.status)
                 rec[p + "method"] = np.array(r.star_id_method)
@@ -89,12 +89,13 @@ def main(argv=None):
     d.add_argument("dataset")
     d.add_argument("out")
     d.add_argument("--frames", type=int, default=200)
+    d.add_argument("--mode", default="improved", choices=("improved", "paper"))
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
     args = ap.parse_args(argv)
     if args.cmd == "dump":
-        dump(args.dataset, args.out, args.frames)
+        dump(args.dataset, args.out, args.frames, args.mode)
         return 0
     return compare(args.a, args.b)
 
