@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.scenes.constants import ARCSEC_RAD, J2000_JD, SECONDS_PER_DAY
+
 from .attitude import rotation_angle_rad
 from .catalog import OnboardCatalog
 from .errors import BenchInputError
@@ -31,8 +33,6 @@ WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
 BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is a failure
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
-ARCSEC = np.pi / 180.0 / 3600.0
-from skynav.scenes.constants import J2000_JD, SECONDS_PER_DAY  # noqa: E402
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -165,7 +165,7 @@ def score_frame(result, truth, sigma_km):
     """Rows (dicts) for one processed frame: the frame row and its beacon outcomes."""
     err = float("nan")
     if result.status == "ok":
-        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC
+        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC_RAD
         outcome = "correct" if err <= WRONG_ATTITUDE_ARCSEC else "wrong"
     else:
         outcome = "none"
@@ -233,7 +233,7 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
         for name, peer in peer_objs.items():
             R, ms = peer.solve(obs.dn, _predicted_state(truth, float(sigmas_km[0]),
                                                         np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
-            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC if R is not None else float("nan")
+            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC_RAD if R is not None else float("nan")
             peer_rows[name].append({"frame": k, "solved": R is not None, "error_arcsec": err, "time_ms": ms})
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
