@@ -18,7 +18,6 @@ figures follow Figs. 7-8 of Andreis et al. 2023b, paper 001):
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 from pathlib import Path

@@ -8,7 +8,6 @@ script, no external resource), and puts our numbers next to Tables 3 and 4 of An
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 from pathlib import Path
