@@ -19,6 +19,9 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Spots", "detect_spots", "threshold"]
 
@@ -127,9 +130,6 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     ``w I = I^2 / I_max`` is negligible. Since ``I_max`` is constant within a ROI, Eq. 7-8 reduce
     to ``x_c = sum(x I^2) / sum(I^2)``.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     img = np.asarray(image)
     if img.ndim != 2 or img.size == 0:
         raise ValueError(f"image must be a non-empty 2-D array, got shape {img.shape}")
@@ -447,8 +447,6 @@ def spots_in_boxes(image, centres_xy, half_px, *, threshold_dn: float, backgroun
     full-frame pass costs ~10x more. A region touching its box's edge (not the image's) is
     dropped: it may continue outside the box, and a truncated region has a biased centroid.
     Spots found in two overlapping boxes are kept once."""
-    from scipy import ndimage
-
     img = np.asarray(image)
     H, W = img.shape
     xy = np.asarray(centres_xy, float).reshape(-1, 2)

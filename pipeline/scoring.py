@@ -3,9 +3,10 @@
 Scoring module (the only pipeline modules that read truth: ``tests/test_architecture.py``). It
 opens a skynav dataset (:func:`skynav.datasets.open_dataset`, typed truth ``ds.truth(k)``) or any
 folder of frames in the frame schema (``frames/NNNNNN.png`` + ``.json``, or the pairs directly in
-the folder), reading from the JSON only ``epoch.jd_tdb``, ``camera.K``, ``camera.width``,
-``camera.height``, ``camera.bit_depth``, ``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]``
-(``name``, ``xy``, ``in_fov``, ``visible``). The pipeline gets only the observation and a
+the folder), read by the datasets reader (:func:`skynav.datasets.reader.read_frame_pair`: the
+camera, pixel pitch included, and the epoch from the JSON) and scored from the JSON's
+``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]`` (``name``, ``xy``, ``in_fov``,
+``visible``). The pipeline gets only the observation and a
 predicted state drawn here from the truth with the given sigma per axis (paper 000 section V).
 """
 
@@ -18,13 +19,19 @@ from pathlib import Path
 
 import numpy as np
 
-from skynav.scenes.constants import ARCSEC_RAD, J2000_JD, SECONDS_PER_DAY
+from tqdm.auto import tqdm
+
+from skynav.datasets import open_dataset
+from skynav.datasets.errors import DatasetError
+from skynav.datasets.reader import read_frame_pair
+from skynav.scenes.constants import ARCSEC_RAD
 
 from .attitude import rotation_angle_rad
 from .catalog import OnboardCatalog
 from .errors import BenchInputError
 from .process import process_frame
 from .results import PredictedState
+from .scoring_peers import available_peers
 
 __all__ = ["FrameTruthLite", "open_frames", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
            "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
@@ -67,8 +74,9 @@ def _need(d, path, where):
     cur = d
     for key in path.split("."):
         if not isinstance(cur, dict) or key not in cur:
-            raise BenchInputError(f"{where}: frame JSON has no '{path}' (the benchmark needs epoch.jd_tdb, camera.K, "
-                                  "camera.width, camera.height, camera.bit_depth, observer.*, attitude.R_cam_icrs, bodies[])")
+            raise BenchInputError(f"{where}: frame JSON has no '{path}' (the benchmark needs epoch.tdb_iso, "
+                                  "camera.width, height, focal_length_mm, pixel_pitch_um, exposure_s, bit_depth, "
+                                  "observer.*, attitude.R_cam_icrs, bodies[])")
         cur = cur[key]
     return cur
 
@@ -79,7 +87,6 @@ class _FolderSource:
     def __init__(self, root: Path, pairs):
         self.root = root
         self.pairs = pairs
-        self._cache = {}
 
     def __len__(self):
         return len(self.pairs)
@@ -90,32 +97,19 @@ class _FolderSource:
             d = json.loads(js.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise BenchInputError(f"{js}: not a readable frame JSON ({exc.__class__.__name__})") from None
-        for key in ("epoch.jd_tdb", "camera.K", "camera.width", "camera.height", "camera.bit_depth",
+        for key in ("epoch.tdb_iso", "camera.width", "camera.height", "camera.focal_length_mm", "camera.pixel_pitch_um",
+                    "camera.exposure_s", "camera.bit_depth",
                     "observer.position_km", "observer.velocity_km_s", "attitude.R_cam_icrs", "bodies"):
             _need(d, key, js)
         return d
 
     def observation(self, k):
-        from skynav.datasets.observation import Observation
-        from skynav.datasets.reader import read_image_dn
-        from skynav.scenes.camera import Camera, SensorParams
-
-        d = self._json(k)
-        c = d["camera"]
-        K = np.asarray(c["K"], float)
+        png, js = self.pairs[k]
+        self._json(k)  # the keys the benchmark needs, checked first (one line naming the key)
         try:
-            dn = read_image_dn(self.pairs[k][0])  # the DN of scaled (sBIT) and raw PNGs alike
-        except OSError as exc:
-            raise BenchInputError(f"{self.pairs[k][0]}: not a readable PNG ({exc})") from None
-        pitch_um = 10.0
-        cam = Camera(width=int(c["width"]), height=int(c["height"]), focal_length_mm=K[0, 0] * pitch_um * 1e-3,
-                     pixel_pitch_um=pitch_um, pixel_pitch_y_um=pitch_um * K[0, 0] / K[1, 1], cx=float(K[0, 2]),
-                     cy=float(K[1, 2]), exposure_s=float(c.get("exposure_s", 0.4)),
-                     sensor=SensorParams(bit_depth=int(c["bit_depth"])))
-        dn = np.ascontiguousarray(dn)
-        dn.setflags(write=False)
-        return Observation(index=k, dn=dn, epoch_tdb_s=(float(d["epoch"]["jd_tdb"]) - J2000_JD) * SECONDS_PER_DAY,
-                           exposure_s=cam.exposure_s, camera=cam)
+            return read_frame_pair(png, js, index=k)[0]
+        except DatasetError as exc:
+            raise BenchInputError(str(exc)) from None
 
     def truth(self, k):
         d = self._json(k)
@@ -136,9 +130,6 @@ def open_frames(path):
     BenchInputError
         Not a folder, or no frames in it.
     """
-    from skynav.datasets import open_dataset
-    from skynav.datasets.errors import DatasetError
-
     root = Path(path)
     if not root.is_dir():
         raise BenchInputError(f"{root}: no such folder (give a skynav dataset or a folder of NNNNNN.png + .json frames)")
@@ -213,8 +204,6 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     peer_notes = {}
     peer_objs = {}
     if peers:
-        from .scoring_peers import available_peers
-
         for name, p in available_peers().items():
             if isinstance(p, str):
                 peer_notes[name] = p
@@ -223,8 +212,6 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
                 peer_rows[name] = []
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=n, unit="frame", desc=f"bench ip ({mode})")
     t0 = time.perf_counter()
     for k in range(n):
