@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 def dump(dataset, out, n_frames, mode="improved"):
     from skynav.pipeline import OnboardCatalog, process_frame
-    from skynav.pipeline.scoring import _predicted_state, open_frames
+    from skynav.pipeline.scoring import predicted_state, open_frames
 
     src = open_frames(dataset)
     cat = OnboardCatalog.load(camera=src.observation(0).camera)
@@ -34,7 +34,7 @@ def dump(dataset, out, n_frames, mode="improved"):
         rng = np.random.default_rng(0)
         for k in range(min(n_frames, len(src))):
             obs, truth = src.observation(k), src.truth(k)
-            ps = _predicted_state(truth, sig, rng)
+            ps = predicted_state(truth, sig, rng)
             prior = None
             for tag in ("lis", "trk"):
                 if tag == "trk" and prior is None:

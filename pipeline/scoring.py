@@ -33,7 +33,7 @@ from .process import process_frame
 from .results import PredictedState
 from .scoring_peers import available_peers
 
-__all__ = ["FrameTruthLite", "open_frames", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
+__all__ = ["FrameTruthLite", "open_frames", "predicted_state", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
            "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
 
 WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
@@ -146,7 +146,9 @@ def open_frames(path):
     raise BenchInputError(f"{root} is not a dataset: no manifest.json and no PNG + JSON frame pairs in it or in frames/")
 
 
-def _predicted_state(truth, sigma_km, rng):
+def predicted_state(truth, sigma_km, rng):
+    """The benchmark's predicted state: the true position plus N(0, sigma_km^2) per axis, the true
+    velocity plus N(0, 0.1^2) km/s per axis (paper 000 section V), drawn from ``rng``."""
     pos = truth.position_km + rng.normal(0.0, sigma_km, 3)
     vel = truth.velocity_km_s + rng.normal(0.0, VELOCITY_SIGMA_KM_S, 3)
     return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
@@ -218,13 +220,13 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
         obs = first if k == 0 else src.observation(k)
         truth = src.truth(k)
         for name, peer in peer_objs.items():
-            R, ms = peer.solve(obs.dn, _predicted_state(truth, float(sigmas_km[0]),
+            R, ms = peer.solve(obs.dn, predicted_state(truth, float(sigmas_km[0]),
                                                         np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
             err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC_RAD if R is not None else float("nan")
             peer_rows[name].append({"frame": k, "solved": R is not None, "error_arcsec": err, "time_ms": ms})
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
-            ps = _predicted_state(truth, float(s), rng)
+            ps = predicted_state(truth, float(s), rng)
             res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode, options=options)
             row = score_frame(res, truth, float(s))
             row.update(frame=k, sigma_km=float(s))

@@ -120,3 +120,28 @@ def test_no_function_local_imports_but_optional_packages_with_their_reason():
     bad = [f"{rel}:{line}: {name} ({why})" for folder, rel, src in _modules() for line, name, why in violations(folder, src)]
     assert bad == [], "imports go at the top of the module; a function may import only a heavy optional package, " \
                       "with a comment saying why:\n" + "\n".join(bad)
+
+
+def private_uses(source: str):
+    """``(line, name)`` of every ``_``-prefixed (not dunder) name a module imports with ``from``,
+    and of every ``_``-prefixed attribute it reads on an object other than ``self``/``cls``."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+            out += [(node.lineno, a.name) for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+        elif isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            if not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+                out.append((node.lineno, node.attr))
+    return out
+
+
+def test_the_private_rule_catches_what_it_should():
+    src = "from numpy.linalg import _umath_linalg\nfrom .x import __version__\ndef f(s, o):\n" \
+          "    return s._col, o.__class__, self._ok\n"
+    assert private_uses(src) == [(1, "_umath_linalg"), (4, "_col")]
+
+
+def test_strict_rooms_use_no_private_name_of_another_module():
+    bad = [f"{rel}:{line}: {name}" for folder, rel, src in _modules() if folder in STRICT_ROOMS
+           for line, name in private_uses(src)]
+    assert bad == [], "a private name is another module's business; ask it for a public one:\n" + "\n".join(bad)
