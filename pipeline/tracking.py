@@ -13,7 +13,8 @@ import numpy as np
 
 from .attitude import wahba_svd
 from .beacons import CHI2_2DOF_3SIGMA, max_eig_2x2, predict_beacons
-from .centroids import Spots, spots_in_boxes, window_centroids, window_peaks
+from .centroids import Spots
+from .windows import spots_in_boxes, window_centroids, window_peaks
 from .levels import robust_level
 from .star_id import StarMatch
 
@@ -26,14 +27,14 @@ def track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state
 
     Pass 1: the ``track_coarse_stars`` brightest ID-catalog stars (V < the catalog's limit)
     predicted from ``R_prev``, each located at the brightest pixel within ``track_window_px`` of
-    its prediction, refined by its 3 x 3 neighbourhood (:func:`~skynav.pipeline.centroids.window_peaks`:
+    its prediction, refined by its 3 x 3 neighbourhood (:func:`~skynav.pipeline.windows.window_peaks`:
     ~0.1 px, enough to re-predict every star within a pixel; the Eq. 7-8 centroids are pass 2's); Wahba with one residual clip; the
     attitude check (>= ``min_matches`` stars within ``inlier_px`` after the fit, and the solution
     within the windows' capture range of the prior). Pass 2: every catalog star to
     ``refine_v_mag`` predicted from the pass-1 attitude, measured within 1 px of its prediction,
     kept within ``refine_px``; Wahba, residual clip (:func:`clip_residuals`). Pass 3: the beacons'
     windows (``track_window_px`` + their 3-sigma reach; beyond ``track_window_max_px`` the full
-    frame is needed) through :func:`~skynav.pipeline.centroids.spots_in_boxes`, so a planet
+    frame is needed) through :func:`~skynav.pipeline.windows.spots_in_boxes`, so a planet
     gets the same region and centroid as in a full-frame pass. Returns ``(spots, b, match, source, beacon predictions)``
     (``b``: the lines of sight of the star spots, the first rows of ``spots``) or None (the caller
     then runs the full frame: tracking, then lost in space).

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from skynav.pipeline.centroids import detect_spots, spots_in_boxes, window_centroids, window_peaks
+from skynav.pipeline.centroids import detect_spots
+from skynav.pipeline.windows import spots_in_boxes, window_centroids, window_peaks
 from skynav.pipeline.levels import robust_level
 
 
