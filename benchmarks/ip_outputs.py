@@ -10,7 +10,8 @@ with predicted states drawn at sigma 1e4, 1e6 and 1e7 km (seed 0), and stores pe
 the status and method, the attitude and its covariance, every centroid, the matched star ids and
 each beacon's status, position, predicted position and predicted covariance. ``compare`` prints
 the keys and shapes that differ (discrete changes) and, for the numbers, how many arrays are not
-bit-identical and the worst difference relative to each array's largest value, by kind.
+bit-identical, the worst difference relative to each array's largest value, by kind, and the
+largest angle between two attitudes (arcsec).
 """
 
 from __future__ import annotations
@@ -63,9 +64,14 @@ def compare(a, b):
     A, B = np.load(a), np.load(b)
     ka, kb = set(A.files), set(B.files)
     discrete = sorted(ka ^ kb)
-    n_numeric, worst = 0, {}
+    n_numeric, worst, worst_att = 0, {}, 0.0
     for k in sorted(ka & kb):
         x, y = A[k], B[k]
+        if k.endswith("/R") and x.shape == y.shape == (3, 3):  # the attitude difference, arcsec
+            D = x @ y.T  # angle = atan2(|vee(D - D^T)| / 2, (tr D - 1) / 2): exact near 0, unlike arccos
+            v = 0.5 * np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
+            ang = np.arctan2(np.linalg.norm(v), (np.trace(D) - 1.0) / 2.0)
+            worst_att = max(worst_att, float(np.degrees(ang) * 3600.0))
         if x.dtype.kind in "USbiu" or y.dtype.kind in "USbiu" or x.shape != y.shape:
             if x.shape != y.shape or not np.array_equal(x, y):
                 discrete.append(k)
@@ -78,7 +84,8 @@ def compare(a, b):
     for k in discrete[:20]:
         print("differs:", k)
     print(f"{len(ka & kb)} common arrays; {len(discrete)} discrete differences (keys, shapes, statuses, ids); "
-          f"{n_numeric} numeric arrays not bit-identical; worst relative difference by kind: {worst}")
+          f"{n_numeric} numeric arrays not bit-identical; worst relative difference by kind: {worst}; "
+          f"largest attitude difference {worst_att:.2e} arcsec")
     return 1 if discrete else 0
 
 

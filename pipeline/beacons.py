@@ -179,8 +179,6 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
         return out
     sun = eph.position("sun")
     q = dcm_to_quat(A) if mode == "paper" else None
-    # the Jacobian's attitude: Eq. 14 of A's quaternion (A re-orthogonalised to rounding)
-    A_q = quat_to_dcm(dcm_to_quat(A)) if mode != "paper" else None
     for name, u, p, dist, xy in kept:
         alpha = float(phase_angle_rad(p, sun, r))
         # Jacobian at the apparent point: the body along u at its distance
@@ -192,14 +190,14 @@ def predict_beacons(epoch_tdb_s, predicted_state, R_cam_icrs, camera, *, attitud
             P = F @ S @ F.T
             Fa = None
         else:
-            # position: F[:, 4:7] of Eq. 19, d(pixel)/d(r) = -dproj A(q); full covariance
-            w0, w1, w2 = A_q @ rel
-            Fr = np.array([[fx / w2, 0.0, -fx * w0 / w2 ** 2], [0.0, fy / w2, -fy * w1 / w2 ** 2]]) @ -A_q
+            # position: F[:, 4:7] of Eq. 19, d(pixel)/d(r) = -dproj A (A from Wahba's SVD: a
+            # rotation to rounding, the A(q) of Eq. 14 of its own quaternion); full covariance
+            c = A @ rel
+            dproj = np.array([[fx / c[2], 0.0, -fx * c[0] / c[2] ** 2], [0.0, fy / c[2], -fy * c[1] / c[2] ** 2]])
+            Fr = dproj @ -A
             P = Fr @ Pr @ Fr.T
             # attitude: small rotation phi (camera frame) -> pixel;
             # A' = (I - [phi x]) A gives d v_cam = -phi x v_cam = [v_cam x] phi
-            c = A @ rel
-            dproj = np.array([[fx / c[2], 0.0, -fx * c[0] / c[2] ** 2], [0.0, fy / c[2], -fy * c[1] / c[2] ** 2]])
             Fa = dproj @ skew(c)
             if attitude_cov_rad2 is not None:
                 P = P + Fa @ attitude_cov_rad2 @ Fa.T
