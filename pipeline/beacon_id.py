@@ -193,12 +193,11 @@ def assign_from_m2(preds, m2, spot_mag, mag_sigma):
         return chosen
     BIG = 1e9
     if nb == 1:
-        # one row: scipy's shortest augmenting path takes, at its first step, the column of the
-        # least cost and, among equal costs, the lowest index (it scans the columns from the
-        # last, and an equal unassigned column replaces the one held): the first minimum over
-        # the spots inside the ellipse and "not found" (test_beacon_assignment checks it
-        # against linear_sum_assignment, ties included). Costs as below, in Python floats
-        # (m2 + ((m - m_pred) / mag_sigma)^2, the square as numpy's x * x)
+        # fast path for one beacon (the usual case), beside the general solver below: the
+        # cheapest spot inside the ellipse, or "not found" when none costs less than the
+        # ellipse's edge; ties to the lowest index, as linear_sum_assignment resolves them
+        # (tests/pipeline/test_beacon_assignment.py holds the two to the same choice, ties
+        # included). The costs as below: m2 + ((m - m_pred) / mag_sigma)^2
         vm = float(preds[0].v_mag)
         mags = spot_mag.tolist() if spot_mag is not None and math.isfinite(vm) else None
         best, j_best = CHI2_2DOF_3SIGMA + 9.0, None
