@@ -18,6 +18,8 @@ Both have one interface; the driver asks the mode at each step that differs:
 
 from __future__ import annotations
 
+import abc
+
 import numpy as np
 
 from .beacon_id import identify_closest, identify_joint
@@ -26,19 +28,59 @@ from .levels import detect_robust
 from .star_id import C_KM_S, StarMatch, refine
 from .tracking import clip_outliers
 
-__all__ = ["PaperMode", "ImprovedMode", "MODES"]
+__all__ = ["Mode", "PaperMode", "ImprovedMode", "MODES"]
 
 
-class PaperMode:
+class Mode(abc.ABC):
+    """The interface of a mode: what :func:`~skynav.pipeline.process.process_frame` asks it."""
+
+    name: str
+    histogram_levels: bool       # background levels from a histogram of the [::8, ::8] sample
+    windowed_tracking: bool      # tracking measures stars and beacons in windows (tracking.py)
+    retry_too_many_spots: bool   # more regions than max_spots: raise T and detect again
+
+    @abc.abstractmethod
+    def id_iterations(self, opt) -> int:
+        """Detections tried, T raised by ``T_step`` after each failed ID."""
+
+    @abc.abstractmethod
+    def star_directions(self, catalog, source, idx, t_epoch, r_km, v_km_s):
+        """ICRS unit vectors (N, 3) of the stars ``idx`` of ``source`` as this mode uses them."""
+
+    @abc.abstractmethod
+    def detect(self, img, *, T, max_dn, opt, levels) -> Spots:
+        """The frame's spots at threshold parameter ``T``."""
+
+    @abc.abstractmethod
+    def star_order(self, spots: Spots) -> np.ndarray:
+        """Spots in the order star ID tries them."""
+
+    @abc.abstractmethod
+    def lost_in_space_tries(self, opt):
+        """``(n_max, random_triples, max_triples)`` of each lost-in-space attempt."""
+
+    @abc.abstractmethod
+    def accept(self, A, sp, st, b, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The star match of a lost-in-space solution, or None (rejected)."""
+
+    @abc.abstractmethod
+    def deepen(self, match, b, spots, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The final association: ``(match, source)``, ``source`` None for the ID catalog."""
+
+    @abc.abstractmethod
+    def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
+        """:class:`~skynav.pipeline.results.BeaconResult` per predicted beacon."""
+
+
+class PaperMode(Mode):
     """Paper 000 as published (module docstring)."""
 
     name = "paper"
-    histogram_levels = False    # the saturated fraction counted directly
+    histogram_levels = False
     windowed_tracking = False
-    retry_too_many_spots = True  # more regions than max_spots: raise T and detect again
+    retry_too_many_spots = True
 
     def id_iterations(self, opt) -> int:
-        """Detections tried, T raised by ``T_step`` after each failed ID."""
         return opt.T_max_iterations
 
     def star_directions(self, catalog, source, idx, t_epoch, r_km, v_km_s):
@@ -53,7 +95,6 @@ class PaperMode:
         return np.arange(len(spots))
 
     def lost_in_space_tries(self, opt):
-        """``(n_max, random_triples, max_triples)`` of each lost-in-space attempt."""
         return ((opt.n_max, True, opt.n_ransac),)
 
     def accept(self, A, sp, st, b, catalog, star_dirs, *, half_fov, opt, ifov):
@@ -72,7 +113,7 @@ class PaperMode:
         return identify_closest(preds, spots, match, opt)
 
 
-class ImprovedMode(PaperMode):
+class ImprovedMode(Mode):
     """The improved pipeline (module docstring)."""
 
     name = "improved"

@@ -13,64 +13,24 @@ one differ, the mode object decides (:mod:`~skynav.pipeline.modes`: ``"paper"`` 
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from skynav.scenes.constants import ARCSEC_RAD
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 
-from .attitude import attitude_covariance
+from .attitude import attitude_result
 from .beacon_id import add_attitude_covariance
 from .beacons import BodyStates, predict_beacons
 from .centroids import Spots
 from .levels import Levels
 from .modes import MODES
+from .options import ProcessOptions
 from .results import AttitudeResult, FrameResult
-from .star_id import C_KM_S, lost_in_space, refine
+from .star_id import C_KM_S, StarDirections, lost_in_space, refine
 from .tracking import track_windowed
 
 __all__ = ["ProcessOptions", "process_frame"]
-
-# a cone computed this much wider serves every boresight within this angle of its axis: within
-# one frame the boresight moves by a few pixels between star-direction requests
-REUSE_RAD = 5e-3
-
-
-@dataclass(frozen=True, kw_only=True)
-class ProcessOptions:
-    """Speed/accuracy trade-offs of :func:`process_frame` (one object; vary with ``replace``)."""
-
-    T: float = 5.0                      # Eq. 6 tuning parameter (improved: on the robust sigma)
-    T_step: float = 2.0                 # paper: T increase after a failed ID
-    T_max_iterations: int = 5
-    eps_px: float = 0.6                 # k-vector range error, in pixels of the field
-    inlier_px: float = 2.0              # RANSAC / association tolerance, px
-    n_max: int = 12                     # spots used for the votes
-    n_ransac: int = 100                 # paper mode: random triples
-    min_matches: int = 5                # improved: stars needed to accept an attitude
-    max_spots: int = 3000               # more regions than this: "too_many_spots"
-    saturated_fraction: float = 0.5     # more saturated pixels than this: "saturated"
-    sigma_qv: float = 1e-4              # paper Eq. 22
-    mag_sigma: float = 1.0              # improved beacon brightness prior, mag
-    deep_star_radius_px: float = 1.5    # improved: spots this close to a deep-catalog star are stars
-    refine_v_mag: float = 7.5           # improved: catalog depth of the final attitude (5.5: off)
-    refine_px: float = 1.5              # improved: association radius of the final attitude, px
-    refine_max_spots: int = 400         # improved: brightest spots offered to the final association
-    blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
-    # tracking, improved mode: spots only in windows around the stars (to refine_v_mag) and beacons
-    # predicted from previous_attitude; window half-size = track_window_px (covers a prior
-    # attitude error plus the rotation since the previous frame of up to ~(track_window_px - 4) px,
-    # i.e. (track_window_px - 4) x IFOV: 8 px x 70"/px ~ 9' for the paper camera), beacons' plus
-    # their 3-sigma reach (capped at track_window_max_px, beyond which the full frame is used).
-    # 0 turns windows off (full-frame tracking).
-    track_window_px: float = 12.0
-    track_window_max_px: float = 96.0
-    track_coarse_stars: int = 24        # windowed tracking, pass 1: the brightest predicted stars measured
-    seed: int = 0                       # paper RANSAC draws
-
 
 _DEFAULT_OPTIONS = ProcessOptions()
 
@@ -131,21 +91,8 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         body_states = BodyStates(default_ephemeris() if ephemeris is None else ephemeris, observation.epoch_tdb_s)
     ifov = cam.ifov_rad
     half_fov = cam.half_diagonal_fov_rad
-    dirs_cache = {}
-
-    def star_dirs(boresight, radius, source=None):
-        """``(idx, u)``: the stars of ``source`` (default the ID catalog) in a cone, with their
-        directions as the mode sees them; one cone REUSE_RAD wider per catalog serves the frame
-        (the extra stars lie outside the image by >= 2 mrad, beyond every association tolerance)."""
-        src = catalog.stars if source is None else source
-        key = (id(src), float(radius))
-        hit = dirs_cache.get(key)
-        if hit is not None and float(np.dot(hit[0], boresight)) >= np.cos(REUSE_RAD) * np.linalg.norm(boresight):
-            return hit[1], hit[2]
-        idx = src.cone(boresight, radius, margin_rad=2e-3 + REUSE_RAD)
-        u = how.star_directions(catalog, src, idx, observation.epoch_tdb_s, r_km, v_km_s)
-        dirs_cache[key] = (np.asarray(boresight, float) / np.linalg.norm(boresight), idx, u)
-        return idx, u
+    star_dirs = StarDirections(catalog, lambda src, idx: how.star_directions(catalog, src, idx,
+                                                                          observation.epoch_tdb_s, r_km, v_km_s))
 
     # ------------------------------------------------------------------ centroids + star ID
     T = opt.T
@@ -221,14 +168,8 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     A = match.R_cam_icrs
     # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
     bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
-    n_st = len(match.spot_index)
-    # per-axis sigma from the residual RMS (3 degrees of freedom taken by the fit), floored at
-    # 0.05 pixel; the covariance of the Wahba solution (Shuster's QUEST covariance)
-    rms = math.sqrt(float(np.mean(match.residual_rad ** 2))) if n_st > 3 else opt.inlier_px * ifov / 2
-    sigma = max(rms * np.sqrt(n_st / max(n_st - 3, 1)) / np.sqrt(2.0), 0.05 * ifov)
-    P = attitude_covariance(bm, sigma)
-    att = AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n_st,
-                         error_estimate_arcsec=float(np.sqrt(np.trace(P)) / ARCSEC_RAD))
+    att = attitude_result(match, bm, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov)
+    P = att.covariance_rad2
     timings["attitude"] = (time.perf_counter() - ta0) * 1e3
 
     # ------------------------------------------------------------------ beacons
