@@ -61,9 +61,9 @@ print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": time.perf_
 
 def _one_thread() -> dict:
     """The runner's thread-count variables, all at 1."""
-    from skynav.datasets.execute import _THREAD_VARS
+    from skynav.datasets.pool import THREAD_VARS
 
-    return {name: "1" for name in _THREAD_VARS}
+    return {name: "1" for name in THREAD_VARS}
 
 
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict) -> dict:

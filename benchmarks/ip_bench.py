@@ -41,7 +41,7 @@ def main(argv=None):
         pass
 
     from skynav.pipeline import OnboardCatalog, process_frame
-    from skynav.pipeline.scoring import _predicted_state, open_frames
+    from skynav.pipeline.scoring import predicted_state, open_frames
 
     src = open_frames(args.dataset)
     cam = src.observation(0).camera
@@ -52,7 +52,7 @@ def main(argv=None):
     n = min(args.frames, len(src))
     frames = [(src.observation(k), src.truth(k)) for k in range(n)]
     rng = np.random.default_rng(0)
-    states = [_predicted_state(t, args.sigma_km, rng) for _, t in frames]
+    states = [predicted_state(t, args.sigma_km, rng) for _, t in frames]
     process_frame(frames[0][0], catalog=cat, predicted_state=states[0], mode=args.mode)  # warm-up (ephemeris, deep catalog)
     lis, trk, stages, prev = [], [], [], []
     for (obs, _), ps in zip(frames, states):

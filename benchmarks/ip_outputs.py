@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/ip_outputs.py dump DATASET OUT.npz [--frames 200]
+    python benchmarks/ip_outputs.py dump DATASET OUT.npz [--frames 200] [--mode improved|paper]
     python benchmarks/ip_outputs.py compare A.npz B.npz
 
 ``dump`` runs each frame lost in space and then in tracking (from the lost-in-space attitude),
@@ -10,7 +10,8 @@ with predicted states drawn at sigma 1e4, 1e6 and 1e7 km (seed 0), and stores pe
 the status and method, the attitude and its covariance, every centroid, the matched star ids and
 each beacon's status, position, predicted position and predicted covariance. ``compare`` prints
 the keys and shapes that differ (discrete changes) and, for the numbers, how many arrays are not
-bit-identical and the worst difference relative to each array's largest value, by kind.
+bit-identical, the worst difference relative to each array's largest value, by kind, and the
+largest angle between two attitudes (arcsec).
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 
-def dump(dataset, out, n_frames):
+def dump(dataset, out, n_frames, mode="improved"):
     from skynav.pipeline import OnboardCatalog, process_frame
-    from skynav.pipeline.scoring import _predicted_state, open_frames
+    from skynav.pipeline.scoring import predicted_state, open_frames
 
     src = open_frames(dataset)
     cat = OnboardCatalog.load(camera=src.observation(0).camera)
@@ -34,12 +35,12 @@ def dump(dataset, out, n_frames):
         rng = np.random.default_rng(0)
         for k in range(min(n_frames, len(src))):
             obs, truth = src.observation(k), src.truth(k)
-            ps = _predicted_state(truth, sig, rng)
+            ps = predicted_state(truth, sig, rng)
             prior = None
             for tag in ("lis", "trk"):
                 if tag == "trk" and prior is None:
                     continue
-                r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prior)
+                r = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prior, mode=mode)
                 p = f"{sig:g}/{k}/{tag}/"
                 rec[p + "status"] = np.array(r.status)
                 rec[p + "method"] = np.array(r.star_id_method)
@@ -63,9 +64,14 @@ def compare(a, b):
     A, B = np.load(a), np.load(b)
     ka, kb = set(A.files), set(B.files)
     discrete = sorted(ka ^ kb)
-    n_numeric, worst = 0, {}
+    n_numeric, worst, worst_att = 0, {}, 0.0
     for k in sorted(ka & kb):
         x, y = A[k], B[k]
+        if k.endswith("/R") and x.shape == y.shape == (3, 3):  # the attitude difference, arcsec
+            D = x @ y.T  # angle = atan2(|vee(D - D^T)| / 2, (tr D - 1) / 2): exact near 0, unlike arccos
+            v = 0.5 * np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
+            ang = np.arctan2(np.linalg.norm(v), (np.trace(D) - 1.0) / 2.0)
+            worst_att = max(worst_att, float(np.degrees(ang) * 3600.0))
         if x.dtype.kind in "USbiu" or y.dtype.kind in "USbiu" or x.shape != y.shape:
             if x.shape != y.shape or not np.array_equal(x, y):
                 discrete.append(k)
@@ -78,7 +84,8 @@ def compare(a, b):
     for k in discrete[:20]:
         print("differs:", k)
     print(f"{len(ka & kb)} common arrays; {len(discrete)} discrete differences (keys, shapes, statuses, ids); "
-          f"{n_numeric} numeric arrays not bit-identical; worst relative difference by kind: {worst}")
+          f"{n_numeric} numeric arrays not bit-identical; worst relative difference by kind: {worst}; "
+          f"largest attitude difference {worst_att:.2e} arcsec")
     return 1 if discrete else 0
 
 
@@ -89,12 +96,13 @@ def main(argv=None):
     d.add_argument("dataset")
     d.add_argument("out")
     d.add_argument("--frames", type=int, default=200)
+    d.add_argument("--mode", default="improved", choices=("improved", "paper"))
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
     args = ap.parse_args(argv)
     if args.cmd == "dump":
-        dump(args.dataset, args.out, args.frames)
+        dump(args.dataset, args.out, args.frames, args.mode)
         return 0
     return compare(args.a, args.b)
 

@@ -7,16 +7,9 @@ order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ on
 :func:`produce_frame` runs:
 
 - :func:`run_in_process` (``workers=1``): in this process, in order.
-- :func:`run_process_pool` (``workers=N``): :class:`concurrent.futures.ProcessPoolExecutor` with
-  the **spawn** start method. Dr.Jit/LLVM (the sensor kernel, Mitsuba) start threads and JIT state
-  in a process; a fork of a parent that already used them inherits locked mutexes and a
-  half-copied JIT (the classic fork-after-threads hazard), so children are spawned fresh and
-  load the package themselves. The plan travels pickled. Each worker gets ``cores // N`` threads for
-  the libraries that start thread pools (Dr.Jit and OpenEXR via ``SKYNAV_THREADS``,
-  OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a variable the user set is left alone): N
-  processes each with a pool as wide as the machine spin against each other (measured: 2 workers
-  on 2 cores went from 1.0x to 1.6x the 1-worker rate with this alone;
-  ``benchmarks/dataset_bench.py``).
+- :func:`run_process_pool` (``workers=N``): skynav's one process pool,
+  :func:`skynav.datasets.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
+  module docstring says why). The plan travels pickled.
 - :func:`run_dask`: one Dask task per frame (``pure=False``); the workers must see the dataset
   folder on a shared file system.
 
@@ -37,6 +30,7 @@ import numpy as np
 
 from . import layout
 from .errors import DatasetMismatchError
+from .pool import THREAD_VARS, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
 __all__ = ["FrameResult", "produce_frame", "run_in_process", "run_process_pool",
            "run_dask", "check_backends"]
@@ -192,33 +186,6 @@ def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
 
 
 # ----------------------------------------------------------------------------- executors
-_THREAD_VARS = ("SKYNAV_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-class _worker_threads:
-    """Context: thread-count variables the spawned workers inherit (``cores // workers`` each).
-
-    Spawned children read their environment when they start (inside the ``with`` block, when the
-    pool submits); the parent's environment is restored on exit. Variables already set by the
-    user are kept.
-    """
-
-    def __init__(self, n_workers: int):
-        self.threads = max(1, (os.cpu_count() or 1) // max(1, n_workers))
-        self.set_here: list = []
-
-    def __enter__(self):
-        self.set_here = [name for name in _THREAD_VARS if name not in os.environ]
-        for name in self.set_here:
-            os.environ[name] = str(self.threads)
-        return self
-
-    def __exit__(self, *exc):
-        for name in self.set_here:
-            os.environ.pop(name, None)
-        return False
-
-
 def _jobs(plan):
     """One argument tuple per frame to make; the sampler plan travels pickled once."""
     blob = pickle.dumps(plan.sampler)
@@ -234,40 +201,10 @@ def run_in_process(plan, accept) -> tuple:
     return 1, "in-process"
 
 
-def exit_with_parent(parent_pid: int, poll_s: float = 0.5) -> None:
-    """Pool initializer: end this worker when the process that started it is gone.
-
-    A spawned worker holds both ends of its pool's call queue, so it never sees end-of-file when
-    the parent is killed (SIGTERM or SIGKILL from a batch scheduler): without this it waits for
-    work forever, holding its memory (two such workers were found 40 minutes after their parent).
-    """
-    import threading
-
-    def watch():
-        while os.getppid() == parent_pid:
-            time.sleep(poll_s)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="skynav-exit-with-parent", daemon=True).start()
-
-
 def run_process_pool(plan, accept, n_workers: int) -> tuple:
     """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     _, jobs = _jobs(plan)
-    with _worker_threads(n_workers), \
-            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
-                                initializer=exit_with_parent, initargs=(os.getpid(),)) as ex:
-        futs = [ex.submit(_produce_job, j) for j in jobs]
-        try:
-            for fut in as_completed(futs):
-                accept(fut.result())
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+    process_pool_map(_produce_job, jobs, n_workers, accept=accept)
     return n_workers, "processes (spawn)"
 
 

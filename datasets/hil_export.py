@@ -215,22 +215,9 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
 
 
 def _run_pool(jobs, accept, n_workers):
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from .pool import process_pool_map
 
-    from .execute import _worker_threads, exit_with_parent
-
-    with _worker_threads(n_workers), \
-            ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
-                                initializer=exit_with_parent, initargs=(os.getpid(),)) as ex:
-        futs = [ex.submit(_export_one, j) for j in jobs]
-        try:
-            for fut in as_completed(futs):
-                accept(fut.result())
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+    process_pool_map(_export_one, jobs, n_workers, accept=accept)
     return n_workers, "processes (spawn)"
 
 

@@ -25,7 +25,7 @@ import numpy as np
 from . import layout
 from .errors import SkynavError, DatasetError, FrameIndexError, IncompleteDatasetError
 
-__all__ = ["Dataset", "FrameRecord", "open_dataset", "read_image_dn"]
+__all__ = ["Dataset", "FrameRecord", "open_dataset", "read_image_dn", "read_frame_pair"]
 
 
 def read_image_dn(path) -> np.ndarray:
@@ -46,6 +46,42 @@ def read_image_dn(path) -> np.ndarray:
         with Image.open(path) as im:
             a = np.asarray(im.convert("RGB"), dtype=float)
         return a.mean(axis=-1)
+
+
+def read_frame_pair(png_path, json_path, *, index: int):
+    """``(observation, truth dict)`` of one frame outside a dataset: a PNG and its JSON in the
+    frame schema (``bench ip`` folders; written by skynav or by another program).
+
+    The observation is built as :meth:`Dataset.observation` builds it
+    (:func:`~skynav.datasets.observation.make_observation`): the camera from the JSON's
+    ``camera`` (focal length, pixel pitch, principal point, distortion, exposure), the epoch from
+    ``epoch``. A camera without ``sensor`` gets one of the JSON's ``bit_depth``. Raises
+    :class:`DatasetError` naming the file for an unreadable PNG, JSON or camera.
+    """
+    import json
+
+    from .observation import make_observation
+
+    png_path, json_path = Path(png_path), Path(json_path)
+    try:
+        truth = json.loads(json_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{json_path}: not a readable frame JSON ({exc.__class__.__name__})") from None
+    try:
+        dn = read_image_dn(png_path)  # the DN of scaled (sBIT) and raw PNGs alike
+    except OSError as exc:
+        raise DatasetError(f"{png_path}: not a readable PNG ({exc})") from None
+    cam = truth.get("camera") if isinstance(truth, dict) else None
+    if isinstance(cam, dict) and "sensor" not in cam and "bit_depth" in cam:
+        truth = dict(truth, camera=dict(cam, sensor={"bit_depth": cam["bit_depth"]}))
+    try:
+        return make_observation(truth, dn, index=index), truth
+    except SkynavError as exc:
+        raise DatasetError(f"{json_path}: {exc}") from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{json_path}: the frame JSON's camera or epoch is incomplete ({exc!r}); the frame "
+                           "schema needs camera.width, height, focal_length_mm, pixel_pitch_um, exposure_s, "
+                           "bit_depth and epoch.tdb_iso") from None
 
 
 class FrameRecord:

@@ -12,9 +12,15 @@ isotropic direction errors of standard deviation ``sigma_i`` rad,
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["wahba_svd", "attitude_covariance", "rotation_angle_rad"]
+from skynav.scenes.constants import ARCSEC_RAD
+
+from .results import AttitudeResult
+
+__all__ = ["wahba_svd", "attitude_covariance", "attitude_result", "rotation_angle_rad"]
 
 
 def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
@@ -69,3 +75,17 @@ def rotation_angle_rad(A, B) -> float:
     c = (np.trace(M) - 1.0) / 2.0
     s = 0.5 * np.linalg.norm([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
     return float(np.arctan2(s, c))  # atan2: accurate at small angles, where arccos(trace) is not
+
+
+def attitude_result(match, b_matched, *, floor_rad, min_sigma_rad):
+    """The :class:`~skynav.pipeline.results.AttitudeResult` of a star match: the attitude, and its
+    covariance (:func:`attitude_covariance`) from the per-axis sigma of the residuals' RMS
+    (3 degrees of freedom taken by the fit; a 2-D residual has sqrt(2) axes), floored at
+    ``min_sigma_rad``; with 3 stars or fewer the RMS is ``floor_rad``. ``b_matched``: the matched
+    spots' lines of sight (N, 3)."""
+    n = len(match.spot_index)
+    rms = math.sqrt(float(np.mean(match.residual_rad ** 2))) if n > 3 else floor_rad
+    sigma = max(rms * math.sqrt(n / max(n - 3, 1)) / math.sqrt(2.0), min_sigma_rad)
+    P = attitude_covariance(b_matched, sigma)
+    return AttitudeResult(R_cam_icrs=match.R_cam_icrs, covariance_rad2=P, n_stars=n,
+                          error_estimate_arcsec=float(np.sqrt(np.trace(P)) / ARCSEC_RAD))

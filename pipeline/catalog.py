@@ -12,10 +12,14 @@ import hashlib
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
+
+from skynav.scenes.catalog_hipparcos import load_catalog
+from skynav.scenes.data_files import cache_dir, hip2_path
 
 from .kvector import KVector
 
@@ -56,6 +60,8 @@ class OnboardCatalog:
     limiting_v_mag: float
     max_angle_rad: float
     build_time_s: float = 0.0
+    # the deep catalogs of deep_stars, by magnitude limit: loaded once, owned by this object
+    deep_cache: dict = field(default_factory=dict, repr=False)
 
     def __repr__(self) -> str:
         return (f"OnboardCatalog(<{len(self.hip)} stars V<{self.limiting_v_mag:g}, {len(self.pair_i)} pairs "
@@ -78,10 +84,6 @@ class OnboardCatalog:
         star_catalog : StarCatalog, optional
             Source catalog (default: the installed Hipparcos).
         """
-        from scipy.spatial import cKDTree
-
-        from skynav.scenes.catalog_hipparcos import load_catalog
-
         if max_angle_rad is None:
             max_angle_rad = 2.0 * camera.half_diagonal_fov_rad if camera is not None else np.radians(30.0)
         t0 = time.perf_counter()
@@ -103,8 +105,6 @@ class OnboardCatalog:
 
     @staticmethod
     def cache_file(*, limiting_v_mag: float = 5.5, max_angle_rad: float) -> Path:
-        from skynav.scenes.data_files import cache_dir, hip2_path
-
         key = f"{CACHE_VERSION}|{limiting_v_mag!r}|{max_angle_rad!r}|{hip2_path()}"
         return cache_dir() / f"onboard_kvector_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
 
@@ -112,8 +112,6 @@ class OnboardCatalog:
     def load(cls, *, limiting_v_mag: float = 5.5, max_angle_rad: float | None = None, camera=None,
              use_cache: bool = True) -> "OnboardCatalog":
         """The catalog from the disk cache, building (and caching) it on first use."""
-        from skynav.scenes.catalog_hipparcos import load_catalog
-
         if max_angle_rad is None:
             max_angle_rad = 2.0 * camera.half_diagonal_fov_rad if camera is not None else np.radians(30.0)
         max_angle_rad = float(max_angle_rad)
@@ -148,10 +146,8 @@ class OnboardCatalog:
     def deep_stars(self, deep_v_mag: float = 9.0):
         """The full Hipparcos catalog to ``deep_v_mag`` (loaded once per process, cached on the
         object): the improved beacon mode uses it to tell faint stars from beacons."""
-        cache = self.__dict__.setdefault("_deep", {})
+        cache = self.deep_cache
         if deep_v_mag not in cache:
-            from skynav.scenes.catalog_hipparcos import load_catalog
-
             full = load_catalog()
             cache[deep_v_mag] = full.subset(np.flatnonzero(full.v_mag < deep_v_mag))
         return cache[deep_v_mag]

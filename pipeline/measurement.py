@@ -155,7 +155,7 @@ def _projection_jacobian(camera, v_cam):
     dist = camera.distortion
     if not dist.is_identity:
         xd, yd = dist.distort(xn, yn)
-        a, b, c, d = dist._jacobian(xn, yn)
+        a, b, c, d = dist.jacobian(xn, yn)
         dn = np.array([[a, b], [c, d]]) @ dn
     else:
         xd, yd = xn, yn

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skynav.scenes.constants import AU_KM
+from skynav.scenes.scene import sky_bodies
 
 __all__ = ["PairCandidate", "PairChoice", "figure_of_merit", "optimal_pair", "candidates_from_state", "PLANETS"]
 
@@ -93,8 +94,6 @@ def optimal_pair(candidates, *, limiting_v_mag: float = 7.0, elongation_min_rad:
 def candidates_from_state(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None):
     """:class:`PairCandidate` list of the planets, predicted from the spacecraft's own state estimate
     (on-board ephemeris and photometry through ``skynav.scenes``)."""
-    from skynav.scenes.scene import sky_bodies
-
     bodies, _ = sky_bodies(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=PLANETS)
     return [PairCandidate(name=b.name, los_icrs=tuple(np.asarray(b.directions.u_icrs, dtype=float)),
                           distance_km=float(b.directions.distance_km), v_mag=float(b.v_mag),

@@ -19,7 +19,9 @@ escaped paragraph.
 
 from __future__ import annotations
 
+import base64
 import html
+import io
 import re
 
 __all__ = ["markdown_to_html", "REPORT_CSS", "new_figure", "figure_base64_png"]
@@ -35,6 +37,7 @@ def new_figure(size_px=(900, 520), dpi: int = 100):
     """A matplotlib Figure of ``size_px`` pixels on an Agg canvas: no pyplot (no global state, no
     display; the backend of a user's session is left alone). Axis labels end with their unit in
     parentheses; legends are words, not code names (tests/cli/test_figures_labelled.py)."""
+    # matplotlib (heavy: ~0.3 s to import) only when a report draws a figure
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -46,9 +49,6 @@ def new_figure(size_px=(900, 520), dpi: int = 100):
 def figure_base64_png(fig) -> str:
     """The figure as a base64 PNG for an ``<img src="data:image/png;base64,...">`` (no timestamp or
     version in the file)."""
-    import base64
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     return base64.b64encode(buf.getvalue()).decode("ascii")

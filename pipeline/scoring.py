@@ -3,9 +3,10 @@
 Scoring module (the only pipeline modules that read truth: ``tests/test_architecture.py``). It
 opens a skynav dataset (:func:`skynav.datasets.open_dataset`, typed truth ``ds.truth(k)``) or any
 folder of frames in the frame schema (``frames/NNNNNN.png`` + ``.json``, or the pairs directly in
-the folder), reading from the JSON only ``epoch.jd_tdb``, ``camera.K``, ``camera.width``,
-``camera.height``, ``camera.bit_depth``, ``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]``
-(``name``, ``xy``, ``in_fov``, ``visible``). The pipeline gets only the observation and a
+the folder), read by the datasets reader (:func:`skynav.datasets.reader.read_frame_pair`: the
+camera, pixel pitch included, and the epoch from the JSON) and scored from the JSON's
+``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]`` (``name``, ``xy``, ``in_fov``,
+``visible``). The pipeline gets only the observation and a
 predicted state drawn here from the truth with the given sigma per axis (paper 000 section V).
 """
 
@@ -18,21 +19,27 @@ from pathlib import Path
 
 import numpy as np
 
+from tqdm.auto import tqdm
+
+from skynav.datasets import open_dataset
+from skynav.datasets.errors import DatasetError
+from skynav.datasets.reader import read_frame_pair
+from skynav.scenes.constants import ARCSEC_RAD
+
 from .attitude import rotation_angle_rad
 from .catalog import OnboardCatalog
 from .errors import BenchInputError
 from .process import process_frame
 from .results import PredictedState
+from .scoring_peers import available_peers
 
-__all__ = ["FrameTruthLite", "open_frames", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
+__all__ = ["FrameTruthLite", "open_frames", "predicted_state", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
            "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
 
 WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
 BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is a failure
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
-ARCSEC = np.pi / 180.0 / 3600.0
-from skynav.scenes.constants import J2000_JD, SECONDS_PER_DAY  # noqa: E402
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -67,8 +74,9 @@ def _need(d, path, where):
     cur = d
     for key in path.split("."):
         if not isinstance(cur, dict) or key not in cur:
-            raise BenchInputError(f"{where}: frame JSON has no '{path}' (the benchmark needs epoch.jd_tdb, camera.K, "
-                                  "camera.width, camera.height, camera.bit_depth, observer.*, attitude.R_cam_icrs, bodies[])")
+            raise BenchInputError(f"{where}: frame JSON has no '{path}' (the benchmark needs epoch.tdb_iso, "
+                                  "camera.width, height, focal_length_mm, pixel_pitch_um, exposure_s, bit_depth, "
+                                  "observer.*, attitude.R_cam_icrs, bodies[])")
         cur = cur[key]
     return cur
 
@@ -79,7 +87,6 @@ class _FolderSource:
     def __init__(self, root: Path, pairs):
         self.root = root
         self.pairs = pairs
-        self._cache = {}
 
     def __len__(self):
         return len(self.pairs)
@@ -90,32 +97,19 @@ class _FolderSource:
             d = json.loads(js.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise BenchInputError(f"{js}: not a readable frame JSON ({exc.__class__.__name__})") from None
-        for key in ("epoch.jd_tdb", "camera.K", "camera.width", "camera.height", "camera.bit_depth",
+        for key in ("epoch.tdb_iso", "camera.width", "camera.height", "camera.focal_length_mm", "camera.pixel_pitch_um",
+                    "camera.exposure_s", "camera.bit_depth",
                     "observer.position_km", "observer.velocity_km_s", "attitude.R_cam_icrs", "bodies"):
             _need(d, key, js)
         return d
 
     def observation(self, k):
-        from skynav.datasets.observation import Observation
-        from skynav.datasets.reader import read_image_dn
-        from skynav.scenes.camera import Camera, SensorParams
-
-        d = self._json(k)
-        c = d["camera"]
-        K = np.asarray(c["K"], float)
+        png, js = self.pairs[k]
+        self._json(k)  # the keys the benchmark needs, checked first (one line naming the key)
         try:
-            dn = read_image_dn(self.pairs[k][0])  # the DN of scaled (sBIT) and raw PNGs alike
-        except OSError as exc:
-            raise BenchInputError(f"{self.pairs[k][0]}: not a readable PNG ({exc})") from None
-        pitch_um = 10.0
-        cam = Camera(width=int(c["width"]), height=int(c["height"]), focal_length_mm=K[0, 0] * pitch_um * 1e-3,
-                     pixel_pitch_um=pitch_um, pixel_pitch_y_um=pitch_um * K[0, 0] / K[1, 1], cx=float(K[0, 2]),
-                     cy=float(K[1, 2]), exposure_s=float(c.get("exposure_s", 0.4)),
-                     sensor=SensorParams(bit_depth=int(c["bit_depth"])))
-        dn = np.ascontiguousarray(dn)
-        dn.setflags(write=False)
-        return Observation(index=k, dn=dn, epoch_tdb_s=(float(d["epoch"]["jd_tdb"]) - J2000_JD) * SECONDS_PER_DAY,
-                           exposure_s=cam.exposure_s, camera=cam)
+            return read_frame_pair(png, js, index=k)[0]
+        except DatasetError as exc:
+            raise BenchInputError(str(exc)) from None
 
     def truth(self, k):
         d = self._json(k)
@@ -136,9 +130,6 @@ def open_frames(path):
     BenchInputError
         Not a folder, or no frames in it.
     """
-    from skynav.datasets import open_dataset
-    from skynav.datasets.errors import DatasetError
-
     root = Path(path)
     if not root.is_dir():
         raise BenchInputError(f"{root}: no such folder (give a skynav dataset or a folder of NNNNNN.png + .json frames)")
@@ -155,7 +146,9 @@ def open_frames(path):
     raise BenchInputError(f"{root} is not a dataset: no manifest.json and no PNG + JSON frame pairs in it or in frames/")
 
 
-def _predicted_state(truth, sigma_km, rng):
+def predicted_state(truth, sigma_km, rng):
+    """The benchmark's predicted state: the true position plus N(0, sigma_km^2) per axis, the true
+    velocity plus N(0, 0.1^2) km/s per axis (paper 000 section V), drawn from ``rng``."""
     pos = truth.position_km + rng.normal(0.0, sigma_km, 3)
     vel = truth.velocity_km_s + rng.normal(0.0, VELOCITY_SIGMA_KM_S, 3)
     return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
@@ -165,7 +158,7 @@ def score_frame(result, truth, sigma_km):
     """Rows (dicts) for one processed frame: the frame row and its beacon outcomes."""
     err = float("nan")
     if result.status == "ok":
-        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC
+        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC_RAD
         outcome = "correct" if err <= WRONG_ATTITUDE_ARCSEC else "wrong"
     else:
         outcome = "none"
@@ -213,8 +206,6 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     peer_notes = {}
     peer_objs = {}
     if peers:
-        from .scoring_peers import available_peers
-
         for name, p in available_peers().items():
             if isinstance(p, str):
                 peer_notes[name] = p
@@ -223,21 +214,19 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
                 peer_rows[name] = []
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=n, unit="frame", desc=f"bench ip ({mode})")
     t0 = time.perf_counter()
     for k in range(n):
         obs = first if k == 0 else src.observation(k)
         truth = src.truth(k)
         for name, peer in peer_objs.items():
-            R, ms = peer.solve(obs.dn, _predicted_state(truth, float(sigmas_km[0]),
+            R, ms = peer.solve(obs.dn, predicted_state(truth, float(sigmas_km[0]),
                                                         np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
-            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC if R is not None else float("nan")
+            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC_RAD if R is not None else float("nan")
             peer_rows[name].append({"frame": k, "solved": R is not None, "error_arcsec": err, "time_ms": ms})
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
-            ps = _predicted_state(truth, float(s), rng)
+            ps = predicted_state(truth, float(s), rng)
             res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode, options=options)
             row = score_frame(res, truth, float(s))
             row.update(frame=k, sigma_km=float(s))

@@ -18,15 +18,19 @@ figures follow Figs. 7-8 of Andreis et al. 2023b, paper 001):
 from __future__ import annotations
 
 import csv
-import io
+import html as _html
 import json
 import math
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
+
+from skynav.scenes.constants import SECONDS_PER_DAY
 
 from .references import NAVIGATION, VALIDATION, references_md
-from .scoring_nav import icrs_to_ecliptic
+from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_figure
+from .scoring_nav_plan import icrs_to_ecliptic
 
 __all__ = ["summarise", "write_report", "report_figures", "PAPER_002", "TARGETS"]
 
@@ -70,8 +74,6 @@ def case_metrics(res, last_leg) -> dict:
 def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
     """The summary dict (its keys are fixed: readers of summary.json rely on them) from
     ``{case: CampaignResult}``."""
-    from scipy.stats import chi2
-
     res = results[primary]
     R, F = res.error.shape[:2]
     e_last = res.error[:, -1]
@@ -129,9 +131,6 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
 def report_figures(res, summary) -> list:
     """The report's figures: a list of ``(title, matplotlib Figure)`` (position and velocity errors
     as in Figs. 7-8 of Andreis et al. 2023b, NEES, residuals)."""
-    from .report_html import new_figure
-    from skynav.scenes.constants import SECONDS_PER_DAY
-
     days = (res.t_tdb_s - res.t_tdb_s[0]) / SECONDS_PER_DAY
     E = icrs_to_ecliptic()
     e = np.einsum("ij,rfj->rfi", E, res.error[..., :3])
@@ -224,10 +223,6 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     md = _markdown(summary, info)
     refs = references_md([VALIDATION, NAVIGATION])
     (out / "report.md").write_text("\n".join(md + [""] + refs), encoding="utf-8")
-    import html as _html
-
-    from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html
-
     html = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench nav</title>",
             f"<style>{REPORT_CSS}</style></head><body>", markdown_to_html("\n".join(md).splitlines())]
     for title, fig in report_figures(res, summary):

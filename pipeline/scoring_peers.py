@@ -13,8 +13,11 @@ runtime dependency).
 from __future__ import annotations
 
 import time
+from importlib.metadata import version
 
 import numpy as np
+
+from skynav.scenes.data_files import cache_dir
 
 __all__ = ["available_peers", "Tetra3rsPeer"]
 
@@ -22,13 +25,13 @@ __all__ = ["available_peers", "Tetra3rsPeer"]
 def available_peers() -> dict:
     """{name: peer object or the reason it is unavailable (str)}."""
     out = {}
-    try:
+    try:  # optional peers (the "peers" extra): imported only when asked for
         import tetra3rs  # noqa: F401
 
         out["tetra3rs"] = Tetra3rsPeer
     except ImportError:
         out["tetra3rs"] = "not installed (pip install tetra3rs)"
-    try:
+    try:  # optional, and not installable beside numpy >= 2
         import cedar_solve  # noqa: F401
 
         out["cedar-solve"] = "installed, but no adapter here yet"
@@ -41,13 +44,9 @@ class Tetra3rsPeer:
     """tetra3rs lost-in-space on a camera's frames."""
 
     def __init__(self, camera):
-        import tetra3rs
-
-        from skynav.scenes.data_files import cache_dir
+        import tetra3rs  # optional peer (the "peers" extra): only when a benchmark asks for it
 
         fov = float(np.degrees(camera.fov_x_rad))
-        from importlib.metadata import version
-
         path = cache_dir() / f"tetra3rs_{version('tetra3rs')}_{fov:.3f}.db"
         if path.exists():
             self.db = tetra3rs.SolverDatabase.load_from_file(str(path))

@@ -8,7 +8,7 @@ script, no external resource), and puts our numbers next to Tables 3 and 4 of An
 from __future__ import annotations
 
 import csv
-import io
+import html
 import json
 import math
 from pathlib import Path
@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .references import IMAGE_PROCESSING, references_md
+from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_figure
 
 __all__ = ["write_report", "report_figures", "time_histogram_figure", "PAPER_TABLE3"]
 
@@ -61,8 +62,6 @@ def time_histogram_figure(rows):
     """Histogram of the pipeline's time per run (one run: one frame at one sigma_r), the first
     :data:`WARMUP_FRAMES` frame(s) left out; times above 1.25 x the 99th percentile go to an
     overflow bin. Returns ``(figure, caption)``."""
-    from .report_html import new_figure
-
     warm = [r for r in rows if r["frame"] < WARMUP_FRAMES]
     t = np.array([r["time_ms"] for r in rows if r["frame"] >= WARMUP_FRAMES], dtype=float)
     t = t[np.isfinite(t)]
@@ -90,8 +89,6 @@ def time_histogram_figure(rows):
 
 def report_figures(rows, summary, sigmas):
     """The report's figures: a list of ``(title, caption, matplotlib Figure)``."""
-    from .report_html import new_figure
-
     out = []
     s0 = [r for r in rows if r["sigma_km"] == float(sigmas[0])]
     errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] != "none"])
@@ -215,10 +212,6 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info)
     md += ["", "## Peers", "", info.get("peers_note", "Peers not run (--peers not given)."), ""]
     refs = references_md([IMAGE_PROCESSING])
     (out / "report.md").write_text("\n".join(md + refs), encoding="utf-8")
-    import html
-
-    from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html
-
     body = "".join(f"<h2>{html.escape(t)}</h2><img alt=\"{html.escape(t)}\" src=\"data:image/png;base64,{figure_base64_png(fig)}\">"
                    + (f"<p>{html.escape(c)}</p>" if c else "")
                    for t, c, fig in report_figures(rows, summary, sigmas_km))

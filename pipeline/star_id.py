@@ -16,7 +16,7 @@ import numpy as np
 
 from .attitude import wahba_svd
 
-__all__ = ["StarMatch", "lost_in_space", "associate", "refine", "C_KM_S"]
+__all__ = ["StarDirections", "StarMatch", "lost_in_space", "associate", "refine", "C_KM_S"]
 
 from skynav.scenes.constants import C_KM_S  # noqa: E402
 
@@ -191,3 +191,29 @@ def refine(A, b_cam, star_dirs_fn, *, half_fov_rad, tol_rad, iterations=2):
         A = wahba_svd(b_cam[spots], r)
         res = np.arccos(np.clip(np.einsum("ij,ij->i", r @ A.T, b_cam[spots]), -1.0, 1.0))
     return StarMatch(R_cam_icrs=A, spot_index=spots, star_index=stars, residual_rad=res)
+
+
+class StarDirections:
+    """``(idx, u)`` of the catalog stars in a cone, with their directions as the mode sees them
+    (``directions(source, idx)``), for one frame (the caller owns it; one per frame).
+
+    One cone ``REUSE_RAD`` wider than asked, per catalog and radius, serves every later boresight
+    within ``REUSE_RAD`` of its axis: within a frame the boresight moves by a few pixels between
+    requests, and the extra stars lie outside the image by >= 2 mrad, beyond every association
+    tolerance."""
+
+    REUSE_RAD = 5e-3
+
+    def __init__(self, catalog, directions):
+        self.catalog, self.directions, self._cones = catalog, directions, {}
+
+    def __call__(self, boresight, radius, source=None):
+        src = self.catalog.stars if source is None else source
+        key = (id(src), float(radius))
+        hit = self._cones.get(key)
+        if hit is not None and float(np.dot(hit[0], boresight)) >= np.cos(self.REUSE_RAD) * np.linalg.norm(boresight):
+            return hit[1], hit[2]
+        idx = src.cone(boresight, radius, margin_rad=2e-3 + self.REUSE_RAD)
+        u = self.directions(src, idx)
+        self._cones[key] = (np.asarray(boresight, float) / np.linalg.norm(boresight), idx, u)
+        return idx, u

@@ -61,7 +61,8 @@ class BrownConrady:
         yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
         return xd, yd
 
-    def _jacobian(self, xn, yn):
+    def jacobian(self, xn, yn):
+        """``(dxd/dxn, dxd/dyn, dyd/dxn, dyd/dyn)``: the derivatives of :meth:`distort`."""
         r2 = xn * xn + yn * yn
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
         dradial_dr2 = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3)
@@ -85,7 +86,7 @@ class BrownConrady:
         for _ in range(iterations):
             fx, fy = self.distort(x, y)
             rx, ry = fx - xd, fy - yd
-            a, b, c, d = self._jacobian(x, y)
+            a, b, c, d = self.jacobian(x, y)
             det = a * d - b * c
             dx = (d * rx - b * ry) / det
             dy = (-c * rx + a * ry) / det

@@ -24,6 +24,7 @@ import math
 from types import MappingProxyType
 
 __all__ = [
+    "ARCSEC_RAD",
     "AU_KM",
     "AU_DE421_KM",
     "C_KM_S",
@@ -87,6 +88,9 @@ J2000.0 is JD 2451545.0 TT; TDB - TT stays below 2 ms)."""
 
 SECONDS_PER_DAY = 86400.0
 """Seconds per day (the day of Julian dates and of the ephemerides' TDB), s."""
+
+ARCSEC_RAD = math.pi / (180.0 * 3600.0)
+"""One second of arc, rad."""
 
 JULIAN_YEAR_S = 365.25 * SECONDS_PER_DAY
 """Julian year, s (IAU: 365.25 days; the time unit of Hipparcos proper motions)."""

@@ -201,9 +201,11 @@ def test_calibration_never_imports_datasets_or_pipeline(graph):
     assert bad == []
 
 
-# What of skynav.datasets the pipeline may import: the reader and its observation view; the typed
-# truth only from scoring modules (ARCHITECTURE.md: ground truth enters only in scoring).
-PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors")
+# What of skynav.datasets the pipeline may import: the reader and its observation view, and the
+# house's one process pool (bench nav's workers); the typed truth only from scoring modules
+# (ARCHITECTURE.md: ground truth enters only in scoring).
+PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors",
+                             "skynav.datasets.pool")
 PIPELINE_PACKAGE_MEMBERS = {"open", "open_dataset", "Dataset", "Observation", "CalibrationErrorModel", "DatasetError",
                             "FrameIndexError", "IncompleteDatasetError", "reader", "observation", "errors"}
 PIPELINE_SCORING_ONLY = ("skynav.datasets.frame_truth", "skynav.datasets.FrameTruth", "skynav.datasets.BodyTruth")

@@ -193,12 +193,12 @@ def test_info_and_preview(reference_dataset, tmp_path):
 
 
 def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
-    from skynav.datasets.execute import _THREAD_VARS, _worker_threads
+    from skynav.datasets.pool import THREAD_VARS, WorkerThreads
 
-    for name in _THREAD_VARS:
+    for name in THREAD_VARS:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "7")  # the user's choice is kept
-    with _worker_threads(2) as ctx:
+    with WorkerThreads(2) as ctx:
         assert ctx.threads == max(1, (os.cpu_count() or 1) // 2)
         assert os.environ["SKYNAV_THREADS"] == str(ctx.threads)
         assert os.environ["OPENBLAS_NUM_THREADS"] == str(ctx.threads)

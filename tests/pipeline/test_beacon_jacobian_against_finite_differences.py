@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skynav.pipeline.beacons import dcm_from_quat, project_beacon, projection_jacobian, quat_from_dcm
+from skynav.pipeline.beacons import project_beacon, projection_jacobian
+from skynav.scenes.frames import dcm_to_quat as quat_from_dcm, quat_to_dcm as dcm_from_quat
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

@@ -94,3 +94,26 @@ def test_peers_side_by_side(frame_folder, tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert set(s["peers"]["tetra3rs"]) >= {"solved_rate", "error_arcsec_median", "time_ms_median"}
     assert "cedar-solve" in (out / "report.md").read_text()
+
+
+def test_folder_frames_are_read_by_the_datasets_reader_with_the_jsons_camera(frame_folder, tmp_path):
+    """A frame JSON holding only the schema's required camera keys (no sensor, no distortion):
+    the observation's camera takes its pixel pitch, focal length and bit depth from the JSON
+    (not an assumed pitch), and its K equals the JSON's K to rounding."""
+    from skynav.pipeline.scoring import open_frames
+
+    lean = tmp_path / "lean"
+    shutil.copytree(frame_folder, lean)
+    for js in sorted(lean.glob("*.json")):
+        d = json.loads(js.read_text())
+        d["camera"] = {k: d["camera"][k] for k in ("K", "width", "height", "focal_length_mm", "pixel_pitch_um",
+                                                   "f_number", "exposure_s", "bit_depth")}
+        d["epoch"] = {k: d["epoch"][k] for k in ("tdb_iso", "jd_tdb")}
+        js.write_text(json.dumps(d))
+    d = json.loads((lean / "000000.json").read_text())
+    cam = open_frames(lean).observation(0).camera
+    assert cam.pixel_pitch_um == d["camera"]["pixel_pitch_um"] != 10.0
+    assert cam.sensor.bit_depth == d["camera"]["bit_depth"]
+    np.testing.assert_allclose(cam.K, np.asarray(d["camera"]["K"]), rtol=1e-12)
+    assert main(["bench", "ip", str(lean), "--position-sigma-km", "1e4", "-q", "-o", str(tmp_path / "r")]) == 0
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["attitude"]["correct_rate"] == 1.0

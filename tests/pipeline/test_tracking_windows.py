@@ -25,14 +25,14 @@ def _state(truth, sigma_km=1e4):
 @pytest.fixture
 def spy(monkeypatch):
     calls = []
-    orig = process._track_windowed
+    orig = process.track_windowed
 
     def wrapped(*a, **k):
         out = orig(*a, **k)
         calls.append(out is not None)
         return out
 
-    monkeypatch.setattr(process, "_track_windowed", wrapped)
+    monkeypatch.setattr(process, "track_windowed", wrapped)
     return calls
 
 

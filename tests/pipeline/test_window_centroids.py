@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from skynav.pipeline.centroids import detect_spots, spots_in_boxes, window_centroids, window_peaks
-from skynav.pipeline.process import _robust_level
+from skynav.pipeline.centroids import detect_spots
+from skynav.pipeline.windows import spots_in_boxes, window_centroids, window_peaks
+from skynav.pipeline.levels import robust_level
 
 
 def _gauss_image(centres, amp=200.0, sigma=1.1, bg=3.0, shape=(128, 160), noise=0.0, seed=0):
@@ -104,14 +105,15 @@ def test_spots_in_boxes_equal_detect_spots_inside_the_boxes():
 
 
 def test_robust_level_of_integer_frames_matches_numpy():
-    """The histogram route for integer frames gives numpy's median and MAD (to the last bit for
-    the median, 1e-9 relative for the threshold)."""
+    """The histogram route for integer frames gives numpy's median and MAD: the median exactly
+    (the median of integer counts is an integer or a half-integer, exact in any implementation),
+    the threshold within 1e-9 relative (two summation orders)."""
     rng = np.random.default_rng(5)
     for dtype, top in ((np.uint8, 255), (np.uint16, 4095), (np.uint16, 65535)):
         for _ in range(10):
             img = rng.poisson(rng.uniform(0.2, 60.0), (256, 256)).astype(dtype)
             img[rng.integers(0, 256, 200), rng.integers(0, 256, 200)] = top
-            med, thr = _robust_level(img, 5.0)
+            med, thr = robust_level(img, 5.0)
             sub = img[::8, ::8].astype(np.float64)
             m = float(np.median(sub))
             mad = float(np.median(np.abs(sub - m))) * 1.4826

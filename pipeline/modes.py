@@ -1,0 +1,175 @@
+"""The two image-processing modes of :func:`~skynav.pipeline.process.process_frame`, as strategies.
+
+Both have one interface; the driver asks the mode at each step that differs:
+
+- :class:`PaperMode` (paper 000 as published): Eq. 6 threshold with the image mean and standard
+  deviation, the iterative increase of T when the ID fails, reference-star votes, RANSAC over
+  random 3-star Wahba solutions, the attitude from the RANSAC inliers, catalog directions at the
+  catalog epoch without aberration, beacons by the closest spike in the Eq. 23 ellipse with ``S``
+  of Eq. 22.
+- :class:`ImprovedMode`: a robust threshold (:mod:`~skynav.pipeline.levels`), star-like spots
+  first, deterministic vote-ordered triples, every catalog star predicted in the field
+  re-associated and the attitude re-solved from all of them with stellar aberration removed
+  (paper 002 section 3.2: catalog directions aberrated with the predicted velocity), an acceptance
+  test (>= ``min_matches`` stars), windowed tracking (:mod:`~skynav.pipeline.tracking`), beacons
+  assigned jointly by Mahalanobis distance plus predicted brightness
+  (:func:`~skynav.pipeline.beacon_id.identify_joint`).
+"""
+
+from __future__ import annotations
+
+import abc
+
+import numpy as np
+
+from .beacon_id import identify_closest, identify_joint
+from .centroids import Spots, detect_spots
+from .levels import detect_robust
+from .star_id import C_KM_S, StarMatch, refine
+from .tracking import clip_outliers
+
+__all__ = ["Mode", "PaperMode", "ImprovedMode", "MODES"]
+
+
+class Mode(abc.ABC):
+    """The interface of a mode: what :func:`~skynav.pipeline.process.process_frame` asks it."""
+
+    name: str
+    histogram_levels: bool       # background levels from a histogram of the [::8, ::8] sample
+    windowed_tracking: bool      # tracking measures stars and beacons in windows (tracking.py)
+    retry_too_many_spots: bool   # more regions than max_spots: raise T and detect again
+
+    @abc.abstractmethod
+    def id_iterations(self, opt) -> int:
+        """Detections tried, T raised by ``T_step`` after each failed ID."""
+
+    @abc.abstractmethod
+    def star_directions(self, catalog, source, idx, t_epoch, r_km, v_km_s):
+        """ICRS unit vectors (N, 3) of the stars ``idx`` of ``source`` as this mode uses them."""
+
+    @abc.abstractmethod
+    def detect(self, img, *, T, max_dn, opt, levels) -> Spots:
+        """The frame's spots at threshold parameter ``T``."""
+
+    @abc.abstractmethod
+    def star_order(self, spots: Spots) -> np.ndarray:
+        """Spots in the order star ID tries them."""
+
+    @abc.abstractmethod
+    def lost_in_space_tries(self, opt):
+        """``(n_max, random_triples, max_triples)`` of each lost-in-space attempt."""
+
+    @abc.abstractmethod
+    def accept(self, A, sp, st, b, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The star match of a lost-in-space solution, or None (rejected)."""
+
+    @abc.abstractmethod
+    def deepen(self, match, b, spots, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The final association: ``(match, source)``, ``source`` None for the ID catalog."""
+
+    @abc.abstractmethod
+    def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
+        """:class:`~skynav.pipeline.results.BeaconResult` per predicted beacon."""
+
+
+class PaperMode(Mode):
+    """Paper 000 as published (module docstring)."""
+
+    name = "paper"
+    histogram_levels = False
+    windowed_tracking = False
+    retry_too_many_spots = True
+
+    def id_iterations(self, opt) -> int:
+        return opt.T_max_iterations
+
+    def star_directions(self, catalog, source, idx, t_epoch, r_km, v_km_s):
+        """ICRS unit vectors of catalog stars ``idx`` as the paper uses them: the catalog epoch."""
+        return catalog.u_icrs[idx]
+
+    def detect(self, img, *, T, max_dn, opt, levels) -> Spots:
+        return detect_spots(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, stats_stride=2)
+
+    def star_order(self, spots: Spots) -> np.ndarray:
+        """Spots in the order star ID tries them: brightest first."""
+        return np.arange(len(spots))
+
+    def lost_in_space_tries(self, opt):
+        return ((opt.n_max, True, opt.n_ransac),)
+
+    def accept(self, A, sp, st, b, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The RANSAC solution's inliers as the match (>= 3 stars), or None."""
+        if len(sp) < 3:
+            return None
+        res = np.arccos(np.clip(np.einsum("ij,ij->i", catalog.u_icrs[st] @ A.T, b[sp]), -1, 1))
+        return StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=res)
+
+    def deepen(self, match, b, spots, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The final association (paper: the ID's inliers as they are): ``(match, source)``,
+        ``source`` None for the ID catalog."""
+        return match, None
+
+    def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
+        return identify_closest(preds, spots, match, opt)
+
+
+class ImprovedMode(Mode):
+    """The improved pipeline (module docstring)."""
+
+    name = "improved"
+    histogram_levels = True
+    windowed_tracking = True
+    retry_too_many_spots = False
+
+    def id_iterations(self, opt) -> int:
+        return 1
+
+    def star_directions(self, catalog, source, idx, t_epoch, r_km, v_km_s):
+        """Catalog directions at the epoch seen from ``r_km`` (proper motion and parallax), with
+        stellar aberration of the predicted velocity ``v_km_s`` (first order in v / c)."""
+        u = source.directions(idx, t_epoch, r_km)
+        if v_km_s is not None:
+            beta = v_km_s / C_KM_S
+            u = u + beta - (u @ beta)[:, None] * u
+            u /= np.linalg.norm(u, axis=1)[:, None]
+        return u
+
+    def detect(self, img, *, T, max_dn, opt, levels) -> Spots:
+        return detect_robust(img, T=T, max_dn=max_dn, max_regions=opt.max_spots + 1, level=levels.level(T))
+
+    def star_order(self, spots: Spots) -> np.ndarray:
+        """Star-like spots first (>= 2 pixels, <= 12 px across, elongation < 4: no single hot
+        pixels, no resolved bodies), brightest first within each group."""
+        starlike = (spots.n_pixels >= 2) & (spots.size_px <= 12) & (spots.elongation < 4.0)
+        return np.concatenate([np.flatnonzero(starlike), np.flatnonzero(~starlike)])
+
+    def lost_in_space_tries(self, opt):
+        return ((opt.n_max, False, 200), (2 * opt.n_max, False, 200))
+
+    def accept(self, A, sp, st, b, catalog, star_dirs, *, half_fov, opt, ifov):
+        """Every catalog star the ID's attitude predicts in the field re-associated, the attitude
+        re-solved; accepted with >= ``min_matches`` stars."""
+        m = refine(A, b, star_dirs, half_fov_rad=half_fov, tol_rad=opt.inlier_px * ifov)
+        return m if m is not None and len(m.spot_index) >= opt.min_matches else None
+
+    def deepen(self, match, b, spots, catalog, star_dirs, *, half_fov, opt, ifov):
+        """The final attitude from every catalog star to ``refine_v_mag`` that the identified
+        attitude predicts next to a spot (mutual nearest within ``refine_px``): ~5x the stars of
+        the ID catalog, then one residual clip."""
+        if opt.refine_v_mag <= catalog.limiting_v_mag:
+            return match, None
+        deep = catalog.deep_stars(opt.refine_v_mag)
+        bright = np.argsort(-spots.flux_dn, kind="stable")[:opt.refine_max_spots]
+        m2 = refine(match.R_cam_icrs, b[bright], lambda c, r: star_dirs(c, r, deep), half_fov_rad=half_fov,
+                    tol_rad=opt.refine_px * ifov, iterations=1)
+        if m2 is None or len(m2.spot_index) < len(match.spot_index):
+            return match, None
+        match = StarMatch(R_cam_icrs=m2.R_cam_icrs, spot_index=bright[m2.spot_index], star_index=m2.star_index,
+                          residual_rad=m2.residual_rad)
+        return clip_outliers(match, b, deep, star_dirs, half_fov), deep
+
+    def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
+        return identify_joint(preds, cam, A, spots, match, catalog, opt, ref_vmag)
+
+
+MODES = {"paper": PaperMode(), "improved": ImprovedMode()}
