@@ -62,3 +62,9 @@ def openapi_document() -> dict:
                                            "description": "required when the server was started with --token"}},
         },
     }
+
+
+if __name__ == "__main__":   # the block of docs/service.md: python -m skynav.service.openapi
+    import json
+
+    print(json.dumps(openapi_document(), indent=2))
