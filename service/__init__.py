@@ -15,9 +15,9 @@ Three halves (docs/service.md):
 
 from __future__ import annotations
 
-__all__ = ["Client", "RenderResult", "ServiceError"]
+__all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
 
-_LAZY = {"Client": "client", "RenderResult": "client", "ServiceError": "client"}
+_LAZY = {"Client": "client", "LocalServer": "client", "RenderResult": "client", "ServiceError": "client"}
 
 
 def __getattr__(name):

@@ -24,7 +24,7 @@ from skynav.scenes.errors import SkynavError
 
 from .protocol import API_PREFIX, MULTIPART, OUTPUTS
 
-__all__ = ["Client", "RenderResult", "ServiceError"]
+__all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
 
 
 class ServiceError(SkynavError):
@@ -219,3 +219,45 @@ def parse_multipart(data: bytes, content_type: str) -> dict:
         start = end + 4
         parts[name] = data[start:start + n]
         pos = start + n + 2
+
+
+class LocalServer:
+    """``skynav serve --port 0`` as a child process, for a program that wants its own server.
+
+    >>> with LocalServer(workers=1) as url:       # doctest: +SKIP
+    ...     frame = Client(url).render(scene)
+    """
+
+    def __init__(self, *args: str, workers: int = 1, timeout_s: float = 600.0):
+        self.args, self.workers, self.timeout_s = args, int(workers), float(timeout_s)
+        self.proc = None
+        self.url = None
+
+    def __enter__(self) -> str:
+        import subprocess
+        import sys
+
+        self.proc = subprocess.Popen([sys.executable, "-m", "skynav", "serve", "--port", "0", "--workers",
+                                      str(self.workers), *self.args], stdout=subprocess.PIPE, text=True)
+        t_end = time.monotonic() + self.timeout_s
+        while self.url is None:
+            line = self.proc.stdout.readline()
+            if not line or time.monotonic() > t_end:
+                self.__exit__()
+                raise ServiceError("skynav serve did not start (its error is printed above)")
+            if "ready at " in line:
+                self.url = line.split("ready at ", 1)[1].split()[0]
+        return self.url
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(120)
+            except Exception:  # noqa: BLE001 - it did not stop: make it
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc is not None and self.proc.stdout is not None:
+            self.proc.stdout.close()
