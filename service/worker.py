@@ -22,7 +22,7 @@ import warnings
 from .protocol import OUTPUTS
 
 
-def render_outputs(mapping: dict, outputs, *, facility=None) -> tuple[dict, list]:
+def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
     """Render one scene mapping; ``({output: bytes}, [warning lines])``.
 
     Raises a :class:`~skynav.scenes.errors.SkynavError` for a bad mapping (the scene-file words).
@@ -35,6 +35,12 @@ def render_outputs(mapping: dict, outputs, *, facility=None) -> tuple[dict, list
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spec = scene_spec_from_mapping(mapping)
+        px = spec.camera.width * spec.camera.height
+        if max_camera_pixels is not None and px > max_camera_pixels:
+            from skynav.scenes.errors import ConfigValueError
+
+            raise ConfigValueError("camera", f"{spec.camera.width}x{spec.camera.height}",
+                                   f"at most {max_camera_pixels} pixels a frame on this server (--max-camera-pixels)")
         scene = build_from_spec(spec)
         seed = spec.seed
         parts = {}
@@ -112,10 +118,11 @@ def worker_main(conn, facility_arg, threads) -> None:
             return
         if msg is None:
             return
-        mapping, outputs = msg
+        mapping, outputs, max_pixels = msg
         t0 = time.perf_counter()
         try:
-            parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility)
+            parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
+                                          max_camera_pixels=max_pixels)
             conn.send(("ok", parts, lines, time.perf_counter() - t0))
         except SkynavError as exc:
             conn.send(("bad", " ".join(str(exc).split())))

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import http.client
 import json
-import subprocess
-import sys
 import urllib.parse
 
 import pytest
@@ -33,13 +31,15 @@ def _error(status, data):
     return doc["error"]
 
 
-def _scene_file_error(mapping, tmp_path):
-    """What ``skynav render`` says of the same mapping as a scene file (its one line, prefix removed)."""
+def _scene_file_error(mapping, tmp_path, capsys):
+    """What ``skynav scene`` says of the same mapping as a scene file (its one line, prefix removed)."""
+    from skynav.cli import main
+
     f = tmp_path / "bad.yaml"
     f.write_text(json.dumps(mapping))
-    run = subprocess.run([sys.executable, "-m", "skynav", "scene", str(f)], capture_output=True, text=True, timeout=120)
-    assert run.returncode == 2
-    return run.stderr.strip().removeprefix("skynav: error: ")
+    capsys.readouterr()
+    assert main(["scene", str(f)]) == 2
+    return capsys.readouterr().err.strip().removeprefix("skynav: error: ")
 
 
 @pytest.mark.parametrize("change, field", [
@@ -49,12 +49,12 @@ def _scene_file_error(mapping, tmp_path):
     ({"render": {"seed": "one"}}, "render.seed"),
     ({"colour": 1}, "colour"),
 ])
-def test_scene_errors_use_the_scene_file_words(server, tmp_path, change, field):
+def test_scene_errors_use_the_scene_file_words(server, tmp_path, capsys, change, field):
     mapping = {**small_scene(), **change}
     status, _, data = _post(server.url, json.dumps(mapping).encode())
     msg = _error(status, data)
     assert field in msg
-    assert msg == _scene_file_error(mapping, tmp_path)
+    assert msg == _scene_file_error(mapping, tmp_path, capsys)
 
 
 @pytest.mark.parametrize("body, field", [

@@ -42,6 +42,28 @@ def test_default_binds_loopback_and_help_names_the_bounds():
         assert words in text
 
 
+@pytest.mark.slow
+def test_screen_png_is_the_bytes_of_render_hil(tmp_path):
+    from skynav.scenes.presets import preset_mapping
+    from skynav.service import Client, ServiceError
+
+    s = start_server("--workers", "1", "--facility", "bench")
+    try:
+        good = Client(s.url)
+        assert good.health()["facility"] == "bench" and "screen_png" in good.health()["outputs"]
+        # the bench screen frame: the bytes of skynav render --hil (same code, same seed)
+        screen = good.render(preset_mapping("default"), outputs=("screen_png",)).screen_png
+        run = subprocess.run([sys.executable, "-m", "skynav", "render", "--hil", "bench", "-o", str(tmp_path / "hil")],
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        assert screen == (tmp_path / "hil" / "frames" / "frame.png").read_bytes()
+        with pytest.raises(ServiceError) as e:     # a camera that is not the facility's
+            good.render(small_scene(size=64), outputs=("screen_png",))
+        assert e.value.status == 400 and "facility" in str(e.value)
+    finally:
+        assert s.stop() == 0
+
+
 def test_token_then_sigterm_finishes_the_running_render():
     from skynav.service import Client, ServiceError
 
