@@ -344,6 +344,8 @@ def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facili
     except OSError as exc:
         sock.close()
         raise ServiceStartError(f"--host {host} --port {port}: cannot listen there ({exc.strerror or exc})") from None
+    if family in (socket.AF_INET, socket.AF_INET6):   # small answers on kept-alive connections: no Nagle wait
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     sock.listen(128)
     bound_port = sock.getsockname()[1]
     pool = WorkerPool(workers, facility=facility, threads=threads, limits=limits)
