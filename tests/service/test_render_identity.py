@@ -27,6 +27,8 @@ def _render_files(mapping, tmp_path, name):
 
 
 def test_default_scene_and_a_resolved_body_with_a_streak_are_byte_identical(client, tmp_path):
+    """A determinism test: the worker runs the same code as skynav render (validator, options,
+    encoders) with the same seed, on this machine, so the bytes must be equal."""
     default = small_scene("default", size=256)
     # Earth and Moon resolved (Mitsuba), the camera turning 3 deg/s: a ~3 px streak in 10 ms
     streak = small_scene("earth_departure", size=256, attitude={"angular_velocity_deg_s": [0.0, 3.0, 0.0]})
