@@ -71,6 +71,9 @@ __all__ = [
     "write_fits",
     "read_fits",
     "write_frame",
+    "frame_file_bytes",
+    "png_bytes",
+    "exr_bytes",
 ]
 
 #: File formats :func:`write_frame` knows, by file extension.
@@ -194,6 +197,11 @@ def _exr_bytes(channels: Mapping, header: Mapping | None) -> bytes:
     return buf.getvalue()
 
 
+def exr_bytes(channels: Mapping, *, header: Mapping | None = None) -> bytes:
+    """Named image channels as the bytes of an OpenEXR file (what :func:`write_exr` writes)."""
+    return _exr_bytes(channels, header)
+
+
 def write_exr(path, channels: Mapping, *, header: Mapping | None = None) -> None:
     """Write named image channels to an OpenEXR file (ZIP compression), atomically.
 
@@ -295,12 +303,15 @@ def unscale_png_to_dn(stored, bit_depth: int) -> np.ndarray:
 
 
 def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6) -> None:
-    """Write digital counts as a greyscale PNG, atomically.
+    """Write digital counts as a greyscale PNG, atomically: the bytes of :func:`png_bytes`."""
+    atomic_write_bytes(path, png_bytes(dn, bit_depth=bit_depth, compress_level=compress_level))
+
+
+def png_bytes(dn, *, bit_depth: int | None = None, compress_level: int = 6) -> bytes:
+    """Digital counts as the bytes of a greyscale PNG file (what :func:`write_png` writes).
 
     Parameters
     ----------
-    path : str or os.PathLike
-        Destination ``.png``.
     dn : ndarray, shape (H, W), uint8 or uint16
         Digital counts, DN. uint8 gives an 8-bit PNG, uint16 a 16-bit PNG.
     bit_depth : int, optional
@@ -346,7 +357,7 @@ def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6
     image = Image.fromarray(np.ascontiguousarray(a))
     buf = io.BytesIO()
     image.save(buf, format="PNG", pnginfo=info, compress_level=int(compress_level))
-    atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
 
 
 def _png_header_chunks(data: bytes) -> dict:
@@ -663,8 +674,6 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     OutputFormatError, TruthSchemaError
         Data the format cannot hold.
     """
-    from .truth_schema import write_truth_json
-
     from .errors import OutputPathError
 
     check_stem(stem)
@@ -679,12 +688,8 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     written = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         path = directory / f"{stem}.{fmt}"
-        if fmt == "png":
-            write_png(path, frame.dn, bit_depth=frame.truth["camera"]["bit_depth"])
-        elif fmt == "exr":
-            write_exr(path, {"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
-        elif fmt == "json":
-            write_truth_json(path, frame.truth)
+        if fmt in ("png", "exr", "json"):
+            atomic_write_bytes(path, frame_file_bytes(frame, fmt))
         elif fmt == "fits":
             t = frame.truth
             hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
@@ -694,3 +699,20 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
         written[fmt] = path
     return written
+
+
+def frame_file_bytes(frame, fmt: str) -> bytes:
+    """The bytes :func:`write_frame` writes for one format of a frame (``png``, ``exr`` or ``json``).
+
+    One encoder for the files and for programs that take frames in memory (the render service
+    answers with these bytes, so they equal the files of ``skynav render``).
+    """
+    if fmt == "png":
+        return png_bytes(frame.dn, bit_depth=frame.truth["camera"]["bit_depth"])
+    if fmt == "exr":
+        return exr_bytes({"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
+    if fmt == "json":
+        from .truth_schema import truth_json_bytes
+
+        return truth_json_bytes(frame.truth)
+    raise ConfigValueError("formats", fmt, "png, exr or json")

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frame_files import PNG_SCALING, atomic_write_bytes, write_png
+from .frame_files import PNG_SCALING, atomic_write_bytes, png_bytes
 
 SCHEMA = "skynav.hil_frame/2"
 
@@ -58,11 +58,19 @@ def scene_from_truth(truth: dict):
 
 def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, seed: int = 0, options=None) -> dict:
     """Render and write one screen frame; returns its JSON record."""
+    png, rec = screen_frame_bytes(facility, scene, source=source, seed=seed, options=options)
+    frames = Path(out_dir) / "frames"
+    frames.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(frames / f"{name}.png", png)
+    atomic_write_bytes(frames / f"{name}.json", json.dumps(rec, indent=1).encode())
+    return rec
+
+
+def screen_frame_bytes(facility, scene, *, source: dict, seed: int = 0, options=None):
+    """Render one screen frame in memory: ``(PNG bytes, JSON record)``, what :func:`write_screen_frame` writes."""
     from skynav.renderer.display import screen_frame
 
     sf = screen_frame(scene, facility, rng=np.random.default_rng(seed), options=options)
-    frames = Path(out_dir) / "frames"
-    frames.mkdir(parents=True, exist_ok=True)
     sc = facility.screen
     on = facility.projection.in_screen(sf.stars_xy) if len(sf.stars_xy) else np.zeros(0, bool)
     rec = {
@@ -80,9 +88,7 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
         "clipped": {"too_bright_px": sf.clipped_bright_px, "too_faint_sources": sf.clipped_faint_sources},
         "black_pedestal_e_per_camera_px": sf.black_pedestal_e_per_camera_px,
     }
-    write_png(frames / f"{name}.png", sf.dn, bit_depth=sc.bit_depth, compress_level=SCREEN_PNG_LEVEL)
-    atomic_write_bytes(frames / f"{name}.json", json.dumps(rec, indent=1).encode())
-    return rec
+    return png_bytes(sf.dn, bit_depth=sc.bit_depth, compress_level=SCREEN_PNG_LEVEL), rec
 
 
 #: zlib level of the screen PNGs (datasets.frame_files.write_png): screen frames hold ~2.5 times a

@@ -177,11 +177,12 @@ def build_parser() -> argparse.ArgumentParser:
         cli_dataset.add_parser(sub)
     except ImportError:  # pragma: no cover - datasets command not available in this build
         pass
-    from . import cli_bench, cli_calibrate, cli_hil
+    from . import cli_bench, cli_calibrate, cli_hil, cli_serve
 
     cli_bench.add_parser(sub)
     cli_calibrate.add_parser(sub)
     cli_hil.add_parser(sub)
+    cli_serve.add_parser(sub)
     return p
 
 

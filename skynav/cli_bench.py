@@ -11,7 +11,7 @@ import importlib
 
 from .cli_common import add_quiet, say
 
-SUBCOMMAND_MODULES = ("skynav.cli_bench_nav",)
+SUBCOMMAND_MODULES = ("skynav.cli_bench_nav", "skynav.cli_bench_loop")
 
 
 def cmd_ip(args) -> int:

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ROOMS = ("scenes", "renderer", "datasets", "pipeline", "calibration")
+ROOMS = ("scenes", "renderer", "datasets", "pipeline", "calibration", "service")
 CLI_PACKAGE = "skynav"
 
 # File-format libraries: the renderer returns frames in memory; writers and readers live in datasets.
@@ -243,6 +243,41 @@ def test_nothing_imports_the_command_line_package(graph):
     bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) is not None
            for n in names if _is_cli(n) and n != CLI_PACKAGE]
     assert bad == []
+
+
+def test_nothing_but_the_command_line_imports_the_service(graph):
+    """ARCHITECTURE.md: nothing imports ``service`` except the command line (programs outside
+    skynav reach it through its client)."""
+    bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) not in (None, "service")
+           for n in names if _room_of(n) == "service"]
+    assert bad == []
+    assert any(_room_of(n) == "service" for m, (_, names) in graph.items() if _is_cli(m) for n in names)
+
+
+def test_the_service_client_imports_no_renderer(graph):
+    """The client half (what flight software imports) names no renderer, Mitsuba or Dr.Jit module."""
+    for m in ("skynav.service", "skynav.service.client", "skynav.service.protocol"):
+        rel, names = graph[m]
+        assert not [n for n in names if _room_of(n) in ("renderer", "calibration")
+                    or n.split(".")[0] in ("mitsuba", "drjit")], rel
+
+
+CLIENT_SCRIPT = textwrap.dedent("""
+    import json, sys
+    from skynav.service import Client, RenderResult
+    from skynav.service.client import parse_multipart
+    c = Client("http://127.0.0.1:9")
+    loaded = sorted(m for m in sys.modules
+                    if m.split(".")[0] in ("mitsuba", "drjit", "starlette", "uvicorn")
+                    or m == "skynav.renderer" or m.startswith("skynav.renderer."))
+    print(json.dumps({"loaded": loaded}))
+""")
+
+
+def test_importing_the_service_client_loads_no_renderer_mitsuba_or_drjit():
+    run = subprocess.run([sys.executable, "-c", CLIENT_SCRIPT], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert json.loads(run.stdout.strip().splitlines()[-1])["loaded"] == []
 
 
 # ----------------------------------------------------------------------------- fresh interpreter

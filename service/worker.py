@@ -1,0 +1,133 @@
+"""The render side of the service: worker processes that keep everything warm and render on request.
+
+Each worker is a process of its own (``spawn``: nothing of the server's memory is shared), so two
+requests never touch the same frame buffers or random streams: frames of concurrent clients cannot
+mix. A worker loads the catalogue, ephemeris, radiometry tables and Mitsuba/Dr.Jit kernels once,
+by rendering the built-in scenes at start, then answers ``(request id, mapping, outputs)`` messages
+on its pipe with the output bytes.
+
+The frame is rendered exactly as ``skynav render`` renders a scene file (same validator, same
+options, same seed, same encoders: :func:`skynav.datasets.frame_files.frame_file_bytes`), so the
+PNG, EXR and truth bytes are those of its files.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+import traceback
+import warnings
+
+from .protocol import OUTPUTS
+
+
+def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
+    """Render one scene mapping; ``({output: bytes}, [warning lines])``.
+
+    Raises a :class:`~skynav.scenes.errors.SkynavError` for a bad mapping (the scene-file words).
+    """
+    from skynav.datasets.frame_files import frame_file_bytes
+    from skynav.renderer.render import RenderOptions, render
+    from skynav.scenes.config import scene_spec_from_mapping
+    from skynav.scenes.scene import build_from_spec
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        spec = scene_spec_from_mapping(mapping)
+        px = spec.camera.width * spec.camera.height
+        if max_camera_pixels is not None and px > max_camera_pixels:
+            from skynav.scenes.errors import ConfigValueError
+
+            raise ConfigValueError("camera", f"{spec.camera.width}x{spec.camera.height}",
+                                   f"at most {max_camera_pixels} pixels a frame on this server (--max-camera-pixels)")
+        scene = build_from_spec(spec)
+        seed = spec.seed
+        parts = {}
+        if any(o in outputs for o in ("png", "exr", "truth")):
+            # as skynav.cli.cmd_render: noise on, backend auto, the scene's cosmic rays and spp
+            options = RenderOptions(noise=True, backend="auto", cosmic_rays_per_frame=spec.cosmic_rays_per_frame,
+                                    mitsuba_spp=spec.mitsuba_spp)
+            frame = render(scene, seed=seed, options=options)
+            files = {"png": "png", "exr": "exr", "truth": "json"}
+            for o in outputs:
+                if o in files:
+                    parts[o] = frame_file_bytes(frame, files[o])
+        if "screen_png" in outputs:
+            from skynav.datasets.hil_export import screen_frame_bytes
+
+            if facility is None:
+                from skynav.scenes.errors import ConfigValueError
+
+                raise ConfigValueError("outputs", "screen_png", "png, exr or truth (this server has no facility)")
+            if scene.camera != facility.camera:
+                from skynav.calibration.errors import CalibrationInputError
+
+                raise CalibrationInputError(
+                    f"camera: the scene's camera ({scene.camera.width}x{scene.camera.height}, f "
+                    f"{scene.camera.focal_length_mm:g} mm) is not the facility's ({facility.camera.width}x"
+                    f"{facility.camera.height}, f {facility.camera.focal_length_mm:g} mm)")
+            facility.check_coverage()
+            parts["screen_png"] = screen_frame_bytes(facility, scene, source={"scene": "service", "seed": seed}, seed=seed)[0]
+    lines = [" ".join(str(w.message).split()) for w in caught]
+    return {o: parts[o] for o in outputs}, lines
+
+
+def warm_up(facility=None) -> float:
+    """Render the built-in scenes once (catalogue, ephemeris, radiometry, Mitsuba kernels); seconds."""
+    from skynav.scenes.presets import preset_mapping
+
+    t0 = time.perf_counter()
+    render_outputs(preset_mapping("default"), ("png", "exr", "truth"))
+    small = preset_mapping("earth_departure")   # resolved Earth and Moon: Mitsuba's scenes and kernels
+    small["camera"].update({"width": 128, "height": 128})
+    render_outputs(small, ("png",))
+    return time.perf_counter() - t0
+
+
+def worker_main(conn, facility_arg, threads) -> None:
+    """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
+    import os
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if threads:
+        os.environ["SKYNAV_THREADS"] = str(threads)
+    from skynav.scenes.errors import SkynavError
+
+    try:
+        facility = None
+        if facility_arg is not None:
+            from skynav.calibration.facility_io import load_facility
+
+            facility = load_facility(facility_arg)
+            facility.check_coverage()
+        seconds = warm_up(facility)
+    except SkynavError as exc:
+        conn.send(("failed", " ".join(str(exc).split())))
+        return
+    except Exception as exc:  # noqa: BLE001 - reported to the server as one line, traceback on stderr
+        traceback.print_exc(file=sys.stderr)
+        conn.send(("failed", f"the render worker could not start: {exc.__class__.__name__}: {exc}"))
+        return
+    conn.send(("ready", {"warm_s": seconds, "facility": None if facility is None else facility.name}))
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        mapping, outputs, max_pixels = msg
+        t0 = time.perf_counter()
+        try:
+            parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
+                                          max_camera_pixels=max_pixels)
+            conn.send(("ok", parts, lines, time.perf_counter() - t0))
+        except SkynavError as exc:
+            conn.send(("bad", " ".join(str(exc).split())))
+        except MemoryError:
+            conn.send(("bad", "camera: the frame does not fit in the server's memory; ask for fewer pixels"))
+        except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
+            traceback.print_exc(file=sys.stderr)
+            conn.send(("error", f"internal error while rendering ({exc.__class__.__name__}); see the server's log"))

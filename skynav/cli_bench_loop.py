@@ -1,0 +1,150 @@
+"""``skynav bench loop``: closed-loop navigation against the render service (docs/service.md).
+
+Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`add_parser`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from .cli_common import ProgressBar, add_quiet, add_set_argument, say
+
+
+def cmd_loop(args) -> int:
+    import contextlib
+
+    import numpy as np
+
+    from skynav.pipeline.ekf import initial_covariance
+    from skynav.pipeline.scoring_nav import NavInputError
+    from skynav.pipeline.scoring_nav_report import summarise, write_report
+    from skynav.service.client import Client, LocalServer
+    from skynav.service.loop import (Simulator, bias_for_lost_planet, campaign_result, loop_summary, nav_plan,
+                                     perpendicular_bias, run_loop)
+
+    from .cli_dataset import _recipe
+
+    if args.runs < 1:
+        raise NavInputError(f"--runs {args.runs}: give at least 1")
+    if args.realtime is not None and not args.realtime > 0:
+        raise NavInputError(f"--realtime {args.realtime}: give a positive number of simulated seconds per wall second")
+    if not args.sigma_px > 0:
+        raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
+    if args.limit is not None and args.limit < 2:
+        raise NavInputError(f"--limit {args.limit}: give at least 2 frames")
+    if args.case not in (1, 2, 3, 4, 5):
+        raise NavInputError(f"--case {args.case}: give 1, 2, 3, 4 or 5")
+    bias = None if args.bias_km in ("0", "none") else args.bias_km
+    if bias not in (None, "auto"):
+        try:
+            bias = float(bias)
+        except ValueError:
+            bias = -1.0
+        if not bias > 0:
+            raise NavInputError(f"--bias-km {args.bias_km}: give auto, none or a positive number of km")
+    recipe = _recipe(args.recipe, None, None, args.overrides)
+    t0 = time.perf_counter()
+    sim = Simulator(recipe, limit=args.limit)
+    from skynav.datasets.recipes import recipe_camera
+
+    camera = recipe_camera(recipe)
+    P0 = initial_covariance()
+    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (paper 002 Eq. 45)
+    r0, v0 = sim.state(sim.schedule()[0][0])
+    nominal = np.concatenate([r0, v0, np.zeros(6)])
+    x0s = nominal + rng.standard_normal((args.runs, 12)) * np.sqrt(np.diag(P0))
+    server = contextlib.nullcontext(args.service) if args.service else LocalServer(workers=args.workers)
+    frames = sim.frames
+    biased = {}
+    with server as url:
+        client = Client(url, token=args.token)
+        client.wait_ready(60)
+        setup_s = time.perf_counter() - t0
+        extra = 2 if bias is not None else 0
+        with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
+            done = [0]
+
+            def tick(n):
+                done[0] += n
+                bar(done[0], frames * (args.runs + extra))
+
+            runs = [run_loop(sim, client, x0=x0, P0=P0, sigma_px=args.sigma_px, case=args.case,
+                             realtime=args.realtime, seed=args.seed + i, progress=tick) for i, x0 in enumerate(x0s)]
+            if bias is not None:
+                b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
+                xb = nominal.copy()
+                xb[:3] += perpendicular_bias(sim, b_km)
+                Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
+                for pointing in ("truth", "estimate"):
+                    r = run_loop(sim, client, x0=xb, P0=Pb, sigma_px=args.sigma_px, case=args.case, pointing=pointing,
+                                 seed=args.seed, progress=tick)
+                    biased[pointing] = r
+        client.close()
+    total = time.perf_counter() - t0
+    plan = nav_plan(sim, runs)
+    res = campaign_result(runs, plan, sigma_px=args.sigma_px, case=args.case)
+    summary = summarise({args.case: res}, primary=args.case, time_s=total, plan=plan)
+    loop = loop_summary(runs, camera, realtime=args.realtime)
+    if biased:
+        loop["biased_initial_state"] = {"bias_km": b_km, "initial_position_sigma_km": b_km, **{
+            ("open_loop" if p == "truth" else "closed_loop"): {
+                **{k: v for k, v in loop_summary([r], camera, realtime=None).items()
+                   if k in ("target_in_field_fraction", "target_centred_fraction", "first_frame_lost")},
+                "final_position_error_km": float(np.linalg.norm(r.error[-1, :3])),
+                "final_velocity_error_m_s": 1e3 * float(np.linalg.norm(r.error[-1, 3:])),
+                "measurements_accepted": int(r.accepted.sum())}
+            for p, r in biased.items()}}
+    summary["closed_loop"] = loop
+    info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
+            "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": f"{args.sigma_px:g} px (given)",
+            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s}
+    out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info)
+    Path(out, "loop.json").write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
+    f = summary["final"]
+    say(args, f"{summary['runs']} closed-loop runs x {summary['frames']} frames, case {args.case}: final 3-sigma "
+              f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
+              f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f})",
+        f"  target in the field {100 * loop['target_in_field_fraction']:.1f} % of frames, centred (within "
+        f"{loop['centred_within_px']:.0f} px) {100 * loop['target_centred_fraction']:.1f} %; latency median "
+        f"{1e3 * loop['latency_s']['median']:.0f} ms, p99 {1e3 * loop['latency_s']['p99']:.0f} ms"
+        + (f"; {loop['deadline_misses']} deadline misses at {args.realtime:g}x real time" if args.realtime else ""))
+    if biased:
+        b = loop["biased_initial_state"]
+        for key, name in (("open_loop", "open loop (pointed from the truth, as a dataset)"),
+                          ("closed_loop", "closed loop (pointed from the estimate)")):
+            v = b[key]
+            say(args, f"  biased start ({b['bias_km']:.3g} km): {name}: target in the field "
+                      f"{100 * v['target_in_field_fraction']:.0f} %, final error {v['final_position_error_km']:.0f} km")
+    say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {res.ip_time_s:.1f}, "
+              f"filter and commands {res.filter_time_s:.1f})", f"report: {out}/report.html")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "loop", help="closed-loop navigation: the EKF points the camera and asks the render service for frames",
+        description="Closed-loop navigation on a sequence recipe (file or preset): at each frame time the flight "
+        "software (skynav.pipeline) commands the attitude from its own estimate, the simulator adds the pointing "
+        "controller's error (the recipe's pointing_error_deg) and asks the render service for the frame at the true "
+        "state, the flight software processes it and updates the filter. The report is bench nav's plus loop.json: "
+        "how often the target was in the field and centred, the latency, deadline misses with --realtime, and with "
+        "--bias-km the same biased start pointed from the truth (as a dataset) and from the estimate.")
+    p.add_argument("recipe", help="sequence recipe YAML file or the preset 'sequence'")
+    p.add_argument("-o", "--output", required=True, help="report folder")
+    p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs, each its own closed loop (default 1)")
+    p.add_argument("--realtime", type=float, default=None, metavar="SCALE",
+                   help="run on a wall clock: SCALE simulated seconds per wall second")
+    p.add_argument("--service", default=None, metavar="URL", help="use this running skynav serve (default: start one)")
+    p.add_argument("--token", default=None, help="the service's token")
+    p.add_argument("--workers", type=int, default=1, help="workers of the server started here (default 1)")
+    p.add_argument("--sigma-px", type=float, default=0.1, help="centroid noise the filter assumes, px (default 0.1)")
+    p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the initial states and the pointing errors")
+    p.add_argument("--limit", type=int, default=None, help="only the first N frames of the plan")
+    p.add_argument("--bias-km", default="auto", metavar="KM",
+                   help="also run a start this far off (auto: 1.5 half-fields at the first target; none: skip)")
+    add_quiet(p)
+    add_set_argument(p, "the recipe, e.g. --set sequence.legs=2 --set camera.width=256")
+    p.set_defaults(func=cmd_loop)

@@ -1,0 +1,74 @@
+"""``skynav serve``: the render service (docs/service.md)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from .cli_common import fail, positive_int
+
+
+def cmd_serve(args) -> int:
+    from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
+
+    if args.port < 0 or args.port > 65535:
+        return fail(f"--port {args.port}: expected 0..65535 (0: any free port)")
+    token = args.token
+    if token is None and args.token_env:
+        token = os.environ.get(args.token_env) or None
+        if token is None:
+            return fail(f"--token-env {args.token_env}: the variable is not set or empty")
+    if token is not None and len(token) < 16:
+        return fail("--token: at least 16 characters (e.g. python -c 'import secrets; print(secrets.token_hex(16))')")
+    if not is_loopback(args.host) and token is None and not args.insecure:
+        return fail(f"--host {args.host}: binding an address other than loopback needs --token (or --insecure: "
+                    "anyone who reaches it may make the server render)")
+    if args.facility is not None:   # a bad facility is one line here, not a worker's failure
+        from skynav.calibration.facility_io import load_facility
+
+        load_facility(args.facility).check_coverage()
+    limits = Limits(max_request_bytes=args.max_request_bytes, max_camera_pixels=args.max_camera_pixels,
+                    max_queue=args.max_queue)
+    threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+
+    def ready(line):
+        print(line, flush=True)
+
+    try:
+        serve(host=args.host, port=args.port, workers=args.workers, facility=args.facility, token=token,
+              limits=limits, threads=threads, ready=ready)
+    except ServiceStartError as exc:
+        return fail(str(exc))
+    except KeyboardInterrupt:
+        pass
+    print("skynav serve: stopped", file=sys.stderr)
+    return 0
+
+
+def add_parser(sub) -> None:
+    from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
+
+    s = sub.add_parser(
+        "serve", help="render service: frames by pose over HTTP for flight software and simulators",
+        description="Start the render service (docs/service.md): worker processes keep the catalogue, ephemeris, "
+        "radiometry tables and Mitsuba kernels warm; POST /v1/render takes a scene mapping (the keys of a scene "
+        "file plus outputs) and returns PNG/EXR/truth bytes identical to 'skynav render'. Prints one line "
+        "'skynav serve: ready at URL' when ready; SIGINT/SIGTERM finish the running renders and stop. Binds "
+        "127.0.0.1 unless told otherwise; another address needs --token or --insecure. Bounds: request "
+        f"body --max-request-bytes (default {MAX_REQUEST_BYTES}), camera --max-camera-pixels (default "
+        f"{MAX_CAMERA_PIXELS}), outputs png, exr, truth (screen_png with --facility), --workers frames render at "
+        f"once and --max-queue (default {MAX_QUEUE}) more wait; the next request gets 503.")
+    s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, loopback only)")
+    s.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0: any free port, printed)")
+    s.add_argument("--workers", type=positive_int, default=1, help="render processes, frames at once (default 1)")
+    s.add_argument("--facility", default=None, metavar="FILE", help="facility file or preset: enables screen_png")
+    s.add_argument("--token", default=None, help="require 'Authorization: Bearer TOKEN' on /v1/render "
+                   "(compared in constant time; at least 16 characters)")
+    s.add_argument("--token-env", default=None, metavar="VAR", help="read the token from this environment variable "
+                   "(keeps it out of the process list)")
+    s.add_argument("--insecure", action="store_true", help="allow a non-loopback --host without a token")
+    s.add_argument("--max-request-bytes", type=positive_int, default=MAX_REQUEST_BYTES, help="largest request body")
+    s.add_argument("--max-camera-pixels", type=positive_int, default=MAX_CAMERA_PIXELS, help="largest frame, width x height")
+    s.add_argument("--max-queue", type=positive_int, default=MAX_QUEUE, help="requests that may wait for a worker")
+    s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
+    s.set_defaults(func=cmd_serve)
