@@ -5,7 +5,9 @@ Pixel convention (CONVENTIONS.md): pixel ``[i, j]`` covers ``x in [j-0.5, j+0.5]
 contains it, ``(floor(x + 0.5), floor(y + 0.5))``, and spans ``2 h + 1`` pixels per axis.
 
 A kernel implements the :class:`PSF` protocol; :class:`GaussianPSF` is separable and computes
-its stamps as outer products of 1-D erf differences.
+its stamps as outer products of 1-D erf differences; :class:`TablePSF` reads them out of fine
+tables of the pixel-integrated PSF (:mod:`skynav.renderer.optics`: Airy, pupil FFT, measured
+images, a field grid of them), normalised so that every stamp holds the point's whole flux.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from scipy.special import erf, erfinv
 
 from skynav.scenes.errors import ConfigValueError
 
-__all__ = ["PSF", "GaussianPSF", "stamp_origin"]
+__all__ = ["PSF", "GaussianPSF", "TablePSF", "stamp_origin"]
 
 
 def stamp_origin(xy, half_size: int) -> np.ndarray:
@@ -173,3 +175,112 @@ class GaussianPSF:
         Measured against a 0.002 px reference (sigma 0.3-1 px, 20 px streaks), the image
         differs by < 1.1e-5 of the source's flux in any pixel."""
         return min(max(1.5 * self.sigma_px, 0.01), 0.75)
+
+
+class TablePSF:
+    """A PSF given as fine tables of its pixel-integrated image (see :mod:`.optics`).
+
+    ``tables[k][iy, ix]`` is the fraction of the flux of a point in the pixel whose centre is
+    offset ``((ix - c) / n, (iy - c) / n)`` px from the point, ``c = shape // 2``. A stamp reads
+    the table at the integer pixel offsets minus the point's sub-pixel phase, bilinearly
+    between fine samples, and is normalised to a sum of 1 (flux conserved: the wings beyond the
+    stamp, at most the ``flux_fraction_lost`` it was sized for or the cap
+    :data:`~skynav.scenes.psf.MAX_HALF_SIZE_PX`, are folded back in proportion).
+
+    With a field grid (``grid = (xs, ys, index[iy][ix])``) a point's stamp is the bilinear blend
+    in ``(x, y)`` of the stamps of the four grid tables around it (clamped at the grid's edge):
+    exactly a grid table's stamp at its grid point.
+
+    Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
+    """
+
+    def __init__(self, tables, n: int, half: int, grid=None):
+        self.tables = tuple(np.ascontiguousarray(t, dtype=float) for t in tables)
+        self.n = int(n)
+        self.half = int(half)
+        self.grid = grid
+        import hashlib
+
+        h = hashlib.sha256()
+        for t in self.tables:
+            h.update(t.tobytes())
+        h.update(repr((self.n, self.half, grid)).encode())
+        self._key = h.hexdigest()
+
+    def __eq__(self, other):
+        return isinstance(other, TablePSF) and other._key == self._key
+
+    def __hash__(self):
+        return hash(self._key)
+
+    def __repr__(self):
+        return f"TablePSF(<{len(self.tables)} table(s) {self.tables[0].shape}>, n={self.n}, half={self.half})"
+
+    def half_size_px(self, flux_fraction_lost: float) -> int:
+        """The stamp half size the model gave for the render's ``flux_fraction_lost``."""
+        return self.half
+
+    def quadrature_step_px(self) -> float:
+        """Panel length of the streak quadrature, px: 0.35 (the pixel-integrated kernel is at
+        least a pixel wide; see ``tests/renderer/test_psf_models.py`` for the convergence)."""
+        return 0.35
+
+    def _stamps_one(self, table, f, h):
+        n = self.n
+        c = table.shape[0] // 2
+        k = np.arange(-h, h + 1)
+        q = -f * n  # fine-sample offset of the phase, (M, 2) (x, y)
+        m0 = np.floor(q).astype(np.int64)
+        t = q - m0
+        ix = c + k[None, :] * n + m0[:, 0:1]  # (M, 2h+1)
+        iy = c + k[None, :] * n + m0[:, 1:2]
+        tx = t[:, 0][:, None, None]
+        ty = t[:, 1][:, None, None]
+        r0, r1 = iy[:, :, None], iy[:, :, None] + 1
+        c0, c1 = ix[:, None, :], ix[:, None, :] + 1
+        s = ((1.0 - ty) * ((1.0 - tx) * table[r0, c0] + tx * table[r0, c1])
+             + ty * ((1.0 - tx) * table[r1, c0] + tx * table[r1, c1]))
+        return s
+
+    def _field_weights(self, xy):
+        """Bilinear weights (M, K) of the grid tables at points ``xy``."""
+        xs, ys, index = self.grid
+        xs, ys = np.asarray(xs), np.asarray(ys)
+        w = np.zeros((xy.shape[0], len(self.tables)))
+
+        def axis(g, v):
+            if g.size == 1:
+                return np.zeros(v.shape, np.int64), np.zeros(v.shape, np.int64), np.zeros(v.shape)
+            v = np.clip(v, g[0], g[-1])
+            i = np.clip(np.searchsorted(g, v, side="right") - 1, 0, g.size - 2)
+            return i, i + 1, (v - g[i]) / (g[i + 1] - g[i])
+
+        i0, i1, fx = axis(xs, xy[:, 0])
+        j0, j1, fy = axis(ys, xy[:, 1])
+        idx = np.asarray(index)
+        rows = np.arange(xy.shape[0])
+        for jj, wy in ((j0, 1.0 - fy), (j1, fy)):
+            for ii, wx in ((i0, 1.0 - fx), (i1, fx)):
+                np.add.at(w, (rows, idx[jj, ii]), wy * wx)
+        return w
+
+    def stamps(self, xy, half_size: int) -> np.ndarray:
+        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        h = int(half_size)
+        f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
+        if self.grid is None:
+            s = self._stamps_one(self.tables[0], f, h)
+        else:
+            w = self._field_weights(xy)
+            s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
+            for k, table in enumerate(self.tables):
+                sel = np.flatnonzero(w[:, k] > 0.0)
+                if sel.size:
+                    s[sel] += w[sel, k][:, None, None] * self._stamps_one(table, f[sel], h)
+        tot = s.sum(axis=(1, 2))
+        return s / np.where(tot > 0, tot, 1.0)[:, None, None]
+
+    def stamp(self, xy, half_size: int) -> np.ndarray:
+        """Stamp of one point ``xy`` (2,), shape (2h+1, 2h+1); origin ``stamp_origin(xy, h)``."""
+        return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size)[0]
