@@ -18,10 +18,11 @@ Method
      normalisation, waves RMS), the pupil 256 samples across, anti-aliased (each sample's area
      fraction inside the annulus from 8 x 8 sub-samples), ``F`` a matrix Fourier transform
      straight onto the fine focal grid;
-   - tabulated: the measured image (normalised to a sum of 1) at its own ``N = oversampling``,
-     re-centred by a Fourier shift when its size is even.
+   - tabulated: the measured image (normalised to a sum of 1) at its own ``oversampling``,
+     re-centred by a Fourier shift when its size is even, and resampled by zero-padding its
+     spectrum to at least 16 samples per pixel.
 
-2. Pixel integration: ``P = IFFT(FFT(I) sinc(f_x) sinc(f_y)) / N^2`` (f in cycles/px), exact for
+2. Pixel integration: ``P = IFFT(FFT(I) sinc(f_x) sinc(f_y))`` (f in cycles/px), exact for
    a band-limited ``I`` (diffraction is band-limited at ``1/lf`` cycles/px; the fine step is
    at most ``lf/2``, Nyquist).
 
@@ -119,18 +120,27 @@ def airy_intensity(r_px, lf_px: float, obscuration: float = 0.0) -> np.ndarray:
     return np.pi / (4.0 * lf_px * lf_px * (1.0 - e * e)) * a * a
 
 
-def pixel_integrate(intensity: np.ndarray, n: int, shift=(0.0, 0.0)) -> np.ndarray:
+def pixel_integrate(intensity: np.ndarray, n: int, shift=(0.0, 0.0), up: int = 1) -> np.ndarray:
     """Pixel-integrated table of an intensity sampled every ``1/n`` px (per px^2): the
-    convolution with a 1 x 1 px box by FFT, optionally shifted by ``shift`` = (dy, dx) fine
-    samples (a Fourier shift, for tables whose centre falls between samples)."""
+    convolution with a 1 x 1 px box by FFT (``sinc`` in frequency), so each value is the
+    fraction of the flux in a pixel centred there. ``shift`` = (dy, dx) fine samples moves the
+    table (a Fourier shift, for images whose centre falls between samples); ``up`` > 1
+    resamples it every ``1/(n up)`` px by zero-padding the spectrum (exact for a band-limited
+    PSF sampled above Nyquist), so the stamps' bilinear read stays fine."""
     ny, nx = intensity.shape
     fy = np.fft.fftfreq(ny, d=1.0 / n)  # cycles per px
     fx = np.fft.rfftfreq(nx, d=1.0 / n)
     k = np.sinc(fy)[:, None] * np.sinc(fx)[None, :]
     if shift[0] or shift[1]:
         k = k * np.exp(-2j * np.pi * (fy[:, None] * shift[0] / n + fx[None, :] * shift[1] / n))
-    out = np.fft.irfft2(np.fft.rfft2(intensity) * k, s=(ny, nx))
-    return out / (n * n)
+    spec = np.fft.rfft2(intensity) * k
+    if up > 1:
+        big = np.zeros((ny * up, (nx * up) // 2 + 1), dtype=complex)
+        hy = (ny + 1) // 2
+        big[:hy, : spec.shape[1]] = spec[:hy]
+        big[ny * up - (ny - hy):, : spec.shape[1]] = spec[hy:]
+        return np.fft.irfft2(big, s=(ny * up, nx * up)) * (up * up)
+    return np.fft.irfft2(spec, s=(ny, nx))
 
 
 def _grid(n: int, length_px: int):
@@ -202,8 +212,10 @@ def optical_table(lf_px: float, obscuration: float, zernikes, half: int, n: int)
 
 
 def tabulated_tables(model: TabulatedPSFModel, half: int) -> tuple:
-    """Pixel-integrated tables of a measured PSF (one per field-grid point)."""
+    """Pixel-integrated tables of a measured PSF (one per field-grid point), resampled to at
+    least :data:`DEFAULT_OVERSAMPLING` samples per pixel. Returns (tables, samples per px)."""
     n = model.oversampling
+    up = max(1, math.ceil(DEFAULT_OVERSAMPLING / n))
     length = 2 * half + 4
     size = n * length
     out = []
@@ -218,8 +230,8 @@ def tabulated_tables(model: TabulatedPSFModel, half: int) -> tuple:
         hy, hx = min(ny - sy0, size - dy0), min(nx - sx0, size - dx0)
         img[dy0:dy0 + hy, dx0:dx0 + hx] = t[sy0:sy0 + hy, sx0:sx0 + hx] * (n * n)
         shift = (-0.5 if ny % 2 == 0 else 0.0, -0.5 if nx % 2 == 0 else 0.0)
-        out.append(pixel_integrate(img, n, shift))
-    return tuple(out)
+        out.append(pixel_integrate(img, n, shift, up=up))
+    return tuple(out), n * up
 
 
 def electron_spectrum(camera, source) -> tuple:
@@ -276,7 +288,8 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
         n = fine_sampling(lf)
         return TablePSF((optical_table(lf, model.obscuration, model.zernike_waves, half, n),), n, half)
     if isinstance(model, TabulatedPSFModel):
-        return TablePSF(tabulated_tables(model, half), model.oversampling, half, grid=model.grid)
+        tables, n = tabulated_tables(model, half)
+        return TablePSF(tables, n, half, grid=model.grid)
     raise TypeError(f"unknown PSF model {model!r}")
 
 
