@@ -195,10 +195,12 @@ class TablePSF:
     """
 
     def __init__(self, tables, n: int, half: int, grid=None):
-        self.tables = tuple(np.ascontiguousarray(t, dtype=float) for t in tables)
+        # FFT ringing leaves values of ~1e-16 of the peak below 0: a charge is never negative
+        self.tables = tuple(np.ascontiguousarray(np.maximum(t, 0.0), dtype=float) for t in tables)
         self.n = int(n)
         self.half = int(half)
         self.grid = grid
+        self._block_cache = {}
         import hashlib
 
         h = hashlib.sha256()
@@ -225,22 +227,34 @@ class TablePSF:
         least a pixel wide; see ``tests/renderer/test_psf_models.py`` for the convergence)."""
         return 0.35
 
-    def _stamps_one(self, table, f, h):
-        n = self.n
-        c = table.shape[0] // 2
-        k = np.arange(-h, h + 1)
-        q = -f * n  # fine-sample offset of the phase, (M, 2) (x, y)
+    def _blocks(self, k_table: int, h: int) -> tuple:
+        """The table as phase blocks ``B[my, mx] = P[c + ky n + my, c + kx n + mx]`` for
+        ``ky, kx`` in ``-h..h`` (cached per table and h): a stamp then reads 4 contiguous
+        blocks, not 4 (2h+1)^2 scattered elements."""
+        key = (k_table, h)
+        got = self._block_cache.get(key)
+        if got is None:
+            n, table = self.n, self.tables[k_table]
+            c = table.shape[0] // 2
+            m_lo = int(np.floor(-n / 2.0))
+            m = np.arange(m_lo, m_lo + n + 3)
+            k = np.arange(-h, h + 1)
+            idx = c + k[None, :] * n + m[:, None]  # (n + 3, 2h + 1)
+            blocks = table[idx[:, None, :, None], idx[None, :, None, :]]  # (my, mx, ky, kx)
+            got = (blocks, m_lo)
+            self._block_cache[key] = got
+        return got
+
+    def _stamps_one(self, k_table, f, h):
+        blocks, m_lo = self._blocks(k_table, h)
+        q = -f * self.n  # fine-sample offset of the phase, (M, 2) (x, y)
         m0 = np.floor(q).astype(np.int64)
         t = q - m0
-        ix = c + k[None, :] * n + m0[:, 0:1]  # (M, 2h+1)
-        iy = c + k[None, :] * n + m0[:, 1:2]
+        ix, iy = m0[:, 0] - m_lo, m0[:, 1] - m_lo
         tx = t[:, 0][:, None, None]
         ty = t[:, 1][:, None, None]
-        r0, r1 = iy[:, :, None], iy[:, :, None] + 1
-        c0, c1 = ix[:, None, :], ix[:, None, :] + 1
-        s = ((1.0 - ty) * ((1.0 - tx) * table[r0, c0] + tx * table[r0, c1])
-             + ty * ((1.0 - tx) * table[r1, c0] + tx * table[r1, c1]))
-        return s
+        return ((1.0 - ty) * ((1.0 - tx) * blocks[iy, ix] + tx * blocks[iy, ix + 1])
+                + ty * ((1.0 - tx) * blocks[iy + 1, ix] + tx * blocks[iy + 1, ix + 1]))
 
     def _field_weights(self, xy):
         """Bilinear weights (M, K) of the grid tables at points ``xy``."""
@@ -270,14 +284,14 @@ class TablePSF:
         h = int(half_size)
         f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
         if self.grid is None:
-            s = self._stamps_one(self.tables[0], f, h)
+            s = self._stamps_one(0, f, h)
         else:
             w = self._field_weights(xy)
             s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
-            for k, table in enumerate(self.tables):
+            for k in range(len(self.tables)):
                 sel = np.flatnonzero(w[:, k] > 0.0)
                 if sel.size:
-                    s[sel] += w[sel, k][:, None, None] * self._stamps_one(table, f[sel], h)
+                    s[sel] += w[sel, k][:, None, None] * self._stamps_one(k, f[sel], h)
         tot = s.sum(axis=(1, 2))
         return s / np.where(tot > 0, tot, 1.0)[:, None, None]
 

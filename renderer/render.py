@@ -503,7 +503,8 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None):
     at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
     k = psf.stamp(at, h)
     k = k / k.sum()
-    return fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), h
+    out = np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0)  # FFT ringing < 0
+    return out, h
 
 
 def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:

@@ -39,9 +39,18 @@ from .errors import ConfigValueError
 __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "TabulatedPSFModel", "FieldPSF",
            "psf_from_dict", "PSF_MODELS", "MAX_HALF_SIZE_PX"]
 
-#: Largest stamp half size any model asks for, px: the slow 1/r^3 wings of diffraction put
-#: 1e-3 of the flux beyond ~600 lambda F; stamps are cut here and normalised to the flux.
+#: Default largest stamp half size of the diffraction and measured models, px (the key
+#: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
+#: of the flux beyond radius r (7e-4 beyond 24 px for the paper camera, 1.8e-3 beyond 10 px);
+#: stamps are cut there and normalised to the whole flux.
 MAX_HALF_SIZE_PX = 24
+
+
+def _check_cap(obj):
+    v = obj.max_half_px
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 2 <= v <= 64:
+        raise ConfigValueError("camera.psf.max_half_px", v, "an integer in 2..64 (px)")
+    object.__setattr__(obj, "max_half_px", int(v))
 
 PSF_MODELS = ("gaussian", "airy", "optical", "tabulated")
 
@@ -60,7 +69,8 @@ def _lambda_f_px(camera, wavelength_nm: float) -> float:
     return wavelength_nm * 1e-3 * camera.f_number / camera.pixel_pitch_um
 
 
-def _diffraction_half_size(camera, flux_fraction: float, wavelength_nm: float, obscuration: float) -> int:
+def _diffraction_half_size(camera, flux_fraction: float, wavelength_nm: float, obscuration: float,
+                           cap: int = MAX_HALF_SIZE_PX) -> int:
     """Stamp half size holding all but ``flux_fraction`` of an Airy pattern (capped).
 
     The encircled energy of an (annular) Airy pattern tends to ``1 - 2 / (pi^2 (1 - e) r /
@@ -70,7 +80,7 @@ def _diffraction_half_size(camera, flux_fraction: float, wavelength_nm: float, o
     """
     lf = _lambda_f_px(camera, wavelength_nm)
     r = 2.0 * lf / (math.pi**2 * (1.0 - obscuration) * flux_fraction) + 0.5
-    return int(min(MAX_HALF_SIZE_PX, max(2, math.ceil(r))))
+    return int(min(cap, max(2, math.ceil(r))))
 
 
 @dataclass(frozen=True)
@@ -114,9 +124,11 @@ class AiryPSFModel:
 
     obscuration: float = 0.0
     wavelength_nm: float | None = None
+    max_half_px: int = MAX_HALF_SIZE_PX
     model = "airy"
 
     def __post_init__(self):
+        _check_cap(self)
         object.__setattr__(self, "obscuration", _num(self.obscuration, "camera.psf.obscuration", lo=0.0, hi=0.95,
                                                      allowed="a number in [0, 0.95] (diameter ratio)"))
         if self.wavelength_nm is not None:
@@ -125,7 +137,7 @@ class AiryPSFModel:
 
     def half_size_px(self, flux_fraction_lost: float, camera) -> int:
         wl = self.wavelength_nm if self.wavelength_nm is not None else max(camera.response_wavelengths_nm)
-        return _diffraction_half_size(camera, flux_fraction_lost, wl, self.obscuration)
+        return _diffraction_half_size(camera, flux_fraction_lost, wl, self.obscuration, self.max_half_px)
 
     def reach_px(self, camera) -> float:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
@@ -135,6 +147,8 @@ class AiryPSFModel:
         d = {"model": "airy", "obscuration": self.obscuration}
         if self.wavelength_nm is not None:
             d["wavelength_nm"] = self.wavelength_nm
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
         return d
 
 
@@ -149,9 +163,11 @@ class OpticalPSFModel:
     wavelength_nm: float
     obscuration: float = 0.0
     zernike_waves: tuple = ()
+    max_half_px: int = MAX_HALF_SIZE_PX
     model = "optical"
 
     def __post_init__(self):
+        _check_cap(self)
         object.__setattr__(self, "obscuration", _num(self.obscuration, "camera.psf.obscuration", lo=0.0, hi=0.95,
                                                      allowed="a number in [0, 0.95] (diameter ratio)"))
         object.__setattr__(self, "wavelength_nm", _num(self.wavelength_nm, "camera.psf.wavelength_nm", lo=100.0, hi=20000.0,
@@ -175,17 +191,20 @@ class OpticalPSFModel:
     def half_size_px(self, flux_fraction_lost: float, camera) -> int:
         # aberrations spread the core by about the wavefront slope: 4 lambda F per wave RMS
         waves = math.sqrt(sum(w * w for _, w in self.zernike_waves))
-        base = _diffraction_half_size(camera, flux_fraction_lost, self.wavelength_nm, self.obscuration)
+        base = _diffraction_half_size(camera, flux_fraction_lost, self.wavelength_nm, self.obscuration, self.max_half_px)
         extra = 8.0 * waves * _lambda_f_px(camera, self.wavelength_nm)
-        return int(min(MAX_HALF_SIZE_PX, math.ceil(base + extra)))
+        return int(min(self.max_half_px, math.ceil(base + extra)))
 
     def reach_px(self, camera) -> float:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
         return float(self.half_size_px(1e-6, camera))
 
     def to_dict(self) -> dict:
-        return {"model": "optical", "obscuration": self.obscuration, "wavelength_nm": self.wavelength_nm,
-                "zernike_waves": {str(j): w for j, w in self.zernike_waves}}
+        d = {"model": "optical", "obscuration": self.obscuration, "wavelength_nm": self.wavelength_nm,
+             "zernike_waves": {str(j): w for j, w in self.zernike_waves}}
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
+        return d
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -237,10 +256,12 @@ class TabulatedPSFModel:
     oversampling: int = 1
     file: str | None = None
     field: tuple = ()
+    max_half_px: int = MAX_HALF_SIZE_PX
     sha256: str = dataclasses.field(default="", compare=True, repr=False)
     model = "tabulated"
 
     def __post_init__(self):
+        _check_cap(self)
         o = self.oversampling
         if isinstance(o, bool) or not isinstance(o, (int, np.integer)) or not 1 <= o <= 64:
             raise ConfigValueError("camera.psf.oversampling", o, "an integer in 1..64 (samples per pixel)")
@@ -299,7 +320,7 @@ class TabulatedPSFModel:
         return self._grid
 
     def __getstate__(self):
-        return {k: getattr(self, k) for k in ("oversampling", "file", "field", "sha256", "_tables", "_grid")}
+        return {k: getattr(self, k) for k in ("oversampling", "file", "field", "max_half_px", "sha256", "_tables", "_grid")}
 
     def __setstate__(self, state):
         for k, v in state.items():
@@ -321,7 +342,7 @@ class TabulatedPSFModel:
             k = int(np.searchsorted(-outside, -flux_fraction_lost))  # first index where outside <= f
             r = cheb[order][min(k, cheb.size - 1)]
             h_best = max(h_best, int(math.ceil(r + 0.5 - 1e-9)))
-        return int(min(MAX_HALF_SIZE_PX, h_best))
+        return int(min(self.max_half_px, h_best))
 
     def reach_px(self, camera=None) -> float:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
@@ -333,6 +354,8 @@ class TabulatedPSFModel:
             d["file"] = self.file
         else:
             d["field"] = [{"x_px": p.x_px, "y_px": p.y_px, "file": p.file} for p in self.field]
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
         d["sha256"] = self.sha256
         return d
 
@@ -341,9 +364,9 @@ PSFModel = GaussianPSFModel | AiryPSFModel | OpticalPSFModel | TabulatedPSFModel
 
 _KEYS = {
     "gaussian": {"sigma_px"},
-    "airy": {"obscuration", "wavelength_nm"},
-    "optical": {"obscuration", "wavelength_nm", "zernike_waves"},
-    "tabulated": {"file", "oversampling", "field", "sha256"},
+    "airy": {"obscuration", "wavelength_nm", "max_half_px"},
+    "optical": {"obscuration", "wavelength_nm", "zernike_waves", "max_half_px"},
+    "tabulated": {"file", "oversampling", "field", "max_half_px", "sha256"},
 }
 
 
