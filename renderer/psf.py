@@ -281,6 +281,9 @@ class TablePSF:
     def stamps(self, xy, half_size: int) -> np.ndarray:
         """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        if int(half_size) > self.half:  # beyond the table: no light (zeros around the table's stamp)
+            pad = int(half_size) - self.half
+            return np.pad(self.stamps(xy, self.half), ((0, 0), (pad, pad), (pad, pad)))
         h = int(half_size)
         f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
         if self.grid is None:
