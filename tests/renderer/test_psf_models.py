@@ -170,3 +170,33 @@ def test_centre_of_light_in_the_truth_is_the_moment_of_the_drawn_image():
         checked += 1
     assert checked >= 1
     assert frame.truth["camera"]["psf"]["model"] == "optical" and frame.truth["schema"] == "skynav.frame/2"
+
+
+def test_default_gaussian_frame_is_drawn_by_the_same_code_as_before():
+    """The Gaussian through the model plumbing is the pre-model path: the same code
+    (``rasterize`` with ``GaussianPSF(defocus_sigma_px)`` on the same paths) gives the same bits,
+    for the shorthand and for an explicit ``{model: gaussian}``; the frame with the same seed is
+    the same too. (Against the code before this change, the default, a streaked and a Mitsuba
+    frame kept their PNG and EXR SHA-256: docs/conventions.md.)"""
+    from skynav.renderer.psf import GaussianPSF
+    from skynav.renderer.radiometry import Radiometry
+    from skynav.renderer.render import RenderOptions, expected_image, render, source_paths
+    from skynav.scenes import frames
+    from skynav.scenes.camera import paper_camera
+    from skynav.scenes.scene import build_scene
+
+    opts = RenderOptions(resolved=False)
+    R = frames.radec_twist_to_dcm(np.radians(84.05), np.radians(-1.2), 0.0)
+    images = []
+    for cam in (paper_camera(width=256, height=256), paper_camera(width=256, height=256, psf={"model": "gaussian", "sigma_px": 0.5})):
+        scene = build_scene("2027-02-01T00:00:00", position_km=[1.5e8, 0.0, 0.0], velocity_km_s=[0.0, 30.0, 0.0],
+                            R_cam_icrs=R, camera=cam, angular_velocity_rad_s=[0.002, -0.001, 0.003])
+        assert not any(b.in_fov for b in scene.bodies)
+        img = expected_image(scene, rng=np.random.default_rng(1), options=opts).electrons
+        rad = Radiometry.for_camera(cam)
+        e = np.asarray(rad.star_electrons_per_s(scene.stars.v_mag, scene.stars.teff_k)) * cam.exposure_s
+        direct = rasterize((256, 256), source_paths(scene, scene.stars.u_icrs, opts), e, GaussianPSF(0.5),
+                           flux_fraction_lost=opts.flux_fraction_lost)
+        assert np.array_equal(img, direct)
+        images.append(render(scene, seed=5, options=opts).dn)
+    assert np.array_equal(images[0], images[1])
