@@ -6,12 +6,16 @@ Gaussian frame measured in the same run. One thread (``DRJIT_NUM_THREADS=1``), a
 ``render_bench.py``. The tabulated models read PSF images this script writes to a temporary
 folder (a coma PSF at 4 samples/px; a 3 x 3 field grid of them with the coma growing outwards).
 
-    python benchmarks/psf_bench.py [--repeat 7] [--models gaussian,airy,...] [--size 1024]
+    python benchmarks/psf_bench.py [--repeat 9] [--models gaussian,airy,...] [--size 1024]
+
+The models are timed in interleaved rounds (one frame of each per round), so a busy moment of a
+shared machine slows all of them alike; the table build includes one first frame.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import tempfile
 import time
@@ -22,17 +26,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 MODELS = ("gaussian", "airy", "airy-h10", "airy-poly", "optical", "tabulated", "tabulated-field")
-
-
-def median_ms(fn, repeat):
-    fn()
-    wall, cpu = [], []
-    for _ in range(repeat):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
 def _coma_image(folder, name, coma_waves, oversampling=4, half_px=8):
@@ -75,7 +68,7 @@ def model_dict(name, folder):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--size", type=int, default=1024, help="image width = height, px (default 1024)")
     args = ap.parse_args()
@@ -98,21 +91,28 @@ def main():
     opts = RenderOptions()
     rng = np.random.default_rng(1)
     rows = []
+    runs = []
     with tempfile.TemporaryDirectory() as folder:
         for name in args.models.split(","):
             cam = base.camera.replace(psf=model_dict(name, folder), width=args.size, height=args.size)
-            import dataclasses
-
             scene = build_from_spec(dataclasses.replace(spec, camera=cam))
             t0 = time.perf_counter()
             k = kernel_for(cam, ("star", 3) if name == "airy-poly" else None, opts.flux_fraction_lost)
+            render(scene, rng=rng, options=opts)  # every table of the frame (all bins of a polychromatic Airy)
             build = time.perf_counter() - t0
-            if name == "airy-poly":  # every table of the frame, built by a first render
-                t0 = time.perf_counter()
+            runs.append((name, scene, build, k.half_size_px(opts.flux_fraction_lost)))
+        # interleaved rounds: a busy moment of a shared machine slows every model alike
+        wall = {r[0]: [] for r in runs}
+        cpu = {r[0]: [] for r in runs}
+        for _ in range(args.repeat):
+            for name, scene, _, _ in runs:
+                t0, c0 = time.perf_counter(), time.process_time()
                 render(scene, rng=rng, options=opts)
-                build += time.perf_counter() - t0
-            w, c = median_ms(lambda: render(scene, rng=rng, options=opts), args.repeat)
-            rows.append((name, build, k.half_size_px(opts.flux_fraction_lost), w, c, int(scene.stars.in_fov.sum())))
+                wall[name].append(time.perf_counter() - t0)
+                cpu[name].append(time.process_time() - c0)
+        for name, scene, build, h in runs:
+            rows.append((name, build, h, 1e3 * float(np.median(wall[name])), 1e3 * float(np.median(cpu[name])),
+                         int(scene.stars.in_fov.sum())))
     g = next((r for r in rows if r[0] == "gaussian"), rows[0])
     print(f"default scene, {args.size}x{args.size} paper camera (f/2.2, 13.8 um: lambda F = 0.09 px at 550 nm), "
           f"full noise, one thread; medians of {args.repeat}, wall | CPU; ratio to {g[0]} in this run")

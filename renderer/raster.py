@@ -95,7 +95,8 @@ def _accumulate(image, flat, weights, support=None) -> None:
 
 
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
-              support: list | None = None, centre_of_light: np.ndarray | None = None) -> np.ndarray:
+              support: list | None = None, centre_of_light: np.ndarray | None = None,
+              out: np.ndarray | None = None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -121,6 +122,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         Filled with each source's centre of light, px: the first moment of its drawn stamps
         (pixel centres weighted by their charge, the parts off the image included), NaN for a
         source not drawn. The PSF's asymmetry (coma) shows in it; the image is unchanged.
+    out : ndarray, shape (H, W), float64, C-contiguous, optional
+        Add the sources into this image (returned) instead of a new zero image.
 
     Returns
     -------
@@ -142,7 +145,12 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     e = np.asarray(electrons, dtype=float).reshape(-1)
     if e.shape[0] != p.shape[0]:
         raise ConfigValueError("raster.electrons", e.shape, f"shape ({p.shape[0]},) to match paths_xy")
-    image = np.zeros(h_img * w_img, dtype=float)
+    if out is not None:
+        if out.shape != (h_img, w_img) or out.dtype != np.float64 or not out.flags.c_contiguous:
+            raise ConfigValueError("raster.out", (out.shape, out.dtype), f"a C-contiguous float64 array of shape {(h_img, w_img)}")
+        image = out.reshape(-1)
+    else:
+        image = np.zeros(h_img * w_img, dtype=float)
     if centre_of_light is not None:
         centre_of_light[...] = np.nan
     if p.shape[0] == 0:

@@ -353,10 +353,11 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             sel = np.array([k == key for k in keys])
             kern = kernel_for(cam, key, ffl)
             c = np.full((int(sel.sum()), 2), np.nan)
-            electrons += rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support, centre_of_light=c)
+            rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support, centre_of_light=c,
+                      out=electrons)
             centre[sel] = c
             if irradiance is not None:
-                irradiance += rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl)
+                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
 

@@ -41,9 +41,10 @@ __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "T
 
 #: Default largest stamp half size of the diffraction and measured models, px (the key
 #: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
-#: of the flux beyond radius r (7e-4 beyond 24 px for the paper camera, 1.8e-3 beyond 10 px);
-#: stamps are cut there and normalised to the whole flux.
-MAX_HALF_SIZE_PX = 24
+#: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
+#: beyond 24 px); stamps are cut there and normalised to the whole flux. 16 keeps the default
+#: frame with an Airy PSF within 1.5x of the Gaussian frame (benchmarks/psf_bench.py).
+MAX_HALF_SIZE_PX = 16
 
 
 def _check_cap(obj):
