@@ -297,8 +297,9 @@ class TablePSF:
         irradiance pass of a frame repeats the electrons' pass)."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         key = (xy.tobytes(), int(half_size))
-        if self._last is not None and self._last[0] == key:
-            return self._last[1]
+        last = self._last  # one read: another thread may replace it
+        if last is not None and last[0] == key:
+            return last[1]
         out = self._stamps(xy, half_size)
         out.flags.writeable = False
         self._last = (key, out)
