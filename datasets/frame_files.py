@@ -530,7 +530,7 @@ def fits_frame_header(truth: Mapping) -> dict:
     Parameters
     ----------
     truth : mapping
-        A ``skynav.frame/1`` dict (``epoch``, ``observer``, ``camera`` with its ``sensor``).
+        A ``skynav.frame/2`` dict (``epoch``, ``observer``, ``camera`` with its ``sensor``).
     """
     from astropy.time import TimeDelta
 
@@ -650,7 +650,7 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     frame : skynav.renderer.render.Frame or any object with ``dn``, ``electrons``,
             ``irradiance_w_m2`` and ``truth``
         ``dn`` (H, W) uint8/uint16 DN; ``electrons`` and ``irradiance_w_m2`` (H, W) float32
-        (e-, W/m^2); ``truth`` the ``skynav.frame/1`` dict.
+        (e-, W/m^2); ``truth`` the ``skynav.frame/2`` dict.
     directory : str or os.PathLike
         Created if missing.
     stem : str

@@ -1,4 +1,4 @@
-"""Typed ground truth of one frame: :class:`FrameTruth`, built from the ``skynav.frame/1`` JSON.
+"""Typed ground truth of one frame: :class:`FrameTruth`, built from the ``skynav.frame/2`` JSON.
 
 Core module (no files: :func:`read_frame_truth` is the one reader). The JSON dict stays the
 exchange format (``ds[k].truth``); this is the same content as read-only numpy arrays with the
@@ -182,7 +182,7 @@ class CosmicRaysTruth:
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class FrameTruth:
-    """Ground truth of one frame, typed (schema ``skynav.frame/1``).
+    """Ground truth of one frame, typed (schema ``skynav.frame/2``).
 
     Attributes
     ----------
@@ -248,7 +248,7 @@ class FrameTruth:
             problems = schema_problems(truth, FRAME_SCHEMA)
             if problems:
                 more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
-                raise TruthSchemaError(f"{source}: does not follow skynav.frame/1: {problems[0]}{more}", problems)
+                raise TruthSchemaError(f"{source}: does not follow skynav.frame/2: {problems[0]}{more}", problems)
         att, obs = truth["attitude"], truth["observer"]
         return cls(epoch_tdb_s=epoch_tdb_seconds(truth["epoch"]), epoch_tdb_iso=str(truth["epoch"]["tdb_iso"]),
                    position_km=_vec(obs["position_km"], 3), velocity_km_s=_vec(obs["velocity_km_s"], 3),

@@ -5,7 +5,7 @@ file: the manifest against ``manifest.schema.json``, SHA-256 against the manifes
 files present, ground truth parsed and checked against ``frame.schema.json`` (JSON Schema, with
 ``jsonschema``: :mod:`skynav.datasets.truth_schema`), every image decoded (PNG, EXR), counts (manifest, recipe, index rows, files
 on disk). Each problem is one line naming the file (and, for a schema violation, the JSON path:
-``frames/000003.json: does not follow skynav.frame/1: $.attitude.q_cam_icrs: missing``).
+``frames/000003.json: does not follow skynav.frame/2: $.attitude.q_cam_icrs: missing``).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Adapter module: the one place that knows the folder layout::
                                    SHA-256 of every file, "complete": true only when complete
     <dataset>/frames/NNNNNN.png    DN (uint8 / uint16 raw)
     <dataset>/frames/NNNNNN.exr    float32 electrons, irradiance_w_m2
-    <dataset>/frames/NNNNNN.json   ground truth, schema skynav.frame/1 (+ "dataset" section)
+    <dataset>/frames/NNNNNN.json   ground truth, schema skynav.frame/2 (+ "dataset" section)
     <dataset>/index.csv            one row per frame
     <dataset>/trajectory.csv       (sequences) the cruise, barycentric ICRS
     <dataset>/legs.csv             (sequences) the leg timeline

@@ -166,7 +166,7 @@ def make_observation(truth: dict, dn: np.ndarray, *, index: int,
     Parameters
     ----------
     truth : dict
-        The frame's ``skynav.frame/1`` dict: only ``epoch`` and ``camera`` are read.
+        The frame's ``skynav.frame/2`` dict: only ``epoch`` and ``camera`` are read.
     dn : ndarray, shape (H, W)
         The frame's digital counts (made read-only).
     index : int

@@ -92,7 +92,7 @@ class FrameRecord:
     index : int
     dn : ndarray, shape (H, W), uint8 or uint16
     truth : dict
-        Ground truth, schema ``skynav.frame/1``.
+        Ground truth, schema ``skynav.frame/2``.
     electrons, irradiance_w_m2 : ndarray, shape (H, W), float32
         Read from the frame's EXR on first access (None if the dataset has no EXR).
     """

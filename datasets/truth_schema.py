@@ -1,7 +1,7 @@
 """Ground truth on disk: canonical JSON bytes, reading, and validation against JSON Schema.
 
 Adapter module. The contracts are published as JSON Schema (draft 2020-12) files inside the
-package, ``skynav/datasets/schemas/frame.schema.json`` (``skynav.frame/1``, one frame's truth)
+package, ``skynav/datasets/schemas/frame.schema.json`` (``skynav.frame/2``, one frame's truth)
 and ``manifest.schema.json`` (``skynav.dataset/1``, a dataset's ``manifest.json``); outside
 tools can validate against them without skynav. Their required keys are the fixed names of
 CONVENTIONS.md "Files"; every object allows more keys, so new fields never break a reader.
@@ -43,8 +43,12 @@ __all__ = [
     "validate_manifest",
 ]
 
-FRAME_SCHEMA = "skynav.frame/1"
-_SCHEMA_FILES = {FRAME_SCHEMA: "frame.schema.json", MANIFEST_SCHEMA: "manifest.schema.json"}
+FRAME_SCHEMA = "skynav.frame/2"
+#: Frame schema versions read (version 2 added ``camera.psf`` and ``centre_of_light_xy``; a
+#: version 1 file is a version 2 file without them). One JSON Schema file covers both.
+FRAME_SCHEMAS_READ = ("skynav.frame/1", FRAME_SCHEMA)
+_SCHEMA_FILES = {FRAME_SCHEMA: "frame.schema.json", "skynav.frame/1": "frame.schema.json",
+                 MANIFEST_SCHEMA: "manifest.schema.json"}
 
 
 # ----------------------------------------------------------------------------- ground truth
@@ -175,7 +179,7 @@ def truth_json_bytes(truth: Mapping) -> bytes:
     """Canonical bytes of ground truth: insertion order, ASCII, ``repr`` floats; one key per
     line (2-space indent), and each list of numbers and each flat record (one star, one body) on
     one line, so that a frame with 700 stars is 700 readable lines, not 20 000."""
-    if not isinstance(truth, Mapping) or truth.get("schema") != FRAME_SCHEMA:
+    if not isinstance(truth, Mapping) or truth.get("schema") not in FRAME_SCHEMAS_READ:
         got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
         raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
     # json writes floats with float.__repr__: the shortest string that reads back bit-exact;
@@ -194,7 +198,7 @@ def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:
     path : str or os.PathLike
         Destination ``.json``.
     truth : mapping
-        Must hold ``"schema": "skynav.frame/1"``; numpy values are converted, NaN becomes
+        Must hold ``"schema": "skynav.frame/2"`` (or ``/1``); numpy values are converted, NaN becomes
         ``null``. Key order is kept as given (callers build it in a fixed order), so equal
         truth gives equal bytes.
     strict : bool
@@ -216,7 +220,7 @@ def read_truth_json(source) -> dict:
     """Ground truth of one frame (``null`` comes back as None); checks the schema name."""
     with _open_binary(source) as f:
         truth = json.loads(f.read().decode("utf-8"))
-    if not isinstance(truth, dict) or truth.get("schema") != FRAME_SCHEMA:
+    if not isinstance(truth, dict) or truth.get("schema") not in FRAME_SCHEMAS_READ:
         got = truth.get("schema") if isinstance(truth, dict) else type(truth).__name__
         raise TruthSchemaError(f'not a skynav frame file: "schema" is {got!r}, expected "{FRAME_SCHEMA}"')
     return truth
@@ -233,7 +237,7 @@ def _schema_text(name: str) -> str:
 
 
 def load_schema(name: str = FRAME_SCHEMA) -> dict:
-    """The published JSON Schema of ``"skynav.frame/1"`` or ``"skynav.dataset/1"`` (a fresh copy).
+    """The published JSON Schema of ``"skynav.frame/2"`` (``/1`` reads the same file) or ``"skynav.dataset/1"`` (a fresh copy).
 
     The files are package data: ``importlib.resources.files("skynav.datasets") / "schemas"``.
     """
@@ -342,7 +346,7 @@ def schema_problems(instance, name: str = FRAME_SCHEMA) -> list:
     instance : object
         Plain JSON data (what ``json.loads`` returns).
     name : str
-        ``"skynav.frame/1"`` or ``"skynav.dataset/1"``.
+        ``"skynav.frame/2"`` or ``"skynav.dataset/1"``.
 
     Returns
     -------

@@ -5,7 +5,9 @@ Pixel convention (CONVENTIONS.md): pixel ``[i, j]`` covers ``x in [j-0.5, j+0.5]
 contains it, ``(floor(x + 0.5), floor(y + 0.5))``, and spans ``2 h + 1`` pixels per axis.
 
 A kernel implements the :class:`PSF` protocol; :class:`GaussianPSF` is separable and computes
-its stamps as outer products of 1-D erf differences.
+its stamps as outer products of 1-D erf differences; :class:`TablePSF` reads them out of fine
+tables of the pixel-integrated PSF (:mod:`skynav.renderer.optics`: Airy, pupil FFT, measured
+images, a field grid of them), normalised so that every stamp holds the point's whole flux.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from scipy.special import erf, erfinv
 
 from skynav.scenes.errors import ConfigValueError
 
-__all__ = ["PSF", "GaussianPSF", "stamp_origin"]
+__all__ = ["PSF", "GaussianPSF", "TablePSF", "stamp_origin"]
 
 
 def stamp_origin(xy, half_size: int) -> np.ndarray:
@@ -173,3 +175,157 @@ class GaussianPSF:
         Measured against a 0.002 px reference (sigma 0.3-1 px, 20 px streaks), the image
         differs by < 1.1e-5 of the source's flux in any pixel."""
         return min(max(1.5 * self.sigma_px, 0.01), 0.75)
+
+
+class TablePSF:
+    """A PSF given as fine tables of its pixel-integrated image (see :mod:`.optics`).
+
+    ``tables[k][iy, ix]`` is the fraction of the flux of a point in the pixel whose centre is
+    offset ``((ix - c) / n, (iy - c) / n)`` px from the point, ``c = shape // 2``. A stamp reads
+    the table at the integer pixel offsets minus the point's sub-pixel phase, bilinearly
+    between fine samples, and is normalised to a sum of 1 (flux conserved: the wings beyond the
+    stamp, at most the ``flux_fraction_lost`` it was sized for or the cap
+    :data:`~skynav.scenes.psf.MAX_HALF_SIZE_PX`, are folded back in proportion).
+
+    With a field grid (``grid = (xs, ys, index[iy][ix])``) a point's stamp is the bilinear blend
+    in ``(x, y)`` of the stamps of the four grid tables around it (clamped at the grid's edge):
+    exactly a grid table's stamp at its grid point.
+
+    Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
+    """
+
+    def __init__(self, tables, n: int, half: int, grid=None):
+        # FFT ringing leaves values of ~1e-16 of the peak below 0: a charge is never negative
+        self.tables = tuple(np.ascontiguousarray(np.maximum(t, 0.0), dtype=float) for t in tables)
+        self.n = int(n)
+        self.half = int(half)
+        self.grid = grid
+        self._block_cache = {}
+        self._last = None
+        import hashlib
+
+        h = hashlib.sha256()
+        for t in self.tables:
+            h.update(t.tobytes())
+        h.update(repr((self.n, self.half, grid)).encode())
+        self._key = h.hexdigest()
+
+    def __eq__(self, other):
+        return isinstance(other, TablePSF) and other._key == self._key
+
+    def __hash__(self):
+        return hash(self._key)
+
+    def __repr__(self):
+        return f"TablePSF(<{len(self.tables)} table(s) {self.tables[0].shape}>, n={self.n}, half={self.half})"
+
+    def half_size_px(self, flux_fraction_lost: float) -> int:
+        """The stamp half size the model gave for the render's ``flux_fraction_lost``."""
+        return self.half
+
+    def quadrature_step_px(self) -> float:
+        """Panel length of the streak quadrature, px: 0.35 (the pixel-integrated kernel is at
+        least a pixel wide; see ``tests/renderer/test_psf_models.py`` for the convergence)."""
+        return 0.35
+
+    def _blocks(self, k_table: int, h: int) -> tuple:
+        """The table as phase blocks ``B[my, mx] = P[c + ky n + my, c + kx n + mx]`` for
+        ``ky, kx`` in ``-h..h`` (cached per table and h): a stamp then reads 4 contiguous
+        blocks, not 4 (2h+1)^2 scattered elements."""
+        key = (k_table, h)
+        got = self._block_cache.get(key)
+        if got is None:
+            n, table = self.n, self.tables[k_table]
+            c = table.shape[0] // 2
+            m_lo = int(np.floor(-n / 2.0))
+            m = np.arange(m_lo, m_lo + n + 3)
+            k = np.arange(-h, h + 1)
+            idx = c + k[None, :] * n + m[:, None]  # (n + 3, 2h + 1)
+            blocks = table[idx[:, None, :, None], idx[None, :, None, :]]  # (my, mx, ky, kx)
+            got = (blocks, m_lo, blocks.sum(axis=(2, 3)))  # + each block's sum, (my, mx)
+            self._block_cache[key] = got
+        return got
+
+    def _stamps_one(self, k_table, f, h):
+        """Unnormalised stamps and their sums (the same bilinear blend of the blocks' sums)."""
+        blocks, m_lo, sums = self._blocks(k_table, h)
+        q = -f * self.n  # fine-sample offset of the phase, (M, 2) (x, y)
+        m0 = np.floor(q).astype(np.int64)
+        t = q - m0
+        ix, iy = m0[:, 0] - m_lo, m0[:, 1] - m_lo
+        tx = t[:, 0][:, None, None]
+        ty = t[:, 1][:, None, None]
+        # bilinear as three in-place lerps, a + t (b - a): fewer temporaries than the weights
+        top = blocks[iy, ix]
+        top += tx * (blocks[iy, ix + 1] - top)
+        bottom = blocks[iy + 1, ix]
+        bottom += tx * (blocks[iy + 1, ix + 1] - bottom)
+        bottom -= top
+        bottom *= ty
+        top += bottom
+        tx, ty = tx[:, 0, 0], ty[:, 0, 0]
+        s_top = sums[iy, ix] + tx * (sums[iy, ix + 1] - sums[iy, ix])
+        s_bot = sums[iy + 1, ix] + tx * (sums[iy + 1, ix + 1] - sums[iy + 1, ix])
+        return top, s_top + ty * (s_bot - s_top)
+
+    def _field_weights(self, xy):
+        """Bilinear weights (M, K) of the grid tables at points ``xy``."""
+        xs, ys, index = self.grid
+        xs, ys = np.asarray(xs), np.asarray(ys)
+        w = np.zeros((xy.shape[0], len(self.tables)))
+
+        def axis(g, v):
+            if g.size == 1:
+                return np.zeros(v.shape, np.int64), np.zeros(v.shape, np.int64), np.zeros(v.shape)
+            v = np.clip(v, g[0], g[-1])
+            i = np.clip(np.searchsorted(g, v, side="right") - 1, 0, g.size - 2)
+            return i, i + 1, (v - g[i]) / (g[i + 1] - g[i])
+
+        i0, i1, fx = axis(xs, xy[:, 0])
+        j0, j1, fy = axis(ys, xy[:, 1])
+        idx = np.asarray(index)
+        rows = np.arange(xy.shape[0])
+        for jj, wy in ((j0, 1.0 - fy), (j1, fy)):
+            for ii, wx in ((i0, 1.0 - fx), (i1, fx)):
+                np.add.at(w, (rows, idx[jj, ii]), wy * wx)
+        return w
+
+    def stamps(self, xy, half_size: int) -> np.ndarray:
+        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1.
+
+        Read-only: the last call's result is kept and returned again for the same points (the
+        irradiance pass of a frame repeats the electrons' pass)."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        key = (xy.tobytes(), int(half_size))
+        last = self._last  # one read: another thread may replace it
+        if last is not None and last[0] == key:
+            return last[1]
+        out = self._stamps(xy, half_size)
+        out.flags.writeable = False
+        self._last = (key, out)
+        return out
+
+    def _stamps(self, xy, half_size):
+        if int(half_size) > self.half:  # beyond the table: no light (zeros around the table's stamp)
+            pad = int(half_size) - self.half
+            return np.pad(self.stamps(xy, self.half), ((0, 0), (pad, pad), (pad, pad)))
+        h = int(half_size)
+        f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
+        if self.grid is None:
+            s, tot = self._stamps_one(0, f, h)
+        else:
+            w = self._field_weights(xy)
+            s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
+            tot = np.zeros(xy.shape[0])
+            for k in range(len(self.tables)):
+                sel = np.flatnonzero(w[:, k] > 0.0)
+                if sel.size:
+                    sk, tk = self._stamps_one(k, f[sel], h)
+                    s[sel] += w[sel, k][:, None, None] * sk
+                    tot[sel] += w[sel, k] * tk
+        s *= (1.0 / np.where(tot > 0, tot, 1.0))[:, None, None]  # the blend's sum is the blend of the sums
+        return s
+
+    def stamp(self, xy, half_size: int) -> np.ndarray:
+        """Stamp of one point ``xy`` (2,), shape (2h+1, 2h+1); origin ``stamp_origin(xy, h)``."""
+        return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size)[0]

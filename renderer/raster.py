@@ -95,7 +95,8 @@ def _accumulate(image, flat, weights, support=None) -> None:
 
 
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
-              support: list | None = None) -> np.ndarray:
+              support: list | None = None, centre_of_light: np.ndarray | None = None,
+              out: np.ndarray | None = None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -117,6 +118,12 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     support : list, optional
         Arrays of the flat indices of the pixels drawn are appended to it (every nonzero pixel is
         among them), so a caller need not scan a large, mostly dark image.
+    centre_of_light : ndarray, shape (N, 2), optional
+        Filled with each source's centre of light, px: the first moment of its drawn stamps
+        (pixel centres weighted by their charge, the parts off the image included), NaN for a
+        source not drawn. The PSF's asymmetry (coma) shows in it; the image is unchanged.
+    out : ndarray, shape (H, W), float64, C-contiguous, optional
+        Add the sources into this image (returned) instead of a new zero image.
 
     Returns
     -------
@@ -138,7 +145,14 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     e = np.asarray(electrons, dtype=float).reshape(-1)
     if e.shape[0] != p.shape[0]:
         raise ConfigValueError("raster.electrons", e.shape, f"shape ({p.shape[0]},) to match paths_xy")
-    image = np.zeros(h_img * w_img, dtype=float)
+    if out is not None:
+        if out.shape != (h_img, w_img) or out.dtype != np.float64 or not out.flags.c_contiguous:
+            raise ConfigValueError("raster.out", (out.shape, out.dtype), f"a C-contiguous float64 array of shape {(h_img, w_img)}")
+        image = out.reshape(-1)
+    else:
+        image = np.zeros(h_img * w_img, dtype=float)
+    if centre_of_light is not None:
+        centre_of_light[...] = np.nan
     if p.shape[0] == 0:
         return image.reshape(h_img, w_img)
 
@@ -154,7 +168,11 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         return image.reshape(h_img, w_img)
     if step_px is None:
         step_px = psf.quadrature_step_px() if hasattr(psf, "quadrature_step_px") else 0.05
-    xy, flux, _ = streak_subsamples(p[ok], e[ok], float(step_px))
+    xy, flux, source = streak_subsamples(p[ok], e[ok], float(step_px))
+    if centre_of_light is not None:
+        n_ok = int(np.count_nonzero(ok))
+        m0 = np.zeros(n_ok)
+        m1 = np.zeros((n_ok, 2))
 
     n_side = 2 * half + 1
     per_point = n_side * n_side
@@ -165,6 +183,14 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         pts = xy[a : a + chunk]
         w = (psf.stamps(pts, half) * flux[a : a + chunk, None, None]).reshape(pts.shape[0], per_point)
         origin = stamp_origin(pts, half)
+        if centre_of_light is not None:  # first moments of the stamps, per source
+            w3 = w.reshape(pts.shape[0], n_side, n_side)
+            wx, wy = w3.sum(axis=1), w3.sum(axis=2)
+            sw = wx.sum(axis=1)
+            src = source[a : a + chunk]
+            m0 += np.bincount(src, weights=sw, minlength=m0.size)
+            m1[:, 0] += np.bincount(src, weights=wx @ k + origin[:, 0] * sw, minlength=m0.size)
+            m1[:, 1] += np.bincount(src, weights=wy @ k + origin[:, 1] * sw, minlength=m0.size)
         full = (origin[:, 0] >= 0) & (origin[:, 0] + n_side <= w_img) & (origin[:, 1] >= 0) & (origin[:, 1] + n_side <= h_img)
         base = origin[:, 1] * w_img + origin[:, 0]
         if np.any(full):  # stamps wholly on the image: flat index = base + offsets
@@ -177,4 +203,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
             inside = (((rows >= 0) & (rows < h_img))[:, :, None] & ((cols >= 0) & (cols < w_img))[:, None, :]).reshape(o.shape[0], per_point)
             flat = (rows[:, :, None] * w_img + cols[:, None, :]).reshape(o.shape[0], per_point)
             _accumulate(image, flat[inside], w[~full][inside], support)
+    if centre_of_light is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            centre_of_light[np.flatnonzero(ok)] = m1 / m0[:, None]
     return image.reshape(h_img, w_img)

@@ -112,7 +112,7 @@ class Frame:
     irradiance_w_m2 : ndarray, shape (H, W), float32
         In-band irradiance at the pupil per pixel from the sources, W/m^2.
     truth : dict
-        Ground truth, schema ``skynav.frame/1`` (CONVENTIONS.md).
+        Ground truth, schema ``skynav.frame/2`` (CONVENTIONS.md).
     """
 
     dn: np.ndarray
@@ -145,6 +145,11 @@ class ExpectedImage:
         The Mitsuba variant that ray-traced them (None: no body was ray-traced).
     projection : Projection
         The projection the image was made through.
+    star_centre_of_light : ndarray, shape (N, 2), or None
+        Centre of light of each star's drawn image (first moment of its PSF-blurred, streaked
+        stamps), px; NaN for a star not drawn.
+    body_centre_of_light : dict of str -> ndarray, shape (2,)
+        The same for each drawn body (a resolved one: its blurred crop's first moment).
     """
 
     electrons: np.ndarray
@@ -156,6 +161,8 @@ class ExpectedImage:
     resolved: dict
     mitsuba_variant: str | None
     projection: object
+    star_centre_of_light: np.ndarray | None = None
+    body_centre_of_light: dict | None = None
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -297,7 +304,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     ExpectedImage
     """
     from .brdf import photocentre_offset_xy
-    from .psf import GaussianPSF
+    from .optics import is_polychromatic, kernel_for, teff_bin
     from .radiometry import Radiometry
     from .raster import rasterize
 
@@ -305,7 +312,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
-    psf = GaussianPSF(cam.defocus_sigma_px)
+    ffl = options.flux_fraction_lost
+    poly = is_polychromatic(cam)  # Airy without a wavelength: one kernel per spectrum class
+    psf = kernel_for(cam, None, ffl)
     T = cam.exposure_s
 
     # --- point sources: stars + bodies not ray-traced
@@ -332,8 +341,25 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
         if np.all(np.isfinite(off)):
             paths[len(star_e) + j] += off
             body_photocentre[b.name] = track[b.name][0] + off
-    electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=options.flux_fraction_lost, support=support)
-    irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=options.flux_fraction_lost) if with_irradiance else None
+    centre = np.full((len(e_pts), 2), np.nan)
+    if not poly:
+        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre)
+        irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl) if with_irradiance else None
+    else:  # one kernel per star temperature bin and per body spectrum
+        keys = [("star", int(b)) for b in teff_bin(stars.teff_k)] + [("body", b.name) for b in points]
+        electrons = np.zeros(shape)
+        irradiance = np.zeros(shape) if with_irradiance else None
+        for key in sorted(set(keys)):
+            sel = np.array([k == key for k in keys])
+            kern = kernel_for(cam, key, ffl)
+            c = np.full((int(sel.sum()), 2), np.nan)
+            rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support, centre_of_light=c,
+                      out=electrons)
+            centre[sel] = c
+            if irradiance is not None:
+                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
+    star_centre = centre[: len(star_e)]
+    body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
 
     # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
     resolved = {}
@@ -345,8 +371,14 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
         for b in traced:
             img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
                                        rng=body_rng, projection=proj)
-            crop, pad = blur_crop(img.electrons, psf, options.flux_fraction_lost)
+            kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
+            crop, pad = blur_crop(img.electrons, kern, ffl, at_xy=track[b.name][0])
             _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
+            tot = float(crop.sum())
+            if tot > 0:
+                yy, xx = np.indices(crop.shape)
+                body_centre[b.name] = np.array([(crop * xx).sum() / tot + img.x0 - pad,
+                                                (crop * yy).sum() / tot + img.y0 - pad])
             scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
             if irradiance is not None:
                 _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
@@ -360,7 +392,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             support.append(np.arange(electrons.size))
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
-                         mitsuba_variant=variant, projection=proj)
+                         mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
+                         body_centre_of_light=body_centre)
 
 
 def sensor_backend(requested: str) -> str:
@@ -444,22 +477,34 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
                  irradiance_w_m2=expected.irradiance_w_m2.astype(np.float32), truth=truth)
 
 
-def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float):
+def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None):
     """Convolve a pixel-binned crop with the PSF, padded so no flux is lost.
 
-    The kernel is the PSF integrated over one pixel centred on each integer offset (separable),
-    normalised to 1 so the crop's total is conserved. Returns (blurred crop, pad in px).
+    The kernel is the PSF integrated over one pixel centred on each integer offset, normalised
+    to 1 so the crop's total is conserved: for a Gaussian separable (erf differences), for any
+    other kernel its stamp of a point at a pixel centre (:meth:`PSF.stamp`), by FFT; ``at_xy``
+    (px) picks the pixel, for a PSF that varies across the field (default: (0, 0)).
+    Returns (blurred crop, pad in px).
     """
-    sigma = float(getattr(psf, "sigma_px", 0.0))
-    if sigma <= 0.0:
-        return crop, 0
-    h = int(psf.half_size_px(flux_fraction_lost))
-    k = np.asarray(psf.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
-    k /= k.sum()
-    padded = np.pad(np.asarray(crop, dtype=float), h)
-    from scipy.ndimage import convolve1d
+    if hasattr(psf, "sigma_px"):  # the Gaussian: separable, as it always was
+        sigma = float(psf.sigma_px)
+        if sigma <= 0.0:
+            return crop, 0
+        h = int(psf.half_size_px(flux_fraction_lost))
+        k = np.asarray(psf.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
+        k /= k.sum()
+        padded = np.pad(np.asarray(crop, dtype=float), h)
+        from scipy.ndimage import convolve1d
 
-    out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
+        out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
+        return out, h
+    from scipy.signal import fftconvolve
+
+    h = int(psf.half_size_px(flux_fraction_lost))
+    at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
+    k = psf.stamp(at, h)
+    k = k / k.sum()
+    out = np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0)  # FFT ringing < 0
     return out, h
 
 

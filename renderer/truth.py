@@ -1,4 +1,8 @@
-"""Ground truth of a rendered frame, schema ``skynav.frame/1`` (CONVENTIONS.md "Files").
+"""Ground truth of a rendered frame, schema ``skynav.frame/2`` (CONVENTIONS.md "Files").
+
+Version 2 (PSF models, issue #26) adds ``camera.psf`` and, for each star and drawn body,
+``centre_of_light_xy``: the first moment of its drawn (PSF-blurred, streaked) image, beside its
+geometric ``xy``, so an asymmetric PSF's bias (coma) is in the ground truth.
 
 Built from the scene (the truth: exact light-time, deflection, relativistic aberration) and from
 what the renderer drew (electrons per source, cosmic rays, seeds). Extra keys beyond the fixed
@@ -15,7 +19,7 @@ import numpy as np
 from skynav.scenes import frames
 from skynav.scenes.timescales import time_from_tdb_seconds
 
-SCHEMA = "skynav.frame/1"
+SCHEMA = "skynav.frame/2"
 
 
 def _seed_record(seed):
@@ -74,6 +78,9 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
         "xy_end": stars.xy_end[sel].tolist(),
         "electrons": np.asarray(star_electrons, dtype=float)[sel].tolist(),
     }
+    col = getattr(expected, "star_centre_of_light", None)
+    if col is not None:
+        cols["centre_of_light_xy"] = [[None if not np.isfinite(v) else float(v) for v in row] for row in np.asarray(col)[sel]]
     names = tuple(cols)
     star_list = [dict(zip(names, row)) for row in zip(*cols.values())]
     body_list = []
@@ -102,6 +109,9 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
             "resolved": b.resolved,
             "electrons": float(body_electrons.get(b.name, 0.0)),
         }
+        bcol = (getattr(expected, "body_centre_of_light", None) or {}).get(b.name)
+        if bcol is not None and np.all(np.isfinite(bcol)):
+            d["centre_of_light_xy"] = [float(bcol[0]), float(bcol[1])]
         img = resolved.get(b.name)
         if img is not None:
             d["rendered_as"] = "mitsuba"

@@ -31,6 +31,8 @@ _LAZY = {
     "Projection": "projection", "VisibilityCriteria": "visibility",
     "Facility": "facility", "Screen": "facility", "facility_from_mapping": "facility", "bench_preset": "facility",
     "bench_small_preset": "facility",
+    "GaussianPSFModel": "psf", "AiryPSFModel": "psf", "OpticalPSFModel": "psf", "TabulatedPSFModel": "psf",
+    "psf_from_dict": "psf",
     # ephemerides, time, catalogue, photometry
     "Ephemeris": "ephemeris_jpl", "default_ephemeris": "ephemeris_jpl",
     "to_time": "timescales", "tdb_seconds": "timescales", "time_from_tdb_seconds": "timescales",

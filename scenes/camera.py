@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ConfigValueError, MovedKeyError
+from .psf import GaussianPSFModel, psf_from_dict
 
 
 def _check(cond: bool, key: str, value, allowed: str) -> None:
@@ -172,7 +173,12 @@ class Camera:
     exposure_s : float
         Exposure time, s.
     defocus_sigma_px : float
-        Gaussian defocus PSF standard deviation, px (paper 002 table 4: 0.5 px).
+        Gaussian defocus PSF standard deviation, px (paper 002 table 4: 0.5 px): the shorthand
+        of ``psf=GaussianPSFModel(defocus_sigma_px)``, kept equal to ``psf.sigma_px`` while the
+        PSF is a Gaussian.
+    psf : PSF model or mapping, optional
+        The optics' point-spread function (:mod:`skynav.scenes.psf`: ``gaussian``, ``airy``,
+        ``optical``, ``tabulated``); None: the Gaussian of ``defocus_sigma_px``.
     distortion : BrownConrady
         Lens distortion.
     response_wavelengths_nm, response_qe_t : tuple of float
@@ -190,6 +196,7 @@ class Camera:
     f_number: float = 2.2
     exposure_s: float = 0.4
     defocus_sigma_px: float = 0.5
+    psf: object = None
     distortion: BrownConrady = field(default_factory=BrownConrady)
     response_wavelengths_nm: tuple = field(default_factory=lambda: default_response_curve()[0])
     response_qe_t: tuple = field(default_factory=lambda: default_response_curve()[1])
@@ -203,6 +210,12 @@ class Camera:
         _check(self.f_number > 0, "camera.f_number", self.f_number, "> 0")
         _check(self.exposure_s > 0, "camera.exposure_s", self.exposure_s, "> 0 (seconds)")
         _check(self.defocus_sigma_px >= 0, "camera.defocus_sigma_px", self.defocus_sigma_px, ">= 0")
+        if self.psf is None:
+            object.__setattr__(self, "psf", GaussianPSFModel(self.defocus_sigma_px))
+        else:
+            object.__setattr__(self, "psf", psf_from_dict(self.psf, "camera.psf"))
+            if isinstance(self.psf, GaussianPSFModel):
+                object.__setattr__(self, "defocus_sigma_px", self.psf.sigma_px)
         if self.pixel_pitch_y_um is not None:
             _check(self.pixel_pitch_y_um > 0, "camera.pixel_pitch_y_um", self.pixel_pitch_y_um, "> 0 (or absent: square pixels)")
         _check(len(self.response_wavelengths_nm) == len(self.response_qe_t) >= 2, "camera.response", len(self.response_qe_t), "matching wavelength and QE*T tables of >= 2 samples")
@@ -226,7 +239,10 @@ class Camera:
 
     def replace(self, **changes) -> "Camera":
         """A copy with fields changed (``dataclasses.replace``); a changed size recentres cx, cy
-        unless they are given."""
+        unless they are given; a changed ``defocus_sigma_px`` without ``psf`` makes the PSF that
+        Gaussian."""
+        if "defocus_sigma_px" in changes and "psf" not in changes:
+            changes["psf"] = None  # the shorthand: a Gaussian of that sigma
         if ("width" in changes or "height" in changes) and "cx" not in changes and "cy" not in changes:
             changes.setdefault("cx", None)
             changes.setdefault("cy", None)
@@ -348,6 +364,7 @@ class Camera:
             "exposure_s": self.exposure_s,
             "bit_depth": self.sensor.bit_depth,
             "defocus_sigma_px": self.defocus_sigma_px,
+            "psf": self.psf.to_dict(),
             "distortion": dataclasses.asdict(self.distortion),
             "response": {"wavelengths_nm": list(self.response_wavelengths_nm), "qe_t": list(self.response_qe_t)},
             "sensor": dataclasses.asdict(self.sensor),
@@ -375,6 +392,8 @@ class Camera:
             raise ConfigValueError(f"camera.{missing[0]}", None, "a value")
         kw = {k: d[k] for k in ("width", "height", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um",
                                 "cx", "cy", "f_number", "exposure_s", "defocus_sigma_px") if k in d}
+        if "psf" in d:
+            kw["psf"] = psf_from_dict(d["psf"], "camera.psf")
         if "distortion" in d:
             kw["distortion"] = BrownConrady(**_sub_mapping(d["distortion"], "camera.distortion", _DISTORTION_KEYS))
         if "response" in d:
@@ -400,7 +419,7 @@ MOVED_CAMERA_KEYS = {
 
 _TO_DICT_KEYS = {
     "K", "width", "height", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um", "cx", "cy", "f_number",
-    "exposure_s", "bit_depth", "defocus_sigma_px", "distortion", "response", "sensor",
+    "exposure_s", "bit_depth", "defocus_sigma_px", "psf", "distortion", "response", "sensor",
 }
 _SENSOR_KEYS = {f.name for f in dataclasses.fields(SensorParams)}
 _DISTORTION_KEYS = {f.name for f in dataclasses.fields(BrownConrady)}

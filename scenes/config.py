@@ -56,7 +56,7 @@ _SENSOR_KEYS = {f.name for f in dataclasses.fields(SensorParams)}
 _DIST_KEYS = {f.name for f in dataclasses.fields(BrownConrady)}
 _CAMERA_KEYS = {
     "preset", "width", "height", "fov_deg", "focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um", "cx", "cy",
-    "f_number", "exposure_s", "defocus_sigma_px", "distortion", "response", "sensor", "K", "bit_depth",
+    "f_number", "exposure_s", "defocus_sigma_px", "psf", "distortion", "response", "sensor", "K", "bit_depth",
 }
 
 
@@ -88,6 +88,13 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
     for name in ("cx", "cy", "pixel_pitch_y_um"):
         if name in d and d[name] is not None:
             kw[name] = _number(d[name], f"{key}.{name}")
+    if "psf" in d:
+        from .psf import GaussianPSFModel, psf_from_dict
+
+        kw["psf"] = psf_from_dict(d["psf"], f"{key}.psf")
+        if isinstance(kw["psf"], GaussianPSFModel) and "defocus_sigma_px" in kw and kw["defocus_sigma_px"] != kw["psf"].sigma_px:
+            raise ConfigValueError(f"{key}.defocus_sigma_px", kw["defocus_sigma_px"],
+                                   f"absent or equal to {key}.psf.sigma_px ({kw['psf'].sigma_px}): it is the same Gaussian")
     if "distortion" in d:
         dd = _mapping(d["distortion"], f"{key}.distortion")
         _check_keys(dd, f"{key}.distortion", _DIST_KEYS)

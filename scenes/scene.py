@@ -310,7 +310,7 @@ def build_scene(
     xy = camera.project(u_star @ R.T)
     xy0 = camera.project(u_star @ R_start.T)
     xy1 = camera.project(u_star @ R_end.T)
-    pad = 8.0 + 6.0 * camera.defocus_sigma_px
+    pad = 8.0 + camera.psf.reach_px(camera)  # the PSF's reach (6 sigma for a Gaussian)
     near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
     keep = np.flatnonzero(near)
     stars = StarsInView(

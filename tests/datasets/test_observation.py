@@ -75,7 +75,7 @@ def test_observation_has_no_path_to_the_truth(small_ds):
     assert {f.name for f in dataclasses.fields(obs)} == OBSERVATION_FIELDS
     assert set(vars(obs)) == OBSERVATION_FIELDS
     raw = _truth_json(small_ds, 0)
-    truth_strings = {raw["epoch"]["tdb_iso"], "skynav.frame/1", str(small_ds)}
+    truth_strings = {raw["epoch"]["tdb_iso"], "skynav.frame/2", str(small_ds)}
     for o in _reachable(obs):
         assert not isinstance(o, (D.FrameRecord, D.Dataset, FrameTruth)), type(o)
         if isinstance(o, dict):
@@ -142,7 +142,7 @@ def test_typed_truth_matches_the_json(small_ds):
     assert mars.phase_angle_rad == pytest.approx(math.radians(raw_mars["phase_angle_deg"]), rel=1e-15)
     assert mars.in_fov is raw_mars["in_fov"] and mars.distance_km == raw_mars["distance_km"]
     assert t.cosmic_rays.xy.shape == (len(raw["cosmic_rays"]), 2)
-    assert t.seeds == raw["seeds"] and t.camera == raw["camera"] and t.raw["schema"] == "skynav.frame/1"
+    assert t.seeds == raw["seeds"] and t.camera == raw["camera"] and t.raw["schema"] == "skynav.frame/2"
     assert not t.stars.xy.flags.writeable and not t.position_km.flags.writeable
     with pytest.raises(dataclasses.FrozenInstanceError):
         t.epoch_tdb_s = 0.0
@@ -152,7 +152,7 @@ def test_typed_truth_matches_the_json(small_ds):
 
 def test_typed_truth_nulls_empty_lists_and_schema_errors():
     base = {
-        "schema": "skynav.frame/1", "epoch": {"tdb_iso": "2030-01-01T00:00:00.000", "jd_tdb": 2462502.5},
+        "schema": "skynav.frame/2", "epoch": {"tdb_iso": "2030-01-01T00:00:00.000", "jd_tdb": 2462502.5},
         "observer": {"position_km": [1.0, 2.0, 3.0], "velocity_km_s": [0.0, 0.0, 0.0]},
         "attitude": {"R_cam_icrs": np.eye(3).tolist(), "q_cam_icrs": [1.0, 0, 0, 0], "angular_velocity_rad_s": [0, 0, 0]},
         "camera": {"K": np.eye(3).tolist(), "width": 4, "height": 4, "focal_length_mm": 1.0, "pixel_pitch_um": 1.0,
@@ -170,5 +170,5 @@ def test_typed_truth_nulls_empty_lists_and_schema_errors():
     assert t.epoch_tdb_s == pytest.approx(tdb_seconds("2030-01-01T00:00:00.000"), abs=1e-6)
     bad = json.loads(json.dumps(base))
     del bad["attitude"]["q_cam_icrs"]
-    with pytest.raises(TruthSchemaError, match=r"^x\.json: does not follow skynav\.frame/1: \$\.attitude\.q_cam_icrs: missing$"):
+    with pytest.raises(TruthSchemaError, match=r"^x\.json: does not follow skynav\.frame/2: \$\.attitude\.q_cam_icrs: missing$"):
         FrameTruth.from_dict(bad, source="x.json")

@@ -154,7 +154,7 @@ def test_reader_lazy_records(reference_dataset):
     rec = ds[-1]
     assert rec.index == 49 and rec._exr is None  # EXR not read yet
     dn, truth = rec
-    assert dn.dtype.name == "uint8" and truth["schema"] == "skynav.frame/1"
+    assert dn.dtype.name == "uint8" and truth["schema"] == "skynav.frame/2"
     assert rec.electrons.dtype.name == "float32" and rec.electrons.shape == (256, 256)
     assert truth["seeds"]["frame"]["entropy"] == [424242, 49]
     assert truth["dataset"]["frame"] == 49

@@ -71,6 +71,7 @@ def test_camera_value_semantics():
     assert pickle.loads(pickle.dumps(cam)) == cam
     assert hash(cam) == hash(paper_camera(distortion=DIST))
     from skynav.scenes.camera import SensorParams  # noqa: F401  (names for eval)
+    from skynav.scenes.psf import GaussianPSFModel  # noqa: F401  (names for eval)
 
     assert eval(repr(cam)) == cam
 

@@ -1,0 +1,411 @@
+"""Point-spread-function models of a camera: what its optics do to a point, before any pixel.
+
+A camera carries one model (``Camera.psf``); the renderer (:mod:`skynav.renderer.psf`) turns it
+into pixel-integrated stamps, sweeps them along streaks and convolves resolved bodies with them.
+Every model is a frozen value object (equality, hash, pickle, a repr that evals back), written to
+scene files, recipes, facility cameras, the ground truth and the manifest by :meth:`to_dict` and
+read back by :func:`psf_from_dict`:
+
+- ``{model: gaussian, sigma_px: 0.5}``: a circular Gaussian (``camera.defocus_sigma_px`` is its
+  shorthand and the default);
+- ``{model: airy, obscuration: 0.0, wavelength_nm: 550}``: Fraunhofer diffraction of the annular
+  aperture (central obscuration as a fraction of the diameter) of the camera's f-number at its
+  pixel pitch; without ``wavelength_nm``, polychromatic: the sum over the band of the Airy
+  patterns weighted by each source's electron spectrum (spectrum x camera response);
+- ``{model: optical, obscuration, zernike_waves: {4: 0.5, 7: 0.1}, wavelength_nm}``: the same
+  pupil with a wavefront of Noll-indexed Zernike terms (amplitudes in waves RMS at
+  ``wavelength_nm``, the normalisation of Noll 1976 and GalSim's ``aberrations``), by FFT;
+- ``{model: tabulated, file: psf.npy, oversampling: 4}``: a measured PSF image (``.npy`` or
+  ``.fits``, ``oversampling`` samples per pixel, centred on its middle sample, normalised to
+  a sum of 1 on load); ``field: [{x_px, y_px, file}, ...]`` instead of ``file``: one image per
+  point of a rectangular grid across the field, interpolated bilinearly between grid points.
+
+Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns, the centre of the top-left
+pixel at ``(0, 0)``. Tables are indexed ``[row, column]`` = ``[y, x]``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigValueError
+
+__all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "TabulatedPSFModel", "FieldPSF",
+           "psf_from_dict", "PSF_MODELS", "MAX_HALF_SIZE_PX"]
+
+#: Default largest stamp half size of the diffraction and measured models, px (the key
+#: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
+#: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
+#: beyond 24 px); stamps are cut there and normalised to the whole flux. 16 keeps the default
+#: frame with an Airy PSF within 1.5x of the Gaussian frame (benchmarks/psf_bench.py).
+MAX_HALF_SIZE_PX = 16
+
+
+def _check_cap(obj):
+    v = obj.max_half_px
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 2 <= v <= 64:
+        raise ConfigValueError("camera.psf.max_half_px", v, "an integer in 2..64 (px)")
+    object.__setattr__(obj, "max_half_px", int(v))
+
+PSF_MODELS = ("gaussian", "airy", "optical", "tabulated")
+
+
+def _num(value, key, *, lo=None, hi=None, allowed="a finite number"):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+        raise ConfigValueError(key, value, allowed)
+    v = float(value)
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise ConfigValueError(key, value, allowed)
+    return v
+
+
+def _lambda_f_px(camera, wavelength_nm: float) -> float:
+    """lambda x f-number in pixels (the diffraction scale), with the x pixel pitch."""
+    return wavelength_nm * 1e-3 * camera.f_number / camera.pixel_pitch_um
+
+
+def _diffraction_half_size(camera, flux_fraction: float, wavelength_nm: float, obscuration: float,
+                           cap: int = MAX_HALF_SIZE_PX) -> int:
+    """Stamp half size holding all but ``flux_fraction`` of an Airy pattern (capped).
+
+    The encircled energy of an (annular) Airy pattern tends to ``1 - 2 / (pi^2 (1 - e) r /
+    (lambda F))`` (Born & Wolf 8.5; the obscured pupil's ring spacing is the same, its
+    energy in the wings grows as ``1/(1 - e)``); a square of half size ``h`` holds more than the
+    circle of radius ``h - 0.5``.
+    """
+    lf = _lambda_f_px(camera, wavelength_nm)
+    r = 2.0 * lf / (math.pi**2 * (1.0 - obscuration) * flux_fraction) + 0.5
+    return int(min(cap, max(2, math.ceil(r))))
+
+
+@dataclass(frozen=True)
+class GaussianPSFModel:
+    """Circular Gaussian of standard deviation ``sigma_px`` (px): today's default PSF.
+
+    Examples
+    --------
+    >>> GaussianPSFModel(0.5).to_dict()
+    {'model': 'gaussian', 'sigma_px': 0.5}
+    """
+
+    sigma_px: float = 0.5
+    model = "gaussian"
+
+    def __post_init__(self):
+        object.__setattr__(self, "sigma_px", _num(self.sigma_px, "camera.psf.sigma_px", lo=0.0, hi=1e3, allowed="a number in [0, 1000] px"))
+
+    def half_size_px(self, flux_fraction_lost: float, camera=None) -> int:
+        """Stamp half size leaving out less than ``flux_fraction_lost`` (the renderer's rule)."""
+        from scipy.special import erfinv
+
+        if self.sigma_px == 0.0:
+            return 0
+        r = math.sqrt(2.0) * self.sigma_px * float(erfinv(math.sqrt(1.0 - flux_fraction_lost)))
+        return max(0, int(math.ceil(r - 1e-12)))
+
+    def reach_px(self, camera=None) -> float:
+        """How far from a source its light reaches, px (the margin a scene keeps stars within):
+        6 sigma."""
+        return 6.0 * self.sigma_px
+
+    def to_dict(self) -> dict:
+        return {"model": "gaussian", "sigma_px": self.sigma_px}
+
+
+@dataclass(frozen=True, kw_only=True)
+class AiryPSFModel:
+    """Diffraction of an annular aperture of the camera's f-number (``obscuration``: diameter
+    ratio of the central obstruction, in [0, 1)); ``wavelength_nm`` None: polychromatic."""
+
+    obscuration: float = 0.0
+    wavelength_nm: float | None = None
+    max_half_px: int = MAX_HALF_SIZE_PX
+    model = "airy"
+
+    def __post_init__(self):
+        _check_cap(self)
+        object.__setattr__(self, "obscuration", _num(self.obscuration, "camera.psf.obscuration", lo=0.0, hi=0.95,
+                                                     allowed="a number in [0, 0.95] (diameter ratio)"))
+        if self.wavelength_nm is not None:
+            object.__setattr__(self, "wavelength_nm", _num(self.wavelength_nm, "camera.psf.wavelength_nm", lo=100.0, hi=20000.0,
+                                                           allowed="a wavelength in [100, 20000] nm (or absent: polychromatic)"))
+
+    def half_size_px(self, flux_fraction_lost: float, camera) -> int:
+        wl = self.wavelength_nm if self.wavelength_nm is not None else max(camera.response_wavelengths_nm)
+        return _diffraction_half_size(camera, flux_fraction_lost, wl, self.obscuration, self.max_half_px)
+
+    def reach_px(self, camera) -> float:
+        """How far from a source its light reaches, px: the stamp half size at 1e-6."""
+        return float(self.half_size_px(1e-6, camera))
+
+    def to_dict(self) -> dict:
+        d = {"model": "airy", "obscuration": self.obscuration}
+        if self.wavelength_nm is not None:
+            d["wavelength_nm"] = self.wavelength_nm
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
+        return d
+
+
+@dataclass(frozen=True, kw_only=True)
+class OpticalPSFModel:
+    """Annular pupil with Noll-indexed Zernike aberrations, monochromatic at ``wavelength_nm``.
+
+    ``zernike_waves``: ``((noll_index, waves_rms), ...)`` sorted by index (a mapping is
+    accepted and sorted); index 1 (piston) is meaningless and refused, indices run to 36.
+    """
+
+    wavelength_nm: float
+    obscuration: float = 0.0
+    zernike_waves: tuple = ()
+    max_half_px: int = MAX_HALF_SIZE_PX
+    model = "optical"
+
+    def __post_init__(self):
+        _check_cap(self)
+        object.__setattr__(self, "obscuration", _num(self.obscuration, "camera.psf.obscuration", lo=0.0, hi=0.95,
+                                                     allowed="a number in [0, 0.95] (diameter ratio)"))
+        object.__setattr__(self, "wavelength_nm", _num(self.wavelength_nm, "camera.psf.wavelength_nm", lo=100.0, hi=20000.0,
+                                                       allowed="a wavelength in [100, 20000] nm"))
+        z = self.zernike_waves
+        items = z.items() if isinstance(z, dict) else z
+        out = {}
+        for item in items:
+            if not (isinstance(item, (tuple, list)) and len(item) == 2):
+                raise ConfigValueError("camera.psf.zernike_waves", z, "a mapping of Noll index (2..36) to waves RMS")
+            k, v = item
+            try:
+                j = int(k)
+            except (TypeError, ValueError):
+                raise ConfigValueError("camera.psf.zernike_waves", k, "Noll indices 2..36") from None
+            if j != float(k) or not 2 <= j <= 36:
+                raise ConfigValueError("camera.psf.zernike_waves", k, "Noll indices 2..36")
+            out[j] = _num(v, f"camera.psf.zernike_waves.{j}", lo=-10.0, hi=10.0, allowed="a number of waves in [-10, 10]")
+        object.__setattr__(self, "zernike_waves", tuple(sorted((j, w) for j, w in out.items() if w != 0.0)))
+
+    def half_size_px(self, flux_fraction_lost: float, camera) -> int:
+        # aberrations spread the core by about the wavefront slope: 4 lambda F per wave RMS
+        waves = math.sqrt(sum(w * w for _, w in self.zernike_waves))
+        base = _diffraction_half_size(camera, flux_fraction_lost, self.wavelength_nm, self.obscuration, self.max_half_px)
+        extra = 8.0 * waves * _lambda_f_px(camera, self.wavelength_nm)
+        return int(min(self.max_half_px, math.ceil(base + extra)))
+
+    def reach_px(self, camera) -> float:
+        """How far from a source its light reaches, px: the stamp half size at 1e-6."""
+        return float(self.half_size_px(1e-6, camera))
+
+    def to_dict(self) -> dict:
+        d = {"model": "optical", "obscuration": self.obscuration, "wavelength_nm": self.wavelength_nm,
+             "zernike_waves": {str(j): w for j, w in self.zernike_waves}}
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
+        return d
+
+
+@dataclass(frozen=True, kw_only=True)
+class FieldPSF:
+    """One point of a tabulated PSF grid: the image ``file`` measured at pixel ``(x_px, y_px)``."""
+
+    x_px: float
+    y_px: float
+    file: str
+
+
+def _read_image(path: str, key: str) -> np.ndarray:
+    """A PSF image from a ``.npy`` or ``.fits`` file: 2-D, finite, >= 0, sum > 0; float64."""
+    low = path.lower()
+    try:
+        if low.endswith(".npy"):
+            with open(path, "rb") as f:
+                a = np.load(f, allow_pickle=False)
+        elif low.endswith((".fits", ".fit", ".fits.gz")):
+            from astropy.io import fits
+
+            with fits.open(path, memmap=False) as hdul:
+                a = next((h.data for h in hdul if h.data is not None), None)
+        else:
+            raise ConfigValueError(key, path, "a .npy or .fits file")
+    except OSError as e:
+        raise ConfigValueError(key, path, f"a readable .npy or .fits file ({e.strerror or e})") from None
+    except ValueError as e:
+        if isinstance(e, ConfigValueError):
+            raise
+        raise ConfigValueError(key, path, f"a readable .npy or .fits file ({e})") from None
+    if a is None or np.ndim(a) != 2 or min(np.shape(a)) < 3:
+        raise ConfigValueError(key, path, "a 2-D image of at least 3 x 3 samples")
+    a = np.asarray(a, dtype=float)
+    if not np.all(np.isfinite(a)) or np.any(a < 0) or not a.sum() > 0:
+        raise ConfigValueError(key, path, "an image of finite values >= 0 with a positive sum")
+    return a / a.sum()
+
+
+@dataclass(frozen=True, kw_only=True)
+class TabulatedPSFModel:
+    """A measured PSF: one image (``file``) or a rectangular grid of them across the field.
+
+    Files are read once, when the model is made, and normalised to a sum of 1; ``sha256`` (of the
+    normalised float64 tables) makes two models with the same paths but other contents differ.
+    Relative paths are read from the current directory and stored absolute.
+    """
+
+    oversampling: int = 1
+    file: str | None = None
+    field: tuple = ()
+    max_half_px: int = MAX_HALF_SIZE_PX
+    sha256: str = dataclasses.field(default="", compare=True, repr=False)
+    model = "tabulated"
+
+    def __post_init__(self):
+        _check_cap(self)
+        o = self.oversampling
+        if isinstance(o, bool) or not isinstance(o, (int, np.integer)) or not 1 <= o <= 64:
+            raise ConfigValueError("camera.psf.oversampling", o, "an integer in 1..64 (samples per pixel)")
+        object.__setattr__(self, "oversampling", int(o))
+        if (self.file is None) == (not self.field):
+            raise ConfigValueError("camera.psf.file", self.file, "either file or field (a grid of {x_px, y_px, file}), not both")
+        if self.file is not None:
+            if not isinstance(self.file, str):
+                raise ConfigValueError("camera.psf.file", self.file, "a path to a .npy or .fits file")
+            object.__setattr__(self, "file", os.path.abspath(self.file))
+            tables = (_read_image(self.file, "camera.psf.file"),)
+            grid = None
+        else:
+            pts = []
+            for i, p in enumerate(self.field):
+                key = f"camera.psf.field[{i}]"
+                if isinstance(p, dict):
+                    extra = set(p) - {"x_px", "y_px", "file"}
+                    if extra or not {"x_px", "y_px", "file"} <= set(p):
+                        raise ConfigValueError(key, p, "a mapping with x_px, y_px and file")
+                    p = FieldPSF(x_px=p["x_px"], y_px=p["y_px"], file=p["file"])
+                if not isinstance(p, FieldPSF) or not isinstance(p.file, str):
+                    raise ConfigValueError(key, p, "a mapping with x_px, y_px and file")
+                pts.append(FieldPSF(x_px=_num(p.x_px, f"{key}.x_px"), y_px=_num(p.y_px, f"{key}.y_px"),
+                                    file=os.path.abspath(p.file)))
+            xs = sorted({p.x_px for p in pts})
+            ys = sorted({p.y_px for p in pts})
+            where = {(p.x_px, p.y_px): k for k, p in enumerate(pts)}
+            if len(where) != len(pts) or len(pts) != len(xs) * len(ys):
+                raise ConfigValueError("camera.psf.field", f"{len(pts)} points",
+                                       "a rectangular grid: one file at every (x_px, y_px) of its distinct x and y values")
+            object.__setattr__(self, "field", tuple(pts))
+            tables = tuple(_read_image(p.file, f"camera.psf.field[{k}].file") for k, p in enumerate(pts))
+            if len({t.shape for t in tables}) != 1:
+                raise ConfigValueError("camera.psf.field", [t.shape for t in tables], "images of one shape")
+            grid = (tuple(xs), tuple(ys), tuple(tuple(where[(x, y)] for x in xs) for y in ys))
+        h = hashlib.sha256()
+        for t in tables:
+            h.update(np.ascontiguousarray(t).tobytes())
+            h.update(str(t.shape).encode())
+        digest = h.hexdigest()
+        if self.sha256 and self.sha256 != digest:
+            raise ConfigValueError("camera.psf.sha256", self.sha256, f"the files' sha256 {digest} (a PSF file has changed)")
+        object.__setattr__(self, "sha256", digest)
+        object.__setattr__(self, "_tables", tables)
+        object.__setattr__(self, "_grid", grid)
+
+    @property
+    def tables(self) -> tuple:
+        """The normalised images, one per grid point (one without a field), ``[row, col]``."""
+        return self._tables
+
+    @property
+    def grid(self):
+        """``(xs, ys, index[iy][ix])`` of a field grid (index into :attr:`tables`), or None."""
+        return self._grid
+
+    def __getstate__(self):
+        return {k: getattr(self, k) for k in ("oversampling", "file", "field", "max_half_px", "sha256", "_tables", "_grid")}
+
+    def __setstate__(self, state):
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
+
+    def half_size_px(self, flux_fraction_lost: float, camera=None) -> int:
+        """Half size of the smallest centred square holding all but ``flux_fraction_lost`` of
+        every table (capped at the table's own half size)."""
+        h_best = 0
+        o = self.oversampling
+        for t in self._tables:
+            ny, nx = t.shape
+            cy, cx = (ny - 1) / 2.0, (nx - 1) / 2.0
+            yy = np.abs(np.arange(ny) - cy)[:, None] / o
+            xx = np.abs(np.arange(nx) - cx)[None, :] / o
+            cheb = np.maximum(yy, xx).ravel()
+            order = np.argsort(cheb)
+            outside = 1.0 - np.cumsum(t.ravel()[order])
+            k = int(np.searchsorted(-outside, -flux_fraction_lost))  # first index where outside <= f
+            r = cheb[order][min(k, cheb.size - 1)]
+            h_best = max(h_best, int(math.ceil(r + 0.5 - 1e-9)))
+        return int(min(self.max_half_px, h_best))
+
+    def reach_px(self, camera=None) -> float:
+        """How far from a source its light reaches, px: the stamp half size at 1e-6."""
+        return float(self.half_size_px(1e-6, camera))
+
+    def to_dict(self) -> dict:
+        d = {"model": "tabulated", "oversampling": self.oversampling}
+        if self.file is not None:
+            d["file"] = self.file
+        else:
+            d["field"] = [{"x_px": p.x_px, "y_px": p.y_px, "file": p.file} for p in self.field]
+        if self.max_half_px != MAX_HALF_SIZE_PX:
+            d["max_half_px"] = self.max_half_px
+        d["sha256"] = self.sha256
+        return d
+
+
+PSFModel = GaussianPSFModel | AiryPSFModel | OpticalPSFModel | TabulatedPSFModel
+
+_KEYS = {
+    "gaussian": {"sigma_px"},
+    "airy": {"obscuration", "wavelength_nm", "max_half_px"},
+    "optical": {"obscuration", "wavelength_nm", "zernike_waves", "max_half_px"},
+    "tabulated": {"file", "oversampling", "field", "max_half_px", "sha256"},
+}
+
+
+def psf_from_dict(d, key: str = "camera.psf"):
+    """A PSF model from its mapping (a scene file's ``camera.psf``, or :meth:`to_dict`).
+
+    Raises
+    ------
+    ConfigValueError
+        Naming the bad key and what is allowed.
+    """
+    if isinstance(d, (GaussianPSFModel, AiryPSFModel, OpticalPSFModel, TabulatedPSFModel)):
+        return d
+    if not isinstance(d, dict):
+        raise ConfigValueError(key, d, "a mapping with model: " + ", ".join(PSF_MODELS))
+    m = d.get("model")
+    if m not in _KEYS:
+        raise ConfigValueError(f"{key}.model", m, "one of: " + ", ".join(PSF_MODELS))
+    for k in d:
+        if k != "model" and k not in _KEYS[m]:
+            raise ConfigValueError(f"{key}.{k}", d[k], f"no such key for model {m}; allowed keys: " + ", ".join(sorted(_KEYS[m])))
+    kw = {k: v for k, v in d.items() if k != "model"}
+    if m == "gaussian":
+        if "sigma_px" not in kw:
+            raise ConfigValueError(f"{key}.sigma_px", None, "a value (px)")
+        return GaussianPSFModel(kw["sigma_px"])
+    if m == "airy":
+        return AiryPSFModel(**kw)
+    if m == "optical":
+        if "wavelength_nm" not in kw:
+            raise ConfigValueError(f"{key}.wavelength_nm", None, "a wavelength, nm (Zernike waves are at one wavelength)")
+        z = kw.get("zernike_waves", {})
+        if not isinstance(z, dict):
+            raise ConfigValueError(f"{key}.zernike_waves", z, "a mapping of Noll index (2..36) to waves RMS")
+        kw["zernike_waves"] = z
+        return OpticalPSFModel(**kw)
+    if "field" in kw:
+        if not isinstance(kw["field"], (list, tuple)) or not kw["field"]:
+            raise ConfigValueError(f"{key}.field", kw["field"], "a list of {x_px, y_px, file}")
+        kw["field"] = tuple(kw["field"])
+    return TabulatedPSFModel(**kw)
