@@ -123,6 +123,48 @@ def _export_dask(k, *, facility, root, out):
     return _export_one((facility, root, out, k))
 
 
+#: the frame-truth keys a screen frame is rebuilt from
+_SCENE_KEYS = ("epoch", "observer", "attitude", "camera")
+
+
+def check_dataset_cameras(ds, facility, dataset_path) -> None:
+    """Refuse a dataset the facility cannot show: a frame whose truth lacks what the screen frame
+    is rebuilt from, or whose camera is not the facility's (the bench's camera must be the one the
+    dataset was made for, as ``render --hil`` requires). One line naming the frame file."""
+    from skynav.scenes.camera import Camera
+    from skynav.scenes.errors import SkynavError
+
+    from .errors import DatasetMismatchError, TruthSchemaError
+    from .truth_schema import FRAME_SCHEMA, schema_problems
+
+    seen = {}
+    for k in range(len(ds)):
+        truth = ds._read(k, dn=False)[0]
+        where = Path(dataset_path) / "frames" / f"{k:06d}.json"
+        if not isinstance(truth, dict) or any(key not in truth for key in _SCENE_KEYS):
+            missing = [key for key in _SCENE_KEYS if not isinstance(truth, dict) or key not in truth]
+            raise TruthSchemaError(f"{where}: frame {k}'s truth has no {', '.join(missing)}; a screen frame is rebuilt "
+                                   f"from {', '.join(_SCENE_KEYS)} (run skynav dataset verify)", [])
+        problems = schema_problems(truth, FRAME_SCHEMA)
+        if problems:
+            raise TruthSchemaError(f"{where}: frame {k}'s truth does not follow skynav.frame/1: {problems[0]} "
+                                   "(run skynav dataset verify)", problems)
+        cam_d = truth["camera"]
+        key = json.dumps(cam_d, sort_keys=True, default=str)
+        if key not in seen:
+            try:
+                seen[key] = Camera.from_dict(cam_d)
+            except (SkynavError, KeyError, TypeError, ValueError) as exc:
+                raise TruthSchemaError(f"{where}: frame {k}'s camera cannot be read ({exc.__class__.__name__}: "
+                                       f"{' '.join(str(exc).split())[:120]})", []) from None
+        cam, fc = seen[key], facility.camera
+        if cam != fc:
+            raise DatasetMismatchError(
+                f"{dataset_path}: frame {k} was made with a {cam.width}x{cam.height} px camera (f {cam.focal_length_mm:g} mm), "
+                f"not the facility's {fc.width}x{fc.height} px (f {fc.focal_length_mm:g} mm); export a dataset made with "
+                "the facility's camera (dataset generate --set camera...), or a facility with the dataset's camera")
+
+
 def facility_sha256(facility) -> str:
     """SHA-256 of the facility's canonical mapping (what a facility file holds)."""
     import hashlib
@@ -146,16 +188,20 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
     import hashlib
 
     from . import open_dataset
-    from .errors import DatasetMismatchError
+    from .errors import DatasetMismatchError, OutputFormatError, OutputPathError
     from .journal import frame_problem
     from .layout import MANIFEST_NAME, package_version
     from .lock import dataset_lock
 
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise OutputFormatError(f"workers = {workers!r}: expected an integer >= 1")
     ds = open_dataset(dataset_path)
     root = str(Path(dataset_path).resolve())
     out = Path(out_dir)
+    if out.resolve() == Path(root) or Path(root) in out.resolve().parents:
+        raise OutputPathError(f"{out_dir}: inside the dataset {dataset_path}; export into another folder "
+                              "(an export never writes into its dataset)")
+    check_dataset_cameras(ds, facility, dataset_path)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     ident = {"schema": EXPORT_SCHEMA,
              "dataset": {"path": root, "manifest_sha256": hashlib.sha256((Path(root) / MANIFEST_NAME).read_bytes()).hexdigest(),
@@ -165,6 +211,7 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
              "skynav_version": package_version()}
     with dataset_lock(out):
         mpath = out / EXPORT_MANIFEST
+        proven = False  # the frames already there are of this dataset and facility
         if mpath.is_file():
             try:
                 old = json.loads(mpath.read_bytes())
@@ -180,10 +227,13 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
                         raise DatasetMismatchError(
                             f"{out}: holds a screen export of another {what} ({EXPORT_MANIFEST}); "
                             f"export into a new folder, or delete this one to start again")
+                proven = True
         atomic_write_bytes(mpath, json.dumps(dict(ident, complete=False), indent=1).encode())
         todo, checksums = [], {}
         for k in range(len(ds)):
-            problem, files, record = frame_problem(out, k, FORMATS)
+            # without a readable export.json nothing proves which dataset and facility the frames
+            # there came from (their records prove their bytes only): every frame is made again
+            problem, files, record = frame_problem(out, k, FORMATS) if proven else ("unproven", None, None)
             if problem is None:
                 checksums.update(files)
                 checksums.update(record)
