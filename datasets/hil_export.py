@@ -159,10 +159,15 @@ def check_dataset_cameras(ds, facility, dataset_path) -> None:
                                        f"{' '.join(str(exc).split())[:120]})", []) from None
         cam, fc = seen[key], facility.camera
         if cam != fc:
+            import dataclasses
+
+            diff = [f.name for f in dataclasses.fields(cam) if getattr(cam, f.name) != getattr(fc, f.name)]
+            first = diff[0] if diff else "?"
             raise DatasetMismatchError(
-                f"{dataset_path}: frame {k} was made with a {cam.width}x{cam.height} px camera (f {cam.focal_length_mm:g} mm), "
-                f"not the facility's {fc.width}x{fc.height} px (f {fc.focal_length_mm:g} mm); export a dataset made with "
-                "the facility's camera (dataset generate --set camera...), or a facility with the dataset's camera")
+                f"{dataset_path}: frame {k} was made with another camera than the facility's ({len(diff)} key(s) differ, "
+                f"first camera.{first}: {repr(getattr(cam, first, '?'))[:40]} in the dataset, "
+                f"{repr(getattr(fc, first, '?'))[:40]} in the facility; {cam.width}x{cam.height} px vs {fc.width}x{fc.height} px); export a dataset made with the "
+                "facility's camera (dataset generate --set camera...), or a facility with the dataset's camera")
 
 
 def facility_sha256(facility) -> str:

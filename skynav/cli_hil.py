@@ -52,6 +52,10 @@ def cmd_export(args) -> int:
         mapping = apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True, what="the facility")
         if any(path[0] == "camera" and path[1:] != ("K",) for _, path, _ in args.overrides):
             mapping["camera"].pop("K", None)  # derived from the other camera keys, which an override changed
+            cam0, set_keys = fac.camera, {path[1] for _, path, _ in args.overrides if path[0] == "camera" and len(path) > 1}
+            for c, size in (("cx", cam0.width), ("cy", cam0.height)):
+                if c not in set_keys and getattr(cam0, c) == 0.5 * (size - 1):  # the old centre: the new one
+                    mapping["camera"].pop(c, None)
         paths = {path for _, path, _ in args.overrides}
         focal = ("geometric", "parameters", "focal_length_mm")
         if ("collimator", "focal_length_mm") in paths and focal not in paths and not fac.calibrated_geometric:

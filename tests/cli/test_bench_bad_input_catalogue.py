@@ -556,3 +556,54 @@ def test_every_bad_input_gives_one_line_exit_2_and_leaves_the_inputs_alone(world
             failures.append(f"{ident}: changed its inputs: {changed[:5]}")
             before = after
     assert not failures, f"{len(failures)} of {len(catalogue)} cases:\n" + "\n".join(failures)
+
+
+# ----------------------------------------------------------------------------- the good paths, on the command line
+SMALL_CAMERA = ["--set", "camera.width=256", "--set", "camera.height=256", "--set",
+                "camera.pixel_pitch_um=55.102181471395305"]  # the bench_small facility's camera
+
+
+@pytest.mark.parametrize("facility", ["preset", "nominal", "calibrated"])
+def test_render_hil_documented_paths_run_on_the_command_line(world, facility, capsys):
+    """``skynav render --hil`` with a preset, a nominal facility file and a calibrated one."""
+    tmp, inp, out = world
+    fac = {"preset": "bench_small", "nominal": str(inp / "fac.yaml"), "calibrated": str(inp / "cal.yaml")}[facility]
+    before = _sha_tree(inp)
+    dest = out / f"render_{facility}"
+    code, stdout, err = _run(["render", "--hil", fac, "-o", str(dest), *SMALL_CAMERA], capsys)
+    assert code == 0, err
+    assert "screen frame 640x640 10-bit" in stdout and "Traceback" not in err
+    rec = json.loads((dest / "frames" / "frame.json").read_text())
+    assert rec["facility"]["screen"] == {"width_px": 640, "height_px": 640, "bit_depth": 10}
+    assert (rec["facility"]["geometric_fit"] is not None) == (facility == "calibrated")
+    assert _sha_tree(inp) == before
+
+
+def test_editing_the_nominal_focal_length_of_a_calibrated_facility_is_refused_naming_the_key(world, capsys):
+    tmp, inp, out = world
+    doc = yaml.safe_load((inp / "cal.yaml").read_text())
+    doc["collimator"]["focal_length_mm"] = 55.0
+    f = out / "edited.yaml"
+    f.write_text(yaml.safe_dump(doc))
+    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", str(f), "-o", str(out / "ed"), "-q"], capsys)
+    assert code == 2 and "collimator.focal_length_mm = 55.0" in err and "edit geometric.parameters.focal_length_mm" in err
+    # the key the model uses does change the model
+    doc = yaml.safe_load((inp / "cal.yaml").read_text())
+    for section in (doc["collimator"], doc["geometric"]["parameters"]):
+        section["focal_length_mm"] = 55.0
+    f.write_text(yaml.safe_dump(doc))
+    from skynav.calibration.facility_io import load_facility
+
+    assert load_facility(f).geometric.focal_length_mm == 55.0
+
+
+def test_set_collimator_focal_length_on_a_nominal_preset_changes_the_model(world, capsys):
+    tmp, inp, out = world
+    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "bench_small", "-o", str(out / "f55"), "-q",
+                         "--set", "collimator.focal_length_mm=55"], capsys)
+    assert code == 0, err
+    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "bench_small", "-o", str(out / "f50"), "-q"], capsys)
+    assert code == 0, err
+    a = json.loads((out / "f55" / "frames" / "000000.json").read_text())["stars"]
+    b = json.loads((out / "f50" / "frames" / "000000.json").read_text())["stars"]
+    assert a and [s["screen_xy"] for s in a] != [s["screen_xy"] for s in b]  # 10 % longer focal: stars move
