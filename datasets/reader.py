@@ -178,9 +178,7 @@ class Dataset:
             raise DatasetError(f"{self.root}: frame {i} has no DN image (formats: {', '.join(self.formats)})")
         try:
             return make_observation(truth, dn, index=i, calibration_error=calibration_error)
-        except SkynavError:
-            raise
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
             raise self._truth_error(i, exc) from None
 
     def truth(self, k, *, validate: bool = True):
@@ -193,9 +191,7 @@ class Dataset:
         truth, _, rel = self._read(i, dn=False)
         try:
             return FrameTruth.from_dict(truth, validate=validate, source=str(self.root / rel["json"]))
-        except SkynavError:
-            raise
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
             raise self._truth_error(i, exc) from None
 
     def _truth_error(self, i: int, exc: Exception):
@@ -204,10 +200,13 @@ class Dataset:
         from .errors import TruthSchemaError
         from .truth_schema import FRAME_SCHEMA, schema_problems
 
+        if isinstance(exc, (DatasetError, TruthSchemaError, FrameIndexError)):  # already one line naming the file
+            return exc
         rel = layout.frame_relpaths(i, self.formats)["json"]
         truth = self._read(i, dn=False)[0]
         problems = schema_problems(truth, FRAME_SCHEMA) if isinstance(truth, dict) else ["the file is not a JSON object"]
-        what = problems[0] if problems else f"{exc.__class__.__name__}: {' '.join(str(exc).split())[:120]}"
+        what = problems[0] if problems else (" ".join(str(exc).split())[:160] if isinstance(exc, SkynavError)
+                                             else f"{exc.__class__.__name__}: {' '.join(str(exc).split())[:120]}")
         return TruthSchemaError(f"{self.root / rel}: frame {i}'s truth does not follow skynav.frame/1: {what}; "
                                 "run `skynav dataset verify`", problems)
 

@@ -263,7 +263,8 @@ def _check_node(value, s, key):
         if s.get("additionalProperties", True) is False:
             for k in value:
                 if k not in props:
-                    where = f"{key}.{k}" if key else str(k)
+                    name = str(k) if str(k).isprintable() and str(k).strip() and " " not in str(k) else repr(k)
+                    where = f"{key}.{name}" if key else name
                     close = difflib.get_close_matches(str(k), list(props), n=1, cutoff=0.5)
                     hint = f"did you mean {key + '.' if key else ''}{close[0]}? " if close else ""
                     raise ConfigValueError(where, _short(value[k]), f"no such key; {hint}allowed keys"

@@ -397,7 +397,12 @@ def user_path(path) -> str:
 
 
 def _os_error_line(exc: OSError) -> str:
-    where = user_path(exc.filename) if exc.filename is not None else "output"
+    if exc.filename is None:  # e.g. an image decoder's error: no path to name, so say what happened
+        if exc.errno == errno.ENOSPC:
+            return "no space left on the device; free space and run the same command again (it resumes)"
+        text = " ".join(str(exc).split()) or exc.__class__.__name__
+        return f"a file could not be read or written ({exc.__class__.__name__}: {user_path(text)[:200]})"
+    where = user_path(exc.filename)
     if exc.filename2 is not None and where != os.fsdecode(exc.filename):  # os.replace(temp, target)
         where = os.fsdecode(exc.filename2)
     if exc.errno == errno.ENOSPC:

@@ -225,6 +225,10 @@ def _facility_cases(tmp, inp, out):
         cases.append((f"facility-text:{name}", ["hil", "facility", str(f), "-o", str(out / "f.yaml"), "-q"], expect))
         cases.append((f"facility-text-sim:{name}", ["calibrate", "simulate", str(f), "--patterns", str(inp / "pats"),
                                                     "-o", str(out / "s"), "-q"], expect))
+    tiny = _set(_set(base, "screen.width_px", 16), "screen.height_px", 16)
+    (inp / "facs" / "tiny_screen.yaml").write_text(yaml.safe_dump(tiny))
+    cases.append(("facility:16x16-screen-patterns", ["calibrate", "patterns", str(inp / "facs" / "tiny_screen.yaml"), "-o",
+                                                     str(out / "p16"), "-q"], "screen"))
     cases.append(("facility:missing", ["hil", "facility", str(inp / "nope.yaml"), "-o", str(out / "f.yaml")], "nope.yaml"))
     cases.append(("facility:a-folder", ["hil", "facility", str(inp / "pats"), "-o", str(out / "f.yaml")], "pats"))
     cases.append(("facility:preset-typo", ["hil", "facility", "bench_smal", "-o", str(out / "f.yaml")], "bench_small"))
@@ -504,6 +508,19 @@ def _dataset_cases(tmp, inp, out):
                                                      "-q"], expect))
         if name != "no-manifest":  # bench ip reads any folder of PNG + JSON frames
             cases.append((f"dataset:bench-ip:{name}", ["bench", "ip", p, "-o", str(out / f"ip_{name}"), "-q"], expect))
+    # a folder of frames (no manifest): one JSON missing, one frame of another size
+    lone = inp / "damaged" / "frames_lone"
+    if not lone.exists():
+        shutil.copytree(ds / "frames", lone / "frames")
+        shutil.copy(ds / "frames" / "000000.png", lone / "frames" / "000001.png")
+    cases.append(("frames:bench-ip:png-without-json", ["bench", "ip", str(lone), "-o", str(out / "ip_lone"), "-q"],
+                  "000001.png"))
+    mixed = inp / "damaged" / "frames_mixed"
+    if not mixed.exists():
+        shutil.copytree(ds / "frames", mixed / "frames")
+        shutil.copy(inp / "ds512" / "frames" / "000000.png", mixed / "frames" / "000000.png")
+    cases.append(("frames:bench-ip:another-size", ["bench", "ip", str(mixed), "-o", str(out / "ip_mixed"), "-q"],
+                  "000000.png"))
     return cases
 
 
@@ -595,6 +612,15 @@ def test_editing_the_nominal_focal_length_of_a_calibrated_facility_is_refused_na
     from skynav.calibration.facility_io import load_facility
 
     assert load_facility(f).geometric.focal_length_mm == 55.0
+
+
+def test_a_power_meter_table_with_a_byte_order_mark_is_read(world, capsys):
+    tmp, inp, out = world
+    f = out / "bom.csv"
+    f.write_bytes(b"\xef\xbb\xbf" + (inp / "caps" / "power_meter.csv").read_bytes())
+    code, _, err = _run(["calibrate", "radiometric", str(inp / "fac.yaml"), "--measurements", str(f), "-o",
+                         str(out / "bom.yaml"), "-q"], capsys)
+    assert code == 0, err
 
 
 def test_set_collimator_focal_length_on_a_nominal_preset_changes_the_model(world, capsys):
