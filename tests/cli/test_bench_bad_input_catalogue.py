@@ -5,7 +5,7 @@ facility|export``, ``render --hil``, ``calibrate patterns|simulate|geometric|rad
 ``bench ip|nav``, facility files, pattern manifests, captures and power-meter tables. Each case
 is a command line a user could type, with the files it needs; each must end with exit 2, exactly
 one stderr line ``skynav: error: ...`` naming the key, flag or path at fault, no traceback, and
-every input byte-identical afterwards (every file under the inputs folder, hidden ones included,
+every input unchanged afterwards (every file under the inputs folder, hidden ones included,
 is hashed before and after each case; a new file there counts as a change).
 
 Inputs are tiny (the ``bench_small`` facility, one dot grid, one-frame datasets), so the table
