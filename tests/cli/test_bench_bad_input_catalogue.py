@@ -274,6 +274,7 @@ def _flag_cases(tmp, inp, out):
         (ip + ["--position-sigma-km", "-5"], "--position-sigma-km"),
         (ip + ["--position-sigma-km", "0"], "--position-sigma-km"),
         (ip + ["--mode", "best"], "--mode"),
+        (ip + ["--position-sigma-km"] + ["1e4"] * 17, "--position-sigma-km"),
         (ip + ["--set", "inlier_px=inf"], "inlier_px"),
         (ip + ["--set", "no_such=1"], "no_such"),
         (nav + ["--calibration-stride", "0"], "--calibration-stride"),
