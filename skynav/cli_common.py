@@ -224,11 +224,18 @@ def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -
     """
     from pathlib import Path
 
+    from skynav.datasets.frame_files import check_output_dir
+
     out = Path(output)
     if kind == "file" and out.is_dir():
         raise PathConflictError(f"{flag} {output}: is a folder; give a file name (e.g. {Path(output) / 'facility.yaml'})")
+    if kind == "file" and out.exists() and not out.is_file():
+        raise PathConflictError(f"{flag} {output}: is not a regular file (a device, pipe or socket); give a file on disk")
     if kind == "folder" and out.exists() and not out.is_dir():
         raise PathConflictError(f"{flag} {output}: is a file, not a folder; give a folder")
+    # a kernel file system (/proc, /sys, /dev), under a file, not writable: the datasets' rule
+    check_output_dir(out if kind == "folder" else (out.parent if str(out.parent) else Path(".")),
+                     what=f"the folder of {flag} {output}" if kind == "file" else f"the {flag} folder")
     ro = out.resolve()
     for name, path in inputs:
         if path is None:
