@@ -8,7 +8,13 @@ from pathlib import Path
 
 from skynav.scenes import facility as fac
 
+from skynav.scenes.errors import ConfigValueError
+
 from .errors import FacilityFileError
+
+
+#: the largest facility file read (a calibrated one is ~30 kB)
+MAX_FILE_BYTES = 16 << 20
 
 
 def load_facility(arg) -> fac.Facility:
@@ -19,13 +25,23 @@ def load_facility(arg) -> fac.Facility:
         return fac.PRESETS[str(arg)]()
     path = Path(arg)
     if not path.is_file():
-        raise FacilityFileError(f"{arg}: no such facility file (give a .yaml file or a preset: {', '.join(fac.PRESETS)})")
+        import difflib
+
+        close = difflib.get_close_matches(str(arg), list(fac.PRESETS), n=1)
+        hint = f"did you mean the preset {close[0]}? " if close else ""
+        raise FacilityFileError(f"{arg}: no such facility file{' (a folder)' if path.is_dir() else ''}; {hint}give a .yaml "
+                                f"file or a preset: {', '.join(fac.PRESETS)}")
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise FacilityFileError(f"{path}: {path.stat().st_size} bytes; a facility file is at most {MAX_FILE_BYTES} bytes")
     try:
         with open(path, "rb") as fobj:
             data = yaml.safe_load(fobj)
     except yaml.YAMLError as exc:
         raise FacilityFileError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    return fac.facility_from_mapping(data)
+    try:
+        return fac.facility_from_mapping(data)
+    except ConfigValueError as exc:  # name the file too
+        raise FacilityFileError(f"{path}: {exc}") from None
 
 
 def write_text_atomic(path, text: str) -> Path:

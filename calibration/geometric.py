@@ -20,8 +20,13 @@ import numpy as np
 
 from skynav.scenes.facility import ARCSEC, Facility, FlatField, GeometricModel, ResidualField
 
-from .errors import CaptureMismatchError, IdentificationError
+from .errors import CalibrationInputError, CaptureMismatchError, IdentificationError
 from .patterns import Pattern
+
+
+#: the largest held-out fraction (the fit needs the rest) and the fewest held-out dots (a p99)
+MAX_HOLDOUT = 0.9
+MIN_HELD_OUT = 10
 
 
 @dataclass(frozen=True)
@@ -197,6 +202,9 @@ def fit_geometric(facility: Facility, pats, images: dict, *, holdout: float = 0.
     began (``time.perf_counter()``) for the result's ``seconds``; ``source``: the patterns' and
     the captures' folders, for the facility's provenance record."""
     t0 = time.perf_counter() if t0 is None else t0
+    if not (isinstance(holdout, (int, float)) and 0 < holdout <= MAX_HOLDOUT):
+        raise CalibrationInputError(f"holdout = {holdout!r}: expected a fraction in (0, {MAX_HOLDOUT:g}] of the dots held "
+                                    "out of the fit to measure its error")
     obs = observe(facility, pats, images)
     cam, sc = facility.camera, facility.screen
     v = cam.line_of_sight(obs.camera_xy)
@@ -205,7 +213,11 @@ def fit_geometric(facility: Facility, pats, images: dict, *, holdout: float = 0.
     test = rng.random(len(v)) < holdout
     fit = ~test
     if fit.sum() < 50:
-        raise IdentificationError(f"only {int(fit.sum())} dots identified over all captures; need >= 50 for a fit")
+        raise IdentificationError(f"{len(v)} dots identified over all captures, {int(fit.sum())} of them left for the fit "
+                                  f"after holding out {holdout:g}; need >= 50 for a fit (hold out less, or use more patterns)")
+    if test.sum() < MIN_HELD_OUT:
+        raise IdentificationError(f"{int(test.sum())} of {len(v)} dots held out (holdout {holdout:g}); need >= {MIN_HELD_OUT} "
+                                  "to measure the fit's error (hold out more)")
     g0 = _initial(facility, obs.screen_xy[fit], v[fit])
     g = _fit_physical(facility, obs.screen_xy[fit], v[fit], g0)
     # robust pass: drop gross outliers (> 10x the median error and > 2 arcsec, e.g. a dot cut by an

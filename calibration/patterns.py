@@ -30,6 +30,11 @@ SCHEMA = "skynav.patterns/2"
 READABLE_SCHEMAS = ("skynav.patterns/1", SCHEMA)
 #: grid-node offsets (columns, rows) of the fiducials from the node nearest the screen centre
 FIDUCIAL_NODES = ((0, 0), (3, 0), (0, 2), (-4, -3), (5, -5), (-2, 5), (-6, 2))
+#: most grid phases per axis (``phases**2`` dot grids, each a screen-sized PNG and a capture; 8
+#: gives 64, minutes of capture on the full-size bench)
+MAX_PHASES = 8
+#: fewest dots a grid may hold (the fit needs >= 50 over all grids, the fiducials several)
+MIN_DOTS = 16
 
 
 @dataclass(frozen=True)
@@ -49,7 +54,17 @@ class Pattern:
 
 def design(facility: Facility, *, phases: int = 3, flat_levels=(0.5, 0.8, 1.0)) -> list[Pattern]:
     """The pattern set of a facility: ``phases**2`` dot grids, flats at ``flat_levels`` of full
-    scale and a dark frame."""
+    scale and a dark frame.
+
+    Raises
+    ------
+    CalibrationInputError
+        ``phases`` outside 1..:data:`MAX_PHASES`; a screen too small for a dot grid (fewer than
+        :data:`MIN_DOTS` dots per grid).
+    """
+    if isinstance(phases, bool) or not isinstance(phases, int) or not 1 <= phases <= MAX_PHASES:
+        raise CalibrationInputError(f"phases = {phases!r}: expected an integer in 1..{MAX_PHASES} (phases**2 dot grids; "
+                                    f"{MAX_PHASES} gives {MAX_PHASES ** 2}, each a screen-sized PNG and a capture)")
     sc = facility.screen
     cam = facility.camera
     scale = facility.geometric.focal_length_mm / (sc.pixel_pitch_um * 1e-3) / cam.focal_length_px  # screen px per camera px
@@ -78,6 +93,10 @@ def design(facility: Facility, *, phases: int = 3, flat_levels=(0.5, 0.8, 1.0)) 
             hit = np.flatnonzero(np.all(dots == p, axis=1))
             if hit.size:
                 fid.append(int(hit[0]))
+        if len(dots) < MIN_DOTS:
+            raise CalibrationInputError(f"the {sc.width_px}x{sc.height_px} px screen holds {len(dots)} dots per grid at a step "
+                                        f"of {step} screen px (from the camera's {cam.width} px width and the collimator); "
+                                        f"need >= {MIN_DOTS}: a larger screen (screen.width_px, height_px) or pitch")
         out.append(Pattern(file=f"dots_{k:02d}.png", kind="dots", dots=dots, fiducials=tuple(fid), dot_radius_px=float(radius),
                            grid_step_px=float(step), level_dn=level))
     for f in flat_levels:
@@ -114,25 +133,102 @@ def draw(pattern: Pattern, width: int, height: int, bit_depth: int) -> np.ndarra
     return img
 
 
+#: most patterns a set may hold (``calibrate patterns --phases 8`` writes 68)
+MAX_PATTERNS = 1024
+#: most dots a pattern may list (a grid step of 16 px on an 8192 px screen: ~262 000)
+MAX_DOTS = 1 << 20
+KINDS = ("dots", "flat", "dark")
+
+
+def _bad(path, where, value, allowed):
+    text = repr(value)
+    return CalibrationInputError(f"{path}: {where} = {text if len(text) <= 60 else text[:57] + '...'} is not allowed; "
+                                 f"expected {allowed}")
+
+
+def check_pattern_file_name(name, path, where) -> str:
+    """A pattern's ``file``: a plain ``*.png`` name inside the pattern folder (no folder part, not
+    hidden, not ``..``), so no path read from ``patterns.json`` leaves its folder."""
+    import re
+
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}\.png", name) or ".." in name:
+        raise _bad(path, where, name, "a plain file name ending .png, inside the pattern folder (letters, digits, _ . -; "
+                   "no folder, not hidden)")
+    return name
+
+
 def read_patterns(directory):
-    """(screen dict, list of :class:`Pattern`) from ``DIR/patterns.json``."""
+    """(screen dict, list of :class:`Pattern`) from ``DIR/patterns.json``, every key checked.
+
+    Raises
+    ------
+    CalibrationInputError
+        One line naming the file and the key (``patterns[3].dots[7]``).
+    """
     path = Path(directory) / "patterns.json"
+    if not Path(directory).is_dir():
+        raise CalibrationInputError(f"{directory}: no such pattern folder (make one with `skynav calibrate patterns "
+                                    "FACILITY -o DIR`)")
     if not path.is_file():
         raise CalibrationInputError(f"{path}: no patterns.json (make one with `skynav calibrate patterns FACILITY -o DIR`)")
     try:
-        doc = json.loads(path.read_text())
-        if doc.get("schema") not in READABLE_SCHEMAS:
-            raise CalibrationInputError(f"{path}: schema {doc.get('schema')!r}; expected one of "
-                                        f"{', '.join(map(repr, READABLE_SCHEMAS))}")
-        pats = []
-        for p in doc["patterns"]:
-            dots = np.asarray(p.get("dots", []), dtype=float).reshape(-1, 2)
-            kind = p.get("kind", "dots" if len(dots) else "flat")
-            pats.append(Pattern(file=str(p["file"]), kind=kind, dots=dots, fiducials=tuple(int(i) for i in p.get("fiducials", ())),
-                                dot_radius_px=float(p.get("dot_radius_px", 0.0)), grid_step_px=float(p.get("grid_step_px", 0.0)),
-                                level_dn=int(p.get("level_dn", 0))))
-        return doc["screen"], pats
-    except (KeyError, TypeError, ValueError) as exc:
-        if isinstance(exc, CalibrationInputError):
-            raise
-        raise CalibrationInputError(f"{path}: malformed patterns file ({exc})") from None
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise CalibrationInputError(f"{path}: not a JSON patterns file ({exc.__class__.__name__})") from None
+    if not isinstance(doc, dict):
+        raise _bad(path, "the file", type(doc).__name__, "a JSON object")
+    if doc.get("schema") not in READABLE_SCHEMAS:
+        raise CalibrationInputError(f"{path}: schema {doc.get('schema')!r}; expected one of "
+                                    f"{', '.join(map(repr, READABLE_SCHEMAS))}")
+    screen = doc.get("screen")
+    if not isinstance(screen, dict):
+        raise _bad(path, "screen", screen, "a mapping with width_px, height_px, bit_depth")
+    for key, lo, hi in (("width_px", 16, 1 << 16), ("height_px", 16, 1 << 16), ("bit_depth", 1, 16)):
+        v = screen.get(key)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise _bad(path, f"screen.{key}", v, f"an integer in {lo}..{hi}")
+    width, height, max_dn = screen["width_px"], screen["height_px"], (1 << screen["bit_depth"]) - 1
+    items = doc.get("patterns")
+    if not isinstance(items, list) or not 1 <= len(items) <= MAX_PATTERNS:
+        raise _bad(path, "patterns", items if not isinstance(items, list) else f"{len(items)} patterns",
+                   f"a list of 1 to {MAX_PATTERNS} patterns")
+    pats, seen = [], set()
+    for i, p in enumerate(items):
+        where = f"patterns[{i}]"
+        if not isinstance(p, dict):
+            raise _bad(path, where, p, "a mapping (file, dots, kind, ...)")
+        file = check_pattern_file_name(p.get("file"), path, f"{where}.file")
+        if file in seen:
+            raise _bad(path, f"{where}.file", file, "a file name no other pattern uses")
+        seen.add(file)
+        raw = p.get("dots", [])
+        if not isinstance(raw, list) or len(raw) > MAX_DOTS:
+            raise _bad(path, f"{where}.dots", raw, f"a list of at most {MAX_DOTS} [x, y] pairs")
+        for j, xy in enumerate(raw):
+            if not (isinstance(xy, list) and len(xy) == 2 and all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                                                 and math.isfinite(c) for c in xy)
+                    and -0.5 <= xy[0] <= width - 0.5 and -0.5 <= xy[1] <= height - 0.5):
+                raise _bad(path, f"{where}.dots[{j}]", xy, f"[x, y] screen px on the {width}x{height} screen")
+        dots = np.asarray(raw, dtype=float).reshape(-1, 2)
+        kind = p.get("kind", "dots" if len(dots) else "flat")
+        if kind not in KINDS:
+            raise _bad(path, f"{where}.kind", kind, "one of: " + ", ".join(KINDS))
+        if kind == "dots" and not len(dots):
+            raise _bad(path, f"{where}.dots", raw, "at least one dot in a 'dots' pattern")
+        fid = p.get("fiducials", [])
+        if not isinstance(fid, list) or any(isinstance(k, bool) or not isinstance(k, int) or not 0 <= k < len(dots)
+                                            for k in fid) or len(set(fid)) != len(fid):
+            raise _bad(path, f"{where}.fiducials", fid, f"distinct indices into dots (0..{len(dots) - 1})")
+        nums = {}
+        for key, lo, hi in (("dot_radius_px", 0.0, 256.0), ("grid_step_px", 0.0, float(max(width, height))),
+                            ("level_dn", 0, max_dn)):
+            v = p.get(key, 0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi \
+                    or (key == "level_dn" and v != int(v)):
+                raise _bad(path, f"{where}.{key}", v, f"{'an integer' if key == 'level_dn' else 'a number'} in {lo:g}..{hi:g}")
+            nums[key] = v
+        if kind == "dots" and not nums["dot_radius_px"] > 0:
+            raise _bad(path, f"{where}.dot_radius_px", nums["dot_radius_px"], "> 0 in a 'dots' pattern")
+        pats.append(Pattern(file=file, kind=kind, dots=dots, fiducials=tuple(fid), dot_radius_px=float(nums["dot_radius_px"]),
+                            grid_step_px=float(nums["grid_step_px"]), level_dn=int(nums["level_dn"])))
+    return screen, pats

@@ -28,24 +28,65 @@ from .errors import MeasurementError
 MIN_ROWS = 8
 
 
-def read_measurements(path):
-    """(digital_count, lit_pixels, irradiance_w_m2) arrays from the CSV, checked."""
+#: the most rows a measurement table may hold (a bench sweep has one per DN step: 65536 at 16 bits)
+MAX_ROWS = 1_000_000
+HEADER = ["digital_count", "lit_pixels", "irradiance_w_m2"]
+
+
+def read_measurements(path, *, max_dn: int | None = None):
+    """(digital_count, lit_pixels, irradiance_w_m2) arrays from the CSV, checked.
+
+    UTF-8 text (a byte-order mark before the header is allowed), the header
+    ``digital_count,lit_pixels,irradiance_w_m2``, then at least :data:`MIN_ROWS` rows of three
+    finite numbers: whole digital counts in ``0..max_dn`` (when given), whole ``lit_pixels`` > 0,
+    ``irradiance_w_m2`` >= 0; the irradiance per lit pixel must not fall as the count rises.
+
+    Raises
+    ------
+    MeasurementError
+        One line naming the file, the row and the column.
+    """
     p = Path(path)
     if not p.is_file():
-        raise MeasurementError(f"{path}: no such measurement file")
-    with open(p, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows or [c.strip() for c in rows[0]] != ["digital_count", "lit_pixels", "irradiance_w_m2"]:
-        raise MeasurementError(f"{path}: header must be digital_count,lit_pixels,irradiance_w_m2")
+        raise MeasurementError(f"{path}: no such measurement file" + (" (a folder)" if p.is_dir() else ""))
     try:
-        data = np.array([[float(c) for c in r] for r in rows[1:] if r], dtype=float)
+        with open(p, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise MeasurementError(f"{path}: not a UTF-8 CSV table ({exc.__class__.__name__}); expected the header "
+                               f"{','.join(HEADER)}") from None
+    if not rows or [c.strip() for c in rows[0]] != HEADER:
+        raise MeasurementError(f"{path}: header must be {','.join(HEADER)}")
+    rows = [r for r in rows[1:] if r and any(c.strip() for c in r)]
+    if len(rows) > MAX_ROWS:
+        raise MeasurementError(f"{path}: {len(rows)} measurements; at most {MAX_ROWS}")
+    for i, r in enumerate(rows):
+        if len(r) != 3:
+            raise MeasurementError(f"{path}: row {i + 2} has {len(r)} values; expected 3 ({','.join(HEADER)})")
+    try:
+        data = np.array([[float(c) for c in r] for r in rows], dtype=float).reshape(-1, 3)
     except ValueError as exc:
         raise MeasurementError(f"{path}: not a number ({exc})") from None
-    if data.ndim != 2 or data.shape[0] < MIN_ROWS or data.shape[1] != 3:
-        raise MeasurementError(f"{path}: {0 if data.ndim != 2 else data.shape[0]} measurements; need >= {MIN_ROWS} rows of 3 values")
+    for j, name in enumerate(HEADER):
+        col = data[:, j]
+        bad = ~np.isfinite(col) | (col < 0)
+        if name == "digital_count":
+            bad |= col != np.round(col)
+            if max_dn is not None:
+                bad |= col > max_dn
+            allowed = f"a whole number in 0..{max_dn}" if max_dn is not None else "a whole number >= 0"
+        elif name == "lit_pixels":
+            bad |= (col <= 0) | (col != np.round(col)) | (col > 1e9)
+            allowed = "a whole number of pixels > 0"
+        else:
+            bad |= col > 1e6
+            allowed = "a finite irradiance in [0, 1e6] W/m^2"
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            raise MeasurementError(f"{path}: row {k + 2}: {name} = {rows[k][j].strip()}; expected {allowed}")
+    if data.shape[0] < MIN_ROWS:
+        raise MeasurementError(f"{path}: {data.shape[0]} measurements; need >= {MIN_ROWS} rows of 3 values")
     d, n, e = data.T
-    if np.any(n <= 0) or np.any(~np.isfinite(e)) or np.any(e < 0):
-        raise MeasurementError(f"{path}: lit_pixels must be > 0 and irradiance_w_m2 finite and >= 0")
     order = np.argsort(d, kind="stable")
     d, n, e = d[order], n[order], e[order]
     per = e / n
@@ -57,6 +98,8 @@ def read_measurements(path):
                                "the curve must be monotone")
     if len(np.unique(d)) < MIN_ROWS:
         raise MeasurementError(f"{path}: only {len(np.unique(d))} distinct digital counts; need >= {MIN_ROWS}")
+    if not per.max() > 0:
+        raise MeasurementError(f"{path}: every irradiance_w_m2 is 0; the meter saw no light")
     return d, n, e
 
 
@@ -85,7 +128,7 @@ def v_mag_of_dn(facility: Facility, dn, *, psf_pixels: float) -> np.ndarray:
 def calibrate_radiometric(facility: Facility, csv_path, *, psf_pixels: float = 20.0) -> RadiometricResult:
     from scipy.optimize import least_squares
 
-    d, n, e = read_measurements(csv_path)
+    d, n, e = read_measurements(csv_path, max_dn=facility.screen.max_dn)
     per = e / n
     m = facility.screen.max_dn
     black0 = max(float(per[d == d.min()].mean()), 1e-30) if d.min() == 0 else per.min() * 0.5

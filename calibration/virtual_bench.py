@@ -25,6 +25,10 @@ import numpy as np
 
 from skynav.scenes.facility import ARCSEC, Facility, GeometricModel, RadiometricModel, ResidualField
 
+#: most exposures a capture averages (each is a full camera frame of noise: 256 on the paper
+#: camera's 1024 x 1024 sensor is about a minute per pattern)
+MAX_FRAMES = 256
+
 
 @dataclass(frozen=True, kw_only=True)
 class TrueBench:

@@ -19,8 +19,8 @@ import numpy as np
 from skynav.calibration.closed_loop import ClosedLoopResult, LoopRows, angle_arcsec, measure_pair, select_sources
 from skynav.calibration.errors import CalibrationInputError, CaptureMismatchError
 from skynav.calibration.geometric import GeometricResult, fit_geometric
-from skynav.calibration.patterns import SCHEMA, Pattern, design, draw, read_patterns
-from skynav.calibration.virtual_bench import VirtualBench, scenario
+from skynav.calibration.patterns import SCHEMA, Pattern, design, draw, read_patterns  # noqa: F401
+from skynav.calibration.virtual_bench import MAX_FRAMES, VirtualBench, scenario
 from skynav.scenes.camera import Camera
 from skynav.scenes.facility import Facility
 
@@ -39,26 +39,54 @@ def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
     ``patterns.json`` says so (``png_scaling``, ``significant_bits``). :func:`read_captures` and
     :func:`simulate` read these and the unscaled PNGs of skynav <= 0.3.0 alike
     (:func:`~skynav.datasets.frame_files.read_png`)."""
+    from .lock import dataset_lock
+
     d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
     sc = facility.screen
-    pats = design(facility, **kw)
-    for p in pats:
-        write_png(d / p.file, draw(p, sc.width_px, sc.height_px, sc.bit_depth), bit_depth=sc.bit_depth)
-    doc = {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},
-           "png_scaling": PNG_SCALING, "significant_bits": int(sc.bit_depth),
-           "patterns": [p.to_json() for p in pats]}
-    atomic_write_bytes(d / "patterns.json", json.dumps(doc, indent=1).encode())
+    pats = design(facility, **kw)  # the bad-input checks, before anything is written
+    d.mkdir(parents=True, exist_ok=True)
+    with dataset_lock(d, what="pattern folder"):
+        # patterns.json goes last and names only this set: a killed run leaves no manifest (or the
+        # previous one, of files rewritten with the same bytes)
+        for p in pats:
+            write_png(d / p.file, draw(p, sc.width_px, sc.height_px, sc.bit_depth), bit_depth=sc.bit_depth)
+        doc = {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},
+               "png_scaling": PNG_SCALING, "significant_bits": int(sc.bit_depth),
+               "patterns": [p.to_json() for p in pats]}
+        atomic_write_bytes(d / "patterns.json", json.dumps(doc, indent=1).encode())
     return pats
+
+
+def check_patterns_screen(facility: Facility, screen: dict, patterns_dir) -> None:
+    """Refuse patterns made for another screen than the facility's (one line)."""
+    sc = facility.screen
+    if (screen.get("width_px"), screen.get("height_px"), screen.get("bit_depth")) != (sc.width_px, sc.height_px, sc.bit_depth):
+        raise CaptureMismatchError(f"{patterns_dir}: patterns for a {screen.get('width_px')}x{screen.get('height_px')} "
+                                   f"{screen.get('bit_depth')}-bit screen, but the facility's screen is {sc.width_px}x{sc.height_px} "
+                                   f"{sc.bit_depth}-bit; make patterns for this facility (skynav calibrate patterns)")
+
+
+def read_pattern_image(patterns_dir, pattern: Pattern, screen: dict) -> np.ndarray:
+    """A pattern's PNG, checked: readable, the screen's size, DN within the screen's bit depth."""
+    path = Path(patterns_dir) / pattern.file
+    if not path.is_file():
+        raise CalibrationInputError(f"{path}: pattern image missing (listed in patterns.json); write the patterns again")
+    try:
+        img = read_png(path)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad input
+        raise CalibrationInputError(f"{path}: not a readable greyscale PNG ({exc.__class__.__name__})") from None
+    w, h, bd = screen["width_px"], screen["height_px"], screen["bit_depth"]
+    if img.ndim != 2 or img.shape != (h, w):
+        raise CalibrationInputError(f"{path}: pattern image is {'x'.join(map(str, img.shape[::-1]))} px; the screen is {w}x{h}")
+    if int(img.max(initial=0)) > (1 << bd) - 1:
+        raise CalibrationInputError(f"{path}: pattern image holds DN {int(img.max())}; the screen is {bd}-bit")
+    return img
 
 
 def read_captures(facility: Facility, patterns_dir, captures_dir):
     """(patterns, {file: image}) after checking that the captures match the patterns."""
     screen, pats = read_patterns(patterns_dir)
-    sc = facility.screen
-    if (screen.get("width_px"), screen.get("height_px"), screen.get("bit_depth")) != (sc.width_px, sc.height_px, sc.bit_depth):
-        raise CaptureMismatchError(f"{patterns_dir}: patterns for a {screen.get('width_px')}x{screen.get('height_px')} "
-                                   f"{screen.get('bit_depth')}-bit screen, but the facility's screen is {sc.width_px}x{sc.height_px} {sc.bit_depth}-bit")
+    check_patterns_screen(facility, screen, patterns_dir)
     cap = Path(captures_dir)
     if not cap.is_dir():
         raise CaptureMismatchError(f"{captures_dir}: no such captures folder")
@@ -73,8 +101,8 @@ def read_captures(facility: Facility, patterns_dir, captures_dir):
         try:
             img = read_png(cap / p.file)
         except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad input
-            raise CaptureMismatchError(f"{cap / p.file}: not a readable greyscale PNG ({exc})") from None
-        if img.shape != (cam.height, cam.width):
+            raise CaptureMismatchError(f"{cap / p.file}: not a readable greyscale PNG ({exc.__class__.__name__})") from None
+        if img.ndim != 2 or img.shape != (cam.height, cam.width):
             raise CaptureMismatchError(f"{cap / p.file}: capture is {img.shape[1]}x{img.shape[0]} px; the camera is {cam.width}x{cam.height}")
         if img.dtype != want or int(img.max()) > cam.sensor.max_dn:
             raise CaptureMismatchError(f"{cap / p.file}: capture is {img.dtype} with max {int(img.max())}; the camera is "
@@ -95,21 +123,48 @@ def calibrate_geometric(facility: Facility, patterns_dir, captures_dir, *, holdo
 def simulate(facility: Facility, patterns_dir, out_dir, *, scenario_name: str = "realistic", seed: int = 0,
              frames: int = 16, progress=None) -> dict:
     """Capture every pattern of ``patterns_dir`` on the virtual bench into ``out_dir`` (same file
-    names) and write ``out_dir/power_meter.csv``. Returns a summary dict."""
+    names) and write ``out_dir/power_meter.csv``. Returns a summary dict.
+
+    The folder is locked for the run (a second run on it is refused, as for ``dataset generate``);
+    every file is written atomically and the whole set again by a re-run with the same seed, so
+    a run killed part-way and run again gives the bytes of one uninterrupted run. Every pattern is
+    read and checked (``patterns.json``, the screen, each PNG) before the first capture.
+
+    Raises
+    ------
+    CalibrationInputError
+        Bad patterns, patterns of another screen, ``frames`` outside 1..:data:`MAX_FRAMES`.
+    skynav.datasets.lock.DatasetLockedError
+        Another run writes into ``out_dir``.
+    """
+    from .lock import dataset_lock
+
+    if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= MAX_FRAMES:
+        raise CalibrationInputError(f"frames = {frames!r}: expected an integer in 1..{MAX_FRAMES} (exposures averaged per "
+                                    "capture; each is a full camera frame of noise)")
     screen, pats = read_patterns(patterns_dir)
+    check_patterns_screen(facility, screen, patterns_dir)
+    for p in pats:  # all checked before the first write (then read again one at a time: memory)
+        read_pattern_image(patterns_dir, p, screen)
     bench = VirtualBench(facility, scenario(scenario_name, facility))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    with dataset_lock(out, what="capture folder"):
+        return _simulate(facility, bench, pats, lambda p: read_pattern_image(patterns_dir, p, screen), out, scenario_name,
+                         seed, frames, progress)
+
+
+def _simulate(facility, bench, pats, image_of, out, scenario_name, seed, frames, progress):
     rng = np.random.default_rng(seed)
     bd = facility.camera.sensor.bit_depth
     # the lab sets the exposure so that the brightest dots reach ~75 % of full well
     scale = 1.0
     first = next((p for p in pats if p.kind == "dots"), None)
     if first is not None:
-        peak = float(bench.expected_electrons(read_png(Path(patterns_dir) / first.file).astype(float)).max())
+        peak = float(bench.expected_electrons(image_of(first).astype(float)).max())
         scale = float(np.clip(0.75 * facility.camera.sensor.full_well_e / max(peak, 1e-9), 0.1, 10.0))
     for i, p in enumerate(pats):
-        img = read_png(Path(patterns_dir) / p.file)
+        img = image_of(p)
         write_png(out / p.file, bench.capture(img.astype(float), rng, frames=frames, exposure_scale=scale), bit_depth=bd)
         if progress:
             progress(i + 1, len(pats))

@@ -129,6 +129,94 @@ def _export_dask(k, *, facility, root, out):
     return _export_one((facility, root, out, k))
 
 
+#: the frame-truth keys a screen frame is rebuilt from
+_SCENE_KEYS = ("epoch", "observer", "attitude", "camera")
+
+
+def _check_scene_sections(truth: dict, where, k: int) -> None:
+    """The truth sections a screen frame is rebuilt from, read as :func:`scene_from_truth` reads
+    them (without the schema validator: a few microseconds a frame): one line naming the key."""
+    import math
+
+    from skynav.scenes.errors import SkynavError
+
+    from .errors import TruthSchemaError
+    from .frame_truth import epoch_tdb_seconds
+
+    def vector(section, key, shape):
+        try:
+            a = np.asarray(truth[section][key], dtype=float)
+            ok = a.shape == shape and bool(np.all(np.isfinite(a)))
+        except (KeyError, TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise TruthSchemaError(f"{where}: frame {k}'s truth: {section}.{key} is not {' x '.join(map(str, shape))} finite "
+                                   "numbers (run skynav dataset verify)", [])
+
+    try:
+        t = epoch_tdb_seconds(truth["epoch"])
+        ok = math.isfinite(t)
+    except (SkynavError, KeyError, TypeError, ValueError, AttributeError):
+        ok = False
+    if not ok:
+        raise TruthSchemaError(f"{where}: frame {k}'s truth: epoch is not readable (tdb_seconds_past_j2000 or tdb_iso; "
+                               "run skynav dataset verify)", [])
+    vector("observer", "position_km", (3,))
+    vector("observer", "velocity_km_s", (3,))
+    vector("attitude", "R_cam_icrs", (3, 3))
+    vector("attitude", "angular_velocity_rad_s", (3,))
+    if "visibility" in truth:
+        from skynav.scenes.visibility import VisibilityCriteria
+
+        try:
+            VisibilityCriteria.from_dict(truth["visibility"])
+        except (SkynavError, KeyError, TypeError, ValueError, AttributeError):
+            raise TruthSchemaError(f"{where}: frame {k}'s truth: visibility is not readable (run skynav dataset verify)",
+                                   []) from None
+    v = truth.get("catalog_limiting_v_mag", 0.0)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise TruthSchemaError(f"{where}: frame {k}'s truth: catalog_limiting_v_mag = {v!r} is not a finite number", [])
+
+
+def check_dataset_cameras(ds, facility, dataset_path) -> None:
+    """Refuse a dataset the facility cannot show: a frame whose truth lacks what the screen frame
+    is rebuilt from, or whose camera is not the facility's (the bench's camera must be the one the
+    dataset was made for, as ``render --hil`` requires). One line naming the frame file."""
+    from skynav.scenes.camera import Camera
+    from skynav.scenes.errors import SkynavError
+
+    from .errors import DatasetMismatchError, TruthSchemaError
+
+    seen = {}
+    for k in range(len(ds)):
+        truth = ds._read(k, dn=False)[0]
+        where = Path(dataset_path) / "frames" / f"{k:06d}.json"
+        if not isinstance(truth, dict) or any(key not in truth for key in _SCENE_KEYS):
+            missing = [key for key in _SCENE_KEYS if not isinstance(truth, dict) or key not in truth]
+            raise TruthSchemaError(f"{where}: frame {k}'s truth has no {', '.join(missing)}; a screen frame is rebuilt "
+                                   f"from {', '.join(_SCENE_KEYS)} (run skynav dataset verify)", [])
+        _check_scene_sections(truth, where, k)
+        cam_d = truth["camera"]
+        key = json.dumps(cam_d, sort_keys=True, default=str)
+        if key not in seen:
+            try:
+                seen[key] = Camera.from_dict(cam_d)
+            except (SkynavError, KeyError, TypeError, ValueError) as exc:
+                raise TruthSchemaError(f"{where}: frame {k}'s camera cannot be read ({exc.__class__.__name__}: "
+                                       f"{' '.join(str(exc).split())[:120]})", []) from None
+        cam, fc = seen[key], facility.camera
+        if cam != fc:
+            import dataclasses
+
+            diff = [f.name for f in dataclasses.fields(cam) if getattr(cam, f.name) != getattr(fc, f.name)]
+            first = diff[0] if diff else "?"
+            raise DatasetMismatchError(
+                f"{dataset_path}: frame {k} was made with another camera than the facility's ({len(diff)} key(s) differ, "
+                f"first camera.{first}: {repr(getattr(cam, first, '?'))[:40]} in the dataset, "
+                f"{repr(getattr(fc, first, '?'))[:40]} in the facility; {cam.width}x{cam.height} px vs {fc.width}x{fc.height} px); export a dataset made with the "
+                "facility's camera (dataset generate --set camera...), or a facility with the dataset's camera")
+
+
 def facility_sha256(facility) -> str:
     """SHA-256 of the facility's canonical mapping (what a facility file holds)."""
     import hashlib
@@ -152,16 +240,20 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
     import hashlib
 
     from . import open_dataset
-    from .errors import DatasetMismatchError
+    from .errors import DatasetMismatchError, OutputFormatError, OutputPathError
     from .journal import frame_problem
     from .layout import MANIFEST_NAME, package_version
     from .lock import dataset_lock
 
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise OutputFormatError(f"workers = {workers!r}: expected an integer >= 1")
     ds = open_dataset(dataset_path)
     root = str(Path(dataset_path).resolve())
     out = Path(out_dir)
+    if out.resolve() == Path(root) or Path(root) in out.resolve().parents:
+        raise OutputPathError(f"{out_dir}: inside the dataset {dataset_path}; export into another folder "
+                              "(an export never writes into its dataset)")
+    check_dataset_cameras(ds, facility, dataset_path)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     ident = {"schema": EXPORT_SCHEMA,
              "dataset": {"path": root, "manifest_sha256": hashlib.sha256((Path(root) / MANIFEST_NAME).read_bytes()).hexdigest(),
@@ -171,6 +263,7 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
              "skynav_version": package_version()}
     with dataset_lock(out):
         mpath = out / EXPORT_MANIFEST
+        proven = False  # the frames already there are of this dataset and facility
         if mpath.is_file():
             try:
                 old = json.loads(mpath.read_bytes())
@@ -186,10 +279,13 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
                         raise DatasetMismatchError(
                             f"{out}: holds a screen export of another {what} ({EXPORT_MANIFEST}); "
                             f"export into a new folder, or delete this one to start again")
+                proven = True
         atomic_write_bytes(mpath, json.dumps(dict(ident, complete=False), indent=1).encode())
         todo, checksums = [], {}
         for k in range(len(ds)):
-            problem, files, record = frame_problem(out, k, FORMATS)
+            # without a readable export.json nothing proves which dataset and facility the frames
+            # there came from (their records prove their bytes only): every frame is made again
+            problem, files, record = frame_problem(out, k, FORMATS) if proven else ("unproven", None, None)
             if problem is None:
                 checksums.update(files)
                 checksums.update(record)

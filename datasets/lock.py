@@ -51,8 +51,9 @@ def _holder(path: Path):
 
 
 @contextlib.contextmanager
-def dataset_lock(root):
-    """Hold ``<root>/.skynav.lock`` for the ``with`` block.
+def dataset_lock(root, *, what: str = "dataset"):
+    """Hold ``<root>/.skynav.lock`` for the ``with`` block (``what`` the folder holds, for the
+    message: ``dataset``, ``capture folder``, ...).
 
     Raises
     ------
@@ -71,7 +72,7 @@ def dataset_lock(root):
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 pid, host = _holder(path)
                 who = f"pid {pid} on host {host}" if pid is not None else "another process"
-                raise DatasetLockedError(f"{root}: already running ({who}): another generator is writing this dataset; "
+                raise DatasetLockedError(f"{root}: already running ({who}): another skynav run is writing this {what}; "
                                          f"wait for it, or stop it first", pid=pid, host=host) from None
             if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):  # no locks here: go on
                 yield None

@@ -212,7 +212,10 @@ class Dataset:
         truth, dn, _ = self._read(i)
         if dn is None:
             raise DatasetError(f"{self.root}: frame {i} has no DN image (formats: {', '.join(self.formats)})")
-        return make_observation(truth, dn, index=i, calibration_error=calibration_error)
+        try:
+            return make_observation(truth, dn, index=i, calibration_error=calibration_error)
+        except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise self._truth_error(i, exc) from None
 
     def truth(self, k, *, validate: bool = True):
         """Typed ground truth of frame ``k`` (for scoring code): a
@@ -222,7 +225,26 @@ class Dataset:
 
         i = self._frame_index(k)
         truth, _, rel = self._read(i, dn=False)
-        return FrameTruth.from_dict(truth, validate=validate, source=str(self.root / rel["json"]))
+        try:
+            return FrameTruth.from_dict(truth, validate=validate, source=str(self.root / rel["json"]))
+        except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise self._truth_error(i, exc) from None
+
+    def _truth_error(self, i: int, exc: Exception):
+        """One-line :class:`TruthSchemaError` for a frame truth the reader could not use: the first
+        schema problem when there is one, else the error's kind."""
+        from .errors import TruthSchemaError
+        from .truth_schema import FRAME_SCHEMA, schema_problems
+
+        if isinstance(exc, (DatasetError, TruthSchemaError, FrameIndexError)):  # already one line naming the file
+            return exc
+        rel = layout.frame_relpaths(i, self.formats)["json"]
+        truth = self._read(i, dn=False)[0]
+        problems = schema_problems(truth, FRAME_SCHEMA) if isinstance(truth, dict) else ["the file is not a JSON object"]
+        what = problems[0] if problems else (" ".join(str(exc).split())[:160] if isinstance(exc, SkynavError)
+                                             else f"{exc.__class__.__name__}: {' '.join(str(exc).split())[:120]}")
+        return TruthSchemaError(f"{self.root / rel}: frame {i}'s truth does not follow skynav.frame/1: {what}; "
+                                "run `skynav dataset verify`", problems)
 
     def __iter__(self):
         for i in range(self._n):

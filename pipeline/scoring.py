@@ -140,8 +140,15 @@ def open_frames(path):
             raise BenchInputError(str(exc)) from None
     for folder in (root / "frames", root):
         if folder.is_dir():
-            pairs = [(p, p.with_suffix(".json")) for p in sorted(folder.glob("*.png")) if p.with_suffix(".json").exists()]
+            pngs, jsons = sorted(folder.glob("*.png")), sorted(folder.glob("*.json"))
+            pairs = [(p, p.with_suffix(".json")) for p in pngs if p.with_suffix(".json").exists()]
             if pairs:
+                lone = [p for p in pngs if not p.with_suffix(".json").exists()] + \
+                    [j for j in jsons if not j.with_suffix(".png").exists() and j.name != "manifest.json"]
+                if lone:  # scoring the rest would silently drop frames
+                    other = ".json" if lone[0].suffix == ".png" else ".png"
+                    raise BenchInputError(f"{lone[0]}: has no {lone[0].with_suffix(other).name} beside it ({len(lone)} "
+                                          "unpaired file(s)); every frame needs its PNG and its JSON")
                 return _FolderSource(root, pairs)
     raise BenchInputError(f"{root} is not a dataset: no manifest.json and no PNG + JSON frame pairs in it or in frames/")
 
@@ -218,6 +225,9 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
     t0 = time.perf_counter()
     for k in range(n):
         obs = first if k == 0 else src.observation(k)
+        if obs.dn.shape != first.dn.shape:
+            raise BenchInputError(f"{path}: frame {k} is {obs.dn.shape[1]}x{obs.dn.shape[0]} px, frame 0 "
+                                  f"{first.dn.shape[1]}x{first.dn.shape[0]}; a benchmark's frames share one camera")
         truth = src.truth(k)
         for name, peer in peer_objs.items():
             R, ms = peer.solve(obs.dn, predicted_state(truth, float(sigmas_km[0]),

@@ -406,6 +406,20 @@ class Facility:
         _check(den > 0, "spectra", "screen spectrum x meter responsivity", "overlapping spectra")
         return float(self.camera.aperture_area_m2 * np.trapezoid(S * Q * photons_per_j, wl) / den)
 
+    def check_spectra(self) -> None:
+        """Raise :class:`ConfigValueError` unless the screen's emission overlaps both the power meter's
+        responsivity and the camera's QE x T (else no reading or no electron relates to a DN)."""
+        wl = np.arange(300.0, 1200.0, 1.0)
+        S = np.interp(wl, *self.screen_spectrum, left=0.0, right=0.0)
+        R = np.interp(wl, *self.meter_responsivity, left=0.0, right=0.0)
+        Q = np.interp(wl, self.camera.response_wavelengths_nm, self.camera.response_qe_t, left=0.0, right=0.0)
+        lo, hi = self.camera.response_wavelengths_nm[0], self.camera.response_wavelengths_nm[-1]
+        _check(np.trapezoid(S * Q, wl) > 0, "spectra.screen_emission", f"{self.screen_spectrum[0][0]:g}..{self.screen_spectrum[0][-1]:g} nm",
+               f"a spectrum with light where the camera responds ({lo:g}..{hi:g} nm, between 300 and 1200 nm)")
+        _check(np.trapezoid(S * R, wl) > 0, "spectra.power_meter_responsivity",
+               f"{self.meter_responsivity[0][0]:g}..{self.meter_responsivity[0][-1]:g} nm",
+               "a responsivity overlapping the screen's emission (between 300 and 1200 nm)")
+
     def coverage(self, n: int = 64) -> float:
         """Smallest distance (screen px, negative = outside) from the camera's image border,
         seen through the bench, to the screen's edge."""
@@ -475,38 +489,30 @@ class Facility:
         }
 
 
-def _get(d, key, path):
-    if not isinstance(d, dict) or key not in d:
-        raise ConfigValueError(f"{path}.{key}" if path else key, None, "a value (missing)")
-    return d[key]
-
-
-def _num(v, path):
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ConfigValueError(path, v, "a number") from None
-    _check(math.isfinite(x), path, v, "a finite number")
-    return x
-
-
 def facility_from_mapping(d) -> Facility:
-    """A :class:`Facility` from its file form (:meth:`Facility.to_mapping`)."""
-    from .config import camera_from_mapping
+    """A :class:`Facility` from its file form (:meth:`Facility.to_mapping`).
 
-    if not isinstance(d, dict):
-        raise ConfigValueError("facility", type(d).__name__, "a mapping (a facility YAML file)")
-    schema = d.get("schema")
-    _check(schema == SCHEMA, "schema", schema, repr(SCHEMA))
-    s = _get(d, "screen", "")
-    screen = Screen(width_px=s.get("width_px"), height_px=s.get("height_px"),
-                    pixel_pitch_um=_num(_get(s, "pixel_pitch_um", "screen"), "screen.pixel_pitch_um"),
-                    bit_depth=s.get("bit_depth", 10))
-    focal = _num(_get(_get(d, "collimator", ""), "focal_length_mm", "collimator"), "collimator.focal_length_mm")
-    camera = camera_from_mapping(_get(d, "camera", ""))
+    The mapping is checked first against the facility schema
+    (:func:`skynav.scenes.facility_schema.validate_facility_mapping`: every key, type, unit and
+    range, unknown keys refused naming the closest valid one), then the camera (the scene files'
+    camera keys) and the spectra's overlap with the camera's band.
+
+    Raises
+    ------
+    ConfigValueError
+        One line naming the dotted key, the value and what is allowed.
+    """
+    from .config import camera_from_mapping
+    from .facility_schema import validate_facility_mapping
+
+    validate_facility_mapping(d)
+    s = d["screen"]
+    screen = Screen(width_px=int(s["width_px"]), height_px=int(s["height_px"]), pixel_pitch_um=float(s["pixel_pitch_um"]),
+                    bit_depth=int(s.get("bit_depth", 10)))
+    focal = float(d["collimator"]["focal_length_mm"])
+    camera = camera_from_mapping(d["camera"])
     geo = d.get("geometric") or {}
     p = geo.get("parameters") or {}
-    _check(geo.get("model", "physical/1") == "physical/1", "geometric.model", geo.get("model"), "'physical/1'")
     residual = None
     if geo.get("residual_field"):
         rf = geo["residual_field"]
@@ -514,23 +520,22 @@ def facility_from_mapping(d) -> Facility:
                                  dx_rad=(np.asarray(rf["dx_arcsec"], dtype=float) * ARCSEC).tolist(),
                                  dy_rad=(np.asarray(rf["dy_arcsec"], dtype=float) * ARCSEC).tolist())
     g = GeometricModel(
-        focal_length_mm=_num(p.get("focal_length_mm", focal), "geometric.parameters.focal_length_mm"),
-        decentre_x_mm=_num(p.get("decentre_x_mm", 0.0), "geometric.parameters.decentre_x_mm"),
-        decentre_y_mm=_num(p.get("decentre_y_mm", 0.0), "geometric.parameters.decentre_y_mm"),
-        tilt_x_rad=math.radians(_num(p.get("tilt_x_deg", 0.0), "geometric.parameters.tilt_x_deg")),
-        tilt_y_rad=math.radians(_num(p.get("tilt_y_deg", 0.0), "geometric.parameters.tilt_y_deg")),
-        roll_rad=math.radians(_num(p.get("roll_deg", 0.0), "geometric.parameters.roll_deg")),
-        k1=_num(p.get("k1", 0.0), "k1"), k2=_num(p.get("k2", 0.0), "k2"), p1=_num(p.get("p1", 0.0), "p1"), p2=_num(p.get("p2", 0.0), "p2"),
-        misalignment_rad=tuple(math.radians(_num(a, "geometric.parameters.misalignment_deg")) for a in p.get("misalignment_deg", (0, 0, 0))),
+        focal_length_mm=float(p.get("focal_length_mm", focal)),
+        decentre_x_mm=float(p.get("decentre_x_mm", 0.0)), decentre_y_mm=float(p.get("decentre_y_mm", 0.0)),
+        tilt_x_rad=math.radians(p.get("tilt_x_deg", 0.0)), tilt_y_rad=math.radians(p.get("tilt_y_deg", 0.0)),
+        roll_rad=math.radians(p.get("roll_deg", 0.0)),
+        k1=float(p.get("k1", 0.0)), k2=float(p.get("k2", 0.0)), p1=float(p.get("p1", 0.0)), p2=float(p.get("p2", 0.0)),
+        misalignment_rad=tuple(math.radians(a) for a in p.get("misalignment_deg", (0, 0, 0))),
         residual=residual)
     cal_geo = {k: v for k, v in geo.items() if k not in ("model", "parameters", "residual_field", "status")} or None
     rad = d.get("radiometric") or {}
-    _check(rad.get("model", "gamma/1") == "gamma/1", "radiometric.model", rad.get("model"), "'gamma/1'")
     rp = rad.get("parameters") or {}
     nominal = nominal_radiometric(screen, camera)
-    rm = RadiometricModel(black_w_m2=_num(rp.get("black_w_m2", nominal.black_w_m2), "radiometric.parameters.black_w_m2"),
-                          peak_w_m2=_num(rp.get("peak_w_m2", nominal.peak_w_m2), "radiometric.parameters.peak_w_m2"),
-                          gamma=_num(rp.get("gamma", nominal.gamma), "radiometric.parameters.gamma"), max_dn=screen.max_dn)
+    black = float(rp.get("black_w_m2", nominal.black_w_m2))
+    peak = float(rp.get("peak_w_m2", nominal.peak_w_m2))
+    _check(peak > black, "radiometric.parameters.peak_w_m2" if "peak_w_m2" in rp else "radiometric.parameters.black_w_m2",
+           peak if "peak_w_m2" in rp else black, f"peak_w_m2 > black_w_m2 (now {peak:g} and {black:g})")
+    rm = RadiometricModel(black_w_m2=black, peak_w_m2=peak, gamma=float(rp.get("gamma", nominal.gamma)), max_dn=screen.max_dn)
     flat = None
     if rad.get("flat_field"):
         ff = rad["flat_field"]
@@ -542,8 +547,10 @@ def facility_from_mapping(d) -> Facility:
         kw["screen_spectrum"] = (spectra["screen_emission"]["wavelengths_nm"], spectra["screen_emission"]["relative"])
     if "power_meter_responsivity" in spectra:
         kw["meter_responsivity"] = (spectra["power_meter_responsivity"]["wavelengths_nm"], spectra["power_meter_responsivity"]["relative"])
-    return Facility(name=str(d.get("name", "bench")), screen=screen, camera=camera, geometric=g, radiometric=rm,
-                    flat_field=flat, calibrated_geometric=cal_geo, calibrated_radiometric=cal_rad, **kw)
+    fac = Facility(name=str(d.get("name", "bench")), screen=screen, camera=camera, geometric=g, radiometric=rm,
+                   flat_field=flat, calibrated_geometric=cal_geo, calibrated_radiometric=cal_rad, **kw)
+    fac.check_spectra()
+    return fac
 
 
 # ----------------------------------------------------------------------------- presets

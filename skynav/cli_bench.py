@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import importlib
 
-from .cli_common import add_quiet, say
+from .cli_common import add_quiet, check_output, float_in, positive_int, say, seed_int
+
+#: the largest predicted-position sigma: 1e10 km is 67 au, beyond any mission's uncertainty
+MAX_SIGMA_KM = 1e10
+#: most predicted-position sigmas (every frame is processed once per sigma)
+MAX_SIGMAS = 16
 
 SUBCOMMAND_MODULES = ("skynav.cli_bench_nav", "skynav.cli_bench_loop")
 
@@ -21,9 +26,13 @@ def cmd_ip(args) -> int:
 
     if args.mode not in ("paper", "improved"):
         raise BenchInputError(f"--mode {args.mode!r}: give paper or improved")
+    if len(args.position_sigma_km) > MAX_SIGMAS:
+        raise BenchInputError(f"--position-sigma-km: {len(args.position_sigma_km)} values; at most {MAX_SIGMAS} (every "
+                              "frame is processed once per value)")
     if any(not (s > 0) for s in args.position_sigma_km):
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
     sigmas = tuple(float(s) for s in args.position_sigma_km)
+    check_output(args.output, [("DIR", args.dir)])
     from skynav.pipeline.process import ProcessOptions
 
     from .cli_common import dataclass_from_overrides
@@ -65,12 +74,14 @@ def _add_ip(bsub) -> None:
                         "--set changes a field of the pipeline's options (skynav.pipeline.ProcessOptions: T, inlier_px, "
                         "n_max, min_matches, refine_v_mag, track_window_px, ...), e.g. --set inlier_px=2.5.")
     p.add_argument("dir", help="dataset folder or folder of frames")
-    p.add_argument("--position-sigma-km", type=float, nargs="+", default=[1e4, 1e5, 1e6, 1e7],
-                   help="predicted-position errors to test, km per axis (default: 1e4 1e5 1e6 1e7)")
+    p.add_argument("--position-sigma-km", type=float_in(0, MAX_SIGMA_KM, low_open=True, unit="km"), nargs="+",
+                   default=[1e4, 1e5, 1e6, 1e7],
+                   help=f"predicted-position errors to test, km per axis, in (0, {MAX_SIGMA_KM:g}], at most {MAX_SIGMAS} values "
+                        "(default: 1e4 1e5 1e6 1e7)")
     p.add_argument("--mode", default="improved", choices=("paper", "improved"), help="pipeline mode (default: improved)")
     p.add_argument("--peers", action="store_true", help="also run tetra3rs and cedar-solve (if installed)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the predicted-state draws (default 0)")
-    p.add_argument("--limit", type=int, default=None, help="only the first N frames")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the predicted-state draws (default 0)")
+    p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     add_quiet(p)
     from .cli_common import add_set_argument

@@ -9,7 +9,14 @@ import argparse
 import time
 from pathlib import Path
 
-from .cli_common import add_quiet, say
+from .cli_common import add_quiet, float_in, int_in, positive_int, say, seed_int
+
+#: most Monte Carlo runs (each run's filter history, frames x 6 states, is kept for the report)
+MAX_RUNS = 100_000
+#: most worker processes
+MAX_WORKERS = 256
+#: the largest centroid sigma (px) --sigma-px takes: beyond it no star is matched anyway
+MAX_SIGMA_PX = 100.0
 
 
 def cmd_nav(args) -> int:
@@ -17,6 +24,9 @@ def cmd_nav(args) -> int:
                                              check_realisations, run_realisations)
     from skynav.pipeline.scoring_nav_report import summarise, write_report
 
+    from .cli_common import check_output
+
+    check_output(args.output, [("dataset", args.dataset), ("--images", args.images)])
     cases = list(dict.fromkeys(args.case))
     for c in cases:
         if c not in (1, 2, 3, 4, 5):
@@ -161,12 +171,15 @@ def add_parser(bsub) -> None:
                         "runs with the pipeline's default ProcessOptions (try others on single frames with "
                         "'skynav bench ip --set'; change the images with 'skynav dataset generate --set').")
     p.add_argument("dataset", help="a 'sequence' dataset folder")
-    p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (default 50)")
+    p.add_argument("--runs", type=int_in(2, MAX_RUNS, "every run's filter history is kept for the report"), default=50,
+                   help=f"Monte Carlo runs, 2..{MAX_RUNS} (default 50; every run's filter history is kept in memory for "
+                        "the report)")
     p.add_argument("--case", type=int, nargs="+", default=[1],
                    help="measurement-model cases of Andreis et al. (2024), Sec. 5.2 (1..5; several run in turn; "
                    "the first is plotted)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial-error draws (default 0)")
-    p.add_argument("--workers", type=int, default=1, help="processes; the runs are split among them (default 1)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the initial-error draws (default 0)")
+    p.add_argument("--workers", type=int_in(1, MAX_WORKERS), default=1,
+                   help=f"processes, 1..{MAX_WORKERS}; the runs are split among them (default 1)")
     p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
     p.add_argument("--realisations", nargs="+", metavar="SEQ", default=None,
                    help="other renderings of the same cruise (skynav dataset generate sequence --seed K): the runs are "
@@ -175,7 +188,7 @@ def add_parser(bsub) -> None:
     p.add_argument("--calibrate-on", nargs="+", metavar="SEQ", default=None,
                    help="more renderings of the same cruise whose frames are pooled with DATASET's to measure R "
                    "(the track-constant errors then describe the ensemble of sensors, not one rendering's draw)")
-    p.add_argument("--sigma-px", type=float, default=None,
+    p.add_argument("--sigma-px", type=float_in(0, MAX_SIGMA_PX, low_open=True, unit="px"), default=None,
                    help="measurement noise, px (default: measured on the dataset's frames)")
     p.add_argument("--no-phase-offset", action="store_true",
                    help="model the planet's centre, not its Lambert centre of light (the model of Andreis et al. 2024)")
@@ -184,8 +197,9 @@ def add_parser(bsub) -> None:
                    "--no-track-bias-in-r: the class RMS only)")
     p.add_argument("--gm-sigma", type=float, default=None,
                    help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 1e-11)")
-    p.add_argument("--calibration-stride", type=int, default=1, help="frames between calibration frames (default 1: all)")
-    p.add_argument("--limit", type=int, default=None, help="only the first N frames")
+    p.add_argument("--calibration-stride", type=positive_int, default=1,
+                   help="frames between calibration frames (default 1: all)")
+    p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     add_quiet(p)
     from .cli_common import add_set_argument

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-from .cli_common import ProgressBar, add_quiet, say
+from .cli_common import ProgressBar, add_quiet, check_output, float_in, int_in, say, seed_int
 
 
 def _write_figure(fig, path) -> Path:
@@ -17,10 +16,18 @@ def _write_figure(fig, path) -> Path:
     return Path(path)
 
 
+def _check_plot_path(output, suffix, inputs) -> None:
+    """The figure written next to ``output`` must not overwrite an input either."""
+    out = Path(output)
+    check_output(out.with_name(out.stem + suffix), [("input", p) for p in inputs], flag=f"-o {output}: its figure",
+                 kind="file")
+
+
 def cmd_patterns(args) -> int:
     from skynav.calibration.facility_io import load_facility
     from skynav.datasets.bench_files import write_patterns
 
+    check_output(args.output, [("facility", args.facility)])
     fac = load_facility(args.facility)
     pats = write_patterns(fac, args.output, phases=args.phases)
     dots = [p for p in pats if p.kind == "dots"]
@@ -34,11 +41,9 @@ def cmd_simulate(args) -> int:
     from skynav.calibration.facility_io import load_facility
     from skynav.datasets.bench_files import simulate
 
-    if args.frames < 1:
-        print(f"skynav: error: --frames {args.frames}: expected a positive integer", file=sys.stderr)
-        return 2
     from skynav.scenes.count_cap import cap_count
 
+    check_output(args.output, [("facility", args.facility), ("--patterns", args.patterns)])
     args.frames = cap_count(args.frames, "--frames (exposures averaged per capture)")
     fac = load_facility(args.facility)
     fac.check_coverage()
@@ -54,6 +59,9 @@ def cmd_geometric(args) -> int:
     from skynav.calibration.plots import residual_figure
     from skynav.datasets.bench_files import calibrate_geometric
 
+    check_output(args.output, [("facility", args.facility), ("--patterns", args.patterns), ("--captures", args.captures)],
+                 kind="file")
+    _check_plot_path(args.output, "_residuals.png", [args.facility])
     fac = load_facility(args.facility)
     fac.check_coverage()
     res = calibrate_geometric(fac, args.patterns, args.captures, holdout=args.holdout, seed=args.seed)
@@ -75,6 +83,8 @@ def cmd_radiometric(args) -> int:
     from skynav.calibration.plots import radiometric_figure
     from skynav.calibration.radiometric import calibrate_radiometric
 
+    check_output(args.output, [("facility", args.facility), ("--measurements", args.measurements)], kind="file")
+    _check_plot_path(args.output, "_radiometric.png", [args.facility, args.measurements])
     fac = load_facility(args.facility)
     res = calibrate_radiometric(fac, args.measurements)
     out = Path(args.output)
@@ -90,7 +100,9 @@ def cmd_radiometric(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from skynav.calibration.virtual_bench import SCENARIO_NAMES
+    from skynav.calibration.geometric import MAX_HOLDOUT
+    from skynav.calibration.patterns import MAX_PHASES
+    from skynav.calibration.virtual_bench import MAX_FRAMES, SCENARIO_NAMES
 
     c = sub.add_parser("calibrate", help="calibrate a hardware-in-the-loop bench (patterns, fits, virtual bench)",
                        description="Bench calibration: write patterns, simulate captures on a virtual bench, fit the "
@@ -101,7 +113,10 @@ def add_parser(sub) -> None:
     p = cs.add_parser("patterns", help="write pattern PNGs and patterns.json")
     p.add_argument("facility")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--phases", type=int, default=3, help="grid phases per axis (default 3: 9 dot grids)")
+    p.add_argument("--phases", type=int_in(1, MAX_PHASES, f"{MAX_PHASES}: {MAX_PHASES ** 2} dot grids, each a screen PNG "
+                                             "and a capture"), default=3,
+                   help=f"grid phases per axis, 1..{MAX_PHASES} (default 3: 9 dot grids; {MAX_PHASES}: {MAX_PHASES ** 2}, "
+                        "each a screen-sized PNG and a capture)")
     add_quiet(p)
     p.set_defaults(func=cmd_patterns)
 
@@ -110,8 +125,10 @@ def add_parser(sub) -> None:
     s.add_argument("--patterns", required=True, help="pattern folder")
     s.add_argument("-o", "--output", required=True, help="captures folder")
     s.add_argument("--scenario", choices=SCENARIO_NAMES, default="realistic", help="true bench (default realistic)")
-    s.add_argument("--frames", type=int, default=16, help="exposures averaged per capture (default 16)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--frames", type=int_in(1, MAX_FRAMES, "each is a full camera frame of noise"), default=16,
+                   help=f"exposures averaged per capture, 1..{MAX_FRAMES} (default 16; each is a full camera frame of "
+                        "noise per pattern: time grows with it)")
+    s.add_argument("--seed", type=seed_int, default=0, help="seed of the bench's noise (default 0)")
     add_quiet(s)
     s.set_defaults(func=cmd_simulate)
 
@@ -120,8 +137,9 @@ def add_parser(sub) -> None:
     g.add_argument("--patterns", required=True)
     g.add_argument("--captures", required=True)
     g.add_argument("-o", "--output", required=True, help="calibrated facility YAML")
-    g.add_argument("--holdout", type=float, default=0.2, help="fraction of dots held out (default 0.2)")
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--holdout", type=float_in(0, MAX_HOLDOUT, low_open=True), default=0.2,
+                   help=f"fraction of dots held out of the fit to measure its error, in (0, {MAX_HOLDOUT:g}] (default 0.2)")
+    g.add_argument("--seed", type=seed_int, default=0, help="seed of the held-out draw (default 0)")
     add_quiet(g)
     g.set_defaults(func=cmd_geometric)
 

@@ -21,7 +21,7 @@ import warnings
 from skynav.scenes.errors import SkynavError
 
 __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
-           "non_negative_int", "run_command", "add_set_argument", "parse_set", "apply_overrides",
+           "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set", "apply_overrides",
            "dataclass_from_overrides", "OverrideError", "add_quiet", "say", "ProgressBar"]
 
 EXIT_OK = 0
@@ -148,6 +148,108 @@ def _int_type(minimum: int, what: str):
 positive_int = _int_type(1, "a positive integer")
 #: argparse ``type=`` for seeds (>= 0).
 non_negative_int = _int_type(0, "a non-negative integer")
+
+#: the largest seed a command takes: seeds are recorded in JSON and read back as int64
+MAX_SEED = 2 ** 63 - 1
+
+
+def int_in(minimum: int, maximum: int, why: str = ""):
+    """argparse ``type=`` for an integer in ``minimum..maximum`` (a count with an upper bound
+    derived from memory or time: ``why`` says which, and the error line and ``--help`` say it).
+
+    >>> int_in(1, 8)("3")
+    3
+    """
+    allowed = f"an integer in {minimum}..{maximum}" + (f" ({why})" if why else "")
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {allowed}") from None
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"{value}: expected {allowed}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: argparse ``type=`` for ``--seed`` (0..2**63-1)
+seed_int = int_in(0, MAX_SEED)
+
+
+def float_in(low: float, high: float, *, low_open: bool = False, high_open: bool = False, unit: str = ""):
+    """argparse ``type=`` for a finite number in ``[low, high]`` (``low_open``/``high_open``: the
+    end itself excluded); NaN and infinities are refused like any value out of range.
+
+    >>> float_in(0, 1, low_open=True)("0.2")
+    0.2
+    """
+    import math
+
+    rng = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    allowed = f"a finite number in {rng}" + (f" {unit}" if unit else "")
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {allowed}") from None
+        ok = math.isfinite(value) and (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
+        if not ok:
+            raise argparse.ArgumentTypeError(f"{text}: expected {allowed}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+class PathConflictError(SkynavError, ValueError):
+    """An output path that is, or sits inside, one of the command's inputs (one line, exit 2)."""
+
+
+def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -> None:
+    """Refuse an output that would write into, or over, an input; or of the wrong kind.
+
+    ``inputs``: ``(flag or name, path)`` pairs of what the command reads (folders and files;
+    presets and missing paths are skipped). The output may not be an input, nor sit inside an input
+    folder. ``kind``: ``"folder"`` (the output must
+    not be an existing file) or ``"file"`` (not an existing folder). Paths are compared resolved
+    (symbolic links followed); messages name them as the user typed them.
+
+    Raises
+    ------
+    PathConflictError
+    """
+    from pathlib import Path
+
+    from skynav.datasets.frame_files import check_output_dir
+
+    out = Path(output)
+    if kind == "file" and out.is_dir():
+        raise PathConflictError(f"{flag} {output}: is a folder; give a file name (e.g. {Path(output) / 'facility.yaml'})")
+    if kind == "file" and out.exists() and not out.is_file():
+        raise PathConflictError(f"{flag} {output}: is not a regular file (a device, pipe or socket); give a file on disk")
+    if kind == "folder" and out.exists() and not out.is_dir():
+        raise PathConflictError(f"{flag} {output}: is a file, not a folder; give a folder")
+    # a kernel file system (/proc, /sys, /dev), under a file, not writable: the datasets' rule
+    check_output_dir(out if kind == "folder" else (out.parent if str(out.parent) else Path(".")),
+                     what=f"the folder of {flag} {output}" if kind == "file" else f"the {flag} folder")
+    ro = out.resolve()
+    for name, path in inputs:
+        if path is None:
+            continue
+        p = Path(path)
+        if not p.exists():
+            continue
+        rp = p.resolve()
+        if ro == rp:
+            raise PathConflictError(f"{flag} {output}: is the input {name} {path}; write to another path "
+                                    "(skynav never writes into its inputs)")
+        if p.is_dir() and rp in ro.parents:
+            raise PathConflictError(f"{flag} {output}: is inside the input {name} folder {path}; write outside it "
+                                    "(skynav never writes into its inputs)")
 
 
 # ----------------------------------------------------------------------------- --set KEY.SUB=VALUE
@@ -290,8 +392,26 @@ def dataclass_from_overrides(cls, overrides, *, what: str):
     return dataclasses.replace(defaults, **kw)
 
 
+def user_path(path) -> str:
+    """The path a user gave for one of skynav's hidden temporary files (``DIR/.NAME.XXXXXXXX.tmp``,
+    written then renamed onto ``DIR/NAME`` by the atomic writers): ``DIR/NAME``; others unchanged."""
+    import re
+    from pathlib import Path
+
+    text = os.fsdecode(path)
+    m = re.fullmatch(r"\.(.+)\.[A-Za-z0-9_]{6,12}\.tmp", Path(text).name)
+    return str(Path(text).with_name(m.group(1))) if m else text
+
+
 def _os_error_line(exc: OSError) -> str:
-    where = exc.filename if exc.filename is not None else "output"
+    if exc.filename is None:  # e.g. an image decoder's error: no path to name, so say what happened
+        if exc.errno == errno.ENOSPC:
+            return "no space left on the device; free space and run the same command again (it resumes)"
+        text = " ".join(str(exc).split()) or exc.__class__.__name__
+        return f"a file could not be read or written ({exc.__class__.__name__}: {user_path(text)[:200]})"
+    where = user_path(exc.filename)
+    if exc.filename2 is not None and where != os.fsdecode(exc.filename):  # os.replace(temp, target)
+        where = os.fsdecode(exc.filename2)
     if exc.errno == errno.ENOSPC:
         return f"{where}: no space left on the device; free space and run the same command again (it resumes)"
     return f"{where}: {exc.strerror or exc.__class__.__name__}"
@@ -323,7 +443,8 @@ def run_command(func, args) -> int:
     except SkynavError as exc:
         return fail(str(exc))
     except MemoryError:
-        return fail("not enough memory for this frame; use a smaller camera (width x height)")
+        return fail("not enough memory for this run; make it smaller (a smaller camera or screen, fewer frames, "
+                    "runs or workers)")
     except OSError as exc:
         if isinstance(exc, BrokenPipeError):  # output piped into `head` and closed early
             try:

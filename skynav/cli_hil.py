@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 import time
 
-from .cli_common import ProgressBar, add_quiet, say, warn
+from .cli_common import ProgressBar, add_quiet, check_output, int_in, say, warn
+
+#: most local worker processes of an export (each holds a screen frame, ~100 MB on the 'bench' preset)
+MAX_WORKERS = 256
 
 
 def uncalibrated_note(facility, name) -> str | None:
@@ -24,6 +26,7 @@ def uncalibrated_note(facility, name) -> str | None:
 def cmd_facility(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
 
+    check_output(args.output, [("facility", args.preset)], kind="file")
     fac = load_facility(args.preset)
     fac.check_coverage()
     write_facility(fac, args.output)
@@ -39,9 +42,7 @@ def cmd_export(args) -> int:
     from skynav.calibration.facility_io import load_facility
     from skynav.datasets.hil_export import export_dataset
 
-    if args.workers < 1:
-        print(f"skynav: error: --workers {args.workers}: expected a positive integer", file=sys.stderr)
-        return 2
+    check_output(args.output, [("dataset", args.dataset), ("facility", args.facility)])
     fac = load_facility(args.facility)
     if args.overrides:  # the facility's file form, every key written out (what `skynav hil facility` writes)
         from skynav.scenes.facility import facility_from_mapping
@@ -51,6 +52,15 @@ def cmd_export(args) -> int:
         mapping = apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True, what="the facility")
         if any(path[0] == "camera" and path[1:] != ("K",) for _, path, _ in args.overrides):
             mapping["camera"].pop("K", None)  # derived from the other camera keys, which an override changed
+            cam0, set_keys = fac.camera, {path[1] for _, path, _ in args.overrides if path[0] == "camera" and len(path) > 1}
+            for c, size in (("cx", cam0.width), ("cy", cam0.height)):
+                if c not in set_keys and getattr(cam0, c) == 0.5 * (size - 1):  # the old centre: the new one
+                    mapping["camera"].pop(c, None)
+        paths = {path for _, path, _ in args.overrides}
+        focal = ("geometric", "parameters", "focal_length_mm")
+        if ("collimator", "focal_length_mm") in paths and focal not in paths and not fac.calibrated_geometric:
+            # a nominal facility: the collimator's focal length is the model's (one key to set)
+            mapping["geometric"]["parameters"]["focal_length_mm"] = mapping["collimator"]["focal_length_mm"]
         fac = facility_from_mapping(mapping)
     fac.check_coverage()
     with ProgressBar("exporting", "frame", quiet=args.quiet) as bar:
@@ -110,7 +120,8 @@ def add_parser(sub) -> None:
     e.add_argument("dataset")
     e.add_argument("--facility", required=True, help="facility YAML file or preset (bench, bench_small)")
     e.add_argument("-o", "--output", required=True)
-    e.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
+    e.add_argument("--workers", type=int_in(1, MAX_WORKERS, "each holds a screen frame in memory"), default=1,
+                   help=f"local processes, 1..{MAX_WORKERS} (default 1; each holds a screen frame in memory)")
     e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     add_quiet(e)
     from .cli_common import add_set_argument

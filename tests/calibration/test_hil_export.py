@@ -15,6 +15,9 @@ def test_export_a_dataset_and_resume(tmp_path, capsys):
     recipe = copy.deepcopy(datasets.preset_recipe("scenes"))
     recipe["scenes"] = recipe["scenes"][1:]
     recipe["formats"] = ["png", "json"]
+    from skynav.scenes.facility import bench_small_preset
+
+    recipe["camera"] = bench_small_preset().camera.to_dict()  # the bench's camera (export refuses another)
     datasets.generate(recipe, tmp_path / "ds", workers=1, progress=False)
     out = tmp_path / "hil"
     assert main(["hil", "export", str(tmp_path / "ds"), "--facility", "bench_small", "-o", str(out), "-q"]) == 0

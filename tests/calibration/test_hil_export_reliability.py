@@ -18,6 +18,9 @@ def source(tmp_path_factory):
     recipe = datasets.preset_recipe("montecarlo")
     recipe["frames"] = 3
     recipe["formats"] = ["png", "json"]
+    from skynav.scenes.facility import bench_small_preset
+
+    recipe["camera"] = bench_small_preset().camera.to_dict()  # the bench's camera (export refuses another)
     root = tmp_path_factory.mktemp("hilsrc") / "ds"
     datasets.generate(recipe, root, workers=1, progress=False)
     return root
@@ -89,7 +92,8 @@ def test_a_folder_holding_another_facilitys_export_is_refused(source, reference,
     out = tmp_path / "screen"
     shutil.copytree(reference, out)
     capsys.readouterr()
-    assert main(["hil", "export", str(source), "--facility", "bench", "-o", str(out), "-q"]) == 2
+    assert main(["hil", "export", str(source), "--facility", "bench_small", "--set", "screen.bit_depth=8", "-o", str(out),
+                 "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another facility" in err[0] and "Traceback" not in err[0]
 

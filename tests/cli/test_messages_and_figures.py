@@ -46,6 +46,11 @@ def bars(stderr: str) -> dict:
     return out
 
 
+#: the camera of the bench_small facility (hil export refuses a dataset of another camera)
+BENCH_SMALL_CAMERA = ("--set", "camera.width=256", "--set", "camera.height=256", "--set",
+                      "camera.pixel_pitch_um=55.102181471395305")
+
+
 def _ok(p: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
     assert p.returncode == 0, (p.stdout[-2000:], p.stderr[-2000:])
     return p
@@ -59,7 +64,7 @@ def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("messages")
     runs = {}
     runs["generate -q"] = _ok(skynav("dataset", "generate", "montecarlo", "-o", "mc", "--count", 3, "--workers", 2, "-q",
-                                     cwd=d))
+                                     *BENCH_SMALL_CAMERA, cwd=d))
     runs["generate"] = _ok(skynav("dataset", "generate", "sequence", "-o", "seq", "--count", 6, "--workers", 2, cwd=d))
     runs["facility -q"] = _ok(skynav("hil", "facility", "bench_small", "-o", "fac.yaml", "-q", cwd=d))
     runs["patterns -q"] = _ok(skynav("calibrate", "patterns", "fac.yaml", "-o", "pat", "-q", cwd=d))
