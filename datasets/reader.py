@@ -75,13 +75,18 @@ def read_frame_pair(png_path, json_path, *, index: int):
     if isinstance(cam, dict) and "sensor" not in cam and "bit_depth" in cam:
         truth = dict(truth, camera=dict(cam, sensor={"bit_depth": cam["bit_depth"]}))
     try:
-        return make_observation(truth, dn, index=index), truth
+        obs = make_observation(truth, dn, index=index)
     except SkynavError as exc:
         raise DatasetError(f"{json_path}: {exc}") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(f"{json_path}: the frame JSON's camera or epoch is incomplete ({exc!r}); the frame "
                            "schema needs camera.width, height, focal_length_mm, pixel_pitch_um, exposure_s, "
                            "bit_depth and epoch.tdb_iso") from None
+    cam = obs.camera
+    if dn.ndim != 2 or dn.shape != (cam.height, cam.width):
+        raise DatasetError(f"{png_path}: a {'x'.join(map(str, dn.shape[::-1]))} image; its JSON says "
+                           f"{cam.width}x{cam.height} px")
+    return obs, truth
 
 
 class FrameRecord:
