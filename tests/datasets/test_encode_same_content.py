@@ -40,7 +40,7 @@ def _decoded(folder: Path, stem: str) -> dict:
             "truth": read_truth_json(folder / f"{stem}.json")}
 
 
-def _same_bits(a, b) -> bool:
+def _round_trip_exact(a, b) -> bool:
     a, b = np.asarray(a), np.asarray(b)
     return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a.view(np.uint8), b.view(np.uint8))
 
@@ -58,7 +58,7 @@ def test_writers_give_back_mains_decoded_content(tmp_path, bits, stem):
     write_frame(frame, tmp_path, stem, formats=("png", "exr", "json"))
     new = _decoded(tmp_path, stem)
     for key in ("dn", "electrons", "irradiance_w_m2"):
-        assert _same_bits(new[key], ref[key]), key
+        assert _round_trip_exact(new[key], ref[key]), key
     assert new["png_layout"] == ref["png_layout"] == {"png_scaling": "sbit", "significant_bits": bits}
     assert new["truth"] == ref["truth"]  # floats read back bit-exact from both files
     # the bytes did change (new encoders), so this is not comparing a file with itself
