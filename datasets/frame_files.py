@@ -43,6 +43,7 @@ import os
 import warnings
 import zlib
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -326,6 +327,11 @@ def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6
     OutputFormatError
         Wrong shape or dtype, or a value above the bit depth.
     """
+    atomic_write_bytes(path, _png_file_bytes(dn, bit_depth, compress_level))
+
+
+def _png_file_bytes(dn, bit_depth, compress_level) -> bytes:
+    """The checked bytes of :func:`write_png`."""
     a = np.asarray(dn)
     if a.ndim != 2:
         raise OutputFormatError(f"PNG image has shape {a.shape}; expected a 2-D (H, W) array of DN")
@@ -344,7 +350,7 @@ def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6
         sbit = int(bit_depth)
     if not (isinstance(compress_level, (int, np.integer)) and 0 <= compress_level <= 9):
         raise OutputFormatError(f"PNG compress_level = {compress_level!r}; expected an integer in 0..9")
-    atomic_write_bytes(path, _png_bytes(a, sbit, int(compress_level)))
+    return _png_bytes(a, sbit, int(compress_level))
 
 
 def _png_chunk(kind: bytes, payload: bytes) -> bytes:
@@ -621,6 +627,11 @@ def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mappin
     OutputFormatError
         Wrong shape or dtype, or a WCS made for another image size.
     """
+    atomic_write_bytes(path, _fits_bytes(image, wcs_header, header))
+
+
+def _fits_bytes(image, wcs_header, header) -> bytes:
+    """The checked bytes of :func:`write_fits`."""
     from astropy.io import fits
 
     a = np.asarray(image)
@@ -644,7 +655,7 @@ def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mappin
             hdu.header[key] = value
     buf = io.BytesIO()
     fits.HDUList([hdu]).writeto(buf)
-    atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
 
 
 def read_fits(source):
@@ -688,7 +699,7 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     OutputFormatError, TruthSchemaError
         Data the format cannot hold.
     """
-    from .truth_schema import write_truth_json
+    from .truth_schema import truth_json_bytes
 
     from .errors import OutputPathError
 
@@ -701,21 +712,29 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
         except OSError as exc:
             raise OutputPathError(f"{directory}: cannot create the output folder "
                                   f"({exc.strerror or exc.__class__.__name__})") from None
-    written = {}
+    blobs = {}  # encode everything first: an unknown format or bad data writes nothing
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
-        path = directory / f"{stem}.{fmt}"
         if fmt == "png":
-            write_png(path, frame.dn, bit_depth=frame.truth["camera"]["bit_depth"])
+            data = _png_file_bytes(frame.dn, frame.truth["camera"]["bit_depth"], 6)
         elif fmt == "exr":
-            write_exr(path, {"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
+            data = _exr_bytes({"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2}, None)
         elif fmt == "json":
-            write_truth_json(path, frame.truth)
+            data = truth_json_bytes(frame.truth)
         elif fmt == "fits":
             t = frame.truth
             hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
                                  np.array(t["attitude"]["R_cam_icrs"]))
-            write_fits(path, frame.dn, wcs_header=hdr, header=fits_frame_header(t))
+            data = _fits_bytes(frame.dn, hdr, fits_frame_header(t))
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
-        written[fmt] = path
-    return written
+        blobs[fmt] = (directory / f"{stem}.{fmt}", data)
+    # Each file is written atomically (temp file, fsync, rename, folder fsync) on its own thread:
+    # the fsyncs wait on the disk with the GIL released, so they overlap even on one core.
+    if len(blobs) > 1:
+        with ThreadPoolExecutor(len(blobs), thread_name_prefix="skynav-write") as pool:
+            for job in [pool.submit(atomic_write_bytes, path, data) for path, data in blobs.values()]:
+                job.result()
+    else:
+        for path, data in blobs.values():
+            atomic_write_bytes(path, data)
+    return {fmt: path for fmt, (path, _) in blobs.items()}
