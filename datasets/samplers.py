@@ -208,22 +208,69 @@ class MonteCarloPlan:
         by_name = {b.name: b for b in part + rest}
         return True, facts, (tuple(by_name[n] for n in SCENE_BODIES), sun_u)
 
+    #: Poses drawn and pre-tested together (about 14 draws per kept frame with the default
+    #: filters); the stream is rewound to just after the kept one, so the batch size changes
+    #: nothing but speed.
+    BATCH = 16
+
+    def _near_sun(self, t, r) -> np.ndarray:
+        """Which of the poses ``(t (n,), r (n, 3))`` are closer to the Sun than
+        ``min_sun_distance_au``; the same decision as ``norm(r - sun(t)) < limit`` per pose: one
+        vectorised ephemeris call, and the scalar formula again for a pose within 1e-9 of the
+        limit (where a summation order could move the last bit)."""
+        limit = self.s["min_sun_distance_au"] * AU_KM
+        dist = np.sqrt(np.sum((r - self.ephemeris.position("sun", t)) ** 2, axis=1))
+        near = dist < limit
+        for i in np.flatnonzero(np.abs(dist - limit) <= 1e-9 * limit):
+            near[i] = np.linalg.norm(r[i] - self.ephemeris.position("sun", t[i])) < limit
+        return near
+
+    def _fov_candidates_batch(self, t, r, boresights) -> list:
+        """:meth:`_fov_candidates` of n poses (``boresights`` (n, 3): the rows ``R[2]``) in one
+        ephemeris call per body. A body within 1e-9 (relative) of the cone's edge is kept: a
+        candidate too many only costs its apparent direction, since the candidates decide which
+        bodies are computed first, not the result (see :meth:`_sky`)."""
+        if not {"visible_planet", "body_in_fov"} & set(self.s["keep"]):
+            return [None] * len(t)
+        from skynav.scenes.scene import SCENE_BODIES
+
+        limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
+        inside = []
+        for name in SCENE_BODIES:
+            d = self.ephemeris.position(name, t) - r
+            n = np.sqrt(np.sum(d * d, axis=1))
+            inside.append(np.sum(boresights * d, axis=1) > (limit - 1e-9) * n)
+        inside = np.array(inside).T  # (n, bodies)
+        return [tuple(name for name, yes in zip(SCENE_BODIES, row) if yes) for row in inside]
+
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
+        """Frame k's scene: poses are drawn in the documented order until one passes the
+        keep-filters. Draws are made and pre-tested (Sun distance, bodies near the field) in
+        batches of :attr:`BATCH`; the first pose that passes, the number of draws, and the state
+        the stream is left in (where the renderer starts) are those of drawing and testing one
+        pose at a time."""
         s = self.s
-        for draws in range(1, s["max_draws_per_frame"] + 1):
-            t, r, R = self.draw_pose(rng)
-            sun_r = self.ephemeris.position("sun", t)
-            if np.linalg.norm(r - sun_r) < s["min_sun_distance_au"] * AU_KM:
-                continue
-            candidates = self._fov_candidates(t, r, R)
-            if candidates == ():
-                continue
-            v = self.velocity(t, r)
-            ok, facts, sky = self._sky(t, r, v, R, candidates)
-            if ok:
-                meta = {"kind": "montecarlo", "frame": int(k), "draws": draws,
-                        "visible_bodies": facts["visible_bodies"], "bodies_in_fov": facts["bodies_in_fov"]}
-                return FrameRequest(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R, meta=meta, sky=sky)
+        done, most = 0, s["max_draws_per_frame"]
+        while done < most:
+            poses, states = [], []
+            for _ in range(min(self.BATCH, most - done)):
+                poses.append(self.draw_pose(rng))
+                states.append(rng.bit_generator.state)
+            t = np.array([p[0] for p in poses])
+            r = np.array([p[1] for p in poses])
+            near = self._near_sun(t, r)
+            cands = self._fov_candidates_batch(t, r, np.array([p[2][2] for p in poses]))
+            for i, (ti, ri, R) in enumerate(poses):
+                if near[i] or cands[i] == ():
+                    continue
+                v = self.velocity(ti, ri)
+                ok, facts, sky = self._sky(ti, ri, v, R, cands[i])
+                if ok:
+                    rng.bit_generator.state = states[i]  # rewind: the poses after this one were not drawn
+                    meta = {"kind": "montecarlo", "frame": int(k), "draws": done + i + 1,
+                            "visible_bodies": facts["visible_bodies"], "bodies_in_fov": facts["bodies_in_fov"]}
+                    return FrameRequest(epoch_tdb_s=ti, position_km=ri, velocity_km_s=v, R_cam_icrs=R, meta=meta, sky=sky)
+            done += len(poses)
         raise SceneSamplingError(
             f"frame {k}: no scene passed the keep-filters {s['keep']} in {s['max_draws_per_frame']} draws;"
             " raise montecarlo.max_draws_per_frame or relax montecarlo.keep")

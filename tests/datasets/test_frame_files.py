@@ -140,7 +140,7 @@ def test_exr_deterministic_bytes_and_zip(tmp_path, rng):
     write_exr(tmp_path / "b.exr", ch, header={"skynav_frame": "000001", "exposure_s": 0.1})
     assert _sha(tmp_path / "a.exr") == _sha(tmp_path / "b.exr")
     hdr = read_exr_header(tmp_path / "a.exr")
-    assert "ZIP_COMPRESSION" in str(hdr["compression"])
+    assert "RLE_COMPRESSION" in str(hdr["compression"])
     assert hdr["skynav_frame"] == "000001"
     assert float(hdr["exposure_s"]) == 0.1  # stored as repr, not rounded to float32
 
@@ -319,7 +319,7 @@ def test_truth_round_trip_and_nan_to_null(tmp_path):
     assert got["stars"][0]["electrons"] == float(np.float32(1.5e6))
     assert got["cosmic_rays"][0]["xy"] == [100.5, 200.25]
     assert validate_truth(got) == []
-    assert b'"electrons": null' in p.read_bytes()
+    assert b'"electrons":null' in p.read_bytes()
 
 
 def test_truth_deterministic_bytes(tmp_path):
