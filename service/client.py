@@ -48,7 +48,7 @@ class RenderResult:
 
     @property
     def truth(self) -> dict | None:
-        """The ground truth (``skynav.frame/1``), parsed."""
+        """The ground truth (``skynav.frame/2``), parsed."""
         return None if self.truth_json is None else json.loads(self.truth_json.decode("utf-8"))
 
     @property

@@ -40,7 +40,7 @@ def openapi_document() -> dict:
                             "content": {**{t: {"schema": {"type": "string", "format": "binary"}}
                                            for t in dict.fromkeys(MEDIA_TYPES.values()) if t != "application/json"},
                                         "application/json": {"schema": {"type": "object",
-                                                                        "description": "ground truth, skynav.frame/1"}},
+                                                                        "description": "ground truth, skynav.frame/2"}},
                                         MULTIPART: {"schema": {"type": "string", "format": "binary"}}}},
                     "400": _ERROR, "401": _ERROR, "413": _ERROR, "415": _ERROR, "503": _ERROR}}},
             f"{API_PREFIX}/openapi.json": {"get": {

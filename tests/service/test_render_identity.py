@@ -77,7 +77,7 @@ from skynav.service import Client
 from skynav.scenes.presets import preset_mapping
 m = preset_mapping("default"); m["camera"].update({"width": 64, "height": 64})
 r = Client(sys.argv[1]).render(m, outputs=("png", "exr", "truth"))
-assert r.dn.shape == (64, 64) and r.electrons.shape == (64, 64) and r.truth["schema"] == "skynav.frame/1"
+assert r.dn.shape == (64, 64) and r.electrons.shape == (64, 64) and r.truth["schema"] == "skynav.frame/2"
 print(json.dumps(sorted(k for k in sys.modules if k.split(".")[0] in ("mitsuba", "drjit")
                         or k.startswith("skynav.renderer"))))
 """
