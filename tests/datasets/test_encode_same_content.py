@@ -15,7 +15,9 @@ What is compared, and why it is honest: the renderer is being changed by other w
 images are not re-rendered here; main's decoded content (pixels, truth values) is written by
 today's writers and decoded again, and must come back identical, bit for bit (the writers are
 lossless; same values in, same values out). The plan is the same code path before and after for
-the same seeds, so its values are compared exactly.
+the same seeds: its draws, decisions and the random stream are compared exactly, its floats within
+1e-13 (the reference was written on an AVX-512 CPU; numpy's baseline trigonometry differs in
+the last bit, which `.ci/run`'s second pass exercises).
 """
 
 from __future__ import annotations
@@ -77,7 +79,13 @@ def test_montecarlo_plan_of_200_frames_is_mains():
     for k, want in enumerate(ref):
         rng = np.random.default_rng(frame_seed(rec["seed"], k))
         r = plan.frame_request(k, rng)
-        got = {"t": r.epoch_tdb_s, "r": list(map(float, r.position_km)), "v": list(map(float, r.velocity_km_s)),
-               "R": np.asarray(r.R_cam_icrs).ravel().tolist(), "meta": r.meta, "next": int(rng.integers(0, 2**62))}
-        assert got == want, f"frame {k}"
+        # the same draws and the same keep decisions: the frame's metadata (draw counts, kept
+        # pose) and the stream's next integer exactly; the poses' floats within 1e-13 relative
+        # (1e-15 absolute for rotation entries): they pass through numpy's trigonometry, whose
+        # SIMD and baseline loops differ in the last bit (the reference was written on AVX-512)
+        assert r.meta == want["meta"] and int(rng.integers(0, 2**62)) == want["next"], f"frame {k}"
+        for key, got in (("t", [r.epoch_tdb_s]), ("r", r.position_km), ("v", r.velocity_km_s),
+                         ("R", np.asarray(r.R_cam_icrs).ravel())):
+            np.testing.assert_allclose(np.asarray(got, float), np.atleast_1d(want[key]), rtol=1e-13, atol=1e-15,
+                                       err_msg=f"frame {k} {key}")
     assert sum(w["meta"]["draws"] for w in ref) > 2 * len(ref)  # the keep-filter rejected draws
