@@ -11,10 +11,10 @@ and the command line may import ``scenes``.
 
 from __future__ import annotations
 
-import os
 import warnings
 
-from .errors import ConfigValueError, SkynavWarning
+from .environment import positive_int_from_env
+from .errors import SkynavWarning
 
 ENV_VAR = "SKYNAV_MAX_COUNT"
 
@@ -27,16 +27,7 @@ def count_cap() -> int | None:
     ConfigValueError
         The variable is not a whole number >= 1.
     """
-    raw = os.environ.get(ENV_VAR, "").strip()
-    if not raw:
-        return None
-    try:
-        n = int(raw)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise ConfigValueError(ENV_VAR, raw, "a whole number >= 1 (the largest count a run may take)")
-    return n
+    return positive_int_from_env(ENV_VAR, "a whole number >= 1 (the largest count a run may take)")
 
 
 def cap_count(n: int, what: str, *, minimum: int = 1) -> int:

@@ -8,9 +8,8 @@ dataset runner sets it to ``cores // workers`` in its worker processes.
 
 from __future__ import annotations
 
-import os
 
-from .errors import ConfigValueError
+from .environment import positive_int_from_env
 
 ENV_VAR = "SKYNAV_THREADS"
 
@@ -23,13 +22,4 @@ def thread_budget() -> int | None:
     ConfigValueError
         The variable is not a whole number >= 1.
     """
-    raw = os.environ.get(ENV_VAR, "").strip()
-    if not raw:
-        return None
-    try:
-        n = int(raw)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise ConfigValueError(ENV_VAR, raw, "a whole number of threads >= 1")
-    return n
+    return positive_int_from_env(ENV_VAR, "a whole number of threads >= 1")
