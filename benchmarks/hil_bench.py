@@ -9,7 +9,7 @@ virtual bench can give) and the fit time. Then it times a software frame and the
 the same scene (``default`` preset, resolved bodies as the scene has them): the median of
 ``--timing-reps`` warm runs of each, in this process, and their ratio; and the screen frame with
 its PNG and JSON written, as ``skynav hil export`` makes it. ``--closed-loop`` runs
-:func:`skynav.datasets.bench_files.run_closed_loop` on the calibrated realistic bench: a
+:func:`skynav.calibration.bench_files.run_closed_loop` on the calibrated realistic bench: a
 ``montecarlo`` dataset of ``--loop-frames`` frames, exported, captured and measured.
 """
 
@@ -70,7 +70,7 @@ def main(argv=None) -> None:
 
     from skynav.calibration.errors import IdentificationError
     from skynav.calibration.virtual_bench import scenario, uncalibrated_error_arcsec
-    from skynav.datasets.bench_files import calibrate_geometric, simulate, write_patterns
+    from skynav.calibration.bench_files import calibrate_geometric, simulate, write_patterns
     from skynav.scenes.facility import PRESETS
 
     fac = PRESETS[a.preset]()
@@ -98,7 +98,7 @@ def main(argv=None) -> None:
                   f"{np.percentile(e, 99):9.3f} {e.max():7.3f} {res.seconds:6.1f}")
 
     if "realistic" in calibrated:
-        from skynav.datasets.bench_files import run_closed_loop
+        from skynav.calibration.bench_files import run_closed_loop
 
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:

@@ -4,7 +4,7 @@ the dataset's own software frames.
 
 Core module: the source selection, the paired measurement and the statistics. The loop over a
 dataset and its bench export (reading the frames, capturing them on the virtual bench) is
-:func:`skynav.datasets.bench_files.closed_loop_dataset`, the file side. What goes in is only what
+:func:`skynav.calibration.bench_files.closed_loop_dataset`, the file side. What goes in is only what
 a lab would have: the dataset folder (software frames, ground truth), the export folder written by
 :func:`skynav.datasets.hil_export.export_dataset` (``skynav hil export``) with the *calibrated*
 facility, and a bench that shows PNGs. The virtual bench's true parameters are used only to make

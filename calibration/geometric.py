@@ -198,7 +198,7 @@ def _flat_field(facility: Facility, pats, images, n_nodes: int = 17, block: int 
 def fit_geometric(facility: Facility, pats, images: dict, *, holdout: float = 0.2, seed: int = 0,
                   t0: float | None = None, source: tuple = ("", "")) -> GeometricResult:
     """The geometric (and flat-field) fit from the patterns and their captures (``{file: image}``,
-    as :func:`skynav.datasets.bench_files.read_captures` returns them); ``t0``: when the work
+    as :func:`skynav.calibration.bench_files.read_captures` returns them); ``t0``: when the work
     began (``time.perf_counter()``) for the result's ``seconds``; ``source``: the patterns' and
     the captures' folders, for the facility's provenance record."""
     t0 = time.perf_counter() if t0 is None else t0

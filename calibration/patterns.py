@@ -8,7 +8,7 @@ file, its dot centres (screen px, CONVENTIONS pixel centres) and, as extra keys,
 (``dots``, ``flat``, ``dark``), ``fiducials`` (indices into ``dots``), ``dot_radius_px``,
 ``grid_step_px`` and ``level_dn`` (screen DN), and at the top how the PNGs store the screen's DN
 (``png_scaling``: ``"sbit"``, scaled to the PNG's full range with an ``sBIT`` chunk, and
-``significant_bits``; written by :mod:`skynav.datasets.bench_files`). Version 1 (skynav <= 0.3.0)
+``significant_bits``; written by :mod:`skynav.calibration.bench_files`). Version 1 (skynav <= 0.3.0)
 had no such keys and stored the DN unscaled; both are read.
 """
 

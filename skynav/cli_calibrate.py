@@ -1,4 +1,4 @@
-"""``skynav calibrate``: patterns, simulate, geometric, radiometric (thin wrappers over skynav.calibration and its file side, skynav.datasets.bench_files)."""
+"""``skynav calibrate``: patterns, simulate, geometric, radiometric (thin wrappers over skynav.calibration and its file side, skynav.calibration.bench_files)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def _check_plot_path(output, suffix, inputs) -> None:
 
 def cmd_patterns(args) -> int:
     from skynav.calibration.facility_io import load_facility
-    from skynav.datasets.bench_files import write_patterns
+    from skynav.calibration.bench_files import write_patterns
 
     check_output(args.output, [("facility", args.facility)])
     fac = load_facility(args.facility)
@@ -39,7 +39,7 @@ def cmd_patterns(args) -> int:
 
 def cmd_simulate(args) -> int:
     from skynav.calibration.facility_io import load_facility
-    from skynav.datasets.bench_files import simulate
+    from skynav.calibration.bench_files import simulate
 
     from skynav.scenes.count_cap import cap_count
 
@@ -57,7 +57,7 @@ def cmd_simulate(args) -> int:
 def cmd_geometric(args) -> int:
     from skynav.calibration.facility_io import load_facility, write_facility
     from skynav.calibration.plots import residual_figure
-    from skynav.datasets.bench_files import calibrate_geometric
+    from skynav.calibration.bench_files import calibrate_geometric
 
     check_output(args.output, [("facility", args.facility), ("--patterns", args.patterns), ("--captures", args.captures)],
                  kind="file")

@@ -11,7 +11,7 @@ def small_facility():
 
 @pytest.fixture(scope="session")
 def small_patterns(tmp_path_factory, small_facility):
-    from skynav.datasets.bench_files import write_patterns
+    from skynav.calibration.bench_files import write_patterns
 
     d = tmp_path_factory.mktemp("patterns")
     write_patterns(small_facility, d)
@@ -21,7 +21,7 @@ def small_patterns(tmp_path_factory, small_facility):
 @pytest.fixture(scope="session")
 def small_captures(tmp_path_factory, small_facility, small_patterns):
     """Captures of the 'realistic' virtual bench (4 frames averaged, to keep the suite fast)."""
-    from skynav.datasets.bench_files import simulate
+    from skynav.calibration.bench_files import simulate
 
     d = tmp_path_factory.mktemp("captures")
     simulate(small_facility, small_patterns, d, scenario_name="realistic", frames=4)

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
-    from skynav.datasets.bench_files import write_patterns
+    from skynav.calibration.bench_files import write_patterns
     from skynav.scenes.facility import bench_preset
 
     fac = bench_preset()
@@ -23,7 +23,7 @@ def campaign(tmp_path_factory):
 @pytest.mark.parametrize("name", ["realistic", "stress", "shifted", "roll90"])
 def test_holdout_residuals(campaign, name):
     from skynav.calibration.virtual_bench import scenario, uncalibrated_error_arcsec
-    from skynav.datasets.bench_files import calibrate_geometric, simulate
+    from skynav.calibration.bench_files import calibrate_geometric, simulate
 
     fac, d = campaign
     truth = scenario(name, fac)

@@ -12,7 +12,7 @@ import pytest
 from skynav.calibration.errors import IdentificationError
 from skynav.calibration.radiometric import calibrate_radiometric
 from skynav.calibration.virtual_bench import scenario, uncalibrated_error_arcsec
-from skynav.datasets.bench_files import calibrate_geometric, simulate
+from skynav.calibration.bench_files import calibrate_geometric, simulate
 
 from .conftest import true_error_arcsec
 

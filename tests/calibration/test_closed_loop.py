@@ -1,4 +1,4 @@
-"""The closed loop on the virtual bench (datasets/bench_files.py, measuring with
+"""The closed loop on the virtual bench (calibration/bench_files.py, measuring with
 calibration/closed_loop.py): a montecarlo dataset exported with the calibrated facility,
 captured by the virtual camera and measured like its software frames.
 
@@ -12,7 +12,7 @@ preset, 71 arcsec per px, with camera noise) are in the ``slow`` test at the end
 import numpy as np
 import pytest
 
-from skynav.datasets.bench_files import run_closed_loop
+from skynav.calibration.bench_files import run_closed_loop
 
 SMALL_PX_ARCSEC = 281.0
 
@@ -20,7 +20,7 @@ SMALL_PX_ARCSEC = 281.0
 @pytest.fixture(scope="module")
 def small_calibrated(small_facility, small_patterns, small_captures):
     from skynav.calibration.radiometric import calibrate_radiometric
-    from skynav.datasets.bench_files import calibrate_geometric
+    from skynav.calibration.bench_files import calibrate_geometric
 
     geo = calibrate_geometric(small_facility, small_patterns, small_captures)
     return calibrate_radiometric(geo.facility, small_captures / "power_meter.csv").facility
@@ -75,7 +75,7 @@ def test_issue_12_closed_loop_acceptance(tmp_path):
     its light centre by its phase offset, which the software frame shows too), RMS <= 2 arcsec;
     capture electrons vs software-frame electrons within 0.03 mag RMS, bias <= 0.01 mag."""
     from skynav.calibration.radiometric import calibrate_radiometric
-    from skynav.datasets.bench_files import calibrate_geometric, simulate, write_patterns
+    from skynav.calibration.bench_files import calibrate_geometric, simulate, write_patterns
     from skynav.scenes.facility import bench_preset
 
     fac = bench_preset()

@@ -173,7 +173,7 @@ def world(tmp_path_factory):
     """Inputs under ``in/`` (hashed around every case), outputs under ``out/``."""
     from skynav import datasets
     from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.datasets.bench_files import calibrate_geometric, simulate, write_patterns
+    from skynav.calibration.bench_files import calibrate_geometric, simulate, write_patterns
 
     tmp = tmp_path_factory.mktemp("bench_catalogue")
     inp, out = tmp / "in", tmp / "out"

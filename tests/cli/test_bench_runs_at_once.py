@@ -28,7 +28,7 @@ def _files(folder):
 def inputs(tmp_path_factory):
     from skynav import datasets
     from skynav.calibration.facility_io import load_facility
-    from skynav.datasets.bench_files import write_patterns
+    from skynav.calibration.bench_files import write_patterns
 
     tmp = tmp_path_factory.mktemp("runs_at_once")
     fac = load_facility("bench_small")

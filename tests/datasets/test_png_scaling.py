@@ -187,7 +187,7 @@ def small_facility():
 
 @pytest.fixture(scope="module")
 def small_patterns(tmp_path_factory, small_facility):
-    from skynav.datasets.bench_files import write_patterns
+    from skynav.calibration.bench_files import write_patterns
 
     d = tmp_path_factory.mktemp("patterns")
     write_patterns(small_facility, d)
@@ -224,7 +224,7 @@ def test_patterns_are_visible_and_say_how_they_are_stored(small_facility, small_
 
 def test_bench_reads_old_and_new_patterns_alike(small_facility, small_patterns, tmp_path):
     """The virtual bench captures the same images from 0.3.0's pattern files and from today's."""
-    from skynav.datasets.bench_files import simulate
+    from skynav.calibration.bench_files import simulate
 
     _as_0_3_0(small_patterns, tmp_path / "old")
     a = simulate(small_facility, small_patterns, tmp_path / "cap_new", frames=1, seed=5)

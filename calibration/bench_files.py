@@ -1,11 +1,10 @@
-"""The bench's files, the file side of :mod:`skynav.calibration` (which computes on arrays and
-never touches skynav's file formats): calibration patterns written as PNGs with ``patterns.json``,
+"""The bench's files: calibration patterns written as PNGs with ``patterns.json``,
 camera captures read and checked against them, the virtual bench's captures and power-meter table
 written, and the closed loop over a dataset and its bench export.
 
-Driver module: the calibration fits, the virtual bench and the closed-loop measurement are
-:mod:`skynav.calibration`'s; here their inputs are read and their outputs written with
-:mod:`skynav.datasets.frame_files` (PNG, atomic writes).
+Driver module: the calibration fits, the virtual bench and the closed-loop measurement (modules of
+this package) compute on arrays; here their inputs are read and their outputs written with
+:mod:`skynav.datasets.frame_files` (PNG, atomic writes), the formats' one home.
 """
 
 from __future__ import annotations
@@ -16,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from skynav.calibration.closed_loop import ClosedLoopResult, LoopRows, angle_arcsec, measure_pair, select_sources
-from skynav.calibration.errors import CalibrationInputError, CaptureMismatchError
-from skynav.calibration.geometric import GeometricResult, fit_geometric
-from skynav.calibration.patterns import SCHEMA, Pattern, design, draw, read_patterns  # noqa: F401
-from skynav.calibration.virtual_bench import MAX_FRAMES, VirtualBench, scenario
+from skynav.datasets.frame_files import PNG_SCALING, atomic_write_bytes, read_png, write_png
 from skynav.scenes.camera import Camera
 from skynav.scenes.facility import Facility
 
-from .frame_files import PNG_SCALING, atomic_write_bytes, read_png, write_png
+from .closed_loop import ClosedLoopResult, LoopRows, angle_arcsec, measure_pair, select_sources
+from .errors import CalibrationInputError, CaptureMismatchError
+from .geometric import GeometricResult, fit_geometric
+from .patterns import SCHEMA, Pattern, design, draw, read_patterns  # noqa: F401
+from .virtual_bench import MAX_FRAMES, VirtualBench, scenario
 
 __all__ = ["write_patterns", "read_captures", "calibrate_geometric", "simulate", "closed_loop_dataset",
            "run_closed_loop"]
@@ -39,7 +38,7 @@ def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
     ``patterns.json`` says so (``png_scaling``, ``significant_bits``). :func:`read_captures` and
     :func:`simulate` read these and the unscaled PNGs of skynav <= 0.3.0 alike
     (:func:`~skynav.datasets.frame_files.read_png`)."""
-    from .lock import dataset_lock
+    from skynav.datasets.lock import dataset_lock
 
     d = Path(directory)
     sc = facility.screen
@@ -137,7 +136,7 @@ def simulate(facility: Facility, patterns_dir, out_dir, *, scenario_name: str = 
     skynav.datasets.lock.DatasetLockedError
         Another run writes into ``out_dir``.
     """
-    from .lock import dataset_lock
+    from skynav.datasets.lock import dataset_lock
 
     if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= MAX_FRAMES:
         raise CalibrationInputError(f"frames = {frames!r}: expected an integer in 1..{MAX_FRAMES} (exposures averaged per "
@@ -182,7 +181,7 @@ def closed_loop_dataset(bench, dataset_dir, export_dir, *, seed: int = 0, v_max:
     noise draws from ``SeedSequence([seed, k])``."""
     from skynav.renderer.detector import Sensor
 
-    from .reader import open_dataset
+    from skynav.datasets.reader import open_dataset
 
     ds = open_dataset(dataset_dir)
     todo = range(len(ds)) if frames is None else range(min(int(frames), len(ds)))
@@ -257,9 +256,9 @@ def run_closed_loop(facility, calibrated, work_dir, *, scenario_name: str = "rea
     the bench with the ``calibrated`` facility (as ``skynav hil export``), captured on the
     virtual bench ``scenario_name`` of the nominal ``facility`` and measured
     (:func:`closed_loop_dataset`). Both folders resume if already there."""
-    from .hil_export import export_dataset
-    from .recipes import preset_recipe
-    from .runner import generate
+    from skynav.datasets.hil_export import export_dataset
+    from skynav.datasets.recipes import preset_recipe
+    from skynav.datasets.runner import generate
 
     work = Path(work_dir)
     recipe = preset_recipe("montecarlo")
