@@ -338,21 +338,24 @@ class TablePSF:
         columns the images of this grid's x and y steps), e.g. screen pixels per camera pixel
         of a bench's collimator; sample ``[i, j]`` of the result is the table at offset
         ``J^-1 (j - c, i - c)`` px (``c`` the middle sample), bilinear between fine samples,
-        zero beyond the table. Convolving an image on the other grid with it and reading the
-        result at a pixel's point there draws what this PSF draws in that pixel.
+        zero beyond the stamps' reach (offsets over ``half + 0.5`` px in x or y: the light a
+        stamp holds, as :meth:`stamps` cuts and normalises it). Convolving an image on the other
+        grid with it and reading the result at a pixel's point there draws what this PSF draws
+        in that pixel.
         """
         from scipy.ndimage import map_coordinates
 
         J = np.asarray(jacobian, dtype=float).reshape(2, 2)
         table = self.tables[k_table]
         c = table.shape[0] // 2
-        reach = (c - 1) / self.n  # px of this grid the table covers from its centre
+        reach = min((c - 1) / self.n, self.half + 0.5)  # px of this grid the stamps reach from the centre
         corners = J @ np.array([[1, 1, -1, -1], [1, -1, 1, -1]], dtype=float) * reach
         m = int(math.ceil(np.max(np.abs(corners))))
         d = np.arange(-m, m + 1, dtype=float)
         dx, dy = np.meshgrid(d, d)  # [i, j] -> (dx = j - m, dy = i - m)
         u = np.linalg.solve(J, np.stack([dx.ravel(), dy.ravel()]))  # offsets in this grid's px
         vals = map_coordinates(table, [c + self.n * u[1], c + self.n * u[0]], order=1, mode="constant", cval=0.0)
+        vals[np.max(np.abs(u), axis=0) > self.half + 0.5] = 0.0
         g = vals.reshape(dx.shape)
         return g / g.sum()
 
