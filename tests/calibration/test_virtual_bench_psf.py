@@ -68,6 +68,33 @@ def test_every_psf_conserves_a_dot_s_flux(small_facility, name):
         assert abs(img.sum() / screen_e - 1.0) < 1e-4
 
 
+def _blob(path, sx, sy):
+    u = (np.arange(41) - 20) / 4.0  # 4 samples per px
+    np.save(path, np.exp(-0.5 * ((u[None, :] / sx) ** 2 + (u[:, None] / sy) ** 2)))
+    return str(path)
+
+
+def test_a_field_grid_is_blended_per_camera_pixel(small_facility, tmp_path):
+    """A 2-column field grid (a PSF wide in x on the left edge, wide in y on the right, the two
+    images differing by 40 % of the peak): a dot in the middle of the camera is drawn, pixel by
+    pixel, as the blend of the two single-PSF benches' images with that pixel's weights (x / 255
+    for the right column), to 1e-9 of its peak (the same kernels, summed in another order:
+    measured 1.5e-16), with its flux to 1e-4 (measured 1.1e-6)."""
+    a, b = _blob(tmp_path / "a.npy", 1.6, 0.8), _blob(tmp_path / "b.npy", 0.8, 1.6)
+    field = [{"x_px": x, "y_px": y, "file": f} for x, f in ((0.0, a), (255.0, b)) for y in (0.0, 255.0)]
+    grid = _bench(small_facility, {"model": "tabulated", "field": field, "oversampling": 4})
+    assert grid.psf_kernels()[1].shape[1] == 4
+    xy, _ = grid.camera_map()
+    sx, sy = xy[128, 127]  # the screen point of the camera's middle (x = 127.5 between the columns)
+    img, screen_e = _dot_image(grid, sx + 1.08, sy)
+    one_a, _ = _dot_image(_bench(small_facility, {"model": "tabulated", "file": a, "oversampling": 4}), sx + 1.08, sy)
+    one_b, _ = _dot_image(_bench(small_facility, {"model": "tabulated", "file": b, "oversampling": 4}), sx + 1.08, sy)
+    assert abs(img.sum() / screen_e - 1.0) < 1e-4
+    w_b = np.arange(256.0)[None, :] / 255.0  # bilinear in x; both rows of a column hold one file
+    assert np.max(np.abs(one_a - one_b)) > 0.3 * img.max()
+    assert np.max(np.abs(img - ((1.0 - w_b) * one_a + w_b * one_b))) < 1e-9 * img.max()
+
+
 def test_coma_moves_the_bench_s_centre_of_light_by_the_truth_s_bias(small_facility):
     """A coma camera's image of a dot is displaced from a symmetric (Airy) camera's by the bias
     the renderer's truth records for a point (its stamp's first moment minus the point),
