@@ -6,10 +6,14 @@ Gaussian frame measured in the same run. One thread (``DRJIT_NUM_THREADS=1``), a
 ``render_bench.py``. The tabulated models read PSF images this script writes to a temporary
 folder (a coma PSF at 4 samples/px; a 3 x 3 field grid of them with the coma growing outwards).
 
-    python benchmarks/psf_bench.py [--repeat 9] [--models gaussian,airy,...] [--size 1024]
+    python benchmarks/psf_bench.py [--repeat 9] [--models gaussian,airy,...] [--size 1024] [--same-scene]
 
 The models are timed in interleaved rounds (one frame of each per round), so a busy moment of a
-shared machine slows all of them alike; the table build includes one first frame.
+shared machine slows all of them alike; the table build includes one first frame. Each round
+turns the camera about its boresight by another 1e-3 rad (the same stars at other sub-pixel
+phases), as the frames of a dataset differ: a table kernel keeps its last stamps for the
+frame's irradiance pass, and ``--same-scene`` (every round the same frame) lets them be reused
+from one frame to the next, which no dataset does.
 """
 
 from __future__ import annotations
@@ -51,8 +55,6 @@ def model_dict(name, folder):
         return {"model": "airy", "obscuration": 0.2, "wavelength_nm": 550.0}
     if name == "airy-h10":  # stamps cut at 10 px (1.8e-3 of the flux beyond, folded back)
         return {"model": "airy", "obscuration": 0.2, "wavelength_nm": 550.0, "max_half_px": 10}
-    if name == "airy-h10":  # stamps cut at 10 px (1.8e-3 of the flux beyond, folded back)
-        return {"model": "airy", "obscuration": 0.2, "wavelength_nm": 550.0, "max_half_px": 10}
     if name == "airy-poly":
         return {"model": "airy", "obscuration": 0.2}
     if name == "optical":
@@ -71,6 +73,7 @@ def main():
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--size", type=int, default=1024, help="image width = height, px (default 1024)")
+    ap.add_argument("--same-scene", action="store_true", help="render the same frame every round (stamps reused)")
     args = ap.parse_args()
 
     from skynav.renderer import jit_backend
@@ -95,27 +98,33 @@ def main():
     with tempfile.TemporaryDirectory() as folder:
         for name in args.models.split(","):
             cam = base.camera.replace(psf=model_dict(name, folder), width=args.size, height=args.size)
+            twists = [0.0] if args.same_scene else [1e-3 * (r + 1) for r in range(args.repeat)]
+            scenes = [build_from_spec(dataclasses.replace(spec, camera=cam, attitude=dataclasses.replace(
+                spec.attitude, twist_rad=spec.attitude.twist_rad + t))) for t in twists]
             scene = build_from_spec(dataclasses.replace(spec, camera=cam))
             t0 = time.perf_counter()
-            k = kernel_for(cam, ("star", 3) if name == "airy-poly" else None, opts.flux_fraction_lost)
-            render(scene, rng=rng, options=opts)  # every table of the frame (all bins of a polychromatic Airy)
+            k = kernel_for(cam, None, opts.flux_fraction_lost)
+            render(scene, rng=rng, options=opts)  # every table of the frame (all nodes of a polychromatic Airy)
             build = time.perf_counter() - t0
-            runs.append((name, scene, build, k.half_size_px(opts.flux_fraction_lost)))
+            runs.append((name, scenes, build, k.half_size_px(opts.flux_fraction_lost)))
         # interleaved rounds: a busy moment of a shared machine slows every model alike
         wall = {r[0]: [] for r in runs}
         cpu = {r[0]: [] for r in runs}
-        for _ in range(args.repeat):
-            for name, scene, _, _ in runs:
+        for i in range(args.repeat):
+            for name, scenes, _, _ in runs:
+                scene = scenes[i % len(scenes)]
                 t0, c0 = time.perf_counter(), time.process_time()
                 render(scene, rng=rng, options=opts)
                 wall[name].append(time.perf_counter() - t0)
                 cpu[name].append(time.process_time() - c0)
-        for name, scene, build, h in runs:
+        for name, scenes, build, h in runs:
             rows.append((name, build, h, 1e3 * float(np.median(wall[name])), 1e3 * float(np.median(cpu[name])),
-                         int(scene.stars.in_fov.sum())))
+                         int(scenes[0].stars.in_fov.sum())))
     g = next((r for r in rows if r[0] == "gaussian"), rows[0])
     print(f"default scene, {args.size}x{args.size} paper camera (f/2.2, 13.8 um: lambda F = 0.09 px at 550 nm), "
-          f"full noise, one thread; medians of {args.repeat}, wall | CPU; ratio to {g[0]} in this run")
+          f"full noise, one thread; medians of {args.repeat}, wall | CPU; ratio to {g[0]} in this run; "
+          f"{'the same frame every round' if args.same_scene else 'a new frame (twist) every round'}; "
+          f"load average {os.getloadavg()[0]:.2f}")
     for name, build, h, w, c, n in rows:
         print(f"{name:16s} stars {n:4d}  half {h:2d} px  tables {1e3 * build:7.0f} ms  frame {w:7.1f} ms | {c:7.1f} ms CPU"
               f"   ratio {w / g[3]:5.2f} | {c / g[4]:5.2f} CPU")

@@ -38,8 +38,10 @@ def load_facility(arg) -> fac.Facility:
             data = yaml.safe_load(fobj)
     except yaml.YAMLError as exc:
         raise FacilityFileError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    from skynav.scenes.psf import resolve_psf_files
+
     try:
-        return fac.facility_from_mapping(data)
+        return fac.facility_from_mapping(resolve_psf_files(data, path.resolve().parent))  # PSF files beside the file
     except ConfigValueError as exc:  # name the file too
         raise FacilityFileError(f"{path}: {exc}") from None
 

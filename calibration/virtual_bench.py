@@ -8,11 +8,18 @@ this module and see only the files it writes (captures PNG, ``power_meter.csv``)
   large-scale non-uniformity (a few-percent gradient);
 - collimator: the true geometric model (distortion, misalignments, and in the stress case an
   unmodelled few-arcsec ripple) and vignetting (``1 - v * r**2`` of the field radius);
-- camera: the screen's radiance is blurred in screen space by the camera's defocus and pixel
+- camera: the screen's radiance is blurred in screen space by the camera's PSF and pixel
   footprint (a band-limited image), sampled at the screen point of each camera pixel's true line
   of sight, scaled by the solid-angle ratio (screen px per camera px), and read out through the
   renderer's own :class:`~skynav.renderer.detector.Sensor` (shot, read and dark noise, PRNU,
-  quantisation). ``frames`` exposures are averaged, as a lab averages captures.
+  quantisation). ``frames`` exposures are averaged, as a lab averages captures. The PSF is the
+  camera's ``psf``: the default Gaussian (``defocus_sigma_px``) blurs by a Gaussian of the
+  defocus and the pixel footprint combined (``hypot(sigma, 1/sqrt 12)`` camera px, the model the
+  bench's calibration accuracy was measured with); any other model by the renderer's own kernel
+  (:func:`skynav.renderer.optics.kernel_for`: its pixel-integrated table, resampled onto the
+  screen through the collimator's local Jacobian by
+  :meth:`~skynav.renderer.psf.TablePSF.on_grid`; a field grid blended per camera pixel as the
+  renderer blends it; a polychromatic Airy with the table of the screen's own spectrum).
 """
 
 from __future__ import annotations
@@ -24,6 +31,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from skynav.scenes.facility import ARCSEC, Facility, GeometricModel, RadiometricModel, ResidualField
+
+#: Samples per camera pixel, at least, of the grid a non-Gaussian camera PSF is applied on. A
+#: diffraction kernel sharper than a screen pixel (lambda F = 0.4 camera px = 0.9 screen px on
+#: the bench presets) aliases on the screen's own grid (a dot's flux off by up to 1.4e-3); the
+#: screen is cut into squares (each screen pixel a uniform emitter) until this holds: 5 x 5 per
+#: screen pixel on the presets (2.2 screen px per camera px), a dot's flux then within 4.1e-5
+#: (tests/calibration/test_virtual_bench_psf.py; 3 x 3 and 4 x 4 left 1e-4 for a polychromatic
+#: Airy, 6 x 6 leaves 7e-6 in 2.4x the time).
+PSF_SAMPLES_PER_CAMERA_PX = 10.0
+
+#: Camera pixels per side of the tiles a non-Gaussian PSF is applied in (bounds the memory of
+#: the upsampled screen crop to a few MB).
+PSF_TILE_PX = 128
 
 #: most exposures a capture averages (each is a full camera frame of noise: 256 on the paper
 #: camera's 1024 x 1024 sensor is about a minute per pattern)
@@ -102,6 +122,7 @@ class VirtualBench:
         large = (1.0 - truth.vignetting * (u * u + v * v) / 2.0) * (1.0 + 0.5 * truth.gradient * (0.8 * u - 0.6 * v))
         self.screen_gain = (large * (1.0 + truth.pixel_nonuniformity * rng.standard_normal((H, W))) * truth.fill_factor)
         self._map = None
+        self._kernels = None
 
     # ------------------------------------------------------------------ radiometry
     def emission_w_m2(self, dn: np.ndarray) -> np.ndarray:
@@ -139,6 +160,74 @@ class VirtualBench:
             self._map = (xy, area)
         return self._map
 
+    def psf_kernels(self):
+        """The camera PSF on the (upsampled) screen grid: ``(kernels, weights, up)``: kernels a
+        list of 2-D arrays (each summing to 1, odd sides, centred) on the screen grid cut
+        ``up`` x ``up`` per screen pixel (:data:`PSF_SAMPLES_PER_CAMERA_PX`), weights (H * W, K)
+        the share of each in every camera pixel (one kernel: all ones); None for the Gaussian,
+        which blurs by :func:`scipy.ndimage.gaussian_filter`. Built once per bench."""
+        from skynav.renderer.optics import is_polychromatic, kernel_for
+        from skynav.scenes.psf import GaussianPSFModel
+
+        cam = self.facility.camera
+        if isinstance(cam.psf, GaussianPSFModel):
+            return None
+        if self._kernels is None:
+            xy, _ = self.camera_map()
+            gx, gy = np.gradient(xy, axis=1), np.gradient(xy, axis=0)
+            # screen offset per camera px (columns: per x step, per y step), the field's median
+            J = np.array([[np.median(gx[..., 0]), np.median(gy[..., 0])], [np.median(gx[..., 1]), np.median(gy[..., 1])]])
+            source = None
+            if is_polychromatic(cam):  # the screen's own spectrum through the camera
+                wl, S = self.facility.screen_spectrum
+                source = ("spectrum", tuple(float(v) for v in wl), tuple(float(v) for v in S))
+            kern = kernel_for(cam, source, 1e-6)
+            up = max(1, math.ceil(PSF_SAMPLES_PER_CAMERA_PX / math.sqrt(abs(np.linalg.det(J))) - 1e-9))
+            yy, xx = np.mgrid[0:cam.height, 0:cam.width].astype(float)
+            w = kern.weights(np.stack([xx.ravel(), yy.ravel()], -1))
+            self._kernels = ([kern.on_grid(k, J * up) for k in range(w.shape[1])], w, up)
+        return self._kernels
+
+    def _apply_psf(self, rate: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """Screen electrons (per screen px) blurred by the camera's non-Gaussian PSF and read at
+        each camera pixel's screen point ``xy`` (H, W, 2), per screen px: tile by tile, the
+        screen crop under a tile (plus the kernel's reach) cut into ``up`` x ``up`` uniform
+        squares, convolved with the kernel(s) and read by cubic interpolation."""
+        from scipy import ndimage
+        from scipy.signal import fftconvolve
+
+        kernels, weights, up = self.psf_kernels()
+        H, W = xy.shape[:2]
+        reach = max(g.shape[0] // 2 for g in kernels) // up + 4  # screen px
+        padded = np.pad(rate, reach)  # no light beyond the screen
+        w_all = weights.reshape(H, W, -1)
+        out = np.zeros((H, W))
+        for ty in range(0, H, PSF_TILE_PX):
+            for tx in range(0, W, PSF_TILE_PX):
+                sub = xy[ty:ty + PSF_TILE_PX, tx:tx + PSF_TILE_PX] + reach  # in the padded screen
+                ok = np.all(np.isfinite(sub), axis=-1) & (sub[..., 0] > 0) & (sub[..., 1] > 0) \
+                    & (sub[..., 0] < padded.shape[1] - 1) & (sub[..., 1] < padded.shape[0] - 1)
+                if not ok.any():
+                    continue
+                x0 = max(0, int(np.floor(sub[ok][:, 0].min())) - reach)
+                y0 = max(0, int(np.floor(sub[ok][:, 1].min())) - reach)
+                x1 = min(padded.shape[1], int(np.ceil(sub[ok][:, 0].max())) + reach + 1)
+                y1 = min(padded.shape[0], int(np.ceil(sub[ok][:, 1].max())) + reach + 1)
+                crop = padded[y0:y1, x0:x1]
+                if up > 1:
+                    crop = np.repeat(np.repeat(crop, up, axis=0), up, axis=1) / (up * up)
+                # the centre of fine sample k of screen pixel s is at s - 0.5 + (k + 0.5) / up
+                at = [((sub[..., 1] - y0 + 0.5) * up - 0.5).ravel(), ((sub[..., 0] - x0 + 0.5) * up - 0.5).ravel()]
+                tile_w = w_all[ty:ty + PSF_TILE_PX, tx:tx + PSF_TILE_PX]
+                for k, g in enumerate(kernels):
+                    wk = tile_w[..., k]
+                    if not np.any(wk > 0.0):
+                        continue
+                    blurred = fftconvolve(crop, g, mode="same")
+                    v = ndimage.map_coordinates(blurred, at, order=3, mode="constant", cval=0.0).reshape(wk.shape)
+                    out[ty:ty + PSF_TILE_PX, tx:tx + PSF_TILE_PX] += wk * v * (up * up)
+        return out
+
     def expected_electrons(self, screen_dn: np.ndarray) -> np.ndarray:
         """Noise-free camera electrons of a screen image, shape (H, W) of the camera."""
         from scipy import ndimage
@@ -147,10 +236,13 @@ class VirtualBench:
         xy, area = self.camera_map()
         k = self.facility.electrons_per_s_per_w_m2() * cam.exposure_s
         rate = self.emission_w_m2(screen_dn) * k  # e- per screen pixel
-        scale = float(np.sqrt(np.median(area)))
-        sigma = math.hypot(cam.defocus_sigma_px * scale, scale / math.sqrt(12.0))
-        blurred = ndimage.gaussian_filter(rate, sigma, mode="nearest")
-        vals = ndimage.map_coordinates(blurred, [xy[..., 1].ravel(), xy[..., 0].ravel()], order=3, mode="constant", cval=0.0)
+        if self.psf_kernels() is None:  # the Gaussian: defocus and pixel footprint as one Gaussian, in screen px
+            scale = float(np.sqrt(np.median(area)))
+            sigma = math.hypot(cam.defocus_sigma_px * scale, scale / math.sqrt(12.0))
+            blurred = ndimage.gaussian_filter(rate, sigma, mode="nearest")
+            vals = ndimage.map_coordinates(blurred, [xy[..., 1].ravel(), xy[..., 0].ravel()], order=3, mode="constant", cval=0.0)
+        else:  # the renderer's pixel-integrated kernel(s)
+            vals = self._apply_psf(rate, xy)
         return np.maximum(vals.reshape(xy.shape[:2]), 0.0) * area
 
     def capture(self, screen_dn: np.ndarray, rng: np.random.Generator, frames: int = 16, exposure_scale: float = 1.0) -> np.ndarray:

@@ -367,7 +367,8 @@ def recipe_visibility(recipe: dict):
 
 def read_recipe_mapping(path) -> dict:
     """The mapping of a YAML (or JSON) recipe file, or a fresh copy of a preset (``montecarlo``...),
-    not yet validated (``--set`` overrides apply to it before :func:`validate_recipe`).
+    not yet validated (``--set`` overrides apply to it before :func:`validate_recipe`); relative
+    PSF file paths in it are made relative to the recipe's folder.
 
     Raises
     ------
@@ -391,7 +392,10 @@ def read_recipe_mapping(path) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise RecipeError("recipe", str(path), f"valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__}{where})") from None
-    return data
+    from skynav.scenes.psf import resolve_psf_files
+
+    # a PSF file named in the recipe is found beside the recipe, wherever it is run from
+    return resolve_psf_files(data, os.path.dirname(os.path.abspath(path)))
 
 
 def load_recipe_file(path) -> dict:

@@ -13,7 +13,15 @@ Method
      Mahajan 1986) ``I(r) = pi / (4 (lf)^2 (1 - e^2)) [2 J1(v)/v - e^2 2 J1(e v)/(e v)]^2``,
      ``v = pi r / lf``, ``lf = lambda F / pixel pitch``; polychromatic: the sum over the band
      (10 nm steps) weighted by the source's electron spectrum (spectrum x lambda/hc x QE x T),
-     through a radial profile read linearly on a grid of 1/(16 N) px;
+     through a radial profile read linearly on a grid of 1/(16 N) px. The renderer does not make
+     one such table per source: it tabulates the camera's polychromatic Airy once, at a few
+     *spectral nodes* (:func:`spectral_nodes`: blackbodies whose effective wavelengths are
+     log-spaced over the stars' and bodies' range, as few as keep the linear interpolation
+     between nodes within :data:`SPECTRAL_TOLERANCE` of the peak), and draws each source with
+     each star with the blend of the two nodes around its own effective wavelength
+     (:func:`kernel_for`); a body (reflected sunlight) and a bench screen with the exact table
+     of their own spectrum (:func:`source_kernel`, also the reference the blend is tested
+     against);
    - optical: ``|F(pupil exp(2 pi i W))|^2`` with ``W = sum_j a_j Z_j`` (Noll 1976
      normalisation, waves RMS), the pupil 256 samples across, anti-aliased (each sample's area
      fraction inside the annulus from 8 x 8 sub-samples), ``F`` a matrix Fourier transform
@@ -35,18 +43,27 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel
 
 __all__ = ["noll_to_nm", "zernike", "airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
-           "optical_table", "tabulated_tables", "electron_spectrum", "TEFF_BIN_EDGES_K"]
+           "optical_table", "tabulated_tables", "electron_spectrum", "effective_wavelength_nm", "SpectralNodes",
+           "spectral_nodes", "kernel_for", "source_kernel", "SPECTRAL_TOLERANCE"]
 
-#: Effective-temperature bins of the polychromatic star tables, K (log-spaced; one table per bin,
-#: made at the bin's geometric centre).
-TEFF_BIN_EDGES_K = (0.0, 3000.0, 4000.0, 5000.0, 6000.0, 7500.0, 10000.0, 15000.0, np.inf)
-_BIN_TEFF_K = (2600.0, 3500.0, 4500.0, 5500.0, 6700.0, 8700.0, 12200.0, 20000.0)
+#: Largest error, in units of the peak of the pixel-integrated PSF, that the linear
+#: interpolation between two spectral nodes of a polychromatic Airy may make, measured on the
+#: monochromatic pattern at the node's effective wavelengths (whose change with wavelength
+#: bounds the band-averaged one's): half the 1e-3 of the peak the GalSim comparison allows,
+#: the other half left to a source's spectrum differing from the node blackbodies' at the same
+#: effective wavelength.
+SPECTRAL_TOLERANCE = 5e-4
+
+#: Blackbody temperatures whose effective wavelengths (with every body's) the nodes span, K;
+#: a source beyond them takes the end node's table.
+SPECTRAL_TEFF_RANGE_K = (2000.0, 50000.0)
 
 #: Fine samples per pixel of the tables (at least 2 per lambda F: Nyquist of diffraction).
 DEFAULT_OVERSAMPLING = 16
@@ -236,35 +253,141 @@ def tabulated_tables(model: TabulatedPSFModel, half: int) -> tuple:
 
 def electron_spectrum(camera, source) -> tuple:
     """Wavelengths (nm, 10 nm steps over the camera's band) and relative electrons per nm of a
-    source: ``("star", teff_k)`` (a blackbody) or ``("body", name)`` (Sun x reflectance)."""
+    source: ``("star", teff_k)`` (a blackbody), ``("body", name)`` (Sun x reflectance) or
+    ``("spectrum", wavelengths_nm, relative_w_m2_nm)`` (any emitter, e.g. a bench screen; read
+    linearly, zero outside its table)."""
     from . import spectra
 
     lo, hi = min(camera.response_wavelengths_nm), max(camera.response_wavelengths_nm)
     wl = np.arange(lo, hi + 1e-9, 10.0)
     if source[0] == "star":
         f = spectra.blackbody_w_m2_nm_shape(float(source[1]), wl)
+    elif source[0] == "spectrum":
+        f = np.interp(wl, np.asarray(source[1], dtype=float), np.asarray(source[2], dtype=float), left=0.0, right=0.0)
     else:
         f = spectra.solar_irradiance_1au_w_m2_nm(wl) * spectra.reflectance_shape(source[1], wl)
     e = np.asarray(f, dtype=float).reshape(-1) * wl * spectra.response_on_grid(camera, wl)
     return wl, e
 
 
-def teff_bin(teff_k) -> np.ndarray:
-    """Index of the polychromatic star table of each effective temperature."""
-    return np.clip(np.searchsorted(np.asarray(TEFF_BIN_EDGES_K[1:-1]), np.asarray(teff_k, dtype=float), side="right"),
-                   0, len(_BIN_TEFF_K) - 1)
+def effective_wavelength_nm(camera, source) -> float:
+    """Electron-weighted mean wavelength of a source through the camera, nm (the spectral
+    coordinate of the polychromatic tables): ``sum e(l) l / sum e(l)`` of :func:`electron_spectrum`."""
+    wl, e = electron_spectrum(camera, source)
+    return float(np.sum(e * wl) / np.sum(e))
+
+
+def star_effective_wavelengths_nm(camera, teff_k) -> np.ndarray:
+    """:func:`effective_wavelength_nm` of blackbodies, vectorised over ``teff_k`` (N,), nm."""
+    from . import spectra
+
+    t = np.asarray(teff_k, dtype=float).reshape(-1)
+    lo, hi = min(camera.response_wavelengths_nm), max(camera.response_wavelengths_nm)
+    wl = np.arange(lo, hi + 1e-9, 10.0)
+    if t.size == 0:
+        return np.zeros(0)
+    f = spectra.blackbody_w_m2_nm_shape(t, wl).reshape(t.size, wl.size)
+    e = f * (wl * spectra.response_on_grid(camera, wl))[None, :]
+    return (e @ wl) / e.sum(axis=1)
 
 
 def lambda_f_px(camera, wavelength_nm) -> np.ndarray:
     return np.asarray(wavelength_nm, dtype=float) * 1e-3 * camera.f_number / camera.pixel_pitch_um
 
 
+@dataclass(frozen=True, kw_only=True)
+class SpectralNodes:
+    """Where a camera's polychromatic Airy is tabulated (see :func:`spectral_nodes`).
+
+    Attributes
+    ----------
+    wavelength_nm : tuple of float
+        Effective wavelengths of the nodes, ascending, nm (one node: a single table).
+    teff_k : tuple of float
+        The blackbody temperature whose spectrum (x the camera's response) makes each node's
+        table, K.
+    tolerance : float
+        The interpolation error asked for, units of the peak.
+    error : float
+        The largest interpolation error of the monochromatic proxy on these nodes (at the
+        midpoints between them), units of the peak.
+    """
+
+    wavelength_nm: tuple
+    teff_k: tuple
+    tolerance: float
+    error: float
+
+
+def _teff_at_wavelength(camera, lam_nm: float) -> float:
+    """The blackbody temperature whose effective wavelength is ``lam_nm`` (bisection in log T;
+    the effective wavelength falls monotonically with temperature)."""
+    a, b = math.log(500.0), math.log(1e6)
+    for _ in range(60):
+        m = 0.5 * (a + b)
+        if float(star_effective_wavelengths_nm(camera, [math.exp(m)])[0]) > lam_nm:
+            a = m
+        else:
+            b = m
+    return math.exp(0.5 * (a + b))
+
+
+@functools.lru_cache(maxsize=16)
+def spectral_nodes(camera, tolerance: float = SPECTRAL_TOLERANCE, max_intervals: int = 64) -> SpectralNodes:
+    """The spectral nodes of a camera's polychromatic Airy, chosen once per camera (cached).
+
+    The nodes are log-spaced in effective wavelength over the range of blackbodies of
+    :data:`SPECTRAL_TEFF_RANGE_K` and of every body's reflected sunlight. Their number doubles
+    (1, 2, 4, ... ``max_intervals`` intervals) until the linear interpolation between
+    neighbouring nodes of the *monochromatic* pixel-integrated Airy at those wavelengths errs
+    by at most ``tolerance`` of its peak at every interval's midpoint (the table's core, |u| <=
+    4 px, where the pattern changes most). A diffraction pattern narrower than a pixel (the
+    paper camera's lambda F = 0.09 px) needs a single interval; a sampled one (2.2 px) a few
+    dozen.
+    """
+    from . import spectra
+
+    model = camera.psf
+    lams = list(star_effective_wavelengths_nm(camera, SPECTRAL_TEFF_RANGE_K))
+    lams += [effective_wavelength_nm(camera, ("body", b)) for b in sorted(spectra._REFLECTANCE) + ["earth"]]
+    lo, hi = math.log(min(lams)), math.log(max(lams))
+    band_lo = min(camera.response_wavelengths_nm)
+    n = fine_sampling(float(lambda_f_px(camera, band_lo)))
+    half = min(4, int(model.half_size_px(1e-6, camera)))
+    tables = {}
+
+    def table(x):  # the monochromatic proxy at ln(wavelength) x
+        key = round(x, 12)
+        if key not in tables:
+            tables[key] = airy_table(float(lambda_f_px(camera, math.exp(x))), [1.0], model.obscuration, half, n)
+        return tables[key]
+
+    intervals, err = 1, 0.0
+    while True:
+        xs = np.linspace(lo, hi, intervals + 1)
+        err = 0.0
+        for a, b in zip(xs[:-1], xs[1:]):
+            ta, tb, tm = table(a), table(b), table(0.5 * (a + b))
+            err = max(err, float(np.max(np.abs(0.5 * (ta + tb) - tm)) / tm.max()))
+        if err <= tolerance or intervals >= max_intervals or hi - lo < 1e-9:
+            break
+        intervals *= 2
+    if hi - lo < 1e-9:
+        xs = np.array([lo])
+    wl = tuple(float(math.exp(x)) for x in xs)
+    return SpectralNodes(wavelength_nm=wl, teff_k=tuple(_teff_at_wavelength(camera, w) for w in wl),
+                         tolerance=float(tolerance), error=err)
+
+
 @functools.lru_cache(maxsize=64)
 def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
-    """The renderer's kernel of the camera's PSF for one source class (cached per camera).
+    """The renderer's kernel of the camera's PSF (built once per camera: cached).
 
-    ``source``: None (monochromatic models), ``("star", bin)`` or ``("body", name)`` for a
-    polychromatic Airy. A Gaussian is :class:`~skynav.renderer.psf.GaussianPSF` itself.
+    ``source`` None: the kernel every source is drawn with: for a polychromatic Airy the tables
+    of its :func:`spectral_nodes`, whose stamps take each point's effective wavelength
+    (``wavelength_nm``). A source (``("star", teff_k)``, ``("body", name)``, ``("spectrum",
+    wavelengths, values)``, hashable) on a polychromatic camera: :func:`source_kernel`, the
+    exact table of its own spectrum. A Gaussian is :class:`~skynav.renderer.psf.GaussianPSF`.
     """
     from .psf import GaussianPSF, TablePSF
 
@@ -277,12 +400,15 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
             lf = float(lambda_f_px(camera, model.wavelength_nm))
             n = fine_sampling(lf)
             return TablePSF((airy_table(lf, [1.0], model.obscuration, half, n),), n, half)
-        src = source if source is not None else ("star", int(teff_bin(5800.0)))
-        spec = ("star", _BIN_TEFF_K[src[1]]) if src[0] == "star" else src
-        wl, e = electron_spectrum(camera, spec)
-        lf = lambda_f_px(camera, wl)
-        n = fine_sampling(float(lf.min()))
-        return TablePSF((airy_table(lf, e, model.obscuration, half, n),), n, half)
+        if source is not None:
+            return source_kernel(camera, source, flux_fraction_lost)
+        nodes = spectral_nodes(camera)
+        n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
+        tables = []
+        for teff in nodes.teff_k:
+            wl, e = electron_spectrum(camera, ("star", teff))
+            tables.append(airy_table(lambda_f_px(camera, wl), e, model.obscuration, half, n))
+        return TablePSF(tuple(tables), n, half, wavelengths_nm=nodes.wavelength_nm)
     if isinstance(model, OpticalPSFModel):
         lf = float(lambda_f_px(camera, model.wavelength_nm))
         n = fine_sampling(lf)
@@ -291,6 +417,22 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
         tables, n = tabulated_tables(model, half)
         return TablePSF(tables, n, half, grid=model.grid)
     raise TypeError(f"unknown PSF model {model!r}")
+
+
+def source_kernel(camera, source, flux_fraction_lost: float = 1e-6):
+    """The exact polychromatic Airy of one source's own electron spectrum (one table): the
+    reference :func:`kernel_for`'s interpolated nodes are tested against, and the kernel of a
+    body (reflected sunlight, whose absorption bands make a pattern no blackbody's matches to
+    1e-3: 8e-3 of the peak for Mars at lambda F = 2.2 px); :func:`kernel_for` caches it per
+    camera and source."""
+    from .psf import TablePSF
+
+    model = camera.psf
+    half = int(model.half_size_px(flux_fraction_lost, camera))
+    wl, e = electron_spectrum(camera, source)
+    lf = lambda_f_px(camera, wl)
+    n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
+    return TablePSF((airy_table(lf, e, model.obscuration, half, n),), n, half)
 
 
 def is_polychromatic(camera) -> bool:

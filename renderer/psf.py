@@ -189,17 +189,23 @@ class TablePSF:
 
     With a field grid (``grid = (xs, ys, index[iy][ix])``) a point's stamp is the bilinear blend
     in ``(x, y)`` of the stamps of the four grid tables around it (clamped at the grid's edge):
-    exactly a grid table's stamp at its grid point.
+    exactly a grid table's stamp at its grid point. With spectral nodes (``wavelengths_nm``, the
+    effective wavelength of each table, ascending: a polychromatic Airy) a point's stamp is the
+    linear blend, in log wavelength, of the two tables around its own effective wavelength
+    (``wavelength_nm`` of :meth:`stamps`; clamped at the ends).
 
     Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
     """
 
-    def __init__(self, tables, n: int, half: int, grid=None):
+    def __init__(self, tables, n: int, half: int, grid=None, wavelengths_nm=None):
         # FFT ringing leaves values of ~1e-16 of the peak below 0: a charge is never negative
         self.tables = tuple(np.ascontiguousarray(np.maximum(t, 0.0), dtype=float) for t in tables)
         self.n = int(n)
         self.half = int(half)
         self.grid = grid
+        self.wavelengths_nm = None if wavelengths_nm is None else tuple(float(w) for w in wavelengths_nm)
+        if self.wavelengths_nm is not None and (grid is not None or len(self.wavelengths_nm) != len(self.tables)):
+            raise ValueError("TablePSF: one effective wavelength per table, and no field grid with them")
         self._block_cache = {}
         self._last = None
         import hashlib
@@ -207,7 +213,7 @@ class TablePSF:
         h = hashlib.sha256()
         for t in self.tables:
             h.update(t.tobytes())
-        h.update(repr((self.n, self.half, grid)).encode())
+        h.update(repr((self.n, self.half, grid, self.wavelengths_nm)).encode())
         self._key = h.hexdigest()
 
     def __eq__(self, other):
@@ -290,31 +296,115 @@ class TablePSF:
                 np.add.at(w, (rows, idx[jj, ii]), wy * wx)
         return w
 
-    def stamps(self, xy, half_size: int) -> np.ndarray:
-        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1.
+    def _spectral_pair(self, wavelength_nm, m: int):
+        """Lower node ``i`` (M,) and fraction ``t`` (M,) towards node ``i + 1`` of each point's
+        effective wavelength, linear in log wavelength, clamped to the nodes (K >= 2)."""
+        if wavelength_nm is None:
+            raise ConfigValueError("psf.wavelength_nm", None, "each point's effective wavelength, nm (a polychromatic PSF)")
+        lam = np.broadcast_to(np.asarray(wavelength_nm, dtype=float), (m,))
+        g = np.log(np.asarray(self.wavelengths_nm))
+        v = np.clip(np.log(lam), g[0], g[-1])
+        i = np.clip(np.searchsorted(g, v, side="right") - 1, 0, g.size - 2)
+        return i, (v - g[i]) / (g[i + 1] - g[i])
+
+    def _spectral_weights(self, wavelength_nm, m: int):
+        """Linear weights (M, K) in log wavelength of the spectral tables at each point's
+        effective wavelength (clamped to the nodes)."""
+        w = np.zeros((m, len(self.tables)))
+        if len(self.tables) == 1:
+            w[:, 0] = 1.0
+            return w
+        i, t = self._spectral_pair(wavelength_nm, m)
+        rows = np.arange(m)
+        w[rows, i] = 1.0 - t
+        w[rows, i + 1] += t
+        return w
+
+    def weights(self, xy, wavelength_nm=None) -> np.ndarray:
+        """Blend weights (M, K) of the tables for points ``xy`` (M, 2), px, and their effective
+        wavelengths (M,), nm (polychromatic kernels only): the field grid's bilinear weights,
+        the spectral nodes' linear ones, or 1 for a single table."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        if self.grid is not None:
+            return self._field_weights(xy)
+        if self.wavelengths_nm is not None:
+            return self._spectral_weights(wavelength_nm, xy.shape[0])
+        return np.ones((xy.shape[0], 1))
+
+    def on_grid(self, k_table: int, jacobian) -> np.ndarray:
+        """Table ``k_table`` sampled on another pixel grid, normalised to a sum of 1.
+
+        ``jacobian`` (2, 2): that grid's offsets per px of this one (``d_other = J d_self``,
+        columns the images of this grid's x and y steps), e.g. screen pixels per camera pixel
+        of a bench's collimator; sample ``[i, j]`` of the result is the table at offset
+        ``J^-1 (j - c, i - c)`` px (``c`` the middle sample), bilinear between fine samples,
+        zero beyond the stamps' reach (offsets over ``half + 0.5`` px in x or y: the light a
+        stamp holds, as :meth:`stamps` cuts and normalises it). Convolving an image on the other
+        grid with it and reading the result at a pixel's point there draws what this PSF draws
+        in that pixel.
+        """
+        from scipy.ndimage import map_coordinates
+
+        J = np.asarray(jacobian, dtype=float).reshape(2, 2)
+        table = self.tables[k_table]
+        c = table.shape[0] // 2
+        reach = min((c - 1) / self.n, self.half + 0.5)  # px of this grid the stamps reach from the centre
+        corners = J @ np.array([[1, 1, -1, -1], [1, -1, 1, -1]], dtype=float) * reach
+        m = int(math.ceil(np.max(np.abs(corners))))
+        d = np.arange(-m, m + 1, dtype=float)
+        dx, dy = np.meshgrid(d, d)  # [i, j] -> (dx = j - m, dy = i - m)
+        u = np.linalg.solve(J, np.stack([dx.ravel(), dy.ravel()]))  # offsets in this grid's px
+        vals = map_coordinates(table, [c + self.n * u[1], c + self.n * u[0]], order=1, mode="constant", cval=0.0)
+        vals[np.max(np.abs(u), axis=0) > self.half + 0.5] = 0.0
+        g = vals.reshape(dx.shape)
+        return g / g.sum()
+
+    def stamps(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
+        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1;
+        ``wavelength_nm`` (M,) or scalar, nm: the points' effective wavelengths (required by a
+        polychromatic kernel, ignored by others).
 
         Read-only: the last call's result is kept and returned again for the same points (the
         irradiance pass of a frame repeats the electrons' pass)."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        key = (xy.tobytes(), int(half_size))
+        lam = None
+        if self.wavelengths_nm is not None and wavelength_nm is not None:
+            lam = np.ascontiguousarray(np.broadcast_to(np.asarray(wavelength_nm, dtype=float), (xy.shape[0],)))
+        key = (xy.tobytes(), int(half_size), None if lam is None else lam.tobytes())
         last = self._last  # one read: another thread may replace it
         if last is not None and last[0] == key:
             return last[1]
-        out = self._stamps(xy, half_size)
+        out = self._stamps(xy, half_size, lam)
         out.flags.writeable = False
         self._last = (key, out)
         return out
 
-    def _stamps(self, xy, half_size):
+    def _stamps(self, xy, half_size, lam=None):
         if int(half_size) > self.half:  # beyond the table: no light (zeros around the table's stamp)
             pad = int(half_size) - self.half
-            return np.pad(self.stamps(xy, self.half), ((0, 0), (pad, pad), (pad, pad)))
+            return np.pad(self.stamps(xy, self.half, lam), ((0, 0), (pad, pad), (pad, pad)))
         h = int(half_size)
         f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
-        if self.grid is None:
+        if len(self.tables) == 1:
             s, tot = self._stamps_one(0, f, h)
+        elif self.wavelengths_nm is not None:  # two neighbouring nodes per point: one write each
+            i, t = self._spectral_pair(lam, xy.shape[0])
+            s = np.empty((xy.shape[0], 2 * h + 1, 2 * h + 1))
+            tot = np.empty(xy.shape[0])
+            for k in np.unique(i):
+                sel = np.flatnonzero(i == k)
+                sa, ta = self._stamps_one(k, f[sel], h)
+                tk = t[sel]
+                if np.any(tk > 0.0):
+                    sb, tb = self._stamps_one(k + 1, f[sel], h)
+                    sb -= sa
+                    sb *= tk[:, None, None]
+                    sa += sb
+                    ta = ta + tk * (tb - ta)
+                s[sel] = sa
+                tot[sel] = ta
         else:
-            w = self._field_weights(xy)
+            w = self.weights(xy, lam)
             s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
             tot = np.zeros(xy.shape[0])
             for k in range(len(self.tables)):
@@ -326,6 +416,6 @@ class TablePSF:
         s *= (1.0 / np.where(tot > 0, tot, 1.0))[:, None, None]  # the blend's sum is the blend of the sums
         return s
 
-    def stamp(self, xy, half_size: int) -> np.ndarray:
+    def stamp(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
         """Stamp of one point ``xy`` (2,), shape (2h+1, 2h+1); origin ``stamp_origin(xy, h)``."""
-        return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size)[0]
+        return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size, wavelength_nm)[0]

@@ -96,7 +96,7 @@ def _accumulate(image, flat, weights, support=None) -> None:
 
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
               support: list | None = None, centre_of_light: np.ndarray | None = None,
-              out: np.ndarray | None = None) -> np.ndarray:
+              out: np.ndarray | None = None, wavelength_nm=None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -124,6 +124,9 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         source not drawn. The PSF's asymmetry (coma) shows in it; the image is unchanged.
     out : ndarray, shape (H, W), float64, C-contiguous, optional
         Add the sources into this image (returned) instead of a new zero image.
+    wavelength_nm : ndarray, shape (N,), nm, optional
+        Effective wavelength of each source, for a polychromatic kernel (its stamps blend its
+        spectral tables there; see :class:`~skynav.renderer.psf.TablePSF`).
 
     Returns
     -------
@@ -169,6 +172,9 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     if step_px is None:
         step_px = psf.quadrature_step_px() if hasattr(psf, "quadrature_step_px") else 0.05
     xy, flux, source = streak_subsamples(p[ok], e[ok], float(step_px))
+    lam = None
+    if wavelength_nm is not None:
+        lam = np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)[ok][source]
     if centre_of_light is not None:
         n_ok = int(np.count_nonzero(ok))
         m0 = np.zeros(n_ok)
@@ -181,7 +187,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     offsets = (k[:, None] * w_img + k[None, :]).ravel()  # flat offsets of a stamp, (n*n,)
     for a in range(0, xy.shape[0], chunk):
         pts = xy[a : a + chunk]
-        w = (psf.stamps(pts, half) * flux[a : a + chunk, None, None]).reshape(pts.shape[0], per_point)
+        st = psf.stamps(pts, half) if lam is None else psf.stamps(pts, half, wavelength_nm=lam[a : a + chunk])
+        w = (st * flux[a : a + chunk, None, None]).reshape(pts.shape[0], per_point)
         origin = stamp_origin(pts, half)
         if centre_of_light is not None:  # first moments of the stamps, per source
             w3 = w.reshape(pts.shape[0], n_side, n_side)

@@ -304,7 +304,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     ExpectedImage
     """
     from .brdf import photocentre_offset_xy
-    from .optics import is_polychromatic, kernel_for, teff_bin
+    from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
     from .radiometry import Radiometry
     from .raster import rasterize
 
@@ -313,7 +313,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
     ffl = options.flux_fraction_lost
-    poly = is_polychromatic(cam)  # Airy without a wavelength: one kernel per spectrum class
+    poly = is_polychromatic(cam)  # Airy without a wavelength: tables by each source's spectrum
     psf = kernel_for(cam, None, ffl)
     T = cam.exposure_s
 
@@ -345,17 +345,18 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     if not poly:
         electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre)
         irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl) if with_irradiance else None
-    else:  # one kernel per star temperature bin and per body spectrum
-        keys = [("star", int(b)) for b in teff_bin(stars.teff_k)] + [("body", b.name) for b in points]
-        electrons = np.zeros(shape)
-        irradiance = np.zeros(shape) if with_irradiance else None
-        for key in sorted(set(keys)):
-            sel = np.array([k == key for k in keys])
-            kern = kernel_for(cam, key, ffl)
-            c = np.full((int(sel.sum()), 2), np.nan)
-            rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support, centre_of_light=c,
-                      out=electrons)
-            centre[sel] = c
+    else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
+        n_s = len(star_e)
+        lam = star_effective_wavelengths_nm(cam, stars.teff_k)
+        electrons = rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support,
+                              centre_of_light=centre[:n_s], wavelength_nm=lam)
+        irradiance = (rasterize(shape, paths[:n_s], irr_pts[:n_s], psf, flux_fraction_lost=ffl, wavelength_nm=lam)
+                      if with_irradiance else None)
+        for j, b in enumerate(points):
+            kern = kernel_for(cam, ("body", b.name), ffl)
+            sel = slice(n_s + j, n_s + j + 1)
+            rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
+                      centre_of_light=centre[sel], out=electrons)
             if irradiance is not None:
                 rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
     star_centre = centre[: len(star_e)]
@@ -477,13 +478,14 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
                  irradiance_w_m2=expected.irradiance_w_m2.astype(np.float32), truth=truth)
 
 
-def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None):
+def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
     """Convolve a pixel-binned crop with the PSF, padded so no flux is lost.
 
     The kernel is the PSF integrated over one pixel centred on each integer offset, normalised
     to 1 so the crop's total is conserved: for a Gaussian separable (erf differences), for any
     other kernel its stamp of a point at a pixel centre (:meth:`PSF.stamp`), by FFT; ``at_xy``
-    (px) picks the pixel, for a PSF that varies across the field (default: (0, 0)).
+    (px) picks the pixel, for a PSF that varies across the field (default: (0, 0));
+    ``wavelength_nm`` the body's effective wavelength, for a polychromatic PSF.
     Returns (blurred crop, pad in px).
     """
     if hasattr(psf, "sigma_px"):  # the Gaussian: separable, as it always was
@@ -502,7 +504,7 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None):
 
     h = int(psf.half_size_px(flux_fraction_lost))
     at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
-    k = psf.stamp(at, h)
+    k = psf.stamp(at, h) if wavelength_nm is None else psf.stamp(at, h, wavelength_nm)
     k = k / k.sum()
     out = np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0)  # FFT ringing < 0
     return out, h

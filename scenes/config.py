@@ -541,12 +541,15 @@ def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
 
 
 def load_scene_mapping(path):
-    """The mapping of a scene file at ``path`` (not yet validated)."""
+    """The mapping of a scene file at ``path`` (not yet validated); relative PSF file paths in
+    it are made relative to the file's folder (:func:`~skynav.scenes.psf.resolve_psf_files`)."""
+    from .psf import resolve_psf_files
+
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")
     with open(path, "rb") as f:
-        return read_scene_mapping(f, str(path))
+        return resolve_psf_files(read_scene_mapping(f, str(path)), path.parent)
 
 
 def load_scene_file(path) -> SceneSpec:

@@ -37,13 +37,14 @@ import numpy as np
 from .errors import ConfigValueError
 
 __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "TabulatedPSFModel", "FieldPSF",
-           "psf_from_dict", "PSF_MODELS", "MAX_HALF_SIZE_PX"]
+           "psf_from_dict", "resolve_psf_files", "PSF_MODELS", "MAX_HALF_SIZE_PX"]
 
 #: Default largest stamp half size of the diffraction and measured models, px (the key
 #: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
 #: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
-#: beyond 24 px); stamps are cut there and normalised to the whole flux. 16 keeps the default
-#: frame with an Airy PSF within 1.5x of the Gaussian frame (benchmarks/psf_bench.py).
+#: beyond 24 px); stamps are cut there and normalised to the whole flux. The stamp's size sets
+#: most of a frame's cost (benchmarks/psf_bench.py: the default frame with an Airy PSF takes
+#: 1.8x the Gaussian frame's CPU time at 16, 1.2x at 10).
 MAX_HALF_SIZE_PX = 16
 
 
@@ -251,7 +252,9 @@ class TabulatedPSFModel:
 
     Files are read once, when the model is made, and normalised to a sum of 1; ``sha256`` (of the
     normalised float64 tables) makes two models with the same paths but other contents differ.
-    Relative paths are read from the current directory and stored absolute.
+    Relative paths are read from the current directory and stored absolute; a scene file, recipe
+    or facility file first makes its own relative paths relative to its folder
+    (:func:`resolve_psf_files`).
     """
 
     oversampling: int = 1
@@ -363,6 +366,43 @@ class TabulatedPSFModel:
 
 PSFModel = GaussianPSFModel | AiryPSFModel | OpticalPSFModel | TabulatedPSFModel
 
+
+def _resolve_psf(psf: dict, folder: str) -> dict:
+    def join(f):
+        return os.path.normpath(os.path.join(folder, f)) if isinstance(f, str) and f and not os.path.isabs(f) else f
+
+    out = dict(psf)
+    if "file" in out:
+        out["file"] = join(out["file"])
+    if isinstance(out.get("field"), list):
+        out["field"] = [dict(p, file=join(p["file"])) if isinstance(p, dict) and "file" in p else p for p in out["field"]]
+    return out
+
+
+def resolve_psf_files(mapping, folder):
+    """A copy of a file's parsed mapping with the relative PSF file paths of its cameras (every
+    ``camera: {psf: {file}}`` and ``camera: {psf: {field: [{file}]}}``, at any depth: a scene
+    file's camera, a recipe's and each of its scenes', a facility file's) joined to ``folder``,
+    the folder of the file that names them, as a reader of that file expects; absolute paths
+    and anything else are left as written (the model's validation judges them).
+
+    Examples
+    --------
+    >>> resolve_psf_files({"camera": {"psf": {"model": "tabulated", "file": "psf.npy"}}}, "/lab/run1")
+    {'camera': {'psf': {'model': 'tabulated', 'file': '/lab/run1/psf.npy'}}}
+    """
+    folder = os.path.abspath(os.fspath(folder))
+
+    def walk(node, parent=None):
+        if isinstance(node, dict):
+            return {k: _resolve_psf(v, folder) if k == "psf" and parent == "camera" and isinstance(v, dict) else walk(v, k)
+                    for k, v in node.items()}
+        if isinstance(node, list):
+            return [walk(v, parent) for v in node]
+        return node
+
+    return walk(mapping)
+
 _KEYS = {
     "gaussian": {"sigma_px"},
     "airy": {"obscuration", "wavelength_nm", "max_half_px"},
@@ -398,7 +438,8 @@ def psf_from_dict(d, key: str = "camera.psf"):
         return AiryPSFModel(**kw)
     if m == "optical":
         if "wavelength_nm" not in kw:
-            raise ConfigValueError(f"{key}.wavelength_nm", None, "a wavelength, nm (Zernike waves are at one wavelength)")
+            raise ConfigValueError(f"{key}.wavelength_nm", None, "a wavelength, nm: the optical model is monochromatic (its Zernike "
+                                   "waves are at one wavelength); for a polychromatic pattern use model airy without wavelength_nm")
         z = kw.get("zernike_waves", {})
         if not isinstance(z, dict):
             raise ConfigValueError(f"{key}.zernike_waves", z, "a mapping of Noll index (2..36) to waves RMS")

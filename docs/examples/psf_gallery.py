@@ -28,7 +28,7 @@ def main(out):
         models = [
             ("gaussian, sigma 1 px", {"model": "gaussian", "sigma_px": 1.0}, None),
             ("airy, 550 nm, obscuration 0.3", {"model": "airy", "obscuration": 0.3, "wavelength_nm": 550.0}, None),
-            ("airy, polychromatic (5800 K)", {"model": "airy", "obscuration": 0.3}, ("star", 3)),
+            ("airy, polychromatic (5800 K)", {"model": "airy", "obscuration": 0.3}, ("star", 5800.0)),
             ("optical: defocus 0.3 + coma 0.3 waves", {"model": "optical", "obscuration": 0.2, "wavelength_nm": 550.0,
                                                        "zernike_waves": {4: 0.3, 8: 0.3}}, None),
             ("tabulated (a measured image)", {"model": "tabulated", "file": f"{tmp}/measured.npy", "oversampling": 4}, None),
