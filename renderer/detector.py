@@ -71,6 +71,7 @@ POISSON_INVERSION_MAX_MEAN = 10.0
 """Below this mean the llvm path samples Poisson by sequential inversion, above by PTRS."""
 
 _INVERSION_MAX_K = 200  # cap of the inversion loop: P(K > 200 | mean < 10) ~ 1e-200
+_INVERSION_TERMS_PER_TRIP = 4  # pmf terms per trip of the inversion loop (see _jit_charge)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -301,14 +302,16 @@ class Sensor:
             raise SensorInputError(f"electrons has shape {e.shape}; this sensor is {self.shape}")
         if not (isinstance(exposure_s, (int, float, np.floating, np.integer)) and math.isfinite(exposure_s) and exposure_s >= 0):
             raise SensorInputError(f"exposure_s = {exposure_s!r}; expected a finite number >= 0 (seconds)")
-        if not np.all(np.isfinite(e)) or (e.size and e.min() < 0):
+        # min and max propagate NaN, and +-inf shows in one of them: two reductions, no
+        # temporary array (this runs on every frame)
+        if e.size and not (e.min() >= 0 and np.isfinite(e.max())):
             raise SensorInputError("electrons must be finite and >= 0 everywhere")
         x = None
         if extra_charge_e is not None:
             x = np.asarray(extra_charge_e)
             if x.shape != self.shape:
                 raise SensorInputError(f"extra_charge_e has shape {x.shape}; this sensor is {self.shape}")
-            if not np.all(np.isfinite(x)) or (x.size and x.min() < 0):
+            if x.size and not (x.min() >= 0 and np.isfinite(x.max())):
                 raise SensorInputError("extra_charge_e must be finite and >= 0 everywhere")
         return e, float(exposure_s), x
 
@@ -518,6 +521,10 @@ def _jit_charge(mean, extra, key):
     # In float64: float32 sums of the pmf can stall a few ulp below 1 and leave the rare u above
     # them stuck until the cap (a spurious tail value ~1e-7 of the time); float64 with a 53-bit u
     # resolves tail probabilities down to ~1e-15.
+    # Four terms per trip, each p(k + j) = p(k + j - 1) * (lam / (k + j)): the divisions do not
+    # depend on p, so they leave the loop-carried chain (one multiply and one add per term instead
+    # of a division); a lane's answer is k + 1 + [u > F(k+1)] + [u > F(k+2)] + [u > F(k+3)] when
+    # u <= F(k+4), else the search goes on from k + 4. The cap stays at _INVERSION_MAX_K.
     u = pcg.next_float64()
     lam64 = Float64(lam)
     p0 = dr.exp(-lam64)
@@ -527,26 +534,33 @@ def _jit_charge(mean, extra, key):
         return small & (u > f) & (k < _INVERSION_MAX_K)
 
     def inv_body(k, p, f):
-        k = k + 1.0
-        p = p * lam64 / k
-        return k, p, f + p
+        ratio = [lam64 / (k + float(j)) for j in range(1, _INVERSION_TERMS_PER_TRIP + 1)]
+        step = Float64(1.0)
+        for j, r in enumerate(ratio):
+            p = p * r
+            f = f + p
+            if j < len(ratio) - 1:
+                step = step + dr.select(u > f, 1.0, 0.0)
+        return dr.select(u > f, k + float(len(ratio)), k + step), p, f
 
     k_small, _, _ = dr.while_loop((k0, p0, p0), inv_cond, inv_body, labels=("k", "p", "f"), label="poisson_inversion")
 
     # -- PTRS transformed rejection (means >= 10), Hoermann (1993), as in numpy's random_poisson_ptrs.
+    # Its constants are computed inside the loop body: only the few packets of lanes holding a
+    # mean >= 10 (stars, bright bodies) enter the loop, so the dark sky does not pay for them.
     big_lam = dr.select(small, POISSON_INVERSION_MAX_MEAN, lam)
-    slam = dr.sqrt(big_lam)
-    log_lam = dr.log(big_lam)
-    b = 0.931 + 2.53 * slam
-    a = -0.059 + 0.02483 * b
-    log_inv_alpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
-    vr = 0.9277 - 3.6224 / (b - 2.0)
-    half_log_2pi_lam = 0.5 * (log_lam + math.log(2.0 * math.pi))
 
     def ptrs_cond(rng, k, done):
         return ~done
 
     def ptrs_body(rng, k, done):
+        slam = dr.sqrt(big_lam)
+        log_lam = dr.log(big_lam)
+        b = 0.931 + 2.53 * slam
+        a = -0.059 + 0.02483 * b
+        log_inv_alpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
+        vr = 0.9277 - 3.6224 / (b - 2.0)
+        half_log_2pi_lam = 0.5 * (log_lam + math.log(2.0 * math.pi))
         uu = rng.next_float32() - 0.5
         v = rng.next_float32()
         us = 0.5 - dr.abs(uu)

@@ -250,6 +250,13 @@ def test_bad_inputs():
         s.expose(np.zeros((4, 4)), -1.0, rng)
     with pytest.raises(SensorInputError, match=">= 0"):
         s.expose(np.full((4, 4), -1.0), 0.1, rng)
+    for bad in (np.nan, np.inf, -np.inf):  # one bad pixel among good ones, in either input
+        img = np.ones((4, 4))
+        img[2, 1] = bad
+        with pytest.raises(SensorInputError, match="^electrons must be finite and >= 0"):
+            s.expose(img, 0.1, rng)
+        with pytest.raises(SensorInputError, match="^extra_charge_e must be finite and >= 0"):
+            s.expose(np.ones((4, 4)), 0.1, rng, extra_charge_e=img)
     with pytest.raises(SensorInputError, match="backend"):
         s.expose(np.zeros((4, 4)), 0.1, rng, backend="cuda")
     with pytest.raises(SensorInputError, match="Generator"):
