@@ -343,8 +343,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
     if not poly:
-        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre)
-        irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl) if with_irradiance else None
+        irradiance = np.zeros(shape) if with_irradiance else None
+        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre,
+                              also=(irr_pts, irradiance) if with_irradiance else None)
     else:  # one kernel per star temperature bin and per body spectrum
         keys = [("star", int(b)) for b in teff_bin(stars.teff_k)] + [("body", b.name) for b in points]
         electrons = np.zeros(shape)
@@ -354,10 +355,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             kern = kernel_for(cam, key, ffl)
             c = np.full((int(sel.sum()), 2), np.nan)
             rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support, centre_of_light=c,
-                      out=electrons)
+                      out=electrons, also=(irr_pts[sel], irradiance) if irradiance is not None else None)
             centre[sel] = c
-            if irradiance is not None:
-                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
 
