@@ -241,6 +241,25 @@ def test_same_seed_same_bits(backend):
     assert np.array_equal(d.dn, a) and d.backend == backend
 
 
+def test_replayed_kernel_gives_the_traced_bits():
+    """Without blooming the LLVM chain is one Dr.Jit frozen function: its first call of an input
+    layout records the kernel, the later ones replay it with new inputs. Each must give the bits
+    of the same chain traced afresh (``expose_details`` traces it every call; same code, same
+    seed), across bit depths (UInt8 or UInt32 out), sizes, exposures, gains and extra charge."""
+    llvm_or_skip()
+    rng = np.random.default_rng(4)
+    for bits, shape in ((8, (64, 48)), (12, (64, 48)), (8, (30, 70)), (12, (30, 70))):
+        for k in range(3):  # the first call records, the next ones replay
+            params = dataclasses.replace(PTC, bit_depth=bits, gain_dn_per_e=float(rng.uniform(0.01, 0.3)))
+            s = Sensor(params, shape)
+            e = rng.uniform(0, 300 * (k + 1), shape)
+            extra = None if k == 1 else np.where(rng.random(shape) < 0.01, 5000.0, 0.0)
+            t = float(rng.uniform(0.05, 1.0))
+            a = s.expose(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
+            d = s.expose_details(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
+            assert a.dtype == s.dtype and np.array_equal(a, d.dn), (bits, shape, k)
+
+
 def test_bad_inputs():
     s = Sensor(PTC, (4, 4))
     rng = np.random.default_rng(0)
