@@ -97,6 +97,40 @@ class ExposureDetails:
     backend: str
 
 
+@dataclass(frozen=True, eq=False)
+class PixelCharge:
+    """Charge on a few pixels, for :meth:`Sensor.expose`'s ``extra_charge_e`` (cosmic-ray hits).
+
+    The same charge as the image ``np.add.at(np.zeros(shape).ravel(), index, electrons)`` (a
+    repeated index adds up, in order), without the full-size image: the LLVM path then reads no
+    charge image and computes the few pixels hit in a kernel of their own.
+
+    Attributes
+    ----------
+    index : ndarray of int, shape (M,)
+        Flat (row-major) pixel indices.
+    electrons : ndarray of float, shape (M,)
+        Charge added to each, e-.
+    """
+
+    index: np.ndarray
+    electrons: np.ndarray
+
+    def per_pixel(self) -> tuple[np.ndarray, np.ndarray]:
+        """(distinct pixel indices, ascending; their charge summed in order from 0.0, float64)."""
+        u, inv = np.unique(np.asarray(self.index, dtype=np.int64), return_inverse=True)
+        total = np.zeros(u.size)
+        np.add.at(total, inv.ravel(), np.asarray(self.electrons, dtype=float))
+        return u, total
+
+    def dense(self, shape) -> np.ndarray:
+        """The charge image, shape ``shape``, float64."""
+        out = np.zeros(int(np.prod(shape)))
+        u, total = self.per_pixel()
+        out[u] = total
+        return out.reshape(shape)
+
+
 # --------------------------------------------------------------------------- fixed patterns
 @functools.lru_cache(maxsize=4)
 def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -260,8 +294,9 @@ class Sensor:
         backend : {"auto", "llvm", "numpy"}
             ``auto``: the Dr.Jit LLVM kernel if :func:`jit_backend.configure_llvm` says the
             backend works here, else numpy.
-        extra_charge_e : array_like, shape (H, W), optional
-            Charge added after the shot noise (cosmic rays), e-.
+        extra_charge_e : array_like, shape (H, W), or PixelCharge, optional
+            Charge added after the shot noise (cosmic rays), e-: an image, or the charge of a
+            few pixels (:class:`PixelCharge`; the same frame as its image, bit for bit).
 
         Returns
         -------
@@ -288,6 +323,8 @@ class Sensor:
         ndarray, shape (H, W), uint8 (bit depth <= 8) or uint16
         """
         e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
+        if isinstance(x, PixelCharge):
+            x = x.dense(self.shape)
         p = self.params
         gain, dark = fixed_patterns(p, self.shape)
         mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
@@ -308,6 +345,16 @@ class Sensor:
         if e.size and not (e.min() >= 0 and np.isfinite(e.max())):
             raise SensorInputError("electrons must be finite and >= 0 everywhere")
         x = None
+        if isinstance(extra_charge_e, PixelCharge):
+            idx = np.asarray(extra_charge_e.index)
+            val = np.asarray(extra_charge_e.electrons)
+            if idx.ndim != 1 or val.shape != idx.shape or (idx.size and idx.dtype.kind not in "iu"):
+                raise SensorInputError(f"extra_charge_e: index and electrons must be 1-D of one length, index integer; got {idx.shape} {idx.dtype}, {val.shape}")
+            if idx.size and not (idx.min() >= 0 and idx.max() < e.size):
+                raise SensorInputError(f"extra_charge_e.index must be in [0, {e.size}) for this {self.shape} sensor")
+            if val.size and not (val.min() >= 0 and np.isfinite(val.max())):
+                raise SensorInputError("extra_charge_e must be finite and >= 0 everywhere")
+            return e, float(exposure_s), extra_charge_e
         if extra_charge_e is not None:
             x = np.asarray(extra_charge_e)
             if x.shape != self.shape:
@@ -339,6 +386,8 @@ class Sensor:
 
     def _expose_numpy(self, e, t, rng, x) -> ExposureDetails:
         p = self.params
+        if isinstance(x, PixelCharge):
+            x = x.dense(self.shape)
         gain, dark = fixed_patterns(p, self.shape)
         mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
         n = rng.poisson(mean).astype(np.float64)
@@ -364,17 +413,34 @@ class Sensor:
         p = self.params
         gain, dark = self._patterns_llvm()
         key = tuple(dr.opaque(UInt32, k) for k in frame_key(rng))
-        sig = Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
-        extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
+        sig32 = np.ascontiguousarray(e, dtype=np.float32).ravel()
+        sig = Float(sig32)
         op = functools.partial(dr.opaque, Float)
         readout = (op(self.dark_noise_e), op(p.gain_dn_per_e), op(p.offset_dn + 0.5), op(float(p.max_dn)))
         small_dn = p.bit_depth <= 8  # DN leave the kernel as bytes
         if not (p.blooming or details):  # the whole chain in one kernel, replayed (see _frozen_exposure)
+            hit = x.per_pixel() if isinstance(x, PixelCharge) else None
+            extra = None if x is None or hit is not None else Float(np.ascontiguousarray(x, dtype=np.float32).ravel())
+            args = (op(t), key, op(p.full_well_e), readout)
             with _frozen_lock:
-                dn = _frozen_exposure(small_dn)(sig, gain, dark, extra, op(t), key, op(p.full_well_e), readout)
+                dn = _frozen_exposure(small_dn)(sig, gain, dark, extra, *args, None)
                 dr.eval(dn)
-            return ExposureDetails(dn=dn.numpy().reshape(self.shape).astype(self.dtype, copy=False), mean_e=None,
+                out = dn.numpy()
+                if hit is not None and hit[0].size:
+                    # the pixels hit: the same chain on their own, with their charge, from their
+                    # own streams (a stream is a hash of the frame key and the pixel index)
+                    idx = hit[0]
+                    g32, d32 = fixed_patterns(p, self.shape)
+                    sub = _frozen_exposure(small_dn)(Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
+                                                     Float(hit[1].astype(np.float32)), *args, UInt32(idx.astype(np.uint32)))
+                    dr.eval(sub)
+                    out = out.copy() if not out.flags.writeable else out
+                    out[idx] = sub.numpy()
+            return ExposureDetails(dn=out.reshape(self.shape).astype(self.dtype, copy=False), mean_e=None,
                                    charge_e=None, backend="llvm")
+        if isinstance(x, PixelCharge):
+            x = x.dense(self.shape)
+        extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
         mean = dr.fma(sig, gain, dark * op(t))
         n, pcg = _jit_charge(mean, extra, key)
         if p.blooming:
@@ -394,13 +460,14 @@ class Sensor:
         return ExposureDetails(dn=out, mean_e=mean_np, charge_e=n_np, backend="llvm")
 
 
-def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, small_dn):
+def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn):
     """The sensor chain without blooming, lazy: PRNU and dark current, Poisson, extra charge,
-    full well, read noise, gain, ADC (:func:`_jit_charge`, :func:`_jit_readout`)."""
+    full well, read noise, gain, ADC (:func:`_jit_charge`, :func:`_jit_readout`); ``index``:
+    the pixels' flat indices (None: all the image's, in order)."""
     import drjit as dr
 
     mean = dr.fma(sig, gain, dark * t)
-    n, pcg = _jit_charge(mean, extra, key)
+    n, pcg = _jit_charge(mean, extra, key, index)
     return _jit_readout(dr.minimum(n, full_well), pcg, *readout, small_dn=small_dn)
 
 
@@ -420,8 +487,8 @@ def _frozen_exposure(small_dn: bool):
     """
     import drjit as dr
 
-    def exposure(sig, gain, dark, extra, t, key, full_well, readout):
-        return _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, small_dn)
+    def exposure(sig, gain, dark, extra, t, key, full_well, readout, index):
+        return _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn)
 
     return dr.freeze(exposure)
 
@@ -542,17 +609,19 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
 
 
 # --------------------------------------------------------------------------- Dr.Jit kernels
-def _jit_charge(mean, extra, key):
+def _jit_charge(mean, extra, key, index=None):
     """Poisson(mean) (+ extra) as a lazy Dr.Jit Float, and the advanced PCG32 streams.
 
     ``key`` is the frame key (:func:`frame_key`) as four opaque Dr.Jit UInt32 (kernel inputs, so
-    the kernel does not depend on their values); pixel ``i`` of ``mean`` gets the PCG32 stream
-    seeded by :func:`pixel_stream_seeds`.
+    the kernel does not depend on their values); lane ``j`` of ``mean`` gets the PCG32 stream
+    seeded by :func:`pixel_stream_seeds` for the pixel ``index[j]`` (default: ``j``).
     """
     import drjit as dr
     from drjit.llvm import PCG32, Bool, Float, Float64, UInt32
 
-    initstate, initseq = pixel_stream_seeds(key, dr.arange(UInt32, dr.width(mean)))
+    if index is None:
+        index = dr.arange(UInt32, dr.width(mean))
+    initstate, initseq = pixel_stream_seeds(key, index)
     pcg = PCG32(dr.width(mean))
     pcg.seed(initstate, initseq)  # seed() adds no per-lane offset, unlike the constructor
     lam = dr.maximum(mean, 0.0)

@@ -427,7 +427,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     Detection
     """
     from . import cosmic_rays as cr
-    from .detector import Sensor
+    from .detector import PixelCharge, Sensor
 
     cam = camera
     electrons = expected.electrons
@@ -438,16 +438,22 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
-    cr_charge = cr.deposit(np.zeros(shape), hits)
+    # the charge of the few pixels hit, never a full image: electrons + charge is the image
+    # cr.deposit(np.zeros(shape), hits) would give, added to the electrons, to the bit
+    charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
+                         electrons=hits.pixel_electrons)
+    hit, hit_e = charge.per_pixel()
+    total = electrons.copy()
+    total.reshape(-1)[hit] += hit_e
 
     sensor = Sensor(cam.sensor, shape)
     if options.noise:
         backend = sensor_backend(options.backend)
-        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=cr_charge)
+        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=charge)
     else:
         backend = "numpy"
-        dn = sensor.expected_dn(electrons + cr_charge, T)
-    return Detection(dn=dn, electrons=electrons + cr_charge, hits=hits, backend=backend)
+        dn = sensor.expected_dn(total, T)
+    return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
 
 def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
