@@ -165,6 +165,15 @@ def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.nda
     return gain, dark
 
 
+@functools.lru_cache(maxsize=2)
+def _fixed_patterns_f64(params: SensorParams, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fixed_patterns` as float64 (the numpy path's), read-only, converted once."""
+    out = tuple(a.astype(np.float64) for a in fixed_patterns(params, shape))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 # --------------------------------------------------------------------------- blooming
 def bloom_columns(charge_e: np.ndarray, full_well_e: float) -> np.ndarray:
     """Spill charge above the full well along columns, conserving it until a column is full.
@@ -326,8 +335,8 @@ class Sensor:
         if isinstance(x, PixelCharge):
             x = x.dense(self.shape)
         p = self.params
-        gain, dark = fixed_patterns(p, self.shape)
-        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        gain, dark = _fixed_patterns_f64(p, self.shape)
+        mean = e * gain + dark * t
         if x is not None:
             mean = mean + x
         mean = bloom_columns(mean, p.full_well_e) if p.blooming else np.minimum(mean, p.full_well_e)
@@ -380,7 +389,9 @@ class Sensor:
 
     def _quantise_numpy(self, v_e: np.ndarray) -> np.ndarray:
         p = self.params
-        y = np.floor(p.gain_dn_per_e * v_e + (p.offset_dn + 0.5))
+        y = p.gain_dn_per_e * v_e  # the operations of floor(K v + (offset + 0.5)), in place
+        y += p.offset_dn + 0.5
+        np.floor(y, out=y)
         np.clip(y, 0, p.max_dn, out=y)
         return y.astype(self.dtype)
 
@@ -388,13 +399,17 @@ class Sensor:
         p = self.params
         if isinstance(x, PixelCharge):
             x = x.dense(self.shape)
-        gain, dark = fixed_patterns(p, self.shape)
-        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        gain, dark = _fixed_patterns_f64(p, self.shape)
+        mean = e * gain + dark * t
         n = rng.poisson(mean).astype(np.float64)
         if x is not None:
             n += x
-        n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e)
-        v = n + rng.normal(0.0, self.dark_noise_e, self.shape) if self.dark_noise_e > 0 else n
+        n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e, out=n)
+        if self.dark_noise_e > 0:
+            v = rng.normal(0.0, self.dark_noise_e, self.shape)
+            v += n  # n + noise (n is returned as the charge)
+        else:
+            v = n
         return ExposureDetails(dn=self._quantise_numpy(v), mean_e=mean, charge_e=n, backend="numpy")
 
     # ----------------------------------------------------------------- Dr.Jit LLVM path
