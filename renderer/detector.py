@@ -397,12 +397,14 @@ class Sensor:
 
     def _expose_numpy(self, e, t, rng, x) -> ExposureDetails:
         p = self.params
-        if isinstance(x, PixelCharge):
-            x = x.dense(self.shape)
         gain, dark = _fixed_patterns_f64(p, self.shape)
-        mean = e * gain + dark * t
+        mean = dark * t
+        mean += e * gain  # e gain + dark t (IEEE addition commutes)
         n = rng.poisson(mean).astype(np.float64)
-        if x is not None:
+        if isinstance(x, PixelCharge):  # n + its image: n + 0 = n off the pixels hit
+            idx, charge = x.per_pixel()
+            n.reshape(-1)[idx] += charge
+        elif x is not None:
             n += x
         n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e, out=n)
         if self.dark_noise_e > 0:
