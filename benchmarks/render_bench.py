@@ -2,9 +2,10 @@
 
 Prints the median time of ``render`` (scene already built: catalog, ephemeris and radiometry
 tables warm) for the Dr.Jit LLVM sensor path and the numpy path, numpy's bare variate cost for
-one Poisson + one Gaussian per pixel measured in the same run, and the ratios, each as wall time
-and as CPU time (compare CPU times on a machine other processes share). One thread: the CI
-machine's single core is the reference (``DRJIT_NUM_THREADS=1`` is set below).
+one Poisson + one Gaussian per pixel, the three taking turns in one run, and the ratios, each
+as wall time and as CPU time (compare CPU times on a machine other processes share), with the
+load average. One thread: the CI machine's single core is the reference (``DRJIT_NUM_THREADS=1``
+is set below).
 
     python benchmarks/render_bench.py [--repeat 15]
 """
@@ -21,20 +22,25 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 
-def median_ms(fn, repeat):
-    """Median wall time and median CPU time (this process, all threads) of ``fn``, ms.
+def median_ms(fns: dict, repeat):
+    """Median wall time and median CPU time (this process, all threads) of each function, ms,
+    the functions taking turns (one call of each per round), so that a change of the machine's
+    load falls on all of them alike.
 
     The CPU time is the figure to compare on a shared machine: other processes stretch the wall
     time of a one-thread run, not the CPU time it needs.
     """
-    fn()  # warm-up (tables, kernels)
-    wall, cpu = [], []
+    for fn in fns.values():
+        fn()  # warm-up (tables, kernels)
+    wall = {k: [] for k in fns}
+    cpu = {k: [] for k in fns}
     for _ in range(repeat):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
+        for k, fn in fns.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            wall[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)
+    return {k: (1e3 * float(np.median(wall[k])), 1e3 * float(np.median(cpu[k]))) for k in fns}
 
 
 def main():
@@ -60,14 +66,6 @@ def main():
     n_stars = int(scene.stars.in_fov.sum())
     rng = np.random.default_rng(1)
 
-    results = {}
-    for backend in ("llvm", "numpy"):
-        if backend == "llvm" and not status.available:
-            print(f"llvm path: unavailable ({status.reason})")
-            continue
-        opts = RenderOptions(backend=backend)
-        results[backend] = median_ms(lambda: render(scene, rng=rng, options=opts), args.repeat)
-
     n = scene.camera.width * scene.camera.height
     lam = np.full(n, 20.0)
 
@@ -75,9 +73,20 @@ def main():
         rng.poisson(lam)
         rng.standard_normal(n)
 
-    numpy_variates = median_ms(variates, args.repeat)
+    fns = {}
+    for backend in ("llvm", "numpy"):
+        if backend == "llvm" and not status.available:
+            print(f"llvm path: unavailable ({status.reason})")
+            continue
+        opts = RenderOptions(backend=backend)
+        fns[backend] = lambda opts=opts: render(scene, rng=rng, options=opts)
+    fns["variates"] = variates
+    results = median_ms(fns, args.repeat)
+    numpy_variates = results.pop("variates")
+    load = os.getloadavg()
     print(f"default frame: {scene.camera.width}x{scene.camera.height}, {n_stars} stars in view (V <= {scene.catalog_limiting_v_mag:g}), "
-          f"full noise, no disk writes; scene build {1e3 * t_scene:.0f} ms (not counted); medians of {args.repeat}, wall | CPU")
+          f"full noise, no disk writes; scene build {1e3 * t_scene:.0f} ms (not counted); medians of {args.repeat}, wall | CPU; "
+          f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     print(f"numpy variates (1 Poisson + 1 Gaussian per pixel): {numpy_variates[0]:8.1f} ms | {numpy_variates[1]:8.1f} ms CPU")
     for k, (w, c) in results.items():
         print(f"render, {k:5s} sensor path:                     {w:8.1f} ms | {c:8.1f} ms CPU   "

@@ -169,18 +169,34 @@ def brdf_value(brdf: BRDF, mu0, mu, cos_psi) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _disk_grid(n: int):
-    """Gauss-Legendre nodes on the unit disk in polar coordinates (r, t) with weights r dr dt
-    (cached: the nodes cost an eigenvalue problem; the arrays are read-only)."""
+    """The half of the unit disk with ``Y >= 0``, on Gauss-Legendre nodes in polar coordinates
+    (r, t), and the parts of the integrand that do not depend on the phase angle.
+
+    The disk integrand of :func:`far_field_disk` depends on ``Y`` only through ``Y^2`` (the
+    normal's ``Z``); the ``t`` nodes are symmetric about ``pi``, so the nodes with ``t < pi`` are
+    summed with twice their weight (a node at ``t = pi``, for odd ``n``, once). Cached: the nodes
+    cost an eigenvalue problem, the cosines and roots one pass each; the arrays are read-only.
+
+    Returns
+    -------
+    X, Z, sin_e, W : ndarray, shape (n, ceil(n / 2))
+        ``X = r cos t``, ``Z = sqrt(1 - X^2 - Y^2)`` (= ``mu``), ``sqrt(1 - mu^2)`` and the weights
+        ``r dr dt`` (doubled off the axis).
+    """
     x, w = np.polynomial.legendre.leggauss(n)
+    half = (n + 1) // 2
     r = 0.5 * (x + 1.0)
     wr = 0.5 * w
-    t = np.pi * (x + 1.0)
-    wt = np.pi * w
+    t = np.pi * (x[:half] + 1.0)
+    wt = np.pi * w[:half] * np.where(np.arange(half) < n // 2, 2.0, 1.0)
     R, T = np.meshgrid(r, t, indexing="ij")
     W = (wr * r)[:, None] * wt[None, :]
-    for a in (R, T, W):
+    X, Y = R * np.cos(T), R * np.sin(T)
+    Z = np.sqrt(np.clip(1.0 - X * X - Y * Y, 0.0, None))
+    se = np.sqrt(np.clip(1.0 - Z * Z, 0.0, None))
+    for a in (X, Z, se, W):
         a.flags.writeable = False
-    return R, T, W
+    return X, Z, se, W
 
 
 def far_field_disk(brdf: BRDF, phase_angle_rad: float, *, n: int = 400) -> tuple[float, float]:
@@ -208,15 +224,15 @@ def far_field_disk(brdf: BRDF, phase_angle_rad: float, *, n: int = 400) -> tuple
         Photocentre offset towards the Sun's projection, in units of the radius.
     """
     g = float(phase_angle_rad)
-    R, T, W = _disk_grid(n)
-    X, Y = R * np.cos(T), R * np.sin(T)
-    Z = np.sqrt(np.clip(1.0 - X * X - Y * Y, 0.0, None))
+    X, Z, se, W = _disk_grid(n)  # the half disk Y >= 0: the integrand is even in Y
     mu = Z
     mu0 = X * math.sin(g) + Z * math.cos(g)
-    si = np.sqrt(np.clip(1.0 - mu0 * mu0, 0.0, None))
-    se = np.sqrt(np.clip(1.0 - mu * mu, 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cos_psi = np.where(si * se > 1e-12, (math.cos(g) - mu0 * mu) / (si * se), 1.0)
+    if brdf.kind == "oren_nayar":  # the only law with an azimuth term
+        si = np.sqrt(np.clip(1.0 - mu0 * mu0, 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos_psi = np.where(si * se > 1e-12, (math.cos(g) - mu0 * mu) / (si * se), 1.0)
+    else:
+        cos_psi = 1.0
     # projected area element is dX dY, and L = f E mu0 (radiance), so intensity ~ f mu0 dX dY
     lum = brdf_value(brdf, mu0, mu, cos_psi) * np.clip(mu0, 0.0, None) * W
     total = float(lum.sum())

@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,7 @@ POISSON_INVERSION_MAX_MEAN = 10.0
 """Below this mean the llvm path samples Poisson by sequential inversion, above by PTRS."""
 
 _INVERSION_MAX_K = 200  # cap of the inversion loop: P(K > 200 | mean < 10) ~ 1e-200
+_INVERSION_TERMS_PER_TRIP = 4  # pmf terms per trip of the inversion loop (see _jit_charge)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,6 +95,40 @@ class ExposureDetails:
     mean_e: np.ndarray
     charge_e: np.ndarray
     backend: str
+
+
+@dataclass(frozen=True, eq=False)
+class PixelCharge:
+    """Charge on a few pixels, for :meth:`Sensor.expose`'s ``extra_charge_e`` (cosmic-ray hits).
+
+    The same charge as the image ``np.add.at(np.zeros(shape).ravel(), index, electrons)`` (a
+    repeated index adds up, in order), without the full-size image: the LLVM path then reads no
+    charge image and computes the few pixels hit in a kernel of their own.
+
+    Attributes
+    ----------
+    index : ndarray of int, shape (M,)
+        Flat (row-major) pixel indices.
+    electrons : ndarray of float, shape (M,)
+        Charge added to each, e-.
+    """
+
+    index: np.ndarray
+    electrons: np.ndarray
+
+    def per_pixel(self) -> tuple[np.ndarray, np.ndarray]:
+        """(distinct pixel indices, ascending; their charge summed in order from 0.0, float64)."""
+        u, inv = np.unique(np.asarray(self.index, dtype=np.int64), return_inverse=True)
+        total = np.zeros(u.size)
+        np.add.at(total, inv.ravel(), np.asarray(self.electrons, dtype=float))
+        return u, total
+
+    def dense(self, shape) -> np.ndarray:
+        """The charge image, shape ``shape``, float64."""
+        out = np.zeros(int(np.prod(shape)))
+        u, total = self.per_pixel()
+        out[u] = total
+        return out.reshape(shape)
 
 
 # --------------------------------------------------------------------------- fixed patterns
@@ -127,6 +163,15 @@ def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.nda
     gain.flags.writeable = False
     dark.flags.writeable = False
     return gain, dark
+
+
+@functools.lru_cache(maxsize=2)
+def _fixed_patterns_f64(params: SensorParams, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fixed_patterns` as float64 (the numpy path's), read-only, converted once."""
+    out = tuple(a.astype(np.float64) for a in fixed_patterns(params, shape))
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 # --------------------------------------------------------------------------- blooming
@@ -258,8 +303,9 @@ class Sensor:
         backend : {"auto", "llvm", "numpy"}
             ``auto``: the Dr.Jit LLVM kernel if :func:`jit_backend.configure_llvm` says the
             backend works here, else numpy.
-        extra_charge_e : array_like, shape (H, W), optional
-            Charge added after the shot noise (cosmic rays), e-.
+        extra_charge_e : array_like, shape (H, W), or PixelCharge, optional
+            Charge added after the shot noise (cosmic rays), e-: an image, or the charge of a
+            few pixels (:class:`PixelCharge`; the same frame as its image, bit for bit).
 
         Returns
         -------
@@ -286,9 +332,11 @@ class Sensor:
         ndarray, shape (H, W), uint8 (bit depth <= 8) or uint16
         """
         e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
+        if isinstance(x, PixelCharge):
+            x = x.dense(self.shape)
         p = self.params
-        gain, dark = fixed_patterns(p, self.shape)
-        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        gain, dark = _fixed_patterns_f64(p, self.shape)
+        mean = e * gain + dark * t
         if x is not None:
             mean = mean + x
         mean = bloom_columns(mean, p.full_well_e) if p.blooming else np.minimum(mean, p.full_well_e)
@@ -301,14 +349,26 @@ class Sensor:
             raise SensorInputError(f"electrons has shape {e.shape}; this sensor is {self.shape}")
         if not (isinstance(exposure_s, (int, float, np.floating, np.integer)) and math.isfinite(exposure_s) and exposure_s >= 0):
             raise SensorInputError(f"exposure_s = {exposure_s!r}; expected a finite number >= 0 (seconds)")
-        if not np.all(np.isfinite(e)) or (e.size and e.min() < 0):
+        # min and max propagate NaN, and +-inf shows in one of them: two reductions, no
+        # temporary array (this runs on every frame)
+        if e.size and not (e.min() >= 0 and np.isfinite(e.max())):
             raise SensorInputError("electrons must be finite and >= 0 everywhere")
         x = None
+        if isinstance(extra_charge_e, PixelCharge):
+            idx = np.asarray(extra_charge_e.index)
+            val = np.asarray(extra_charge_e.electrons)
+            if idx.ndim != 1 or val.shape != idx.shape or (idx.size and idx.dtype.kind not in "iu"):
+                raise SensorInputError(f"extra_charge_e: index and electrons must be 1-D of one length, index integer; got {idx.shape} {idx.dtype}, {val.shape}")
+            if idx.size and not (idx.min() >= 0 and idx.max() < e.size):
+                raise SensorInputError(f"extra_charge_e.index must be in [0, {e.size}) for this {self.shape} sensor")
+            if val.size and not (val.min() >= 0 and np.isfinite(val.max())):
+                raise SensorInputError("extra_charge_e must be finite and >= 0 everywhere")
+            return e, float(exposure_s), extra_charge_e
         if extra_charge_e is not None:
             x = np.asarray(extra_charge_e)
             if x.shape != self.shape:
                 raise SensorInputError(f"extra_charge_e has shape {x.shape}; this sensor is {self.shape}")
-            if not np.all(np.isfinite(x)) or (x.size and x.min() < 0):
+            if x.size and not (x.min() >= 0 and np.isfinite(x.max())):
                 raise SensorInputError("extra_charge_e must be finite and >= 0 everywhere")
         return e, float(exposure_s), x
 
@@ -329,19 +389,29 @@ class Sensor:
 
     def _quantise_numpy(self, v_e: np.ndarray) -> np.ndarray:
         p = self.params
-        y = np.floor(p.gain_dn_per_e * v_e + (p.offset_dn + 0.5))
+        y = p.gain_dn_per_e * v_e  # the operations of floor(K v + (offset + 0.5)), in place
+        y += p.offset_dn + 0.5
+        np.floor(y, out=y)
         np.clip(y, 0, p.max_dn, out=y)
         return y.astype(self.dtype)
 
     def _expose_numpy(self, e, t, rng, x) -> ExposureDetails:
         p = self.params
-        gain, dark = fixed_patterns(p, self.shape)
-        mean = e * gain.astype(np.float64) + dark.astype(np.float64) * t
+        gain, dark = _fixed_patterns_f64(p, self.shape)
+        mean = dark * t
+        mean += e * gain  # e gain + dark t (IEEE addition commutes)
         n = rng.poisson(mean).astype(np.float64)
-        if x is not None:
+        if isinstance(x, PixelCharge):  # n + its image: n + 0 = n off the pixels hit
+            idx, charge = x.per_pixel()
+            n.reshape(-1)[idx] += charge
+        elif x is not None:
             n += x
-        n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e)
-        v = n + rng.normal(0.0, self.dark_noise_e, self.shape) if self.dark_noise_e > 0 else n
+        n = bloom_columns(n, p.full_well_e) if p.blooming else np.minimum(n, p.full_well_e, out=n)
+        if self.dark_noise_e > 0:
+            v = rng.normal(0.0, self.dark_noise_e, self.shape)
+            v += n  # n + noise (n is returned as the charge)
+        else:
+            v = n
         return ExposureDetails(dn=self._quantise_numpy(v), mean_e=mean, charge_e=n, backend="numpy")
 
     # ----------------------------------------------------------------- Dr.Jit LLVM path
@@ -359,18 +429,43 @@ class Sensor:
 
         p = self.params
         gain, dark = self._patterns_llvm()
-        key = frame_key(rng)
-        sig = Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
-        extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
+        key = tuple(dr.opaque(UInt32, k) for k in frame_key(rng))
+        sig32 = np.ascontiguousarray(e, dtype=np.float32).ravel()
+        sig = Float(sig32)
         op = functools.partial(dr.opaque, Float)
+        readout = (op(self.dark_noise_e), op(p.gain_dn_per_e), op(p.offset_dn + 0.5), op(float(p.max_dn)))
+        small_dn = p.bit_depth <= 8  # DN leave the kernel as bytes
+        if not (p.blooming or details):  # the whole chain in one kernel, replayed (see _frozen_exposure)
+            hit = x.per_pixel() if isinstance(x, PixelCharge) else None
+            extra = None if x is None or hit is not None else Float(np.ascontiguousarray(x, dtype=np.float32).ravel())
+            args = (op(t), key, op(p.full_well_e), readout)
+            with _frozen_lock:
+                dn = _frozen_exposure(small_dn)(sig, gain, dark, extra, *args, None)
+                dr.eval(dn)
+                out = dn.numpy()
+                if hit is not None and hit[0].size:
+                    # the pixels hit: the same chain on their own, with their charge, from their
+                    # own streams (a stream is a hash of the frame key and the pixel index)
+                    idx = hit[0]
+                    g32, d32 = fixed_patterns(p, self.shape)
+                    sub = _frozen_exposure(small_dn)(Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
+                                                     Float(hit[1].astype(np.float32)), *args, UInt32(idx.astype(np.uint32)))
+                    dr.eval(sub)
+                    out = out.copy() if not out.flags.writeable else out
+                    out[idx] = sub.numpy()
+            return ExposureDetails(dn=out.reshape(self.shape).astype(self.dtype, copy=False), mean_e=None,
+                                   charge_e=None, backend="llvm")
+        if isinstance(x, PixelCharge):
+            x = x.dense(self.shape)
+        extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
         mean = dr.fma(sig, gain, dark * op(t))
-        n, pcg = _jit_charge(mean, extra, tuple(dr.opaque(UInt32, k) for k in key))
+        n, pcg = _jit_charge(mean, extra, key)
         if p.blooming:
             dr.eval(n, pcg)
             n = Float(bloom_columns(n.numpy().reshape(self.shape), p.full_well_e).astype(np.float32).ravel())
         else:
             n = dr.minimum(n, op(p.full_well_e))
-        dn = _jit_readout(n, pcg, op(self.dark_noise_e), op(p.gain_dn_per_e), op(p.offset_dn + 0.5), op(float(p.max_dn)))
+        dn = _jit_readout(n, pcg, *readout, small_dn=small_dn)
         if details:
             dr.eval(dn, n, mean)
             mean_np = mean.numpy().reshape(self.shape).astype(np.float64)
@@ -378,8 +473,41 @@ class Sensor:
         else:
             dr.eval(dn)
             mean_np = n_np = None
-        out = dn.numpy().reshape(self.shape).astype(self.dtype)
+        out = dn.numpy().reshape(self.shape).astype(self.dtype, copy=False)
         return ExposureDetails(dn=out, mean_e=mean_np, charge_e=n_np, backend="llvm")
+
+
+def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn):
+    """The sensor chain without blooming, lazy: PRNU and dark current, Poisson, extra charge,
+    full well, read noise, gain, ADC (:func:`_jit_charge`, :func:`_jit_readout`); ``index``:
+    the pixels' flat indices (None: all the image's, in order)."""
+    import drjit as dr
+
+    mean = dr.fma(sig, gain, dark * t)
+    n, pcg = _jit_charge(mean, extra, key, index)
+    return _jit_readout(dr.minimum(n, full_well), pcg, *readout, small_dn=small_dn)
+
+
+_frozen_lock = threading.Lock()
+
+
+@functools.lru_cache(maxsize=2)
+def _frozen_exposure(small_dn: bool):
+    """:func:`_jit_exposure` as a Dr.Jit frozen function (``drjit.freeze``).
+
+    The first call of each input layout (image size, extra charge or none) traces the chain and
+    records its kernel launch; later calls replay the recording with the new inputs, skipping
+    ~800 operations of Python tracing a frame (~0.5 ms of a ~5 ms kernel). The recording is the
+    kernel a plain call compiles, so the two give the same bits (``tests/renderer/
+    test_detector_emva1288.py``). Every per-frame number is an input (an opaque variable), never a
+    constant of the recording. Calls are serialised by ``_frozen_lock`` (a recording is state).
+    """
+    import drjit as dr
+
+    def exposure(sig, gain, dark, extra, t, key, full_well, readout, index):
+        return _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn)
+
+    return dr.freeze(exposure)
 
 
 # --------------------------------------------------------------------------- per-pixel streams
@@ -498,17 +626,19 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
 
 
 # --------------------------------------------------------------------------- Dr.Jit kernels
-def _jit_charge(mean, extra, key):
+def _jit_charge(mean, extra, key, index=None):
     """Poisson(mean) (+ extra) as a lazy Dr.Jit Float, and the advanced PCG32 streams.
 
     ``key`` is the frame key (:func:`frame_key`) as four opaque Dr.Jit UInt32 (kernel inputs, so
-    the kernel does not depend on their values); pixel ``i`` of ``mean`` gets the PCG32 stream
-    seeded by :func:`pixel_stream_seeds`.
+    the kernel does not depend on their values); lane ``j`` of ``mean`` gets the PCG32 stream
+    seeded by :func:`pixel_stream_seeds` for the pixel ``index[j]`` (default: ``j``).
     """
     import drjit as dr
     from drjit.llvm import PCG32, Bool, Float, Float64, UInt32
 
-    initstate, initseq = pixel_stream_seeds(key, dr.arange(UInt32, dr.width(mean)))
+    if index is None:
+        index = dr.arange(UInt32, dr.width(mean))
+    initstate, initseq = pixel_stream_seeds(key, index)
     pcg = PCG32(dr.width(mean))
     pcg.seed(initstate, initseq)  # seed() adds no per-lane offset, unlike the constructor
     lam = dr.maximum(mean, 0.0)
@@ -518,6 +648,10 @@ def _jit_charge(mean, extra, key):
     # In float64: float32 sums of the pmf can stall a few ulp below 1 and leave the rare u above
     # them stuck until the cap (a spurious tail value ~1e-7 of the time); float64 with a 53-bit u
     # resolves tail probabilities down to ~1e-15.
+    # Four terms per trip, each p(k + j) = p(k + j - 1) * (lam / (k + j)): the divisions do not
+    # depend on p, so they leave the loop-carried chain (one multiply and one add per term instead
+    # of a division); a lane's answer is k + 1 + [u > F(k+1)] + [u > F(k+2)] + [u > F(k+3)] when
+    # u <= F(k+4), else the search goes on from k + 4. The cap stays at _INVERSION_MAX_K.
     u = pcg.next_float64()
     lam64 = Float64(lam)
     p0 = dr.exp(-lam64)
@@ -527,26 +661,33 @@ def _jit_charge(mean, extra, key):
         return small & (u > f) & (k < _INVERSION_MAX_K)
 
     def inv_body(k, p, f):
-        k = k + 1.0
-        p = p * lam64 / k
-        return k, p, f + p
+        ratio = [lam64 / (k + float(j)) for j in range(1, _INVERSION_TERMS_PER_TRIP + 1)]
+        step = Float64(1.0)
+        for j, r in enumerate(ratio):
+            p = p * r
+            f = f + p
+            if j < len(ratio) - 1:
+                step = step + dr.select(u > f, 1.0, 0.0)
+        return dr.select(u > f, k + float(len(ratio)), k + step), p, f
 
     k_small, _, _ = dr.while_loop((k0, p0, p0), inv_cond, inv_body, labels=("k", "p", "f"), label="poisson_inversion")
 
     # -- PTRS transformed rejection (means >= 10), Hoermann (1993), as in numpy's random_poisson_ptrs.
+    # Its constants are computed inside the loop body: only the few packets of lanes holding a
+    # mean >= 10 (stars, bright bodies) enter the loop, so the dark sky does not pay for them.
     big_lam = dr.select(small, POISSON_INVERSION_MAX_MEAN, lam)
-    slam = dr.sqrt(big_lam)
-    log_lam = dr.log(big_lam)
-    b = 0.931 + 2.53 * slam
-    a = -0.059 + 0.02483 * b
-    log_inv_alpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
-    vr = 0.9277 - 3.6224 / (b - 2.0)
-    half_log_2pi_lam = 0.5 * (log_lam + math.log(2.0 * math.pi))
 
     def ptrs_cond(rng, k, done):
         return ~done
 
     def ptrs_body(rng, k, done):
+        slam = dr.sqrt(big_lam)
+        log_lam = dr.log(big_lam)
+        b = 0.931 + 2.53 * slam
+        a = -0.059 + 0.02483 * b
+        log_inv_alpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
+        vr = 0.9277 - 3.6224 / (b - 2.0)
+        half_log_2pi_lam = 0.5 * (log_lam + math.log(2.0 * math.pi))
         uu = rng.next_float32() - 0.5
         v = rng.next_float32()
         us = 0.5 - dr.abs(uu)
@@ -570,12 +711,13 @@ def _jit_charge(mean, extra, key):
     return n, pcg
 
 
-def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn):
-    """Read + reset noise, gain, offset, ADC (round half up), saturation -> UInt32 DN (lazy)."""
+def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn, *, small_dn=False):
+    """Read + reset noise, gain, offset, ADC (round half up), saturation -> DN (lazy): UInt8
+    when ``small_dn`` (``max_dn`` < 256), else UInt32."""
     import drjit as dr
-    from drjit.llvm import UInt32
+    from drjit.llvm import UInt8, UInt32
 
     u = pcg.next_float32() + 2.0**-25  # in (0, 1): erfinv(+-1) would be infinite
     z = math.sqrt(2.0) * dr.erfinv(2.0 * u - 1.0)
     y = dr.floor(dr.fma(gain, dr.fma(sigma_e, z, n), offset_plus_half))
-    return UInt32(dr.clip(y, 0.0, max_dn))
+    return (UInt8 if small_dn else UInt32)(dr.clip(y, 0.0, max_dn))

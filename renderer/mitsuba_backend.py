@@ -25,6 +25,23 @@ pixel coordinates and the interpolation is exact to ~1e-5 px. The ray leaves the
 ``R_cam_icrs^T [e1 e2 c] (a, b, 1)``. The Mitsuba film IS the crop (``w x h`` pixels, box
 filter), so lens distortion, fx != fy or a bench's table need nothing else.
 
+A plain pinhole (a :class:`~skynav.scenes.camera.Camera` without distortion, with square pixels)
+needs no table: its rays come from Mitsuba's built-in ``perspective`` sensor, in C++, which in
+the scalar variant is ~5x faster than a Python ``sample_ray`` called once per ray
+(``benchmarks/mitsuba_bench.py``). That sensor looks along local +z with +x to the LEFT and +y UP
+of the image, and the skynav camera frame has +x right, +y down, so its ``to_world`` has the
+columns ``(-x_cam, -y_cam, +z_cam)`` (ICRS components, the rows of ``R_cam_icrs``) and the
+observer's position; its horizontal field of view is ``2 atan(w / (2 f))``. It maps the film
+sample ``u`` (0 at the film's left edge) to the ray through the point ``u + ppo_x w`` of a
+centred pinhole film (``principal_point_offset_x`` in units of the film width,
+``perspective.cpp``); a skynav pixel coordinate is ``x = x0 - 0.5 + u``, and the principal point
+``cx`` must sit at ``u = cx - x0 + 0.5 = w / 2 - ppo_x w``, hence
+``ppo_x = ((w - 1) / 2 - (cx - x0)) / w`` and ``ppo_y = ((h - 1) / 2 - (cy - y0)) / h``. Both
+sensors draw the same samples from the same seed (a 2-D film position and a wavelength, no
+aperture sample), so for a pinhole they trace the same rays up to float32 rounding and the
+corner table's interpolation error (~1e-5 px): ``tests/renderer/test_mitsuba_projection.py``
+holds their photocentres within 0.001 px. ``render_resolved_body(sensor=...)`` forces either.
+
 Each pixel's solid angle ``Omega`` is that of the spherical quadrilateral of its four corner
 lines of sight (two triangles, Van Oosterom & Strackee 1983, IEEE Trans. Biomed. Eng. 30, 125);
 for a pinhole it equals ``cos^3(theta) / f^2`` at the pixel centre to < 1e-7.
@@ -112,6 +129,7 @@ __all__ = [
     "current_variant",
     "clear_cache",
     "solar_irradiance_nodes_w_m2_nm",
+    "plain_pinhole",
 ]
 
 #: Default angular diameter (px) above which a body is ray-traced (the scene sets the
@@ -128,6 +146,14 @@ CROP_QUANTUM_PX = 8
 MAX_CROP_PX = 4096
 
 LAMBDA_REF_NM = 550.0
+
+#: Near and far clip of the ``perspective`` sensor, world units (the observer-body distance is
+#: 1; the body's surface is at >= 1 - r, its far side at <= 1 + r < 2).
+_NEAR_CLIP = 1e-5
+_FAR_CLIP = 4.0
+
+#: ``render_resolved_body(sensor=...)`` values.
+SENSORS = ("auto", "perspective", "projection")
 
 _lock = threading.RLock()
 _cache: "OrderedDict[tuple, _Entry]" = OrderedDict()
@@ -163,6 +189,9 @@ class ResolvedBodyImage:
     normalize : str
     seeds : tuple of int
         Mitsuba seed of each sub-frame.
+    sensor : str
+        Mitsuba sensor that traced the rays: ``"perspective"`` (a plain pinhole) or
+        ``"projection"`` (the line-of-sight table).
     """
 
     x0: int
@@ -179,6 +208,7 @@ class ResolvedBodyImage:
     brdf: BRDF
     normalize: str
     seeds: tuple = ()
+    sensor: str = "projection"
 
 
 # ------------------------------------------------------------------------------ variant
@@ -244,6 +274,37 @@ def _frame_z(direction) -> np.ndarray:
     M = np.eye(4)
     M[:3, 0], M[:3, 1], M[:3, 2] = x, y, z
     return M
+
+
+def _to_world(R_cam_icrs: np.ndarray, position) -> np.ndarray:
+    """The ``perspective`` sensor's camera-to-world 4x4: columns ``(-x_cam, -y_cam, z_cam)`` in
+    ICRS (Mitsuba's film has +x left and +y up) and the observer's position."""
+    M = np.eye(4)
+    M[:3, 0] = -R_cam_icrs[0]
+    M[:3, 1] = -R_cam_icrs[1]
+    M[:3, 2] = R_cam_icrs[2]
+    M[:3, 3] = position
+    return M
+
+
+def plain_pinhole(projection) -> bool:
+    """True if ``projection`` is a :class:`~skynav.scenes.camera.Camera` whose rays Mitsuba's
+    ``perspective`` sensor traces exactly: no lens distortion and square pixels (fx == fy)."""
+    from skynav.scenes.camera import Camera
+
+    return isinstance(projection, Camera) and projection.distortion.is_identity and projection.pixel_pitch_y_um is None
+
+
+def _sensor_kind(projection, sensor: str) -> str:
+    """``"perspective"`` or ``"projection"`` for a ``render_resolved_body(sensor=...)`` request."""
+    if sensor not in SENSORS:
+        raise ConfigValueError("mitsuba.sensor", sensor, "one of: " + ", ".join(SENSORS))
+    if sensor == "auto":
+        return "perspective" if plain_pinhole(projection) else "projection"
+    if sensor == "perspective" and not plain_pinhole(projection):
+        raise ConfigValueError("mitsuba.sensor", sensor, "'projection' or 'auto' for this projection "
+                               "(the perspective sensor is a pinhole: a Camera without distortion, with square pixels)")
+    return sensor
 
 
 def _perpendicular_basis(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -540,11 +601,30 @@ class _Entry:
         self.spp = spp
 
 
-def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str, spp: int) -> _Entry:
+def _sensor_dict(kind: str, camera, w: int, h: int) -> dict:
+    """The sensor of a crop's scene, without its film and sampler (see the module notes)."""
+    if kind == "projection":
+        return {"type": "skynav_projection"}
+    import mitsuba as mi
+
+    return {
+        "type": "perspective",
+        "fov_axis": "x",
+        "fov": math.degrees(2.0 * math.atan(0.5 * w / camera.focal_length_px)),
+        "near_clip": _NEAR_CLIP,
+        "far_clip": _FAR_CLIP,
+        "to_world": mi.ScalarTransform4f(_to_world(np.eye(3), [0.0, 0.0, -1.0])),
+    }
+
+
+def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str, spp: int,
+               sensor: str = "projection") -> _Entry:
     wl = spectra.WAVELENGTHS_NM
     refl = brdf.reflectance_550 * spectra.reflectance_shape(body_name, wl)
     srf = spectra.response_on_grid(camera, wl) * wl / LAMBDA_REF_NM
-    key = (variant, w, h, brdf, tuple(np.round(refl, 12)), tuple(np.round(srf, 12)), int(spp))
+    # the perspective sensor's field of view is a property of the scene: it keys the cache
+    fov_key = float(camera.focal_length_px) if sensor == "perspective" else None
+    key = (variant, sensor, fov_key, w, h, brdf, tuple(np.round(refl, 12)), tuple(np.round(srf, 12)), int(spp))
     with _lock:
         hit = _cache.get(key)
         if hit is not None:
@@ -558,7 +638,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
         "type": "scene",
         "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
         "sensor": {
-            "type": "skynav_projection",
+            **_sensor_dict(sensor, camera, w, h),
             "film": {
                 "type": "specfilm",
                 "width": int(w),
@@ -610,6 +690,7 @@ def render_resolved_body(
     variant: str | None = None,
     margin_px: float = CROP_MARGIN_PX,
     projection=None,
+    sensor: str = "auto",
 ) -> ResolvedBodyImage:
     """Ray-trace one resolved body with Mitsuba 3 in a crop window around it.
 
@@ -639,6 +720,10 @@ def render_resolved_body(
     projection : Projection, optional
         Where the rays come from: ``projection.line_of_sight`` at the crop's pixel corners
         (default ``scene.camera``: its pinhole and lens distortion).
+    sensor : {"auto", "perspective", "projection"}
+        Mitsuba's sensor: ``"auto"`` takes the built-in ``perspective`` sensor for a plain
+        pinhole (:func:`plain_pinhole`) and the ``skynav_projection`` table otherwise;
+        ``"perspective"`` is refused for any other projection.
 
     Returns
     -------
@@ -658,6 +743,7 @@ def render_resolved_body(
 
     cam = scene.camera
     proj = cam if projection is None else projection
+    kind = _sensor_kind(proj, sensor)
     variant = current_variant(variant)
     import mitsuba as mi
 
@@ -675,10 +761,11 @@ def render_resolved_body(
     x0, y0, w, h = crop_window(centres, radius_px, margin_px=margin_px)
     basis, ab, omega_sr = crop_lines_of_sight(proj, x0, y0, w, h, body=body.name)
 
-    entry = _scene_for(variant, cam, w, h, brdf, body.name, int(spp))
+    entry = _scene_for(variant, proj if kind == "perspective" else cam, w, h, brdf, body.name, int(spp), kind)
     params = entry.params
-    sensor = entry.scene.sensors()[0]
-    sensor.set_table(ab)
+    mi_sensor = entry.scene.sensors()[0]
+    if kind == "projection":
+        mi_sensor.set_table(ab)
 
     # body: sphere radius sin_r at the origin (world unit = observer-body distance)
     _set(params, "body.to_world", np.diag([sin_r, sin_r, sin_r, 1.0]))
@@ -695,7 +782,13 @@ def render_resolved_body(
     acc = np.zeros((h, w))
     seeds = []
     for k in range(len(dt)):
-        sensor.set_view(R_t[k].T @ basis, -u)  # crop frame -> camera frame -> ICRS
+        if kind == "projection":
+            mi_sensor.set_view(R_t[k].T @ basis, -u)  # crop frame -> camera frame -> ICRS
+        else:
+            _set(params, "sensor.to_world", _to_world(R_t[k], -u))
+            _set(params, "sensor.principal_point_offset_x", float(((w - 1) / 2.0 - (proj.cx - x0)) / w))
+            _set(params, "sensor.principal_point_offset_y", float(((h - 1) / 2.0 - (proj.cy - y0)) / h))
+            params.update()
         seed = int(rng.integers(0, 2**31 - 1))
         seeds.append(seed)
         img = mi.render(entry.scene, spp=entry.spp, seed=seed)
@@ -726,4 +819,5 @@ def render_resolved_body(
         centre_of_figure_xy=(float(centre[0]), float(centre[1])), radius_px=float(radius_px),
         electrons_total=total, electrons_raw_total=raw_total, variant=variant, spp=entry.spp,
         time_samples=int(time_samples), brdf=brdf, normalize=normalize, seeds=tuple(seeds),
+        sensor=kind,
     )

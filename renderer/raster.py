@@ -76,27 +76,30 @@ def streak_subsamples(paths_xy, electrons, step_px: float):
     return xy, seg_flux[seg] / npts[seg], seg_source[seg]
 
 
-def _accumulate(image, flat, weights, support=None) -> None:
-    """``image[flat] += weights`` summing repeated indices, in place (``image`` flat). A few
-    stamps on a large image (a bench screen) are summed over their distinct pixels only, not
-    over a full-size ``bincount``; both add each pixel's weights in the same order, then to the
-    image once, so the result is the same to the bit. ``support`` (a list): the flat indices
-    written are appended to it."""
-    if flat.size * 16 < image.size:
+def _accumulate(images, flat, weights, support=None) -> None:
+    """``image[flat] += w`` for each image and its weights, summing repeated indices, in place
+    (images flat; one index array for all). A few stamps on a large image (a bench screen) are
+    summed over their distinct pixels only (found once for all the images), not over a full-size
+    ``bincount``; both add each pixel's weights in the same order, then to the image once, so the
+    result is the same to the bit. ``support`` (a list): the flat indices written are appended to
+    it (once)."""
+    if flat.size * 16 < images[0].size:
         u, inv = np.unique(flat, return_inverse=True)
-        image[u] += np.bincount(inv.ravel(), weights=weights, minlength=u.size)
+        for image, w in zip(images, weights):
+            image[u] += np.bincount(inv.ravel(), weights=w, minlength=u.size)
         if support is not None:
             support.append(u)
     else:
-        add = np.bincount(flat, weights=weights, minlength=image.size)
-        image += add
-        if support is not None:
-            support.append(np.flatnonzero(add))
+        for i, (image, w) in enumerate(zip(images, weights)):
+            add = np.bincount(flat, weights=w, minlength=image.size)
+            image += add
+            if support is not None and i == 0:
+                support.append(np.flatnonzero(add))
 
 
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
               support: list | None = None, centre_of_light: np.ndarray | None = None,
-              out: np.ndarray | None = None, wavelength_nm=None) -> np.ndarray:
+              out: np.ndarray | None = None, wavelength_nm=None, also: tuple | None = None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -127,6 +130,11 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     wavelength_nm : ndarray, shape (N,), nm, optional
         Effective wavelength of each source, for a polychromatic kernel (its stamps blend its
         spectral tables there; see :class:`~skynav.renderer.psf.TablePSF`).
+    also : tuple (values, image), optional
+        A second quantity of each source (``values``, shape (N,), e.g. its irradiance) drawn with
+        the same stamps into ``image`` (shape (H, W), float64, C-contiguous), as a second call
+        with ``out=image`` would draw it, to the bit, at the cost of one: the stamps, their
+        pixels and their order are computed once.
 
     Returns
     -------
@@ -154,6 +162,20 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         image = out.reshape(-1)
     else:
         image = np.zeros(h_img * w_img, dtype=float)
+    if also is not None:
+        e2 = np.asarray(also[0], dtype=float).reshape(-1)
+        out2 = also[1]
+        if e2.shape != e.shape:
+            raise ConfigValueError("raster.also", e2.shape, f"values of shape ({p.shape[0]},) to match paths_xy")
+        if out2.shape != (h_img, w_img) or out2.dtype != np.float64 or not out2.flags.c_contiguous:
+            raise ConfigValueError("raster.also", (out2.shape, out2.dtype), f"a C-contiguous float64 image of shape {(h_img, w_img)}")
+        drawn = np.isfinite(e) & (e != 0)
+        if not np.array_equal(drawn, np.isfinite(e2) & (e2 != 0)):  # other sources drawn: two calls
+            rasterize(shape, p, e2, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, out=out2,
+                      wavelength_nm=wavelength_nm)
+            return rasterize(shape, p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, support=support,
+                             centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm)
+        image2 = out2.reshape(-1)
     if centre_of_light is not None:
         centre_of_light[...] = np.nan
     if p.shape[0] == 0:
@@ -175,6 +197,11 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     lam = None
     if wavelength_nm is not None:
         lam = np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)[ok][source]
+    images = [image]
+    fluxes = [flux]
+    if also is not None:
+        images.append(image2)
+        fluxes.append(streak_subsamples(p[ok], e2[ok], float(step_px))[1])
     if centre_of_light is not None:
         n_ok = int(np.count_nonzero(ok))
         m0 = np.zeros(n_ok)
@@ -188,7 +215,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     for a in range(0, xy.shape[0], chunk):
         pts = xy[a : a + chunk]
         st = psf.stamps(pts, half) if lam is None else psf.stamps(pts, half, wavelength_nm=lam[a : a + chunk])
-        w = (st * flux[a : a + chunk, None, None]).reshape(pts.shape[0], per_point)
+        ws = [(st * f[a : a + chunk, None, None]).reshape(pts.shape[0], per_point) for f in fluxes]
+        w = ws[0]
         origin = stamp_origin(pts, half)
         if centre_of_light is not None:  # first moments of the stamps, per source
             w3 = w.reshape(pts.shape[0], n_side, n_side)
@@ -202,14 +230,14 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         base = origin[:, 1] * w_img + origin[:, 0]
         if np.any(full):  # stamps wholly on the image: flat index = base + offsets
             flat = base[full, None] + offsets[None, :]
-            _accumulate(image, flat.ravel(), w[full].ravel(), support)
+            _accumulate(images, flat.ravel(), [wi[full].ravel() for wi in ws], support)
         if not np.all(full):  # stamps over an edge: keep the pixels on the image
             o = origin[~full]
             cols = o[:, 0:1] + k[None, :]
             rows = o[:, 1:2] + k[None, :]
             inside = (((rows >= 0) & (rows < h_img))[:, :, None] & ((cols >= 0) & (cols < w_img))[:, None, :]).reshape(o.shape[0], per_point)
             flat = (rows[:, :, None] * w_img + cols[:, None, :]).reshape(o.shape[0], per_point)
-            _accumulate(image, flat[inside], w[~full][inside], support)
+            _accumulate(images, flat[inside], [wi[~full][inside] for wi in ws], support)
     if centre_of_light is not None:
         with np.errstate(invalid="ignore", divide="ignore"):
             centre_of_light[np.flatnonzero(ok)] = m1 / m0[:, None]

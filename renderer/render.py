@@ -343,22 +343,22 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
     if not poly:
-        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre)
-        irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl) if with_irradiance else None
+        irradiance = np.zeros(shape) if with_irradiance else None
+        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre,
+                              also=(irr_pts, irradiance) if with_irradiance else None)
     else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
         n_s = len(star_e)
         lam = star_effective_wavelengths_nm(cam, stars.teff_k)
+        irradiance = np.zeros(shape) if with_irradiance else None
         electrons = rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support,
-                              centre_of_light=centre[:n_s], wavelength_nm=lam)
-        irradiance = (rasterize(shape, paths[:n_s], irr_pts[:n_s], psf, flux_fraction_lost=ffl, wavelength_nm=lam)
-                      if with_irradiance else None)
+                              centre_of_light=centre[:n_s], wavelength_nm=lam,
+                              also=(irr_pts[:n_s], irradiance) if with_irradiance else None)
         for j, b in enumerate(points):
             kern = kernel_for(cam, ("body", b.name), ffl)
             sel = slice(n_s + j, n_s + j + 1)
             rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
-                      centre_of_light=centre[sel], out=electrons)
-            if irradiance is not None:
-                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
+                      centre_of_light=centre[sel], out=electrons,
+                      also=(irr_pts[sel], irradiance) if with_irradiance else None)
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
 
@@ -429,7 +429,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     Detection
     """
     from . import cosmic_rays as cr
-    from .detector import Sensor
+    from .detector import PixelCharge, Sensor
 
     cam = camera
     electrons = expected.electrons
@@ -440,16 +440,22 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
-    cr_charge = cr.deposit(np.zeros(shape), hits)
+    # the charge of the few pixels hit, never a full image: electrons + charge is the image
+    # cr.deposit(np.zeros(shape), hits) would give, added to the electrons, to the bit
+    charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
+                         electrons=hits.pixel_electrons)
+    hit, hit_e = charge.per_pixel()
+    total = electrons.copy()
+    total.reshape(-1)[hit] += hit_e
 
     sensor = Sensor(cam.sensor, shape)
     if options.noise:
         backend = sensor_backend(options.backend)
-        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=cr_charge)
+        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=charge)
     else:
         backend = "numpy"
-        dn = sensor.expected_dn(electrons + cr_charge, T)
-    return Detection(dn=dn, electrons=electrons + cr_charge, hits=hits, backend=backend)
+        dn = sensor.expected_dn(total, T)
+    return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
 
 def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,

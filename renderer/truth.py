@@ -80,7 +80,11 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     }
     col = getattr(expected, "star_centre_of_light", None)
     if col is not None:
-        cols["centre_of_light_xy"] = [[None if not np.isfinite(v) else float(v) for v in row] for row in np.asarray(col)[sel]]
+        col_sel = np.asarray(col, dtype=float)[sel]
+        rows = col_sel.tolist()
+        for i in np.flatnonzero(~np.isfinite(col_sel).all(axis=1)):  # a star not drawn: null, not NaN
+            rows[i] = [v if math.isfinite(v) else None for v in rows[i]]
+        cols["centre_of_light_xy"] = rows
     names = tuple(cols)
     star_list = [dict(zip(names, row)) for row in zip(*cols.values())]
     body_list = []

@@ -241,6 +241,58 @@ def test_same_seed_same_bits(backend):
     assert np.array_equal(d.dn, a) and d.backend == backend
 
 
+def test_replayed_kernel_gives_the_traced_bits():
+    """Without blooming the LLVM chain is one Dr.Jit frozen function: its first call of an input
+    layout records the kernel, the later ones replay it with new inputs. Each must give the bits
+    of the same chain traced afresh (``expose_details`` traces it every call; same code, same
+    seed), across bit depths (UInt8 or UInt32 out), sizes, exposures, gains and extra charge."""
+    llvm_or_skip()
+    rng = np.random.default_rng(4)
+    for bits, shape in ((8, (64, 48)), (12, (64, 48)), (8, (30, 70)), (12, (30, 70))):
+        for k in range(3):  # the first call records, the next ones replay
+            params = dataclasses.replace(PTC, bit_depth=bits, gain_dn_per_e=float(rng.uniform(0.01, 0.3)))
+            s = Sensor(params, shape)
+            e = rng.uniform(0, 300 * (k + 1), shape)
+            extra = None if k == 1 else np.where(rng.random(shape) < 0.01, 5000.0, 0.0)
+            t = float(rng.uniform(0.05, 1.0))
+            a = s.expose(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
+            d = s.expose_details(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
+            assert a.dtype == s.dtype and np.array_equal(a, d.dn), (bits, shape, k)
+
+
+@pytest.mark.parametrize("bits", [8, 12])
+def test_pixel_charge_is_its_image(backend, bits):
+    """Extra charge given as a few pixels (``PixelCharge``: repeated pixels, corners, a pixel at
+    full well) is the frame its image gives, to the bit: the numpy path adds the same image; the
+    LLVM path runs the same chain on the pixels hit, from their own streams (same code, same
+    seed). ``expose_details`` (the traced path) agrees too."""
+    from skynav.renderer.detector import PixelCharge
+
+    if backend == "llvm":
+        llvm_or_skip()
+    s = Sensor(dataclasses.replace(PTC, bit_depth=bits, gain_dn_per_e=0.05 if bits == 8 else 0.8, offset_dn=10.0), (40, 56))
+    e = np.random.default_rng(1).uniform(0, 400, s.shape)
+    index = np.array([0, 57, 57, 2239, 1000, 1000, 1000, 56 * 20 + 7])
+    charge = np.array([300.0, 1e3, 2.5e3, 7.0, 1e5, 0.5, 3.0, 0.0])
+    pc = PixelCharge(index=index, electrons=charge)
+    image = np.zeros(s.shape)
+    np.add.at(image.reshape(-1), index, charge)
+    assert np.array_equal(pc.dense(s.shape), image)
+    a = s.expose(e, 0.2, np.random.default_rng(9), backend=backend, extra_charge_e=pc)
+    b = s.expose(e, 0.2, np.random.default_rng(9), backend=backend, extra_charge_e=image)
+    c = s.expose_details(e, 0.2, np.random.default_rng(9), backend=backend, extra_charge_e=pc).dn
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+    assert not np.array_equal(a, s.expose(e, 0.2, np.random.default_rng(9), backend=backend))  # the charge shows
+    assert np.array_equal(s.expected_dn(e, 0.2, extra_charge_e=pc), s.expected_dn(e, 0.2, extra_charge_e=image))
+    for bad, match in ((PixelCharge(index=np.array([2240]), electrons=np.array([1.0])), r"index must be in \[0, 2240\)"),
+                       (PixelCharge(index=np.array([-1]), electrons=np.array([1.0])), r"index must be in"),
+                       (PixelCharge(index=np.array([3]), electrons=np.array([np.nan])), "finite and >= 0"),
+                       (PixelCharge(index=np.array([3.0]), electrons=np.array([1.0])), "index integer"),
+                       (PixelCharge(index=np.array([3, 4]), electrons=np.array([1.0])), "one length")):
+        with pytest.raises(SensorInputError, match=match):
+            s.expose(e, 0.2, np.random.default_rng(9), backend=backend, extra_charge_e=bad)
+
+
 def test_bad_inputs():
     s = Sensor(PTC, (4, 4))
     rng = np.random.default_rng(0)
@@ -250,6 +302,13 @@ def test_bad_inputs():
         s.expose(np.zeros((4, 4)), -1.0, rng)
     with pytest.raises(SensorInputError, match=">= 0"):
         s.expose(np.full((4, 4), -1.0), 0.1, rng)
+    for bad in (np.nan, np.inf, -np.inf):  # one bad pixel among good ones, in either input
+        img = np.ones((4, 4))
+        img[2, 1] = bad
+        with pytest.raises(SensorInputError, match="^electrons must be finite and >= 0"):
+            s.expose(img, 0.1, rng)
+        with pytest.raises(SensorInputError, match="^extra_charge_e must be finite and >= 0"):
+            s.expose(np.ones((4, 4)), 0.1, rng, extra_charge_e=img)
     with pytest.raises(SensorInputError, match="backend"):
         s.expose(np.zeros((4, 4)), 0.1, rng, backend="cuda")
     with pytest.raises(SensorInputError, match="Generator"):

@@ -252,3 +252,45 @@ def test_truth_records_the_backend_that_ran(scene, departure):
     assert render(scene, seed=8, options=RenderOptions(noise=False)).truth["render"]["backend_used"] == "numpy"
     traced = render(departure, seed=8, options=RenderOptions(backend="numpy"))
     assert traced.truth["render"]["mitsuba_variant"] == mitsuba_backend.current_variant()
+
+
+def test_llvm_and_numpy_paths_agree_on_the_default_frame(scene):
+    """The two sensor paths of one frame: what is not random, exactly; the noise, as statistics.
+
+    Expectations: electrons (with the cosmic-ray charge), irradiance and truth come from the same
+    numpy code before the sensor, and the cosmic rays are drawn from the frame's stream before
+    it, so they are equal to the bit (same code, same seed) whatever the sensor backend.
+    DN: two implementations of the same distributions (numpy's Generator against per-pixel PCG32
+    streams in a Dr.Jit kernel) cannot be compared pixel by pixel. Dark pixels (no source: PRNU,
+    dark current and read noise, most DN at the offset) by a chi-square homogeneity test of
+    their DN histograms (p > 1e-4; each pixel draws once in each path from the same distribution,
+    so the test is conservative). Bright star pixels (expected > 2000 e-, unsaturated): their DN
+    sums differ by less than 5 standard deviations of the difference of two independent frames,
+    sd^2 = 2 sum (K^2 (mu_e + sigma_d^2) + 1/12) DN^2 (EMVA 1288 variance with quantisation)."""
+    from scipy import stats
+
+    from tests.renderer.conftest import llvm_or_skip
+
+    llvm_or_skip()
+    a = render(scene, seed=31, options=RenderOptions(backend="numpy"))
+    b = render(scene, seed=31, options=RenderOptions(backend="llvm"))
+    assert np.array_equal(a.electrons, b.electrons) and np.array_equal(a.irradiance_w_m2, b.irradiance_w_m2)
+    ta, tb = dict(a.truth), dict(b.truth)
+    ra, rb = ta.pop("render"), tb.pop("render")
+    assert ta == tb and (ra["backend_used"], rb["backend_used"]) == ("numpy", "llvm")
+    assert {k: v for k, v in ra.items() if "backend" not in k} == {k: v for k, v in rb.items() if "backend" not in k}
+
+    p = scene.camera.sensor
+    dark = a.electrons == 0
+    da, db = a.dn[dark].astype(int), b.dn[dark].astype(int)
+    levels = np.arange(min(da.min(), db.min()), max(da.max(), db.max()) + 1)
+    table = np.array([[np.sum(d == v) for v in levels] for d in (da, db)])
+    table = table[:, table.sum(axis=0) >= 10]
+    assert stats.chi2_contingency(table).pvalue > 1e-4
+
+    bright = (a.electrons > 2000) & (a.dn < p.max_dn) & (b.dn < p.max_dn)
+    mu = a.electrons[bright].astype(float)
+    K, s2 = p.gain_dn_per_e, p.read_noise_e ** 2 + p.reset_noise_e ** 2
+    sd = math.sqrt(2.0 * np.sum(K * K * (mu + s2) + 1.0 / 12.0))
+    diff = float(np.sum(b.dn[bright].astype(float)) - np.sum(a.dn[bright].astype(float)))
+    assert bright.sum() > 100 and abs(diff) < 5.0 * sd, (int(bright.sum()), diff, sd)
