@@ -189,7 +189,7 @@ class MonteCarloPlan:
         ``candidates`` is None or non-empty (:meth:`frame_request` skips a pose with none).
         """
         from skynav.scenes.errors import ObserverInsideBodyError
-        from skynav.scenes.scene import SCENE_BODIES, sky_bodies
+        from skynav.scenes.scene import SCENE_BODIES, sky_bodies, sky_sun
 
         s = self.s
         try:
@@ -197,11 +197,12 @@ class MonteCarloPlan:
                 sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
                 ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera, self.visibility)
                 return ok, facts, sky
-            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates)
+            sun = sky_sun(t, r, v, ephemeris=self.ephemeris)  # once for both parts
+            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates, sun=sun)
             ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera, self.visibility)
             if not ok:
                 return False, None, None
-            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris,
+            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris, sun=sun,
                                  names=tuple(n for n in SCENE_BODIES if n not in candidates))
         except ObserverInsideBodyError:
             return False, None, None
