@@ -77,6 +77,7 @@ __all__ = [
     "write_fits",
     "read_fits",
     "write_frame",
+    "write_files",
     "frame_file_bytes",
     "png_bytes",
     "exr_bytes",
@@ -733,16 +734,22 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
         blobs[fmt] = (directory / f"{stem}.{fmt}", data)
-    # Each file is written atomically (temp file, fsync, rename, folder fsync) on its own thread:
-    # the fsyncs wait on the disk with the GIL released, so they overlap even on one core.
-    if len(blobs) > 1:
-        with ThreadPoolExecutor(len(blobs), thread_name_prefix="skynav-write") as pool:
-            for job in [pool.submit(atomic_write_bytes, path, data) for path, data in blobs.values()]:
+    write_files(blobs.values())
+    return {fmt: path for fmt, (path, _) in blobs.items()}
+
+
+def write_files(files) -> None:
+    """Write ``(path, bytes)`` pairs, each atomically (temp file, fsync, rename, folder fsync)
+    on its own thread: the fsyncs wait on the disk with the GIL released, so they overlap even
+    on one core (what :func:`write_frame` does with a frame's encoded files)."""
+    files = list(files)
+    if len(files) > 1:
+        with ThreadPoolExecutor(len(files), thread_name_prefix="skynav-write") as pool:
+            for job in [pool.submit(atomic_write_bytes, path, data) for path, data in files]:
                 job.result()
     else:
-        for path, data in blobs.values():
+        for path, data in files:
             atomic_write_bytes(path, data)
-    return {fmt: path for fmt, (path, _) in blobs.items()}
 
 
 def frame_file_bytes(frame, fmt: str) -> bytes:
