@@ -190,3 +190,24 @@ def test_epoch_states_repeat_jplephem():
                 r, v = _jplephem(eph, b, t)
                 assert np.array_equal(st.position(b), st.positions[j])  # one array
                 _assert_state_close(st.positions[j], st.velocity(b), r, v, (b, t))
+
+
+def test_positions_at_repeats_jplephem():
+    """Several bodies at several epochs in one recurrence give jplephem's positions within 2
+    ulps of each vector's largest coordinate (two implementations of one Chebyshev sum), in
+    the order asked, for all bodies and a subset; an epoch outside the kernel is refused as
+    position() refuses it."""
+    eph = Ephemeris()
+    lo, hi = eph.span_tdb_s
+    t = np.concatenate([np.random.default_rng(14).uniform(lo + 1.0, hi - 1.0, 30), [0.0, 86400.0 * 32, lo, hi]])
+    for bodies in (BODIES, ("moon", "sun", "saturn", "earth")):
+        got = eph.positions_at(t, bodies)
+        assert got.shape == (t.size, len(bodies), 3)
+        for j, b in enumerate(bodies):
+            ref = eph.position(b, t)
+            assert np.all(np.abs(got[:, j] - ref) <= 2 * np.spacing(np.abs(ref).max(axis=1, keepdims=True))), b
+    with pytest.raises(EphemerisRangeError) as info:
+        eph.positions_at(np.array([0.0, hi + 86400.0]), ("mars",))
+    assert info.value.time_mask.tolist() == [False, True]
+    with pytest.raises(UnknownBodyError):
+        eph.positions_at(np.array([0.0]), ("pluto",))
