@@ -77,6 +77,7 @@ __all__ = [
     "write_fits",
     "read_fits",
     "write_frame",
+    "encode_frame",
     "write_files",
     "frame_file_bytes",
     "png_bytes",
@@ -722,20 +723,35 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
         except OSError as exc:
             raise OutputPathError(f"{directory}: cannot create the output folder "
                                   f"({exc.strerror or exc.__class__.__name__})") from None
-    blobs = {}  # encode everything first: an unknown format or bad data writes nothing
+    # encode everything first: an unknown format or bad data writes nothing
+    blobs = {fmt: (directory / f"{stem}.{fmt}", data) for fmt, data in encode_frame(frame, formats, fits=fits).items()}
+    write_files(blobs.values())
+    return {fmt: path for fmt, (path, _) in blobs.items()}
+
+
+def encode_frame(frame, formats=("png", "exr", "json"), *, fits: bool = False) -> dict:
+    """``{format: bytes}``: the files :func:`write_frame` writes for a frame, in memory (the
+    dataset runner encodes a frame, then writes it on another thread while it renders the next).
+
+    Raises
+    ------
+    ConfigValueError
+        An unknown format.
+    OutputFormatError, TruthSchemaError
+        Data the format cannot hold.
+    """
+    blobs = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         if fmt in ("png", "exr", "json"):
-            data = frame_file_bytes(frame, fmt)
+            blobs[fmt] = frame_file_bytes(frame, fmt)
         elif fmt == "fits":
             t = frame.truth
             hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
                                  np.array(t["attitude"]["R_cam_icrs"]))
-            data = _fits_bytes(frame.dn, hdr, fits_frame_header(t))
+            blobs[fmt] = _fits_bytes(frame.dn, hdr, fits_frame_header(t))
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
-        blobs[fmt] = (directory / f"{stem}.{fmt}", data)
-    write_files(blobs.values())
-    return {fmt: path for fmt, (path, _) in blobs.items()}
+    return blobs
 
 
 def write_files(files) -> None:
