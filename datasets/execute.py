@@ -238,20 +238,11 @@ def _make_job(job):
                       render_options=options)
 
 
-def run_in_process(plan, accept, *, overlap_writes: bool = True) -> tuple:
-    """Make the plan's frames here, in order. Returns ``(workers, executor name)``.
-
-    With ``overlap_writes`` (default), frame k's files are written (:func:`commit_frame`) on a
-    writer thread while this thread samples, renders and encodes frame k + 1: the writes wait
-    on the disk (fsync) with the GIL released, so the wait overlaps the next frame's work even
-    on one core. ``accept`` still sees every frame in order, after its record is written;
-    a failure in either half ends the run after the frame being written is complete.
-    """
-    _, jobs = _jobs(plan)
-    if not overlap_writes:
-        for j in jobs:
-            accept(_produce_job(j))
-        return 1, "in-process"
+def _made_and_written(jobs, accept) -> None:
+    """Make the jobs' frames in order, frame k's files written (:func:`commit_frame`) on a writer
+    thread while this thread makes frame k + 1; ``accept`` sees each frame in order, after its
+    record is written. A failure in either half ends the loop once the frame being written is
+    complete."""
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
@@ -263,13 +254,51 @@ def run_in_process(plan, accept, *, overlap_writes: bool = True) -> tuple:
             pending = writer.submit(commit_frame, made)
         if pending is not None:
             accept(pending.result())
+
+
+def _produce_chunk(jobs) -> list:
+    """A process-pool job: several consecutive frames, made and written as in :func:`run_in_process`."""
+    out = []
+    _made_and_written(jobs, out.append)
+    return out
+
+
+#: Consecutive frames per process-pool job (fewer when there are few frames for the workers):
+#: within a job the writes overlap the next frame's work, and each job's last write does not.
+POOL_CHUNK = 8
+
+
+def run_in_process(plan, accept, *, overlap_writes: bool = True) -> tuple:
+    """Make the plan's frames here, in order. Returns ``(workers, executor name)``.
+
+    With ``overlap_writes`` (default), frame k's files are written (:func:`commit_frame`) on a
+    writer thread while this thread samples, renders and encodes frame k + 1: the writes wait
+    on the disk (fsync) with the GIL released, so the wait overlaps the next frame's work even
+    on one core. ``accept`` still sees every frame in order, after its record is written.
+    """
+    _, jobs = _jobs(plan)
+    if overlap_writes:
+        _made_and_written(jobs, accept)
+    else:
+        for j in jobs:
+            accept(_produce_job(j))
     return 1, "in-process"
 
 
 def run_process_pool(plan, accept, n_workers: int) -> tuple:
-    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``."""
+    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``.
+
+    Each job is up to :data:`POOL_CHUNK` consecutive frames, made with their writes overlapped
+    as in :func:`run_in_process`; ``accept`` sees each frame once its job is done."""
     _, jobs = _jobs(plan)
-    process_pool_map(_produce_job, jobs, n_workers, accept=accept)
+    size = max(1, min(POOL_CHUNK, len(jobs) // (4 * n_workers)))
+    chunks = [jobs[i:i + size] for i in range(0, len(jobs), size)]
+
+    def accept_all(results):
+        for r in results:
+            accept(r)
+
+    process_pool_map(_produce_chunk, chunks, n_workers, accept=accept_all)
     return n_workers, "processes (spawn)"
 
 
