@@ -10,9 +10,10 @@ order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ on
   a writer thread while frame k + 1 is made (:func:`make_frame`, :func:`commit_frame`).
 - :func:`run_process_pool` (``workers=N``): skynav's one process pool,
   :func:`skynav.datasets.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
-  module docstring says why). The plan travels pickled.
-- :func:`run_dask`: one Dask task per frame (``pure=False``); the workers must see the dataset
-  folder on a shared file system.
+  module docstring says why), one job per run of up to :data:`POOL_CHUNK` consecutive frames,
+  made in the worker as in :func:`run_in_process`. The plan travels pickled.
+- :func:`run_dask`: one Dask task per run of frames (``pure=False``); the workers must see the
+  dataset folder on a shared file system.
 
 Each executor hands every :class:`FrameResult` to an ``accept`` callback as it arrives (the
 runner checkpoints the manifest from there, :mod:`skynav.datasets.finalise`).
@@ -213,15 +214,15 @@ def _produce_job(job):
                          render_options=options)
 
 
-def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
+def _produce_dask(ks, *, blob, out_dir, master_seed, formats, mag, options) -> list:
+    """A Dask task: the consecutive frames ``ks``, made and written as in :func:`run_in_process`."""
     # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
     # 1); size skynav's pools to that unless the cluster's environment says otherwise.
     if "SKYNAV_THREADS" not in os.environ:
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
-                         render_options=options)
+    return _produce_chunk([(blob, k, out_dir, master_seed, formats, mag, options) for k in ks])
 
 
 # ----------------------------------------------------------------------------- executors
@@ -263,9 +264,15 @@ def _produce_chunk(jobs) -> list:
     return out
 
 
-#: Consecutive frames per process-pool job (fewer when there are few frames for the workers):
-#: within a job the writes overlap the next frame's work, and each job's last write does not.
+#: Consecutive frames per process-pool job or Dask task (fewer when there are few frames for the
+#: workers): within one the writes overlap the next frame's work, and its last write does not.
 POOL_CHUNK = 8
+
+
+def _chunks(items: list, n_workers: int) -> list:
+    """``items`` in runs of up to :data:`POOL_CHUNK`, at least four runs per worker where possible."""
+    size = max(1, min(POOL_CHUNK, len(items) // (4 * n_workers)))
+    return [items[i:i + size] for i in range(0, len(items), size)]
 
 
 def run_in_process(plan, accept, *, overlap_writes: bool = True) -> tuple:
@@ -291,8 +298,7 @@ def run_process_pool(plan, accept, n_workers: int) -> tuple:
     Each job is up to :data:`POOL_CHUNK` consecutive frames, made with their writes overlapped
     as in :func:`run_in_process`; ``accept`` sees each frame once its job is done."""
     _, jobs = _jobs(plan)
-    size = max(1, min(POOL_CHUNK, len(jobs) // (4 * n_workers)))
-    chunks = [jobs[i:i + size] for i in range(0, len(jobs), size)]
+    chunks = _chunks(jobs, n_workers)
 
     def accept_all(results):
         for r in results:
@@ -303,16 +309,19 @@ def run_process_pool(plan, accept, n_workers: int) -> tuple:
 
 
 def run_dask(plan, accept, client) -> tuple:
-    """Make the plan's frames as Dask tasks on ``client``. Returns ``(workers, executor name)``."""
+    """Make the plan's frames as Dask tasks on ``client``, each up to :data:`POOL_CHUNK`
+    consecutive frames with their writes overlapped (as :func:`run_process_pool`). Returns
+    ``(workers, executor name)``."""
     from distributed import as_completed
 
     n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))
     if plan.todo:
         blob = pickle.dumps(plan.sampler)
         blob_f = client.scatter(blob, broadcast=True)
-        futs = client.map(_produce_dask, list(plan.todo), blob=blob_f, out_dir=plan.root,
-                          master_seed=plan.master_seed, formats=list(plan.formats), mag=plan.catalog_limiting_v_mag,
-                          options=plan.render_options, pure=False)
+        futs = client.map(_produce_dask, [tuple(c) for c in _chunks(list(plan.todo), n_workers)], blob=blob_f,
+                          out_dir=plan.root, master_seed=plan.master_seed, formats=list(plan.formats),
+                          mag=plan.catalog_limiting_v_mag, options=plan.render_options, pure=False)
         for fut in as_completed(futs):
-            accept(fut.result())
+            for res in fut.result():
+                accept(res)
     return n_workers, "dask"

@@ -732,14 +732,7 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
 def encode_frame(frame, formats=("png", "exr", "json"), *, fits: bool = False) -> dict:
     """``{format: bytes}``: the files :func:`write_frame` writes for a frame, in memory (the
     dataset runner encodes a frame, then writes it on another thread while it renders the next).
-
-    Raises
-    ------
-    ConfigValueError
-        An unknown format.
-    OutputFormatError, TruthSchemaError
-        Data the format cannot hold.
-    """
+    Raises what :func:`write_frame` raises for an unknown format or data a format cannot hold."""
     blobs = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         if fmt in ("png", "exr", "json"):
