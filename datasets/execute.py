@@ -208,12 +208,6 @@ def check_backends(res: FrameResult, recorded: dict) -> None:
                 f"the bits would differ: give every worker the same backend (render options backend='{want}')")
 
 
-def _produce_job(job):
-    blob, k, out_dir, master_seed, formats, mag, options = job
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
-                         render_options=options)
-
-
 def _produce_dask(ks, *, blob, out_dir, master_seed, formats, mag, options) -> list:
     """A Dask task: the consecutive frames ``ks``, made and written as in :func:`run_in_process`."""
     # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
@@ -275,20 +269,16 @@ def _chunks(items: list, n_workers: int) -> list:
     return [items[i:i + size] for i in range(0, len(items), size)]
 
 
-def run_in_process(plan, accept, *, overlap_writes: bool = True) -> tuple:
+def run_in_process(plan, accept) -> tuple:
     """Make the plan's frames here, in order. Returns ``(workers, executor name)``.
 
-    With ``overlap_writes`` (default), frame k's files are written (:func:`commit_frame`) on a
-    writer thread while this thread samples, renders and encodes frame k + 1: the writes wait
-    on the disk (fsync) with the GIL released, so the wait overlaps the next frame's work even
-    on one core. ``accept`` still sees every frame in order, after its record is written.
+    Frame k's files are written (:func:`commit_frame`) on a writer thread while this thread
+    samples, renders and encodes frame k + 1: the writes wait on the disk (fsync) with the GIL
+    released, so the wait overlaps the next frame's work even on one core. ``accept`` still
+    sees every frame in order, after its record is written.
     """
     _, jobs = _jobs(plan)
-    if overlap_writes:
-        _made_and_written(jobs, accept)
-    else:
-        for j in jobs:
-            accept(_produce_job(j))
+    _made_and_written(jobs, accept)
     return 1, "in-process"
 
 
