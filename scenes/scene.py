@@ -281,7 +281,7 @@ def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
 
 
 def _tup(a):
-    return tuple(float(x) for x in np.asarray(a, dtype=float).ravel())
+    return tuple(np.asarray(a, dtype=float).ravel().tolist())
 
 
 def build_scene(
@@ -364,20 +364,20 @@ def build_scene(
     if sky is None:
         sky = sky_bodies(t, r, v, ephemeris=eph)
     sky_list, sun_u = sky
+    # each body's five camera-frame directions (apparent, geometric, light-time; apparent at the
+    # exposure's start and end), projected in one call (project is elementwise)
+    xys = camera.project(np.array([[R @ b.directions.u_icrs, R @ b.directions.u_geometric,
+                                    R @ b.directions.u_light_time, R_start @ b.directions.u_icrs,
+                                    R_end @ b.directions.u_icrs] for b in sky_list]).reshape(-1, 3)).reshape(-1, 5, 2)
     bodies = []
-    for b in sky_list:
+    for b, (p, p_geo, p_lt, p_start, p_end) in zip(sky_list, xys):
         d = b.directions
-        p = camera.project((R @ d.u_icrs)[None])[0]
         in_fov = bool(camera.in_image(p[None])[0])
         diam_px = b.angular_diameter_rad * camera.focal_length_px
         bodies.append(BodyInView(
             name=b.name,
             u_icrs=_tup(d.u_icrs), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
-            xy=_tup(p),
-            xy_geometric=_tup(camera.project((R @ d.u_geometric)[None])[0]),
-            xy_light_time=_tup(camera.project((R @ d.u_light_time)[None])[0]),
-            xy_start=_tup(camera.project((R_start @ d.u_icrs)[None])[0]),
-            xy_end=_tup(camera.project((R_end @ d.u_icrs)[None])[0]),
+            xy=_tup(p), xy_geometric=_tup(p_geo), xy_light_time=_tup(p_lt), xy_start=_tup(p_start), xy_end=_tup(p_end),
             light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
