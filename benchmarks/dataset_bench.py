@@ -37,10 +37,11 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
      each.
 
    **Steady state** (what the scaling criteria compare): the frames completed between the
-   ``n/5``-th and the ``(n - 2 x workers)``-th completion over the time between them, from the
-   progress callback. Left out before it: imports, the workers' spawn and imports, their first
-   frames (kernel compilation), the cluster's start; after it, the tail where some workers
-   have no frame left. Also printed: frames / wall clock of the whole command (start-up
+   first progress report at or past ``n/5`` frames and the last one at or before
+   ``n - 8 x workers`` (results arrive in runs of up to 8 frames, ``execute.POOL_CHUNK``), over
+   the time between those two reports. Left out before it: imports, the workers' spawn and
+   imports, their first frames (kernel compilation), the cluster's start; after it, the tail
+   where some workers have no frame left. Also printed: frames / wall clock of the whole command (start-up
    included), and the peak RSS of a worker (of the process itself for 1 worker, which renders
    in-process; else the largest worker process). Scaling = steady-state rate of 2 workers / that
    of 1 worker, in each round, median over the rounds. The folders must be byte-identical
@@ -91,13 +92,14 @@ s = generate(rec, cfg["out"], progress=progress, max_frames=limit, **kw)
 if cfg["dask"]:
     client.close(); cluster.close()
 n = s.frames_rendered
-a, b = max(1, n // 5), n - 2 * cfg["workers"]
-t_a = next(t for d, t in marks if d >= a)
-t_b = next(t for d, t in marks if d >= b)
+from skynav.datasets.execute import POOL_CHUNK
+a, b = max(1, n // 5), n - POOL_CHUNK * cfg["workers"]
+d_a, t_a = next((d, t) for d, t in marks if d >= a)  # results arrive in runs of frames: the marks' own counts
+d_b, t_b = [(d, t) for d, t in marks if d <= b][-1]
 kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
 print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": t_gen - t0,
-                  "steady_fps": (b - a) / (t_b - t_a) if b > a and t_b > t_a else float("nan"),
-                  "steady_frames": b - a, "executor": s.executor,
+                  "steady_fps": (d_b - d_a) / (t_b - t_a) if d_b > d_a and t_b > t_a else float("nan"),
+                  "steady_frames": d_b - d_a, "executor": s.executor,
                   "rss_self_mb": kib[0] / 1024, "rss_children_mb": kib[1] / 1024}))
 """
 
