@@ -1,36 +1,55 @@
-"""Dataset generation speed: frames/s with 1 and 2 workers, scaling, per-frame cost split, RSS.
+"""Dataset generation speed: a frame's cost against its bare render, and scaling over workers.
 
-    python benchmarks/dataset_bench.py [--frames N] [--single-thread] [--dask] [--repeat R] [--small]
-                                       [--split-frames N] [--plot legs_vmag.png]
+    python benchmarks/dataset_bench.py [--frames N] [--split-frames N] [--warmup W] [--repeat R]
+                                       [--dask] [--no-scaling] [--small] [--plot legs_vmag.png]
 
-- Runs the default Monte Carlo recipe (``skynav dataset generate montecarlo``: 3000 frames,
-  paper camera 1024 x 1024, keep-filter visible_planet, PNG + EXR + JSON; ``--frames N`` for a
-  shorter run) as a fresh process, the way a user does, in these set-ups, each into a new folder:
+Every figure is a median over ``--repeat`` fresh processes (default 3), run in alternating
+order, and every ratio is taken inside one run (numerator and denominator from the same process
+or the same round), so a shared machine's load moves both. The 1-minute load average is printed
+beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
 
-  * ``1 worker``: ``--workers 1`` as is (Dr.Jit's and OpenEXR's pools use every core for their
-    parts of the frame);
-  * ``2 workers``: ``--workers 2`` (each worker gets ``cores // 2`` threads);
-  * with ``--single-thread``, also ``1 worker, 1 thread``: ``--workers 1`` with
-    ``SKYNAV_THREADS=1`` (and OpenBLAS/OpenMP at 1), one core's worth of work;
-  * with ``--dask``, also a ``distributed.LocalCluster`` of 1 and of 2 worker processes (one
-    thread each; the cluster's start is in the wall clock).
+1. **A frame against its bare render** (Monte Carlo and sequence presets, one thread:
+   ``SKYNAV_THREADS=1``, OpenBLAS/OpenMP at 1). Each repeat is a fresh ``python`` that
 
-  Each figure is frames / wall-clock seconds of the whole command (start-up, imports, spawning
-  the workers, writing the manifest and index included), and the script also prints the
-  steady-state rate (frames after the first 10 % over their time, from the progress callback)
-  and the peak resident memory (RSS) of a worker: of the process itself for ``1 worker`` (it
-  renders in-process), else the largest worker process. Scaling = fps(2) / fps(1); both
-  references are printed. ``--repeat R`` runs the set-ups R times, alternating their order, and
-  prints medians. The folders must be byte-identical (checked). The machine's 1-minute load
-  average is printed with every figure: on a shared machine the figures move with it.
-- Splits the cost of one frame of the Monte Carlo and of the sequence preset, in a fresh process
-  with one thread (``SKYNAV_THREADS=1``): sampling (scene draw + keep-filter + ``build_scene``),
-  render (``render``), encode (``write_frame`` into /dev/shm, a memory file system) and write
-  (the same on the dataset's disk, minus encode: temp file, fsync, rename); medians over
-  ``--split-frames`` frames after the first (which compiles the kernels), the ratio of the
-  frame's cost to its bare render, and that process's peak RSS.
-- ``--plot``: PNG of the planets' apparent V magnitudes along the navigation legs of the
-  default sequence recipe (matplotlib, Agg).
+   a. makes ``W + N`` frames of the preset with ``generate(..., workers=1)`` (what
+      ``skynav dataset generate --workers 1`` runs: sample, render, encode, write, checksums,
+      journal, manifest checkpoints, index) and takes each frame's cost from the progress
+      callback, as CPU time of the process (``time.process_time``: every thread's work on one
+      core's worth of budget; the waits for the disk are not in it) and as wall-clock time;
+   b. then, in the same process, makes the same N frames again stage by stage: **sample**
+      (the sampler's frame request and ``build_scene``), **render** (``render``: the bare
+      render), **encode** (the PNG, EXR and JSON bytes in memory), **write** (the three files
+      written atomically on parallel threads, their SHA-256 and the frame's journal record), each timed as CPU and
+      wall-clock.
+
+   The first ``W`` frames (``--warmup``, default 8: Dr.Jit compiles its kernels, caches fill) are
+   left out. It prints the median of each stage, and **frame / bare render = median cost of a
+   dataset frame (a) / median bare render (b)**, CPU time (the figure of issue #25) and wall
+   clock; then the median of the repeats, and the process's peak RSS.
+
+2. **Scaling** (``--no-scaling`` skips it): ``--frames`` (default 400) Monte Carlo frames,
+   each set-up a fresh process running ``generate`` into a new folder:
+
+   * ``1 worker, 1 thread``: ``--workers 1`` with ``SKYNAV_THREADS=1``;
+   * ``2 workers``: ``--workers 2`` (spawned processes, ``cores // 2`` threads each: one each
+     on 2 cores);
+   * with ``--dask``: a ``distributed.LocalCluster`` of 1 and of 2 worker processes, one thread
+     each.
+
+   **Steady state** (what the scaling criteria compare): the frames completed between the
+   first progress report at or past ``n/5`` frames and the last one at or before
+   ``n - 8 x workers`` (results arrive in runs of up to 8 frames, ``execute.POOL_CHUNK``), over
+   the time between those two reports. Left out before it: imports, the workers' spawn and
+   imports, their first frames (kernel compilation), the cluster's start; after it, the tail
+   where some workers have no frame left. Also printed: frames / wall clock of the whole command (start-up
+   included), and the peak RSS of a worker (of the process itself for 1 worker, which renders
+   in-process; else the largest worker process). Scaling = steady-state rate of 2 workers / that
+   of 1 worker, in each round, median over the rounds. The folders must be byte-identical
+   (checked).
+
+``--small``: a 256 x 256 camera and stars to V 7 (the tests' recipe), for a quick look.
+``--plot``: PNG of the planets' apparent V magnitudes along the navigation legs of the default
+sequence recipe (matplotlib, Agg).
 """
 
 from __future__ import annotations
@@ -49,17 +68,16 @@ from pathlib import Path
 _CHILD = r"""
 import json, os, resource, sys, time
 t0 = time.perf_counter()
-from skynav.datasets import generate, preset_recipe
+sys.path.insert(0, sys.argv[2])
+from dataset_bench import preset_for
+from skynav.datasets import generate
 cfg = json.loads(sys.argv[1])
-rec = preset_recipe(cfg["preset"])
+rec = preset_for(cfg["preset"], cfg["small"])
 limit = None
 if cfg["preset"] == "montecarlo":
     rec["frames"] = cfg["frames"]
 else:
     limit = cfg["frames"]
-if cfg["small"]:
-    rec["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0}
-    rec["catalog_limiting_v_mag"] = 7.0
 marks = []
 def progress(done, total):
     marks.append((done, time.perf_counter()))
@@ -71,17 +89,17 @@ if cfg["dask"]:
     kw = {"client": client}
 t_gen = time.perf_counter()
 s = generate(rec, cfg["out"], progress=progress, max_frames=limit, **kw)
-t_done = time.perf_counter()
 if cfg["dask"]:
     client.close(); cluster.close()
 n = s.frames_rendered
-skip = max(1, n // 10)
-t_skip = next(t for d, t in marks if d >= skip)
-t_end = marks[-1][1]
+from skynav.datasets.execute import POOL_CHUNK
+a, b = max(1, n // 5), n - POOL_CHUNK * cfg["workers"]
+d_a, t_a = next((d, t) for d, t in marks if d >= a)  # results arrive in runs of frames: the marks' own counts
+d_b, t_b = [(d, t) for d, t in marks if d <= b][-1]
 kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
 print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": t_gen - t0,
-                  "steady_fps": (n - skip) / (t_end - t_skip) if t_end > t_skip else float("nan"),
-                  "executor": s.executor, "mean": s.mean_timings_s,
+                  "steady_fps": (d_b - d_a) / (t_b - t_a) if d_b > d_a and t_b > t_a else float("nan"),
+                  "steady_frames": d_b - d_a, "executor": s.executor,
                   "rss_self_mb": kib[0] / 1024, "rss_children_mb": kib[1] / 1024}))
 """
 
@@ -90,8 +108,11 @@ import json, sys
 sys.path.insert(0, sys.argv[2])
 from dataset_bench import cost_split, preset_for
 cfg = json.loads(sys.argv[1])
-print(json.dumps(cost_split(preset_for(cfg["preset"], cfg["small"]), cfg["frames"], cfg["out"])))
+print(json.dumps(cost_split(preset_for(cfg["preset"], cfg["small"]), cfg["frames"], cfg["warmup"], cfg["out"])))
 """
+
+STAGES = ("sample", "render", "encode", "write")
+
 
 def _one_thread() -> dict:
     """The runner's thread-count variables, all at 1."""
@@ -100,8 +121,8 @@ def _one_thread() -> dict:
     return {name: "1" for name in THREAD_VARS}
 
 
-def _load() -> str:
-    return "load %.1f" % os.getloadavg()[0]
+def _load() -> float:
+    return os.getloadavg()[0]
 
 
 def preset_for(preset: str, small: bool) -> dict:
@@ -133,7 +154,7 @@ def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict,
                               "small": small, "dask": dask}, env_extra)
     r["wall_s"] = wall
     r["fps"] = r["frames"] / wall
-    r["load"] = os.getloadavg()[0]
+    r["load"] = _load()
     return r
 
 
@@ -142,119 +163,161 @@ def tree(root):
     return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
-def cost_split(recipe, n: int, disk_dir):
-    """Median per-frame seconds of sample, render, encode, write over frames 0..n-1 (see the
-    module docstring), and the peak RSS of this process (MB)."""
+class _Clock:
+    """CPU (``process_time``) and wall-clock (``perf_counter``) time together."""
+
+    def __init__(self):
+        self.cpu, self.wall = time.process_time(), time.perf_counter()
+
+    def lap(self) -> tuple:
+        cpu, wall = time.process_time(), time.perf_counter()
+        out = (cpu - self.cpu, wall - self.wall)
+        self.cpu, self.wall = cpu, wall
+        return out
+
+
+def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
+    """A dataset frame's cost and its stages, CPU and wall-clock seconds (see the module
+    docstring, part 1): medians over frames ``warmup .. warmup + n - 1``; the peak RSS (MB)."""
+    import resource
+
     import numpy as np
 
-    from skynav.datasets.samplers import frame_seed, make_plan
+    from skynav.datasets import generate, layout
+    from skynav.datasets.atomic_files import sha256_file
+    from skynav.datasets.frame_files import frame_file_bytes, write_files
+    from skynav.datasets.journal import write_record
     from skynav.datasets.recipes import validate_recipe
-    from skynav.datasets.frame_files import write_frame
+    from skynav.datasets.samplers import frame_seed, make_plan
     from skynav.renderer.render import render
     from skynav.scenes.scene import build_scene
 
-    rec = validate_recipe(recipe)
-    plan = make_plan(rec)
-    n = min(n, plan.n_frames)
     disk_dir = Path(disk_dir)
-    shm = Path(tempfile.mkdtemp(dir="/dev/shm" if os.path.isdir("/dev/shm") else None))
-    out = {"sample": [], "render": [], "encode": [], "write": []}
-    for k in range(n):
+    total = warmup + n
+    rec = dict(recipe)
+    limit = None
+    if rec["kind"] == "montecarlo":
+        rec["frames"] = total
+    else:
+        limit = total
+    # (a) the dataset frame, as the runner makes it
+    marks = []
+    generate(rec, disk_dir / "dataset", workers=1, max_frames=limit,
+             progress=lambda done, _total: marks.append((done, time.process_time(), time.perf_counter())))
+    marks = [m for m in marks if m[0] >= warmup]  # frame k is done at the mark k + 1
+    frame_cpu = [b[1] - a[1] for a, b in zip(marks, marks[1:])]
+    frame_wall = [b[2] - a[2] for a, b in zip(marks, marks[1:])]
+    # (b) the same frames again, stage by stage
+    rec = validate_recipe(rec)
+    plan = make_plan(rec)
+    formats = tuple(rec["formats"])
+    out = disk_dir / "stages"
+    (out / layout.FRAMES_DIR).mkdir(parents=True)
+    cost = {f"{s}_{c}": [] for s in STAGES for c in ("cpu", "wall")}
+    for k in range(total):
         ss = frame_seed(rec["seed"], k)
         rng = np.random.default_rng(ss)
-        t0 = time.perf_counter()
+        clock = _Clock()
         req = plan.frame_request(k, rng)
         scene = build_scene(req.epoch_tdb_s, position_km=req.position_km, velocity_km_s=req.velocity_km_s,
                             R_cam_icrs=req.R_cam_icrs, camera=plan.camera, catalog_limiting_v_mag=rec["catalog_limiting_v_mag"],
                             angular_velocity_rad_s=req.angular_velocity_rad_s, visibility=plan.visibility, sky=req.sky)
-        t1 = time.perf_counter()
+        laps = [clock.lap()]
         frame = render(scene, seed=ss, rng=rng)
-        t2 = time.perf_counter()
-        write_frame(frame, shm, f"{k:06d}", formats=tuple(rec["formats"]))
-        t3 = time.perf_counter()
-        write_frame(frame, disk_dir, f"{k:06d}", formats=tuple(rec["formats"]))
-        t4 = time.perf_counter()
-        if k == 0:
-            continue  # the first frame pays for JIT kernels and caches
-        out["sample"].append(t1 - t0)
-        out["render"].append(t2 - t1)
-        out["encode"].append(t3 - t2)
-        out["write"].append(max(0.0, (t4 - t3) - (t3 - t2)))
-    for p in shm.iterdir():
-        p.unlink()
-    shm.rmdir()
-    import resource
-
-    res = {k: statistics.median(v) for k, v in out.items()}
-    res["frames"] = n - 1
+        laps.append(clock.lap())
+        blobs = {fmt: frame_file_bytes(frame, fmt) for fmt in formats}
+        laps.append(clock.lap())
+        rel = layout.frame_relpaths(k, formats)
+        write_files((out / rel[fmt], data) for fmt, data in blobs.items())
+        write_record(out, k, {rel[fmt]: sha256_file(out / rel[fmt]) for fmt in formats})
+        laps.append(clock.lap())
+        if k >= warmup:
+            for stage, (cpu, wall) in zip(STAGES, laps):
+                cost[f"{stage}_cpu"].append(cpu)
+                cost[f"{stage}_wall"].append(wall)
+    res = {key: statistics.median(v) for key, v in cost.items()}
+    res["frame_cpu"] = statistics.median(frame_cpu)
+    res["frame_wall"] = statistics.median(frame_wall)
+    res["frames"] = n
     res["rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return res
 
 
-def _print_split(label: str, split: dict) -> None:
-    parts = {k: split[k] for k in ("sample", "render", "encode", "write")}
-    total = sum(parts.values())
-    print(f"{label}: per-frame cost split (median of {split['frames']} frames, 1 process, 1 thread): "
-          + ", ".join(f"{k} {v * 1e3:.1f} ms ({100 * v / total:.0f} %)" for k, v in parts.items())
-          + f"; frame = {total / parts['render']:.2f} x its bare render; peak RSS {split['rss_mb']:.0f} MB; {_load()}")
+def _print_split(label: str, split: dict, load: float) -> None:
+    cpu = {s: split[f"{s}_cpu"] for s in STAGES}
+    total = sum(cpu.values())
+    print(f"{label}: median of {split['frames']} frames, 1 thread, CPU ms: "
+          + ", ".join(f"{s} {v * 1e3:.1f} ({100 * v / total:.0f} %)" for s, v in cpu.items())
+          + f"; stages / render {total / cpu['render']:.2f}; dataset frame {split['frame_cpu'] * 1e3:.1f} ms"
+          f" = {split['frame_cpu'] / cpu['render']:.2f} x bare render (CPU), {split['frame_wall'] / split['render_wall']:.2f} x"
+          f" (wall clock); peak RSS {split['rss_mb']:.0f} MB; load {load:.1f}")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=None, help="frames (default: the recipe's, 3000)")
-    ap.add_argument("--single-thread", action="store_true", help="also run 1 worker with SKYNAV_THREADS=1")
-    ap.add_argument("--small", action="store_true", help="256 x 256 camera, stars to V 7 (the tests' recipe)")
-    ap.add_argument("--repeat", type=int, default=1, help="run the set-ups this many times, alternating; print medians")
+    ap.add_argument("--frames", type=int, default=400, help="Monte Carlo frames of each scaling run (default 400)")
+    ap.add_argument("--split-frames", type=int, default=40, help="frames of each cost split after the warm-up (default 40)")
+    ap.add_argument("--warmup", type=int, default=8, help="frames left out at the start of each cost split (default 8)")
+    ap.add_argument("--repeat", type=int, default=3, help="fresh processes per figure, alternating; medians (default 3)")
     ap.add_argument("--dask", action="store_true", help="also a Dask LocalCluster of 1 and of 2 workers (1 thread each)")
-    ap.add_argument("--split-frames", type=int, default=12, help="frames of each cost split (default 12; the first is not counted)")
+    ap.add_argument("--no-scaling", action="store_true", help="only the cost of a frame against its render")
+    ap.add_argument("--small", action="store_true", help="256 x 256 camera, stars to V 7 (the tests' recipe)")
     ap.add_argument("--plot", type=str, default=None, help="write the leg magnitude plot to this PNG")
     a = ap.parse_args(argv)
 
-    from skynav.datasets import generate, preset_recipe
+    from skynav.datasets import generate
 
-    rec = preset_recipe("montecarlo")
-    a.frames = a.frames or rec["frames"]
     rec = preset_for("montecarlo", a.small)
-    rec["frames"] = a.frames
-    print(f"recipe: montecarlo preset, {a.frames} frames, camera {'256 x 256' if a.small else '1024 x 1024'}, "
-          f"stars to V {rec['catalog_limiting_v_mag']}, cpu_count {os.cpu_count()}, {_load()}")
+    print(f"camera {'256 x 256' if a.small else '1024 x 1024'}, stars to V {rec['catalog_limiting_v_mag']}, "
+          f"cpu_count {os.cpu_count()}, {a.repeat} repeat(s); load {_load():.1f}")
     with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_DIR")) as tmp:
         tmp = Path(tmp)
         # fill the on-disk caches (catalog, JIT probe, Dr.Jit kernels) so that no run pays for them
         generate(dict(rec, frames=2), tmp / "warm", workers=1, progress=False)
-        setups = [("1 worker", 1, {}, False), ("2 workers", 2, {}, False)]
-        if a.single_thread:
-            setups.insert(0, ("1 worker, 1 thread", 1, _one_thread(), False))
-        if a.dask:
-            setups += [("dask 1 worker", 1, {}, True), ("dask 2 workers", 2, {}, True)]
-        runs = {label: [] for label, *_ in setups}
+
+        # 1. a frame against its bare render
+        ratios = {"montecarlo": [], "sequence": []}
         for rep in range(a.repeat):
-            order = setups if rep % 2 == 0 else setups[::-1]
-            for label, workers, env, dask in order:
-                i = [s[0] for s in setups].index(label)
-                r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask)
-                runs[label].append(r)
-                rss = r["rss_self_mb"] if r["executor"] == "in-process" else r["rss_children_mb"]
-                print(f"{label:18s}: {r['frames']} frames in {r['wall_s']:.1f} s = {r['fps']:.2f} frames/s "
-                      f"(start-up and imports {r['imports_s']:.1f} s; steady state {r['steady_fps']:.2f} frames/s; {r['executor']}; "
-                      "mean per frame " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in r["mean"].items())
-                      + f"; peak RSS of a worker {rss:.0f} MB; load {r['load']:.1f})")
-        med = {label: {k: statistics.median(r[k] for r in rs) for k in ("fps", "steady_fps")} for label, rs in runs.items()}
-        if a.repeat > 1:
-            for label, m in med.items():
-                print(f"{label:18s}: median of {a.repeat}: {m['fps']:.2f} frames/s, steady state {m['steady_fps']:.2f}")
-        pairs = [("2 workers", lb) for lb, w, _, d in setups if w == 1 and not d]
-        if a.dask:
-            pairs.append(("dask 2 workers", "dask 1 worker"))
-        for two, one in pairs:
-            print(f"scaling {two} vs {one}: {med[two]['fps'] / med[one]['fps']:.2f} x wall clock, "
-                  f"{med[two]['steady_fps'] / med[one]['steady_fps']:.2f} x steady state; {_load()}")
-        trees = [tree(tmp / f"run{i}_{rep}") for i in range(len(setups)) for rep in range(a.repeat)]
-        print(f"folders byte-identical: {all(t == trees[0] for t in trees)}")
-        for preset in ("montecarlo", "sequence"):
-            split, _ = _child(_SPLIT, {"preset": preset, "small": a.small, "frames": a.split_frames + 1,
-                                       "out": str(tmp / f"split_{preset}")}, _one_thread())
-            _print_split(f"{preset} preset", split)
+            for preset in (("montecarlo", "sequence") if rep % 2 == 0 else ("sequence", "montecarlo")):
+                split, _ = _child(_SPLIT, {"preset": preset, "small": a.small, "frames": a.split_frames,
+                                           "warmup": a.warmup, "out": str(tmp / f"split_{preset}_{rep}")}, _one_thread())
+                load = _load()
+                _print_split(f"{preset:10s} #{rep + 1}", split, load)
+                ratios[preset].append((split["frame_cpu"] / split["render_cpu"], split["frame_wall"] / split["render_wall"],
+                                       load, split["rss_mb"]))
+        for preset, rs in ratios.items():
+            print(f"{preset} preset: dataset frame / its bare render, 1 thread, median of {len(rs)}: "
+                  f"{statistics.median(r[0] for r in rs):.2f} x (CPU time; each {', '.join(f'{r[0]:.2f}' for r in rs)}), "
+                  f"{statistics.median(r[1] for r in rs):.2f} x (wall clock); peak RSS {max(r[3] for r in rs):.0f} MB; "
+                  f"load {min(r[2] for r in rs):.1f}-{max(r[2] for r in rs):.1f}")
+
+        # 2. scaling
+        if not a.no_scaling:
+            setups = [("1 worker, 1 thread", 1, _one_thread(), False), ("2 workers", 2, {}, False)]
+            if a.dask:
+                setups += [("dask 1 worker", 1, {}, True), ("dask 2 workers", 2, {}, True)]
+            runs = {label: [] for label, *_ in setups}
+            for rep in range(a.repeat):
+                order = setups if rep % 2 == 0 else setups[::-1]
+                for label, workers, env, dask in order:
+                    i = [s[0] for s in setups].index(label)
+                    r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask)
+                    runs[label].append(r)
+                    rss = r["rss_self_mb"] if r["executor"] == "in-process" else r["rss_children_mb"]
+                    print(f"{label:18s} #{rep + 1}: steady state {r['steady_fps']:.2f} frames/s ({r['steady_frames']} frames); "
+                          f"{r['frames']} frames in {r['wall_s']:.1f} s = {r['fps']:.2f} frames/s with start-up "
+                          f"(imports {r['imports_s']:.1f} s); {r['executor']}; peak RSS of a worker {rss:.0f} MB; load {r['load']:.1f}")
+            pairs = [("2 workers", "1 worker, 1 thread")] + ([("dask 2 workers", "dask 1 worker")] if a.dask else [])
+            for two, one in pairs:
+                steady = [r2["steady_fps"] / r1["steady_fps"] for r1, r2 in zip(runs[one], runs[two])]
+                wall = [r2["fps"] / r1["fps"] for r1, r2 in zip(runs[one], runs[two])]
+                loads = [r["load"] for r in runs[one] + runs[two]]
+                print(f"scaling {two} / {one}: {statistics.median(steady):.2f} x steady state (median of {len(steady)}; "
+                      f"each {', '.join(f'{x:.2f}' for x in steady)}), {statistics.median(wall):.2f} x with start-up; "
+                      f"{statistics.median(r['steady_fps'] for r in runs[two]):.2f} against "
+                      f"{statistics.median(r['steady_fps'] for r in runs[one]):.2f} frames/s; load {min(loads):.1f}-{max(loads):.1f}")
+            trees = [tree(tmp / f"run{i}_{rep}") for i in range(len(setups)) for rep in range(a.repeat)]
+            print(f"folders byte-identical: {all(t == trees[0] for t in trees)}")
     if a.plot:
         from skynav.datasets import preset_recipe as pr
         from skynav.datasets.plots import plot_leg_magnitudes

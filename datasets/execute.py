@@ -6,12 +6,14 @@ alone, so a frame's files are the same bytes whatever the executor, the number o
 order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ only in where
 :func:`produce_frame` runs:
 
-- :func:`run_in_process` (``workers=1``): in this process, in order.
+- :func:`run_in_process` (``workers=1``): in this process, in order; frame k's files are written on
+  a writer thread while frame k + 1 is made (:func:`make_frame`, :func:`commit_frame`).
 - :func:`run_process_pool` (``workers=N``): skynav's one process pool,
   :func:`skynav.datasets.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
-  module docstring says why). The plan travels pickled.
-- :func:`run_dask`: one Dask task per frame (``pure=False``); the workers must see the dataset
-  folder on a shared file system.
+  module docstring says why), one job per run of up to :data:`POOL_CHUNK` consecutive frames,
+  made in the worker as in :func:`run_in_process`. The plan travels pickled.
+- :func:`run_dask`: one Dask task per run of frames (``pure=False``); the workers must see the
+  dataset folder on a shared file system.
 
 Each executor hands every :class:`FrameResult` to an ``accept`` callback as it arrives (the
 runner checkpoints the manifest from there, :mod:`skynav.datasets.finalise`).
@@ -32,8 +34,8 @@ from . import layout
 from .errors import DatasetMismatchError
 from .pool import THREAD_VARS, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
-__all__ = ["FrameResult", "produce_frame", "run_in_process", "run_process_pool",
-           "run_dask", "check_backends"]
+__all__ = ["FrameResult", "EncodedFrame", "produce_frame", "make_frame", "commit_frame", "run_in_process",
+           "run_process_pool", "run_dask", "check_backends"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,6 +93,10 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     keys of a ``scenes`` recipe) replace the plan's for this frame; without one, the recipe's
     ``render.resolved_threshold_px`` (if set) replaces the scene model's default.
 
+    The two halves, :func:`make_frame` (sample, render, encode) and :func:`commit_frame` (write
+    the files, their checksums, the record), are what :func:`run_in_process` runs on two
+    threads.
+
     Parameters
     ----------
     plan : SamplerPlan or bytes
@@ -104,17 +110,36 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
         The recipe's faintest catalog V.
     render_options : RenderOptions, optional
     """
+    return commit_frame(make_frame(plan, k, out_dir, master_seed=master_seed, formats=formats,
+                                   catalog_limiting_v_mag=catalog_limiting_v_mag, render_options=render_options))
+
+
+@dataclass(frozen=True, kw_only=True)
+class EncodedFrame:
+    """Frame ``k`` sampled, rendered and encoded, not yet written (:func:`make_frame`)."""
+
+    frame: int
+    out_dir: Path
+    blobs: dict  # {format: bytes}
+    truth: dict
+    draws: int | None
+    backends: dict
+    timings_s: dict  # sample, render, encode
+
+
+def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
+               render_options=None) -> EncodedFrame:
+    """The first half of :func:`produce_frame` (same parameters): sample, render and encode
+    frame ``k`` in memory."""
     from skynav.renderer.render import RenderOptions, render
     from skynav.scenes.scene import build_scene
 
-    from .frame_files import sha256_file, write_frame
-    from .journal import write_record
+    from .frame_files import encode_frame
     from .plan import frame_seed
 
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
-    out = Path(out_dir)
     t0 = time.perf_counter()
     ss = frame_seed(master_seed, k)
     rng = np.random.default_rng(ss)
@@ -139,17 +164,32 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
     truth["dataset"] = {**req.meta, "master_seed": int(master_seed),
                         "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
     frame = dataclasses.replace(frame, truth=truth)
-    stem = layout.frame_stem(k)
-    paths = write_frame(frame, out / layout.FRAMES_DIR, stem, formats=tuple(formats))
-    rel = layout.frame_relpaths(k, formats)
-    files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
-    record = write_record(out, k, files)  # the frame's commit point: written last, atomically
+    blobs = encode_frame(frame, tuple(formats))
     t3 = time.perf_counter()
     ran = truth["render"]  # what ran, as the renderer records it
     backends = {"sensor": ran["backend_used"] if options.noise else None, "mitsuba_variant": ran["mitsuba_variant"]}
-    return FrameResult(frame=int(k), files=files, index_row=layout.index_row(truth, k, files),
-                       draws=req.meta.get("draws"), timings_s={"sample": t1 - t0, "render": t2 - t1, "write": t3 - t2},
-                       backends=backends, record=record)
+    return EncodedFrame(frame=int(k), out_dir=Path(out_dir), blobs=blobs, truth=truth, draws=req.meta.get("draws"),
+                        backends=backends, timings_s={"sample": t1 - t0, "render": t2 - t1, "encode": t3 - t2})
+
+
+def commit_frame(made: EncodedFrame) -> FrameResult:
+    """The second half of :func:`produce_frame`: write the frame's files (each atomically),
+    their SHA-256, then the frame's checksum record, its commit point."""
+    from .frame_files import sha256_file, write_files
+    from .journal import write_record
+
+    t0 = time.perf_counter()
+    k, formats = made.frame, tuple(made.blobs)
+    rel = layout.frame_relpaths(k, formats)
+    paths = {fmt: made.out_dir / rel[fmt] for fmt in formats}
+    write_files((paths[fmt], made.blobs[fmt]) for fmt in formats)
+    files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
+    record = write_record(made.out_dir, k, files)  # the frame's commit point: written last, atomically
+    t = made.timings_s
+    return FrameResult(frame=k, files=files, index_row=layout.index_row(made.truth, k, files), draws=made.draws,
+                       timings_s={"sample": t["sample"], "render": t["render"],
+                                  "write": t["encode"] + time.perf_counter() - t0},
+                       backends=made.backends, record=record)
 
 
 def check_backends(res: FrameResult, recorded: dict) -> None:
@@ -168,21 +208,15 @@ def check_backends(res: FrameResult, recorded: dict) -> None:
                 f"the bits would differ: give every worker the same backend (render options backend='{want}')")
 
 
-def _produce_job(job):
-    blob, k, out_dir, master_seed, formats, mag, options = job
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
-                         render_options=options)
-
-
-def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
+def _produce_dask(ks, *, blob, out_dir, master_seed, formats, mag, options) -> list:
+    """A Dask task: the consecutive frames ``ks``, made and written as in :func:`run_in_process`."""
     # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
     # 1); size skynav's pools to that unless the cluster's environment says otherwise.
     if "SKYNAV_THREADS" not in os.environ:
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
-    return produce_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
-                         render_options=options)
+    return _produce_chunk([(blob, k, out_dir, master_seed, formats, mag, options) for k in ks])
 
 
 # ----------------------------------------------------------------------------- executors
@@ -193,32 +227,91 @@ def _jobs(plan):
                   for k in plan.todo]
 
 
+def _make_job(job):
+    blob, k, out_dir, master_seed, formats, mag, options = job
+    return make_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
+                      render_options=options)
+
+
+def _made_and_written(jobs, accept) -> None:
+    """Make the jobs' frames in order, frame k's files written (:func:`commit_frame`) on a writer
+    thread while this thread makes frame k + 1; ``accept`` sees each frame in order, after its
+    record is written. A failure in either half ends the loop once the frame being written is
+    complete."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
+        pending = None
+        for j in jobs:
+            made = _make_job(j)
+            if pending is not None:
+                accept(pending.result())
+            pending = writer.submit(commit_frame, made)
+        if pending is not None:
+            accept(pending.result())
+
+
+def _produce_chunk(jobs) -> list:
+    """A process-pool job: several consecutive frames, made and written as in :func:`run_in_process`."""
+    out = []
+    _made_and_written(jobs, out.append)
+    return out
+
+
+#: Consecutive frames per process-pool job or Dask task (fewer when there are few frames for the
+#: workers): within one the writes overlap the next frame's work, and its last write does not.
+POOL_CHUNK = 8
+
+
+def _chunks(items: list, n_workers: int) -> list:
+    """``items`` in runs of up to :data:`POOL_CHUNK`, at least four runs per worker where possible."""
+    size = max(1, min(POOL_CHUNK, len(items) // (4 * n_workers)))
+    return [items[i:i + size] for i in range(0, len(items), size)]
+
+
 def run_in_process(plan, accept) -> tuple:
-    """Make the plan's frames here, in order. Returns ``(workers, executor name)``."""
+    """Make the plan's frames here, in order. Returns ``(workers, executor name)``.
+
+    Frame k's files are written (:func:`commit_frame`) on a writer thread while this thread
+    samples, renders and encodes frame k + 1: the writes wait on the disk (fsync) with the GIL
+    released, so the wait overlaps the next frame's work even on one core. ``accept`` still
+    sees every frame in order, after its record is written.
+    """
     _, jobs = _jobs(plan)
-    for j in jobs:
-        accept(_produce_job(j))
+    _made_and_written(jobs, accept)
     return 1, "in-process"
 
 
 def run_process_pool(plan, accept, n_workers: int) -> tuple:
-    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``."""
+    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``.
+
+    Each job is up to :data:`POOL_CHUNK` consecutive frames, made with their writes overlapped
+    as in :func:`run_in_process`; ``accept`` sees each frame once its job is done."""
     _, jobs = _jobs(plan)
-    process_pool_map(_produce_job, jobs, n_workers, accept=accept)
+    chunks = _chunks(jobs, n_workers)
+
+    def accept_all(results):
+        for r in results:
+            accept(r)
+
+    process_pool_map(_produce_chunk, chunks, n_workers, accept=accept_all)
     return n_workers, "processes (spawn)"
 
 
 def run_dask(plan, accept, client) -> tuple:
-    """Make the plan's frames as Dask tasks on ``client``. Returns ``(workers, executor name)``."""
+    """Make the plan's frames as Dask tasks on ``client``, each up to :data:`POOL_CHUNK`
+    consecutive frames with their writes overlapped (as :func:`run_process_pool`). Returns
+    ``(workers, executor name)``."""
     from distributed import as_completed
 
     n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))
     if plan.todo:
         blob = pickle.dumps(plan.sampler)
         blob_f = client.scatter(blob, broadcast=True)
-        futs = client.map(_produce_dask, list(plan.todo), blob=blob_f, out_dir=plan.root,
-                          master_seed=plan.master_seed, formats=list(plan.formats), mag=plan.catalog_limiting_v_mag,
-                          options=plan.render_options, pure=False)
+        futs = client.map(_produce_dask, [tuple(c) for c in _chunks(list(plan.todo), n_workers)], blob=blob_f,
+                          out_dir=plan.root, master_seed=plan.master_seed, formats=list(plan.formats),
+                          mag=plan.catalog_limiting_v_mag, options=plan.render_options, pure=False)
         for fut in as_completed(futs):
-            accept(fut.result())
+            for res in fut.result():
+                accept(res)
     return n_workers, "dask"

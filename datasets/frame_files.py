@@ -77,6 +77,8 @@ __all__ = [
     "write_fits",
     "read_fits",
     "write_frame",
+    "encode_frame",
+    "write_files",
     "frame_file_bytes",
     "png_bytes",
     "exr_bytes",
@@ -721,28 +723,42 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
         except OSError as exc:
             raise OutputPathError(f"{directory}: cannot create the output folder "
                                   f"({exc.strerror or exc.__class__.__name__})") from None
-    blobs = {}  # encode everything first: an unknown format or bad data writes nothing
+    # encode everything first: an unknown format or bad data writes nothing
+    blobs = {fmt: (directory / f"{stem}.{fmt}", data) for fmt, data in encode_frame(frame, formats, fits=fits).items()}
+    write_files(blobs.values())
+    return {fmt: path for fmt, (path, _) in blobs.items()}
+
+
+def encode_frame(frame, formats=("png", "exr", "json"), *, fits: bool = False) -> dict:
+    """``{format: bytes}``: the files :func:`write_frame` writes for a frame, in memory (the
+    dataset runner encodes a frame, then writes it on another thread while it renders the next).
+    Raises what :func:`write_frame` raises for an unknown format or data a format cannot hold."""
+    blobs = {}
     for fmt in tuple(formats) + (("fits",) if fits and "fits" not in formats else ()):
         if fmt in ("png", "exr", "json"):
-            data = frame_file_bytes(frame, fmt)
+            blobs[fmt] = frame_file_bytes(frame, fmt)
         elif fmt == "fits":
             t = frame.truth
             hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
                                  np.array(t["attitude"]["R_cam_icrs"]))
-            data = _fits_bytes(frame.dn, hdr, fits_frame_header(t))
+            blobs[fmt] = _fits_bytes(frame.dn, hdr, fits_frame_header(t))
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
-        blobs[fmt] = (directory / f"{stem}.{fmt}", data)
-    # Each file is written atomically (temp file, fsync, rename, folder fsync) on its own thread:
-    # the fsyncs wait on the disk with the GIL released, so they overlap even on one core.
-    if len(blobs) > 1:
-        with ThreadPoolExecutor(len(blobs), thread_name_prefix="skynav-write") as pool:
-            for job in [pool.submit(atomic_write_bytes, path, data) for path, data in blobs.values()]:
+    return blobs
+
+
+def write_files(files) -> None:
+    """Write ``(path, bytes)`` pairs, each atomically (temp file, fsync, rename, folder fsync)
+    on its own thread: the fsyncs wait on the disk with the GIL released, so they overlap even
+    on one core (what :func:`write_frame` does with a frame's encoded files)."""
+    files = list(files)
+    if len(files) > 1:
+        with ThreadPoolExecutor(len(files), thread_name_prefix="skynav-write") as pool:
+            for job in [pool.submit(atomic_write_bytes, path, data) for path, data in files]:
                 job.result()
     else:
-        for path, data in blobs.values():
+        for path, data in files:
             atomic_write_bytes(path, data)
-    return {fmt: path for fmt, (path, _) in blobs.items()}
 
 
 def frame_file_bytes(frame, fmt: str) -> bytes:

@@ -154,7 +154,7 @@ class MonteCarloPlan:
         if self.s["velocity"] == "zero":
             return np.asarray(sun_v, dtype=float)
         rel = R_ECL_ICRS @ (r_km - sun_r)
-        direction = np.cross([0.0, 0.0, 1.0], rel)
+        direction = frames.cross([0.0, 0.0, 1.0], rel)
         n = np.linalg.norm(direction)
         if n == 0.0:
             return np.asarray(sun_v, dtype=float)
@@ -189,7 +189,7 @@ class MonteCarloPlan:
         ``candidates`` is None or non-empty (:meth:`frame_request` skips a pose with none).
         """
         from skynav.scenes.errors import ObserverInsideBodyError
-        from skynav.scenes.scene import SCENE_BODIES, sky_bodies
+        from skynav.scenes.scene import SCENE_BODIES, sky_bodies, sky_sun
 
         s = self.s
         try:
@@ -197,11 +197,12 @@ class MonteCarloPlan:
                 sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
                 ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera, self.visibility)
                 return ok, facts, sky
-            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates)
+            sun = sky_sun(t, r, v, ephemeris=self.ephemeris)  # once for both parts
+            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates, sun=sun)
             ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera, self.visibility)
             if not ok:
                 return False, None, None
-            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris,
+            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris, sun=sun,
                                  names=tuple(n for n in SCENE_BODIES if n not in candidates))
         except ObserverInsideBodyError:
             return False, None, None
@@ -219,7 +220,7 @@ class MonteCarloPlan:
         vectorised ephemeris call, and the scalar formula again for a pose within 1e-9 of the
         limit (where a summation order could move the last bit)."""
         limit = self.s["min_sun_distance_au"] * AU_KM
-        dist = np.sqrt(np.sum((r - self.ephemeris.position("sun", t)) ** 2, axis=1))
+        dist = np.sqrt(np.sum((r - self._positions(t, ("sun",))[:, 0]) ** 2, axis=1))
         near = dist < limit
         for i in np.flatnonzero(np.abs(dist - limit) <= 1e-9 * limit):
             near[i] = np.linalg.norm(r[i] - self.ephemeris.position("sun", t[i])) < limit
@@ -235,13 +236,18 @@ class MonteCarloPlan:
         from skynav.scenes.scene import SCENE_BODIES
 
         limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
-        inside = []
-        for name in SCENE_BODIES:
-            d = self.ephemeris.position(name, t) - r
-            n = np.sqrt(np.sum(d * d, axis=1))
-            inside.append(np.sum(boresights * d, axis=1) > (limit - 1e-9) * n)
-        inside = np.array(inside).T  # (n, bodies)
-        return [tuple(name for name, yes in zip(SCENE_BODIES, row) if yes) for row in inside]
+        d = self._positions(t, SCENE_BODIES) - r[:, None, :]  # (n, bodies, 3)
+        n = np.sqrt(np.sum(d * d, axis=2))
+        inside = np.sum(boresights[:, None, :] * d, axis=2) > (limit - 1e-9) * n  # (n, bodies)
+        return [tuple(name for name, yes in zip(SCENE_BODIES, row) if yes) for row in inside.tolist()]
+
+    def _positions(self, t, bodies) -> np.ndarray:
+        """Positions (n, len(bodies), 3) of bodies at the epochs ``t`` (n,): one vectorised
+        call (``Ephemeris.positions_at``) where the ephemeris has it, else one per body."""
+        eph = self.ephemeris
+        if hasattr(eph, "positions_at"):
+            return eph.positions_at(t, bodies)
+        return np.stack([eph.position(b, t) for b in bodies], axis=1)
 
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
         """Frame k's scene: poses are drawn in the documented order until one passes the

@@ -146,21 +146,50 @@ def _encode_line(value) -> bytes:
 
 def _is_leaf(value) -> bool:
     """True for what goes on one line: scalars and lists of scalars or of lists (truth lists are
-    homogeneous, so the first item stands for all)."""
-    while type(value) is list and value:
-        value = value[0]
-    return type(value) is not dict
+    homogeneous, so the first item stands for all). Works on the truth as given (tuples, numpy
+    arrays) and on its :func:`truth_to_jsonable` copy alike; raises :class:`_Slow` where only
+    the copy can say (a mapping that is not a dict, an array of objects)."""
+    while True:
+        tp = type(value)
+        if tp is float or tp is int or tp is str or tp is bool or value is None:
+            return True
+        if tp is list or tp is tuple:
+            if not value:
+                return True
+            value = value[0]
+            continue
+        if tp is dict:
+            return False
+        if (tp is np.ndarray and value.dtype.kind == "O") or isinstance(value, (Mapping, list, tuple)):
+            raise _Slow  # an array of objects, a subclass of dict, list or tuple
+        return True  # a numeric array or a numpy scalar: one line
 
 
 def _is_flat_record(value) -> bool:
     return type(value) is dict and all(_is_leaf(v) for v in value.values())
 
 
+def _line(value) -> bytes:
+    """One line, from the value as given: orjson reads plain Python numbers, strings, lists,
+    tuples and str-keyed dicts itself and writes what :func:`_encode_line` writes for their
+    :func:`truth_to_jsonable` copy (a tuple as a list, NaN as ``null``), so the copy is made
+    only for a line orjson refuses (numpy values, keys that are not strings, huge integers) or
+    writes ``null`` in (NaN, None, or an infinity that must be refused) or non-ASCII in.
+    :class:`_Slow` (the whole truth goes the checked way) where the copy needs the checks."""
+    try:
+        b = orjson.dumps(value)
+    except orjson.JSONEncodeError:
+        b = None
+    if b is None or b"null" in b or not b.isascii():
+        return _encode_line(_fast_jsonable(value))
+    return b
+
+
 def _emit(value, indent: bytes, out: list) -> None:
     """Canonical layout: a mapping has one key per line (2-space indent); lists of numbers,
     matrices and flat records (a star, a body) are written on one line each."""
     if _is_leaf(value):
-        out.append(_encode_line(value))
+        out.append(_line(value))
         return
     inner = indent + b"  "
     if type(value) is dict:
@@ -170,18 +199,31 @@ def _emit(value, indent: bytes, out: list) -> None:
         out.append(b"{\n")
         last = len(value) - 1
         for i, (k, v) in enumerate(value.items()):
+            if type(k) is not str:
+                raise _Slow
             out.append(inner + _encode_line(k) + b": ")
             _emit(v, inner, out)
             out.append(b",\n" if i < last else b"\n")
         out.append(indent + b"}")
         return
     # a list holding mappings: one item per line, flat records on one line
+    if all(type(v) is dict for v in value):
+        # a list of records (the stars, the bodies) in one orjson call: when its bytes hold one
+        # "{" per record, no record holds a mapping (each is flat) and every "},{" is a boundary
+        # between two records, so that splitting there gives the lines _line writes
+        try:
+            b = orjson.dumps(value)
+        except orjson.JSONEncodeError:
+            b = None
+        if b is not None and b.count(b"{") == len(value) and b"null" not in b and b.isascii():
+            out.append(b"[\n" + inner + b[1:-1].replace(b"},{", b"},\n" + inner + b"{") + b"\n" + indent + b"]")
+            return
     out.append(b"[\n")
     last = len(value) - 1
     for i, v in enumerate(value):
         out.append(inner)
         if _is_flat_record(v):
-            out.append(_encode_line(v))
+            out.append(_line(v))
         else:
             _emit(v, inner, out)
         out.append(b",\n" if i < last else b"\n")
@@ -192,12 +234,23 @@ def truth_json_bytes(truth: Mapping) -> bytes:
     """Canonical bytes of ground truth: insertion order, ASCII, shortest round-trip floats; one
     key per line (2-space indent), and each list of numbers and each flat record (one star, one
     body) on one line with compact separators, so that a frame with 700 stars is 700 readable
-    lines, not 20 000. Every float reads back bit-exact."""
+    lines, not 20 000. Every float reads back bit-exact.
+
+    The layout is written from the truth as given (plain Python values: no copy); where that
+    meets something only :func:`truth_to_jsonable` handles (numpy values, non-dict mappings,
+    infinities to refuse), the whole truth is converted first and written again: the same bytes
+    either way, since both walk the same layout with the same line encoder."""
     if not isinstance(truth, Mapping) or truth.get("schema") not in FRAME_SCHEMAS_READ:
         got = truth.get("schema") if isinstance(truth, Mapping) else type(truth).__name__
         raise TruthSchemaError(f'ground truth needs "schema": "{FRAME_SCHEMA}"; got {got!r}', [f"schema: {got!r}"])
     out: list = []
-    _emit(truth_to_jsonable(truth), b"", out)
+    try:
+        if type(truth) is not dict:
+            raise _Slow
+        _emit(truth, b"", out)
+    except _Slow:
+        out = []
+        _emit(truth_to_jsonable(truth), b"", out)
     out.append(b"\n")
     return b"".join(out)
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import AU_KM, C_KM_S, GM_SUN_KM3_S2
+from .frames import cross
 
 SCHWARZSCHILD_RADIUS_SUN_KM = 2.0 * GM_SUN_KM3_S2 / C_KM_S**2
 """2 GM_sun / c^2, km, with the DE421 GM_sun of :mod:`skynav.scenes.constants` (ERFA ``ERFA_SRS`` x au
@@ -135,7 +136,7 @@ def deflect_by_sun(u, target_position_km, observer_position_km, sun_position_km)
     dlim = 1e-6 / np.maximum(em_au * em_au, 1.0)
     qdqpe = np.sum(q * (q + e), axis=-1, keepdims=True)
     w = SCHWARZSCHILD_RADIUS_SUN_KM / em_km / np.maximum(qdqpe, dlim)
-    p1 = u + w * np.cross(u, np.cross(e, q))
+    p1 = u + w * cross(u, cross(e, q))
     return p1 / np.linalg.norm(p1, axis=-1, keepdims=True)
 
 
@@ -222,10 +223,20 @@ def _pv(eph, body, t_tdb_s, offset_s):
         return eph.position_velocity(body, t_tdb_s + offset_s)
 
 
+def position_at(eph, body, t_tdb_s, offset_s=0.0):
+    """Position only (``eph.position``: the bits of ``position_velocity(...)[0]`` at about half
+    the cost) where the ephemeris has it, else :func:`_pv`'s."""
+    try:
+        return eph.position(body, t_tdb_s, offset_s=offset_s)
+    except (AttributeError, TypeError):
+        return _pv(eph, body, t_tdb_s, offset_s)[0]
+
+
 def _light_time(eph, body, r_obs, t_tdb_s):
-    """Newton iteration on f(tau) = |r_b(t - tau) - r_o| - c tau; returns (tau, r_b, v_b)."""
+    """Newton iteration on f(tau) = |r_b(t - tau) - r_o| - c tau; returns (tau, r_b at t - tau,
+    r_b at t)."""
     r_b, v_b = _pv(eph, body, t_tdb_s, 0.0)
-    r_geo, v_geo = r_b, v_b
+    r_geo = r_b
     tau = np.linalg.norm(r_b - r_obs) / C_KM_S
     for _ in range(20):
         r_b, v_b = _pv(eph, body, t_tdb_s, -tau)
@@ -235,13 +246,12 @@ def _light_time(eph, body, r_obs, t_tdb_s):
         step = (d - C_KM_S * tau) / (C_KM_S + np.dot(rho, v_b) / d)
         tau += step
         if abs(step) < LIGHT_TIME_TOL_S:
-            r_b, v_b = _pv(eph, body, t_tdb_s, -tau)
-            return tau, r_b, v_b, r_geo, v_geo
+            return tau, position_at(eph, body, t_tdb_s, -tau), r_geo
     raise RuntimeError(f"light-time to {body} did not converge (last step {step:.3g} s)")
 
 
 def apparent_body(
-    eph, body, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True
+    eph, body, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True, sun_position_km=None
 ) -> BodyDirections:
     """Apparent direction of a solar-system body: light-time, Sun deflection, aberration.
 
@@ -258,6 +268,9 @@ def apparent_body(
         Reception epoch, TDB seconds past J2000.
     deflection : bool
         Apply the Sun's light deflection (never applied to the Sun itself).
+    sun_position_km : ndarray, shape (3,), optional
+        The Sun's barycentric position at ``t_tdb_s`` as ``eph.position("sun", t_tdb_s)`` gives
+        it, from a caller that computes several bodies at one epoch (read here when not given).
 
     Returns
     -------
@@ -266,8 +279,8 @@ def apparent_body(
     r_obs = np.asarray(observer_position_km, dtype=float).reshape(3)
     v_obs = np.asarray(observer_velocity_km_s, dtype=float).reshape(3)
     t_tdb_s = float(t_tdb_s)
-    tau, r_b, _, r_geo, _ = _light_time(eph, body, r_obs, t_tdb_s)
-    sun_emit, _ = _pv(eph, "sun", t_tdb_s, -tau)
+    tau, r_b, r_geo = _light_time(eph, body, r_obs, t_tdb_s)
+    sun_emit = position_at(eph, "sun", t_tdb_s, -tau)
     rho = r_b - r_obs
     distance_km = float(np.linalg.norm(rho))
     u_lt = rho / distance_km
@@ -275,9 +288,9 @@ def apparent_body(
     if deflection and body != "sun":
         # Sun where the ray passed closest to it (NOVAS/skyfield): time from the point of
         # closest approach to the observer, clipped to [0, tau].
-        sun_now, _ = _pv(eph, "sun", t_tdb_s, 0.0)
+        sun_now = position_at(eph, "sun", t_tdb_s, 0.0) if sun_position_km is None else sun_position_km
         dlt = np.clip(np.dot(sun_now - r_obs, u_lt) / C_KM_S, 0.0, tau)
-        sun_close, _ = _pv(eph, "sun", t_tdb_s, -dlt)
+        sun_close = position_at(eph, "sun", t_tdb_s, -dlt)
         u = deflect_by_sun(u_lt, r_b, r_obs, sun_close)
     u_app = aberrate(u, v_obs)
     geo = r_geo - r_obs

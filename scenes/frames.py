@@ -31,6 +31,16 @@ from __future__ import annotations
 import numpy as np
 
 
+def cross(a, b):
+    """Cross product of (..., 3) vectors: ``numpy.cross``'s products and differences
+    (``a1 b2 - a2 b1``, ...) without its axis handling, which costs ~20 us on one vector."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
 def rot1(angle_rad):
     """Passive elementary rotation about x: ``v' = R1(a) v``."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)

@@ -40,6 +40,7 @@ import numpy as np
 
 from .constants import AU_KM
 from .errors import UnknownBodyError
+from .frames import cross
 
 MOON_MEAN_DISTANCE_KM = 384400.0
 """Mean Earth-Moon distance, km, at which Allen's full-Moon V = -12.73 is quoted."""
@@ -200,7 +201,7 @@ def _angle(a, b):
     """Angle between vectors (..., 3), robust at small and large angles (atan2 of |a x b|, a.b)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+    return np.arctan2(np.linalg.norm(cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
 def phase_angle_rad(body_position_km, sun_position_km, observer_position_km):

@@ -169,10 +169,12 @@ class SkyBody:
     angular_diameter_rad: float
 
 
-def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES):
+def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES, sun=None):
     """Apparent directions, magnitudes and angles of solar-system bodies seen from the observer.
 
-    Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun.
+    Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun. ``sun``: the
+    Sun's :class:`~skynav.scenes.apparent.BodyDirections` for this epoch and observer when the
+    caller has it (:func:`sky_sun`; a caller asking for the bodies in two parts), else computed.
 
     Raises
     ------
@@ -190,22 +192,58 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
         # at a body's centre the light-time step divides by zero before the error below names
         # the body: numpy's floating-point warnings are silenced here (a NaN still fails later)
         with np.errstate(divide="ignore", invalid="ignore"):
-            sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+            if sun is None:
+                sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
             if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
                 raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
             return _sky_bodies(eph, t_tdb_s, r, v, sun, names)
     except ObserverInsideBodyError:
         raise
     except Exception:
-        # Inside a body (at its centre, say) the light-time iteration has no solution and fails
-        # with a message that blames something else (the epoch): name the body instead. Done
-        # only on failure, so a good frame pays no extra ephemeris look-ups.
-        for name in ("sun",) + tuple(names):
-            rb, _ = eph.position_velocity(name, t_tdb_s)
-            dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
-            if dist <= BODY_RADII_KM[name]:
-                raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r) from None
+        _name_the_body(eph, t_tdb_s, r, ("sun",) + tuple(names))
         raise
+
+
+def sky_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None):
+    """The Sun's apparent :class:`~skynav.scenes.apparent.BodyDirections` as :func:`sky_bodies`
+    computes it (and its ``sun=``), with the same errors.
+
+    Raises
+    ------
+    ObserverInsideBodyError
+        When the observer is inside the Sun.
+    """
+    from . import apparent
+    from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+    from .errors import ObserverInsideBodyError
+
+    eph = ephemeris or default_ephemeris()
+    r = np.asarray(position_km, dtype=float)
+    v = np.asarray(velocity_km_s, dtype=float)
+    try:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+    except Exception:
+        _name_the_body(eph, t_tdb_s, r, ("sun",))
+        raise
+    if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
+        raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
+    return sun
+
+
+def _name_the_body(eph, t_tdb_s, r, names) -> None:
+    """Inside a body (at its centre, say) the light-time iteration has no solution and fails
+    with a message that blames something else (the epoch): name the body instead (raises
+    ObserverInsideBodyError; returns when the observer is inside none). Called only on failure,
+    so a good frame pays no extra ephemeris look-ups."""
+    from .ephemeris_jpl import BODY_RADII_KM
+    from .errors import ObserverInsideBodyError
+
+    for name in names:
+        rb, _ = eph.position_velocity(name, t_tdb_s)
+        dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
+        if dist <= BODY_RADII_KM[name]:
+            raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r) from None
 
 
 def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
@@ -214,8 +252,10 @@ def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
     from .errors import ObserverInsideBodyError
 
     out = []
+    # the Sun at the epoch, read once for every body's deflection (apparent_body's own read)
+    sun_now = apparent.position_at(eph, "sun", t_tdb_s) if names else None
     for name in names:
-        d = apparent.apparent_body(eph, name, r, v, t_tdb_s)
+        d = apparent.apparent_body(eph, name, r, v, t_tdb_s, sun_position_km=sun_now)
         radius = BODY_RADII_KM[name]
         if d.geometric_distance_km <= radius:
             raise ObserverInsideBodyError(name, d.geometric_distance_km, radius, r)
@@ -241,7 +281,7 @@ def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
 
 
 def _tup(a):
-    return tuple(float(x) for x in np.asarray(a, dtype=float).ravel())
+    return tuple(np.asarray(a, dtype=float).ravel().tolist())
 
 
 def build_scene(
@@ -324,20 +364,20 @@ def build_scene(
     if sky is None:
         sky = sky_bodies(t, r, v, ephemeris=eph)
     sky_list, sun_u = sky
+    # each body's five camera-frame directions (apparent, geometric, light-time; apparent at the
+    # exposure's start and end), projected in one call (project is elementwise)
+    xys = camera.project(np.array([[R @ b.directions.u_icrs, R @ b.directions.u_geometric,
+                                    R @ b.directions.u_light_time, R_start @ b.directions.u_icrs,
+                                    R_end @ b.directions.u_icrs] for b in sky_list]).reshape(-1, 3)).reshape(-1, 5, 2)
     bodies = []
-    for b in sky_list:
+    for b, (p, p_geo, p_lt, p_start, p_end) in zip(sky_list, xys):
         d = b.directions
-        p = camera.project((R @ d.u_icrs)[None])[0]
         in_fov = bool(camera.in_image(p[None])[0])
         diam_px = b.angular_diameter_rad * camera.focal_length_px
         bodies.append(BodyInView(
             name=b.name,
             u_icrs=_tup(d.u_icrs), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
-            xy=_tup(p),
-            xy_geometric=_tup(camera.project((R @ d.u_geometric)[None])[0]),
-            xy_light_time=_tup(camera.project((R @ d.u_light_time)[None])[0]),
-            xy_start=_tup(camera.project((R_start @ d.u_icrs)[None])[0]),
-            xy_end=_tup(camera.project((R_end @ d.u_icrs)[None])[0]),
+            xy=_tup(p), xy_geometric=_tup(p_geo), xy_light_time=_tup(p_lt), xy_start=_tup(p_start), xy_end=_tup(p_end),
             light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),

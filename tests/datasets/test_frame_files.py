@@ -3,7 +3,9 @@ the published truth schema (moved from tests/renderer/test_outputs.py with the w
 
 from __future__ import annotations
 
+import copy
 import hashlib
+import json
 import math
 import os
 import struct
@@ -421,6 +423,41 @@ def test_truth_layout_parses_like_stdlib_json_and_one_record_per_line(tmp_path):
     star_lines = [ln for ln in text.splitlines() if ln.lstrip().startswith('{"hip"')]
     assert len(star_lines) == 50
     assert text.endswith("}\n") and "NaN" not in text and "Infinity" not in text
+
+
+def test_truth_bytes_of_the_truth_as_given_equal_those_of_its_plain_copy():
+    # truth_json_bytes writes the layout from the values as given (tuples, whole lists of records
+    # in one orjson call) and falls back to the truth_to_jsonable copy where only it can say; the
+    # copy is the reference: the same bytes for records with NaN, numpy values, tuples, nested
+    # mappings, braces and "},{" inside strings, non-ASCII text, and a non-dict mapping
+    from collections import OrderedDict
+
+    from skynav.datasets.truth_schema import truth_json_bytes, truth_to_jsonable
+
+    truth = _truth()
+    truth["stars"] = [copy.deepcopy(s) for s in truth["stars"] * 4]
+    cases = [truth]
+    for change in (
+        lambda t: t["stars"][1].update(v_mag=float("nan")),
+        lambda t: t["stars"][2].update(xy=np.array([1.5, 2.25]), hip=np.int64(7)),
+        lambda t: t["stars"][0].update(xy=(1.0, 2)),
+        lambda t: t["stars"][3].update(note="a {b},{c} d"),
+        lambda t: t["stars"][3].update(note="x},{y"),
+        lambda t: t["stars"][2].update(track={"length_px": 3.0}),
+        lambda t: t["stars"][1].update(note="\u00e9toile"),
+        lambda t: t.update(extra=OrderedDict(a=[1.0, None])),
+        lambda t: t.update(cosmic_rays=[]),
+    ):
+        t = copy.deepcopy(truth)
+        change(t)
+        cases.append(t)
+    for t in cases:
+        assert truth_json_bytes(t) == truth_json_bytes(truth_to_jsonable(t))
+        assert json.loads(truth_json_bytes(t)) == json.loads(json.dumps(truth_to_jsonable(t)))
+    bad = copy.deepcopy(truth)
+    bad["stars"][2]["v_mag"] = float("inf")
+    with pytest.raises(TruthSchemaError, match=r"truth\.stars\[2\]\.v_mag = inf"):
+        truth_json_bytes(bad)
 
 
 def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):

@@ -59,15 +59,46 @@ def test_pickle_round_trip_reopens_lazily():
 
 @pytest.mark.parametrize("body", BODIES)
 def test_batch_equals_scalar_loop(body, rng):
+    # one epoch goes through the scalar twin (Ephemeris._scalar_state), an array of epochs
+    # through jplephem: two implementations, so within 2 ulps (_assert_state_close)
     eph = default_ephemeris()
     t = rng.uniform(-50, 50, 7) * YEAR_S
     r, v = eph.position_velocity(body, t)
     assert r.shape == v.shape == (7, 3)
     for k, tk in enumerate(t):
         rk, vk = eph.position_velocity(body, tk)
-        assert rk.shape == (3,)
-        np.testing.assert_array_equal(rk, r[k])
-        np.testing.assert_array_equal(vk, v[k])
+        assert rk.shape == vk.shape == eph.position(body, tk).shape == (3,)
+        _assert_state_close(rk, vk, r[k], v[k], (body, tk))
+
+
+def _jplephem(eph, body, t, offset_s=0.0):
+    """The reference: jplephem's own ``Segment.generate`` on the body's chain (what an array of
+    epochs goes through), for one epoch."""
+    r, v = eph.position_velocity(body, np.array([t]), offset_s=np.array([offset_s]))
+    return r[0], v[0]
+
+
+def test_scalar_twin_repeats_jplephem():
+    """One epoch at a time (the light-time iterations' reads) goes through the scalar twin: it
+    gives jplephem's evaluation within 2 ulps (:func:`_assert_state_close`) for every body, at
+    random epochs across DE421, with two-part offsets, at interval boundaries and at the
+    kernel's ends, and its position equals its own position-and-velocity's (the same code);
+    past the kernel's end it leaves the error to the reference."""
+    eph = Ephemeris()
+    lo, hi = eph.span_tdb_s
+    rng = np.random.default_rng(13)
+    epochs = np.concatenate([rng.uniform(lo + 1.0, hi - 1.0, 40), [0.0, 86400.0 * 32, -86400.0 * 16.5, lo, hi]])
+    for t in epochs.tolist():
+        for off in (0.0, -1234.5678, 1e-7):
+            if not lo <= t + off <= hi:
+                continue
+            for b in BODIES:
+                r, v = eph.position_velocity(b, t, offset_s=off)
+                assert np.array_equal(eph.position(b, t, offset_s=off), r)  # same code
+                _assert_state_close(r, v, *_jplephem(eph, b, t, off), (b, t, off))
+    assert len(eph._intervals) > 0  # the scalar twin answered (it keeps the intervals it read)
+    with pytest.raises(EphemerisRangeError):
+        eph.position_velocity("moon", hi + 1.0)
 
 
 @pytest.mark.parametrize("body", BODIES)
@@ -123,7 +154,7 @@ def test_states_at_repeats_jplephem():
     for t in epochs:
         got = eph.states_at(t)
         for b in BODIES:
-            r, v = eph.position_velocity(b, t)
+            r, v = _jplephem(eph, b, t)
             _assert_state_close(got[b][0], got[b][1], r, v, (b, t))
 
 
@@ -156,6 +187,27 @@ def test_epoch_states_repeat_jplephem():
             st = eph.epoch_states(t, bodies)
             assert st.positions.shape == (len(bodies), 3)
             for j, b in enumerate(bodies):
-                r, v = eph.position_velocity(b, t)
+                r, v = _jplephem(eph, b, t)
                 assert np.array_equal(st.position(b), st.positions[j])  # one array
                 _assert_state_close(st.positions[j], st.velocity(b), r, v, (b, t))
+
+
+def test_positions_at_repeats_jplephem():
+    """Several bodies at several epochs in one recurrence give jplephem's positions within 2
+    ulps of each vector's largest coordinate (two implementations of one Chebyshev sum), in
+    the order asked, for all bodies and a subset; an epoch outside the kernel is refused as
+    position() refuses it."""
+    eph = Ephemeris()
+    lo, hi = eph.span_tdb_s
+    t = np.concatenate([np.random.default_rng(14).uniform(lo + 1.0, hi - 1.0, 30), [0.0, 86400.0 * 32, lo, hi]])
+    for bodies in (BODIES, ("moon", "sun", "saturn", "earth")):
+        got = eph.positions_at(t, bodies)
+        assert got.shape == (t.size, len(bodies), 3)
+        for j, b in enumerate(bodies):
+            ref = eph.position(b, t)
+            assert np.all(np.abs(got[:, j] - ref) <= 2 * np.spacing(np.abs(ref).max(axis=1, keepdims=True))), b
+    with pytest.raises(EphemerisRangeError) as info:
+        eph.positions_at(np.array([0.0, hi + 86400.0]), ("mars",))
+    assert info.value.time_mask.tolist() == [False, True]
+    with pytest.raises(UnknownBodyError):
+        eph.positions_at(np.array([0.0]), ("pluto",))

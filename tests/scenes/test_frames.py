@@ -76,3 +76,17 @@ def test_point_boresight():
     u = frames.normalize(np.array([0.3, -0.5, 0.8]))
     R = frames.point_boresight(u, twist_rad=0.7)
     assert np.allclose(R @ u, [0, 0, 1], atol=1e-14)
+
+
+def test_cross_repeats_numpy_cross(rng):
+    """frames.cross (numpy.cross's products and differences without its axis handling) against
+    numpy.cross, for one vector, stacks and a vector against a stack: within 2 ulps of the
+    largest product (a - b of two rounded products; a wrong component is off by O(1))."""
+    from skynav.scenes.frames import cross
+
+    a, b = rng.normal(size=(50, 3)) * 1e8, rng.normal(size=(50, 3))
+    for x, y in ((a[0], b[0]), (a, b), (a[0], b), (a, b[0]), ([0.0, 0.0, 1.0], a[3])):
+        got, want = cross(x, y), np.cross(x, y)
+        assert got.shape == want.shape
+        scale = np.abs(np.asarray(x))[..., None, :].max(-1) * np.abs(np.asarray(y))[..., None, :].max(-1)
+        assert np.all(np.abs(got - want) <= 2 * np.spacing(scale)), (x, y)
