@@ -74,8 +74,7 @@ class Simulator:
         self.recipe = recipe
         self.plan = make_plan(recipe)
         self.frames = self.plan.n_frames if limit is None else min(self.plan.n_frames, int(limit))
-        render = dict(recipe.get("render", {}))
-        render.pop("resolved_threshold_px", None)
+        render = dict(recipe.get("render", {}))   # as the dataset renders: the recipe's render keys
         self._render = {"catalog_limiting_v_mag": float(recipe.get("catalog_limiting_v_mag", 9.0)), **render}
         self._camera = dict(recipe.get("camera", {"preset": "paper"}))
         self._visibility = dict(recipe.get("visibility", {}))

@@ -32,6 +32,9 @@ def cmd_loop(args) -> int:
         raise NavInputError(f"--realtime {args.realtime}: give a positive number of simulated seconds per wall second")
     if args.sigma_px is not None and not args.sigma_px > 0:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
+    if args.sigma_px is not None and args.calibration_stride is not None:
+        raise NavInputError("--sigma-px and --calibration-stride: give one or the other (a given sigma is not measured)")
+    stride = args.calibration_stride or 1
     if args.limit is not None and args.limit < 2:
         raise NavInputError(f"--limit {args.limit}: give at least 2 frames")
     if args.case not in (1, 2, 3, 4, 5):
@@ -63,13 +66,13 @@ def cmd_loop(args) -> int:
         client.wait_ready(60)
         if args.sigma_px is None:
             with ProgressBar("noise calibration", "frame", quiet=args.quiet) as bar:
-                n_cal, done_cal = len(range(0, frames, args.calibration_stride)), [0]
+                n_cal, done_cal = len(range(0, frames, stride)), [0]
 
                 def tick_cal(n):
                     done_cal[0] += n
                     bar(done_cal[0], n_cal)
 
-                noise = calibrate_loop_noise(sim, client, stride=args.calibration_stride, seed=args.seed,
+                noise = calibrate_loop_noise(sim, client, stride=stride, seed=args.seed,
                                              progress=tick_cal)
         else:
             noise = centroid_noise(args.sigma_px)
@@ -156,7 +159,7 @@ def add_parser(sub) -> None:
     p.add_argument("--sigma-px", type=float, default=None,
                    help="centroid noise the filter assumes, px (default: measured as bench nav measures it, on a "
                         "rendering of the cruise pointed from the truth that no run sees)")
-    p.add_argument("--calibration-stride", type=positive_int, default=1, metavar="N",
+    p.add_argument("--calibration-stride", type=positive_int, default=None, metavar="N",
                    help="measure the noise on every N-th frame (default 1; each costs a frame and its image processing)")
     p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial states and the pointing errors")

@@ -101,11 +101,14 @@ def test_runs_and_the_calibration_see_renderings_of_their_own():
 
     r = read_recipe_mapping("sequence")
     r["sequence"].update(legs=1, track_s=300)
+    r["render"] = {"resolved_threshold_px": 5.0, "cosmic_rays_per_frame": 0}
     sim = Simulator(datasets.validate_recipe(r), limit=2)
     t = sim.schedule()[1][0]
     scenes = {g: sim.scene(1, t, np.eye(3), np.random.default_rng(0), g) for g in (0, 1, CALIBRATION_RENDERING)}
     assert scenes[0]["render"]["seed"] == int(np.random.SeedSequence([sim.master_seed, 1]).generate_state(1)[0])
     assert len({s["render"]["seed"] for s in scenes.values()}) == 3
+    # the recipe's render keys reach the service, as they reach the dataset's frames
+    assert scenes[0]["render"]["resolved_threshold_px"] == 5.0 and scenes[0]["render"]["cosmic_rays_per_frame"] == 0
     assert all(s["observer"] == scenes[0]["observer"] and s["attitude"] == scenes[0]["attitude"] for s in scenes.values())
 
 
@@ -116,6 +119,7 @@ def test_runs_and_the_calibration_see_renderings_of_their_own():
     (["sequence", "-o", "x", "--bias-km", "far"], "--bias-km"),
     (["sequence", "-o", "x", "--sigma-px", "0"], "--sigma-px"),
     (["sequence", "-o", "x", "--calibration-stride", "0"], "--calibration-stride"),
+    (["sequence", "-o", "x", "--calibration-stride", "2", "--sigma-px", "0.1"], "one or the other"),
 ])
 def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
     run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", *args, "--service", "http://127.0.0.1:9"],
