@@ -51,7 +51,7 @@ def _stats(error, cov, last_leg):
     return rms, fin, sig
 
 
-def loop_side(seeds, sets, sigma_px, runs_seed):
+def loop_side(seeds, sets, sigma_px, runs_seed, renderings=1, stride=1):
     from skynav.pipeline.ekf import initial_covariance
     from skynav.service import Client, LocalServer
     from skynav.service.loop import Simulator, calibrate_loop_noise, run_loop
@@ -66,7 +66,9 @@ def loop_side(seeds, sets, sigma_px, runs_seed):
             rng = np.random.default_rng(np.random.SeedSequence([runs_seed + s, 45]))
             r0, v0 = sim.state(sim.schedule()[0][0])
             x0 = np.concatenate([r0, v0, np.zeros(6)]) + rng.standard_normal(12) * np.sqrt(np.diag(P0))
-            noise = sigma_px if sigma_px is not None else calibrate_loop_noise(sim, client, seed=s)
+            noise = sigma_px
+            if noise is None:
+                noise = calibrate_loop_noise(sim, client, seed=s, renderings=renderings, stride=stride)
             run = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s)
             last = np.array([lg for _, lg, _, _ in sim.schedule()]) == sim.schedule()[-1][1]
             rows.append((s, *[float(x[0]) for x in _stats(run.error[None], run.cov[None], last)],
@@ -103,6 +105,8 @@ def main():
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4], help="master seeds (renderings)")
     ap.add_argument("--sigma-px", type=float, default=None, help="centroid sigma of both filters (default: calibrated)")
     ap.add_argument("--runs-seed", type=int, default=0, help="seed of the initial states and pointing errors")
+    ap.add_argument("--calibration-renderings", type=int, default=1, help="loop: renderings R is pooled from")
+    ap.add_argument("--calibration-stride", type=int, default=1, help="loop: every N-th frame of each")
     ap.add_argument("--sides", nargs="+", default=["loop", "nav"], choices=("loop", "nav"))
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help="recipe overrides")
     args = ap.parse_args()
@@ -114,7 +118,8 @@ def main():
     res = {}
     with tempfile.TemporaryDirectory() as d:
         if "loop" in args.sides:
-            res["loop"] = loop_side(args.seeds, args.sets, args.sigma_px, args.runs_seed)
+            res["loop"] = loop_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, args.calibration_renderings,
+                                    args.calibration_stride)
         if "nav" in args.sides:
             res["nav"] = nav_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, d)
     for name, rows in res.items():

@@ -159,7 +159,8 @@ def part_throughput(frames: int, repeats: int = 3) -> None:
     cores = med[2]["cores"] / med[1]["cores"]
     print(f"  per repeat, two clients / one: {', '.join(f'{x:.2f}' for x in ratio)}")
     print(f"THROUGHPUT RATIO two clients / one client: {float(np.median(ratio)):.2f} x frames/s (issue: >= 1.8 on "
-          f"2 idle cores); cores obtained {cores:.2f} x, renders in flight {med[2]['in_flight'] / med[1]['in_flight']:.2f} x, "
+          f"2 idle cores); cores obtained {cores:.2f} x, renders in flight "
+          f"{med[2]['in_flight'] / med[1]['in_flight']:.2f} x, "
           f"worker CPU per frame {med[2]['cpu_worker'] / med[1]['cpu_worker']:.2f} x")
 
 

@@ -32,6 +32,12 @@ import numpy as np
 #: field from the principal point (the 1024 px paper camera: 51 px).
 CENTRED_FRACTION = 0.1
 
+#: Frames the noise calibration measures by default (``bench loop`` takes every N-th frame, N =
+#: frames // this, at least 1): each costs a frame from the service and its image processing, one
+#: rendering of the whole 720-frame preset would double the loop's time; 180 frames leave every
+#: class of measurement of the preset its 9 frames and every track 9 (``MIN_CLASS_FRAMES``).
+CALIBRATION_FRAMES = 180
+
 #: The rendering of the cruise the measurement noise is calibrated on (its frames' random streams
 #: are ``SeedSequence([seed, k, CALIBRATION_RENDERING])``): no run of the loop sees these images.
 CALIBRATION_RENDERING = 0xCA1
@@ -366,15 +372,18 @@ def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:
             "realtime_scale": realtime, "deadline_misses": int(late.sum()) if realtime else None}
 
 
-def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, seed: int = 0, phase_offset: bool = True,
-                         progress=None):
+def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings: int = 1, seed: int = 0,
+                         phase_offset: bool = True, progress=None):
     """The filter's measurement noise, measured as ``bench nav`` measures it.
 
     ``bench nav`` calibrates R on a dataset (:func:`skynav.pipeline.scoring_nav.calibrate_sigma_px`);
     here the same function runs on a rendering of the cruise asked of ``client``: every
     ``stride``-th frame at the true state, pointed from the truth (as a dataset is) with the
     controller's error, the frames' noise from :data:`CALIBRATION_RENDERING` (images no run of the
-    loop sees). Ground-side work that needs the truth, done before the loop starts.
+    loop sees). ``renderings > 1`` pools that many renderings (``CALIBRATION_RENDERING + j``), as
+    ``bench nav --calibrate-on`` pools datasets: the track-constant part of the error is then the
+    ensemble's, not one rendering's draw of it. Ground-side work that needs the truth, done before
+    the loop starts.
     ``progress(1)`` after each frame.
     """
     from dataclasses import replace
@@ -393,12 +402,13 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, seed: int =
     # pointed at the target from the truth: its pixel is the principal point, to the controller's error
     plan = replace(nav_plan(sim, []), target_xy_px=np.tile(centre, (len(sched), 1)))
 
-    def render(_rendering, k):
+    def render(j, k):
         t, _, _, target = sched[k]
         R = point_at(eph, target, t, sim.state(t)[0], twist)
-        frame = client.render(sim.scene(k, t, R, rng, CALIBRATION_RENDERING), outputs=("png",))
+        frame = client.render(sim.scene(k, t, R, rng, CALIBRATION_RENDERING + j), outputs=("png",))
         if progress is not None:
             progress(1)
         return observation(k, t, frame.dn, camera)
 
-    return calibrate_sigma_px(plan, stride=stride, seed=seed, phase_offset=phase_offset, observations=render)
+    plans = [plan] * int(renderings) if renderings > 1 else plan
+    return calibrate_sigma_px(plans, stride=stride, seed=seed, phase_offset=phase_offset, observations=render)

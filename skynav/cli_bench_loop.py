@@ -21,8 +21,9 @@ def cmd_loop(args) -> int:
     from skynav.pipeline.scoring_nav import NavInputError
     from skynav.pipeline.scoring_nav_report import summarise, write_report
     from skynav.service.client import Client, LocalServer
-    from skynav.service.loop import (Simulator, bias_for_lost_planet, calibrate_loop_noise, campaign_result,
-                                     centroid_noise, loop_summary, nav_plan, perpendicular_bias, run_loop)
+    from skynav.service.loop import (CALIBRATION_FRAMES, Simulator, bias_for_lost_planet, calibrate_loop_noise,
+                                     campaign_result, centroid_noise, loop_summary, nav_plan, perpendicular_bias,
+                                     run_loop)
 
     from .cli_dataset import _recipe
 
@@ -34,7 +35,7 @@ def cmd_loop(args) -> int:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     if args.sigma_px is not None and args.calibration_stride is not None:
         raise NavInputError("--sigma-px and --calibration-stride: give one or the other (a given sigma is not measured)")
-    stride = args.calibration_stride or 1
+    stride = args.calibration_stride
     if args.limit is not None and args.limit < 2:
         raise NavInputError(f"--limit {args.limit}: give at least 2 frames")
     if args.case not in (1, 2, 3, 4, 5):
@@ -65,6 +66,7 @@ def cmd_loop(args) -> int:
         client = Client(url, token=args.token)
         client.wait_ready(60)
         if args.sigma_px is None:
+            stride = stride or max(1, frames // CALIBRATION_FRAMES)
             with ProgressBar("noise calibration", "frame", quiet=args.quiet) as bar:
                 n_cal, done_cal = len(range(0, frames, stride)), [0]
 
@@ -160,7 +162,8 @@ def add_parser(sub) -> None:
                    help="centroid noise the filter assumes, px (default: measured as bench nav measures it, on a "
                         "rendering of the cruise pointed from the truth that no run sees)")
     p.add_argument("--calibration-stride", type=positive_int, default=None, metavar="N",
-                   help="measure the noise on every N-th frame (default 1; each costs a frame and its image processing)")
+                   help="measure the noise on every N-th frame (default: frames // 180, at least 1: about 180 frames; "
+                        "each costs a frame from the service and its image processing)")
     p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial states and the pointing errors")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames of the plan")
