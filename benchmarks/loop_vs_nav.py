@@ -51,7 +51,7 @@ def _stats(error, cov, last_leg):
     return rms, fin, sig
 
 
-def loop_side(seeds, sets, sigma_px, runs_seed, renderings=1, stride=1):
+def loop_side(seeds, sets, sigma_px, runs_seed, renderings=1, stride=1, pointing="estimate"):
     from skynav.pipeline.ekf import initial_covariance
     from skynav.service import Client, LocalServer
     from skynav.service.loop import Simulator, calibrate_loop_noise, run_loop
@@ -69,7 +69,7 @@ def loop_side(seeds, sets, sigma_px, runs_seed, renderings=1, stride=1):
             noise = sigma_px
             if noise is None:
                 noise = calibrate_loop_noise(sim, client, seed=s, renderings=renderings, stride=stride)
-            run = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s)
+            run = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s, pointing=pointing)
             last = np.array([lg for _, lg, _, _ in sim.schedule()]) == sim.schedule()[-1][1]
             rows.append((s, *[float(x[0]) for x in _stats(run.error[None], run.cov[None], last)],
                          time.perf_counter() - t0))
@@ -107,6 +107,8 @@ def main():
     ap.add_argument("--runs-seed", type=int, default=0, help="seed of the initial states and pointing errors")
     ap.add_argument("--calibration-renderings", type=int, default=1, help="loop: renderings R is pooled from")
     ap.add_argument("--calibration-stride", type=int, default=1, help="loop: every N-th frame of each")
+    ap.add_argument("--pointing", default="estimate", choices=("estimate", "truth"),
+                    help="loop: point from the estimate (closed loop) or from the truth (as a dataset)")
     ap.add_argument("--sides", nargs="+", default=["loop", "nav"], choices=("loop", "nav"))
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help="recipe overrides")
     args = ap.parse_args()
@@ -119,7 +121,7 @@ def main():
     with tempfile.TemporaryDirectory() as d:
         if "loop" in args.sides:
             res["loop"] = loop_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, args.calibration_renderings,
-                                    args.calibration_stride)
+                                    args.calibration_stride, args.pointing)
         if "nav" in args.sides:
             res["nav"] = nav_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, d)
     for name, rows in res.items():
