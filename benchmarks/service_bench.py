@@ -8,7 +8,9 @@ Three parts (``--parts``), each printing its numbers and ratios:
   frame, so that the load of a shared machine falls on both alike. Also one ``skynav render`` (a
   fresh process: imports, tables, kernels, then one frame and its files), the cost the service saves.
 - ``throughput``: ``skynav serve --workers 2``; frames/s of one client asking one frame after the
-  other, then of two clients at once (threads), and their ratio.
+  other, then of two clients at once (threads), interleaved and repeated; their ratio on the line
+  ``THROUGHPUT RATIO``, with the renders in flight, the cores the workers obtained and the CPU per
+  frame (workers, server, client) that tell a loaded machine from a service that serialises.
 - ``loop``: ``skynav bench loop RECIPE --runs 1 --bias-km none`` against ``skynav dataset
   generate RECIPE`` + ``skynav bench nav --runs 2`` (bench nav needs two runs) on the same recipe,
   both with ``--sigma-px 0.1``: wall time and final 3-sigma / errors side by side.
@@ -69,6 +71,15 @@ def part_overhead(frames: int) -> None:
           f"= {float(np.median(cli)) / rm:.1f} x a service frame")
 
 
+def _proc_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) of process ``pid`` (Linux /proc)."""
+    try:
+        st = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(st[11]) + int(st[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _children_cpu_s(pid: int) -> float:
     """CPU seconds (user + system) of the processes whose parent is ``pid`` (Linux /proc)."""
     total = 0.0
@@ -83,41 +94,74 @@ def _children_cpu_s(pid: int) -> float:
     return total
 
 
-def part_throughput(frames: int) -> None:
-    """Frames/s of one and two clients, and the cores the workers got meanwhile: on a machine other
-    processes share, the cores obtained (not the service) can be the limit, and this shows it."""
+def part_throughput(frames: int, repeats: int = 3) -> None:
+    """Frames/s of one and of two clients against ``--workers 2``, interleaved (1, 2, 1, 2, ...)
+    ``repeats`` times, medians; and what lets one read the ratio on a shared machine:
+
+    - renders in flight: the sum of the workers' render times (``Skynav-Render-Seconds``) over the
+      wall time. Two clients on two parallel workers keep ~2 in flight, whatever the machine's
+      load; 1 would mean the renders were serialised (a lock, one worker);
+    - cores obtained: the workers' CPU seconds over the wall time. With two clients the ratio of
+      frames/s cannot exceed the ratio of cores obtained: on a machine other processes share, the
+      cores (not the service) are the limit, and this shows it;
+    - CPU per frame: of the workers (the render), of the server process (HTTP, parsing, the
+      multipart answer: the event loop's share) and of the client: equal with one and two
+      clients when nothing in the service contends.
+    """
     from skynav.scenes.presets import preset_mapping
     from skynav.service import Client, LocalServer
 
     scene = preset_mapping("default")
     server = LocalServer(workers=2)
     with server as url:
-        Client(url).render(scene)
+        warm = [threading.Thread(target=lambda: Client(url).render(scene)) for _ in range(2)]   # both workers
+        for t in warm:
+            t.start()
+        for t in warm:
+            t.join()
 
         def client_loop(n, out):
             c = Client(url)
             for _ in range(n):
-                c.render(scene, outputs=("png", "truth"))
-            out.append(n)
+                r = c.render(scene, outputs=("png", "truth"))
+                out.append(r.render_seconds)
 
-        rows = []
-        for n_clients in (1, 2):
-            done = []
-            threads = [threading.Thread(target=client_loop, args=(frames, done)) for _ in range(n_clients)]
-            c0, t0 = _children_cpu_s(server.proc.pid), time.perf_counter()
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join()
-            wall = time.perf_counter() - t0
-            cpu = _children_cpu_s(server.proc.pid) - c0
-            rows.append((sum(done) / wall, cpu / wall, cpu / sum(done)))
-    print(f"throughput (--workers 2, {os.cpu_count()} cores, default frame; load average "
-          f"{os.getloadavg()[0]:.1f}):")
-    for n, (fps, cores, cpu_frame) in zip((1, 2), rows):
-        print(f"  {n} client{'s' if n > 1 else ''}: {fps:.2f} frames/s; the workers got {cores:.2f} cores, "
-              f"{1e3 * cpu_frame:.0f} ms CPU per frame")
-    print(f"  two clients / one: {rows[1][0] / rows[0][0]:.2f} x frames/s, {rows[1][1] / rows[0][1]:.2f} x cores obtained")
+        rows = {1: [], 2: []}
+        for _ in range(repeats):
+            for n_clients in (1, 2):
+                done = []
+                threads = [threading.Thread(target=client_loop, args=(frames, done)) for _ in range(n_clients)]
+                c0, s0, m0 = (_children_cpu_s(server.proc.pid), _proc_cpu_s(server.proc.pid),
+                              time.process_time())
+                t0 = time.perf_counter()
+                for t in threads:
+                    t.start()
+                for t in threads:
+                    t.join()
+                wall = time.perf_counter() - t0
+                cpu_w = _children_cpu_s(server.proc.pid) - c0
+                cpu_s = _proc_cpu_s(server.proc.pid) - s0
+                cpu_c = time.process_time() - m0
+                n = len(done)
+                rows[n_clients].append({"fps": n / wall, "in_flight": sum(done) / wall, "cores": cpu_w / wall,
+                                        "cpu_worker": cpu_w / n, "cpu_server": cpu_s / n, "cpu_client": cpu_c / n,
+                                        "render_s": float(np.median(done))})
+    med = {k: {f: float(np.median([r[f] for r in v])) for f in v[0]} for k, v in rows.items()}
+    print(f"throughput (--workers 2 on {os.cpu_count()} cores, default 1024x1024 frame, png + truth; "
+          f"{frames} frames per client, {repeats} interleaved repeats, medians; load average "
+          f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}):")
+    for n, m in med.items():
+        print(f"  {n} client{'s' if n > 1 else ''}: {m['fps']:.2f} frames/s; renders in flight {m['in_flight']:.2f}; "
+              f"the workers got {m['cores']:.2f} cores; CPU per frame: workers {1e3 * m['cpu_worker']:.0f} ms, "
+              f"server {1e3 * m['cpu_server']:.1f} ms, client {1e3 * m['cpu_client']:.1f} ms; "
+              f"render {1e3 * m['render_s']:.0f} ms (wall, in the worker)")
+    ratio = [b["fps"] / a["fps"] for a, b in zip(rows[1], rows[2])]
+    cores = med[2]["cores"] / med[1]["cores"]
+    print(f"  per repeat, two clients / one: {', '.join(f'{x:.2f}' for x in ratio)}")
+    print(f"THROUGHPUT RATIO two clients / one client: {float(np.median(ratio)):.2f} x frames/s (issue: >= 1.8 on "
+          f"2 idle cores); cores obtained {cores:.2f} x, renders in flight "
+          f"{med[2]['in_flight'] / med[1]['in_flight']:.2f} x, "
+          f"worker CPU per frame {med[2]['cpu_worker'] / med[1]['cpu_worker']:.2f} x")
 
 
 def _timed(cmd, **kw):
@@ -156,7 +200,8 @@ def part_loop(recipe: str, extra: list) -> None:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", nargs="+", default=["overhead", "throughput"], choices=("overhead", "throughput", "loop"))
-    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=20, help="frames per client and part (default 20)")
+    ap.add_argument("--repeats", type=int, default=3, help="throughput: interleaved repeats of one and two clients")
     ap.add_argument("--recipe", default="sequence")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                     help="--set for the loop part's recipe (bench loop and dataset generate alike)")
@@ -165,7 +210,7 @@ def main():
     if "overhead" in args.parts:
         part_overhead(frames)
     if "throughput" in args.parts:
-        part_throughput(frames)
+        part_throughput(frames, args.repeats)
     if "loop" in args.parts:
         part_loop(args.recipe, [x for s in args.sets for x in ("--set", s)])
 

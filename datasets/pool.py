@@ -29,11 +29,11 @@ class WorkerThreads:
 
     Spawned children read their environment when they start (inside the ``with`` block, when the
     pool submits); the parent's environment is restored on exit. Variables already set by the
-    user are kept.
+    user are kept. ``threads``: this many per worker instead (e.g. ``skynav serve --threads``).
     """
 
-    def __init__(self, n_workers: int):
-        self.threads = max(1, (os.cpu_count() or 1) // max(1, n_workers))
+    def __init__(self, n_workers: int, threads: int | None = None):
+        self.threads = int(threads) if threads else max(1, (os.cpu_count() or 1) // max(1, n_workers))
         self.set_here: list = []
 
     def __enter__(self):

@@ -15,6 +15,12 @@ class ProcessOptions:
     T_step: float = 2.0                 # paper: T increase after a failed ID
     T_max_iterations: int = 5
     eps_px: float = 0.6                 # k-vector range error, in pixels of the field
+    # ... and at most this angle: the false catalog pairs in the window grow with its angle, and
+    # with coarse pixels 0.6 px drowns the true stars' votes (20 deg over 256 px, 284"/px: 170"
+    # windows, ~750 catalog pairs per spot pair, the true star outvoted at every spot, lost in
+    # space 0/8 frames; 384 px 3/8, 448 px 6/8). Capped at 70" (0.6 px of a 640 px camera; the
+    # 1024 px paper camera's 42" is below it): 256, 384 and 448 px 8/8, 192 px (379"/px) 5/8.
+    eps_max_arcsec: float = 70.0
     inlier_px: float = 2.0              # RANSAC / association tolerance, px
     n_max: int = 12                     # spots used for the votes
     n_ransac: int = 100                 # paper mode: random triples

@@ -99,6 +99,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     match, method, status = None, "", "id_failed"
     # the k-vector's relative angle tolerance: aberration changes angles by up to |v| / c
     rel_eps = (np.linalg.norm(v_km_s) / C_KM_S if v_km_s is not None else 2e-4) + 2e-5
+    eps_rad = min(opt.eps_px * ifov, np.radians(opt.eps_max_arcsec / 3600.0))
     spots = Spots.empty()
     t_c = t_id = 0.0
     windowed_source = windowed_preds = None
@@ -135,7 +136,7 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         if match is None:
             order = how.star_order(spots)
             for n_max, random_triples, max_triples in how.lost_in_space_tries(opt):
-                sol = lost_in_space(b[order], catalog, eps_rad=opt.eps_px * ifov, rel_eps=rel_eps, n_max=n_max,
+                sol = lost_in_space(b[order], catalog, eps_rad=eps_rad, rel_eps=rel_eps, n_max=n_max,
                                     inlier_rad=opt.inlier_px * ifov, rng=np.random.default_rng(opt.seed),
                                     random_triples=random_triples, max_triples=max_triples)
                 if sol is None:

@@ -90,7 +90,7 @@ MIN_CLASS_FRAMES = 9
 
 
 def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
-                       sigma_velocity_km_s: float = 0.1, phase_offset: bool = True):
+                       sigma_velocity_km_s: float = 0.1, phase_offset: bool = True, observations=None):
     """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
 
     The error is the image processing's target centroid minus the measurement model (case 1,
@@ -101,6 +101,10 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
     frames are pooled, each rendering's tracks kept apart, so that the track-constant part
     sigma_b is the ensemble's (over sensor and noise realisations) rather than one rendering's
     draw of it (0 to 0.07 px for the Earth's saturated disc over four renderings).
+
+    ``observations``: where the frames come from when they are not a dataset's files (the closed
+    loop asks the render service for them): a callable ``(rendering, i) -> Observation`` for frame
+    ``i`` of ``plan[rendering]``; default: frame ``i`` of the dataset at ``plan.root``.
     """
     eph = default_ephemeris()
     plans = list(plan) if isinstance(plan, (list, tuple)) else [plan]
@@ -111,20 +115,27 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
     keys = []
     tracks = []
     for ip, plan in enumerate(plans):
-        ds = sdat.open(plan.root)
-        cat = _calibrate_rendering(plan, ds, ip, stride=stride, rng=rng, cat=cat, eph=eph, out=(errs, diam, keys, tracks),
+        if observations is None:
+            ds = sdat.open(plan.root)
+
+            def get(i, ds=ds, plan=plan):
+                return observation(ds, plan, i)
+        else:
+            def get(i, ip=ip):
+                return observations(ip, i)
+        cat = _calibrate_rendering(plan, get, ip, stride=stride, rng=rng, cat=cat, eph=eph, out=(errs, diam, keys, tracks),
                                    sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
                                    phase_offset=phase_offset)
     return replace(_fit_noise(plans[0], errs, diam, keys, tracks), renderings=len(plans))
 
 
-def _calibrate_rendering(plan, ds, ip, *, stride, rng, cat, eph, out, sigma_position_km, sigma_velocity_km_s, phase_offset):
+def _calibrate_rendering(plan, get, ip, *, stride, rng, cat, eph, out, sigma_position_km, sigma_velocity_km_s, phase_offset):
     errs, diam, keys, tracks = out
     prev = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
             continue
-        obs = observation(ds, plan, i)
+        obs = get(i)
         if cat is None:
             cat = OnboardCatalog.load(camera=obs.camera)
         ps = PredictedState(position_km=plan.position_km[i] + sigma_position_km * rng.standard_normal(3),

@@ -32,6 +32,41 @@ import numpy as np
 #: field from the principal point (the 1024 px paper camera: 51 px).
 CENTRED_FRACTION = 0.1
 
+#: Frames the noise calibration measures by default (``bench loop`` takes every N-th frame, N =
+#: frames // this, at least 1): each costs a frame from the service and its image processing, one
+#: rendering of the whole 720-frame preset would double the loop's time; 180 frames leave every
+#: class of measurement of the preset its 9 frames and every track 9 (``MIN_CLASS_FRAMES``).
+CALIBRATION_FRAMES = 180
+
+#: The rendering of the cruise the measurement noise is calibrated on (its frames' random streams
+#: are ``SeedSequence([seed, k, CALIBRATION_RENDERING])``): no run of the loop sees these images.
+CALIBRATION_RENDERING = 0xCA1
+
+
+def point_at(ephemeris, target: str, t: float, position_km, twist_rad: float = 0.0) -> np.ndarray:
+    """The attitude that puts ``target`` on the boresight seen from ``position_km`` at ``t``: the
+    planet where it was one (first-order) light-time earlier, as the on-board ephemeris gives it."""
+    from skynav.scenes import frames
+    from skynav.scenes.constants import C_KM_S
+
+    r = np.asarray(position_km, dtype=float)
+    lt = np.linalg.norm(ephemeris.position(target, t) - r) / C_KM_S
+    return frames.point_boresight(frames.normalize(ephemeris.position(target, t - lt) - r), twist_rad)
+
+
+def observation(k: int, t: float, dn: np.ndarray, camera):
+    """What the flight software has of frame ``k``: the image, its time, the calibrated camera."""
+    from skynav.datasets.observation import Observation
+
+    return Observation(index=k, dn=dn, epoch_tdb_s=t, exposure_s=camera.exposure_s, camera=camera)
+
+
+def centroid_noise(noise):
+    """``noise`` as a :class:`~skynav.pipeline.scoring_nav.CentroidNoise` (a number: that sigma, px)."""
+    from skynav.pipeline.scoring_nav import CentroidNoise
+
+    return noise if isinstance(noise, CentroidNoise) else CentroidNoise(sigma0_px=float(noise))
+
 
 class Simulator:
     """The truth side of the loop: a ``sequence`` recipe's cruise and the pointing controller."""
@@ -45,8 +80,7 @@ class Simulator:
         self.recipe = recipe
         self.plan = make_plan(recipe)
         self.frames = self.plan.n_frames if limit is None else min(self.plan.n_frames, int(limit))
-        render = dict(recipe.get("render", {}))
-        render.pop("resolved_threshold_px", None)
+        render = dict(recipe.get("render", {}))   # as the dataset renders: the recipe's render keys
         self._render = {"catalog_limiting_v_mag": float(recipe.get("catalog_limiting_v_mag", 9.0)), **render}
         self._camera = dict(recipe.get("camera", {"preset": "paper"}))
         self._visibility = dict(recipe.get("visibility", {}))
@@ -69,8 +103,12 @@ class Simulator:
         r, v = self.plan.trajectory.state(t)
         return np.asarray(r, dtype=float).reshape(3), np.asarray(v, dtype=float).reshape(3)
 
-    def scene(self, k: int, t: float, R_commanded: np.ndarray, rng: np.random.Generator) -> dict:
-        """The scene mapping of frame ``k``: the true state, the commanded attitude with the controller's error."""
+    def scene(self, k: int, t: float, R_commanded: np.ndarray, rng: np.random.Generator, rendering: int = 0) -> dict:
+        """The scene mapping of frame ``k``: the true state, the commanded attitude with the controller's error.
+
+        ``rendering`` picks the image noise: frame ``k``'s render seed comes from
+        ``SeedSequence([seed, k])`` for rendering 0, ``SeedSequence([seed, k, rendering])`` otherwise
+        (the recipe's ``seed``), so that runs of one campaign may each see a rendering of their own."""
         from skynav.datasets.plan import epoch_iso
         from skynav.scenes import frames
 
@@ -80,7 +118,8 @@ class Simulator:
         R = frames.rotation_vector_to_dcm(-err) @ np.asarray(R_commanded)   # as the dataset's sequence frames
         w_deg = np.asarray(s["angular_velocity_deg_s"], dtype=float) + np.degrees(jitter)
         r, v = self.state(t)
-        seed = int(np.random.SeedSequence([self.master_seed, k]).generate_state(1)[0])
+        key = [self.master_seed, k] + ([int(rendering)] if rendering else [])
+        seed = int(np.random.SeedSequence(key).generate_state(1)[0])
         return {"epoch": epoch_iso(t),
                 "observer": {"position_km": [float(x) for x in r], "velocity_km_s": [float(x) for x in v]},
                 "attitude": {"q_cam_icrs": [float(x) for x in frames.dcm_to_quat(R)],
@@ -91,8 +130,8 @@ class Simulator:
 class FlightSoftware:
     """Navigation from ``skynav.pipeline``: EKF, image processing, pointing commands. No truth."""
 
-    def __init__(self, camera, x0, P0, t0: float, t_end: float, *, sigma_px: float, case: int = 1, dynamics=None,
-                 twist_rad: float = 0.0):
+    def __init__(self, camera, x0, P0, t0: float, t_end: float, *, noise, case: int = 1, dynamics=None,
+                 twist_rad: float = 0.0, track_frames: dict | None = None):
         from skynav.pipeline import NavFilter, OnboardCatalog
         from skynav.pipeline.filter_dynamics import FilterDynamics
         from skynav.pipeline.measurement import CASES
@@ -100,7 +139,8 @@ class FlightSoftware:
         from skynav.scenes.constants import SECONDS_PER_DAY
         from skynav.scenes.ephemeris_jpl import default_ephemeris
 
-        self.camera, self.sigma_px, self.twist_rad = camera, float(sigma_px), float(twist_rad)
+        self.camera, self.noise, self.twist_rad = camera, centroid_noise(noise), float(twist_rad)
+        self.track_frames = dict(track_frames or {})   # frames per (leg, phase): the commanded observation plan
         self.eph = default_ephemeris()
         dyn = (dynamics or FilterDynamics()).bind(self.eph, t0 - SECONDS_PER_DAY, t_end + SECONDS_PER_DAY)
         self.kf = NavFilter(dyn, np.atleast_2d(x0), P0, t0, corrections=CASES[case], iterations=UPDATE_ITERATIONS)
@@ -109,24 +149,19 @@ class FlightSoftware:
 
     def command(self, t: float, target: str) -> np.ndarray:
         """Propagate to ``t``; the attitude that puts ``target`` on the boresight as the estimate predicts it."""
-        from skynav.scenes import frames
-        from skynav.scenes.constants import C_KM_S
-
         self.kf.propagate(t)
-        r = self.kf.x[0, :3]
-        p = self.eph.position(target, t)
-        lt = np.linalg.norm(p - r) / C_KM_S        # first-order light-time: the planet where it was
-        p = self.eph.position(target, t - lt)
-        return frames.point_boresight(frames.normalize(p - r), self.twist_rad)
+        return point_at(self.eph, target, t, self.kf.x[0, :3], self.twist_rad)
 
-    def observe(self, k: int, t: float, dn: np.ndarray, target: str) -> dict:
-        """Process the image of frame ``k`` and update the filter; what happened, for the report."""
-        from skynav.datasets.observation import Observation
+    def observe(self, k: int, t: float, dn: np.ndarray, target: str, track: tuple = ()) -> dict:
+        """Process the image of frame ``k`` and update the filter; what happened, for the report.
+
+        ``track``: the frame's ``(leg, phase)`` in the observation plan (the measurement noise of a
+        class with a track-constant part depends on the track's length, as in ``bench nav``)."""
         from skynav.pipeline import PredictedState, process_frame
-        from skynav.pipeline.scoring_nav import centroid_usable
+        from skynav.pipeline.scoring_nav import centroid_usable, diameter_px
         from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
 
-        obs = Observation(index=k, dn=dn, epoch_tdb_s=t, exposure_s=self.camera.exposure_s, camera=self.camera)
+        obs = observation(k, t, dn, self.camera)
         x, P = self.kf.x[0], self.kf.P[0]
         radius = BODY_RADII_KM.get(target, 0.0)
         ps = PredictedState(position_km=x[:3], velocity_km_s=x[3:6], position_cov_km2=P[:3, :3] + radius**2 * np.eye(3))
@@ -144,8 +179,10 @@ class FlightSoftware:
             out["status"] = "blended"
             return out
         rp, vp = self.eph.position_velocity(target, t)
+        sigma_px = self.noise.sigma_px(diameter_px(radius, float(np.linalg.norm(rp - x[:3])), self.camera),
+                                       f"{target}/{use}", self.track_frames.get(tuple(track), 1))
         u = self.kf.update(np.asarray(beacon.xy_px, dtype=float).reshape(1, 2), rp, vp, fr.attitude.R_cam_icrs,
-                           self.camera, self.sigma_px, sun_position_km=self.eph.position("sun", t),
+                           self.camera, sigma_px, sun_position_km=self.eph.position("sun", t),
                            planet_radius_km=radius, photocentre=use)
         out["residual_px"] = tuple(float(c) for c in u.residual_px[0])
         out["accepted"] = bool(u.accepted[0])
@@ -172,9 +209,22 @@ class LoopRun:
     pairs: list = field(default_factory=list)
 
 
-def run_loop(sim: Simulator, client, *, x0, P0, sigma_px: float, case: int = 1, pointing: str = "estimate",
-             realtime: float | None = None, seed: int = 0, dynamics=None, progress=None) -> LoopRun:
+def track_frames(schedule) -> dict:
+    """Frames per ``(leg, phase)`` of a schedule (:meth:`Simulator.schedule`): the tracks' lengths."""
+    out = {}
+    for _, leg, phase, _ in schedule:
+        out[(leg, phase)] = out.get((leg, phase), 0) + 1
+    return out
+
+
+def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: str = "estimate",
+             realtime: float | None = None, seed: int = 0, rendering: int = 0, dynamics=None,
+             progress=None) -> LoopRun:
     """One closed-loop run over the simulator's frames, the frames asked of ``client``.
+
+    ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.scoring_nav.CentroidNoise`
+    (:func:`calibrate_loop_noise`, as ``bench nav`` calibrates it) or a sigma in px.
+    ``rendering``: which rendering of the cruise the run sees (:meth:`Simulator.scene`).
 
     ``pointing``: ``"estimate"`` (closed loop: the flight software's command) or ``"truth"`` (the
     command of a perfect estimate, as a dataset is pointed). ``realtime``: simulated seconds per
@@ -183,14 +233,13 @@ def run_loop(sim: Simulator, client, *, x0, P0, sigma_px: float, case: int = 1, 
     """
     from skynav.datasets.recipes import recipe_camera
     from skynav.pipeline.pairs import candidates_from_state, optimal_pair
-    from skynav.scenes import frames
 
     sched = sim.schedule()
     F = len(sched)
     camera = recipe_camera(sim.recipe)
     twist = math.radians(sim.recipe["sequence"]["twist_deg"]) if "twist_deg" in sim.recipe["sequence"] else 0.0
-    fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], sigma_px=sigma_px, case=case, dynamics=dynamics,
-                         twist_rad=twist)
+    fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], noise=noise, case=case, dynamics=dynamics,
+                         twist_rad=twist, track_frames=track_frames(sched))
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x100B]))
     run = LoopRun(error=np.full((F, 6), np.nan), cov=np.full((F, 6, 6), np.nan), residual_px=np.full((F, 2), np.nan),
                   accepted=np.zeros(F, bool), status=[], in_field=np.zeros(F, bool), offset_px=np.full(F, np.inf),
@@ -214,16 +263,14 @@ def run_loop(sim: Simulator, client, *, x0, P0, sigma_px: float, case: int = 1, 
             plan_pair = tuple(w.target for w in pairs if w.leg == leg and w.phase.startswith("track"))
             run.pairs.append((leg, plan_pair, None if choice is None else (choice.first, choice.second)))
         if pointing == "truth":
-            r_true, _ = sim.state(t)
-            p = fsw.eph.position(target, t)
-            R_cmd = frames.point_boresight(frames.normalize(p - r_true), twist)
-        mapping = sim.scene(k, t, R_cmd, rng)
+            R_cmd = point_at(fsw.eph, target, t, sim.state(t)[0], twist)
+        mapping = sim.scene(k, t, R_cmd, rng, rendering)
         c1 = time.perf_counter()
         frame = client.render(mapping, outputs=("png", "truth"))
         c2 = time.perf_counter()
         dn = frame.dn
         # ---- flight software: the image only
-        got = fsw.observe(k, t, dn, target)
+        got = fsw.observe(k, t, dn, target, (leg, phase))
         c3 = time.perf_counter()
         # ---- scoring: the truth of the frame the service rendered
         truth = frame.truth
@@ -295,11 +342,11 @@ def nav_plan(sim: Simulator, runs: list):
                    target_xy_px=np.full((len(sched), 2), np.nan), plan_pairs=pairs)
 
 
-def campaign_result(runs: list, plan, *, sigma_px: float, case: int = 1):
+def campaign_result(runs: list, plan, *, noise, case: int = 1):
     """``bench nav``'s :class:`~skynav.pipeline.scoring_nav.CampaignResult` of the loop's runs."""
-    from skynav.pipeline.scoring_nav import CampaignResult, CentroidNoise
+    from skynav.pipeline.scoring_nav import CampaignResult
 
-    return CampaignResult(case=case, noise=CentroidNoise(sigma0_px=float(sigma_px)), t_tdb_s=plan.t_tdb_s,
+    return CampaignResult(case=case, noise=centroid_noise(noise), t_tdb_s=plan.t_tdb_s,
                           error=np.stack([r.error for r in runs]), cov=np.stack([r.cov for r in runs]),
                           residual_px=np.stack([r.residual_px for r in runs]),
                           accepted=np.stack([r.accepted for r in runs]), ip_status=tuple(runs[0].status),
@@ -323,3 +370,45 @@ def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:
                           "p99": float(np.percentile(lat, 99)), "max": float(lat.max())},
             "step_s": {"median": float(np.median(step)), "p99": float(np.percentile(step, 99)), "max": float(step.max())},
             "realtime_scale": realtime, "deadline_misses": int(late.sum()) if realtime else None}
+
+
+def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings: int = 1, seed: int = 0,
+                         phase_offset: bool = True, progress=None):
+    """The filter's measurement noise, measured as ``bench nav`` measures it.
+
+    ``bench nav`` calibrates R on a dataset (:func:`skynav.pipeline.scoring_nav.calibrate_sigma_px`);
+    here the same function runs on a rendering of the cruise asked of ``client``: every
+    ``stride``-th frame at the true state, pointed from the truth (as a dataset is) with the
+    controller's error, the frames' noise from :data:`CALIBRATION_RENDERING` (images no run of the
+    loop sees). ``renderings > 1`` pools that many renderings (``CALIBRATION_RENDERING + j``), as
+    ``bench nav --calibrate-on`` pools datasets: the track-constant part of the error is then the
+    ensemble's, not one rendering's draw of it. Ground-side work that needs the truth, done before
+    the loop starts.
+    ``progress(1)`` after each frame.
+    """
+    from dataclasses import replace
+
+    from skynav.datasets.recipes import recipe_camera
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px
+    from skynav.scenes.ephemeris_jpl import default_ephemeris
+
+    sched = sim.schedule()
+    camera = recipe_camera(sim.recipe)
+    s = sim.recipe["sequence"]
+    twist = math.radians(s.get("twist_deg", 0.0))
+    eph = default_ephemeris()
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), CALIBRATION_RENDERING]))
+    centre = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
+    # pointed at the target from the truth: its pixel is the principal point, to the controller's error
+    plan = replace(nav_plan(sim, []), target_xy_px=np.tile(centre, (len(sched), 1)))
+
+    def render(j, k):
+        t, _, _, target = sched[k]
+        R = point_at(eph, target, t, sim.state(t)[0], twist)
+        frame = client.render(sim.scene(k, t, R, rng, CALIBRATION_RENDERING + j), outputs=("png",))
+        if progress is not None:
+            progress(1)
+        return observation(k, t, frame.dn, camera)
+
+    plans = [plan] * int(renderings) if renderings > 1 else plan
+    return calibrate_sigma_px(plans, stride=stride, seed=seed, phase_offset=phase_offset, observations=render)

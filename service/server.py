@@ -13,6 +13,7 @@ import asyncio
 import hmac
 import json
 import multiprocessing
+import os
 import secrets
 import socket
 import sys
@@ -38,11 +39,17 @@ class Limits:
 
 class _Worker:
     def __init__(self, ctx, facility, threads):
+        from skynav.datasets.pool import WorkerThreads
+
         from .worker import worker_main
 
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=worker_main, args=(child, facility, threads), daemon=True)
-        self.process.start()
+        # the spawned worker reads its thread budget from the environment it starts with: Dr.Jit
+        # and OpenEXR (SKYNAV_THREADS) and OpenBLAS/OpenMP/MKL alike, so that N workers on N cores
+        # do not each start a pool as wide as the machine
+        with WorkerThreads(1, threads=threads):
+            self.process.start()
         child.close()
         self.lock = threading.Lock()
 
@@ -77,7 +84,8 @@ class WorkerPool:
     """``n`` warm render processes; :meth:`render` waits for an idle one."""
 
     def __init__(self, n: int, *, facility=None, threads=None, limits: Limits = Limits()):
-        self.n, self.facility_arg, self.threads, self.limits = n, facility, threads, limits
+        self.n, self.facility_arg, self.limits = n, facility, limits
+        self.threads = threads or max(1, (os.cpu_count() or 1) // max(1, n))   # per worker
         self._ctx = multiprocessing.get_context("spawn")
         self.workers: list[_Worker] = []
         self.info: dict = {}

@@ -9,7 +9,7 @@ import json
 import time
 from pathlib import Path
 
-from .cli_common import ProgressBar, add_quiet, add_set_argument, say
+from .cli_common import ProgressBar, add_quiet, add_set_argument, positive_int, say
 
 
 def cmd_loop(args) -> int:
@@ -21,8 +21,9 @@ def cmd_loop(args) -> int:
     from skynav.pipeline.scoring_nav import NavInputError
     from skynav.pipeline.scoring_nav_report import summarise, write_report
     from skynav.service.client import Client, LocalServer
-    from skynav.service.loop import (Simulator, bias_for_lost_planet, campaign_result, loop_summary, nav_plan,
-                                     perpendicular_bias, run_loop)
+    from skynav.service.loop import (CALIBRATION_FRAMES, Simulator, bias_for_lost_planet, calibrate_loop_noise,
+                                     campaign_result, centroid_noise, loop_summary, nav_plan, perpendicular_bias,
+                                     run_loop)
 
     from .cli_dataset import _recipe
 
@@ -30,8 +31,11 @@ def cmd_loop(args) -> int:
         raise NavInputError(f"--runs {args.runs}: give at least 1")
     if args.realtime is not None and not args.realtime > 0:
         raise NavInputError(f"--realtime {args.realtime}: give a positive number of simulated seconds per wall second")
-    if not args.sigma_px > 0:
+    if args.sigma_px is not None and not args.sigma_px > 0:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
+    if args.sigma_px is not None and args.calibration_stride is not None:
+        raise NavInputError("--sigma-px and --calibration-stride: give one or the other (a given sigma is not measured)")
+    stride = args.calibration_stride
     if args.limit is not None and args.limit < 2:
         raise NavInputError(f"--limit {args.limit}: give at least 2 frames")
     if args.case not in (1, 2, 3, 4, 5):
@@ -61,6 +65,19 @@ def cmd_loop(args) -> int:
     with server as url:
         client = Client(url, token=args.token)
         client.wait_ready(60)
+        if args.sigma_px is None:
+            stride = stride or max(1, frames // CALIBRATION_FRAMES)
+            with ProgressBar("noise calibration", "frame", quiet=args.quiet) as bar:
+                n_cal, done_cal = len(range(0, frames, stride)), [0]
+
+                def tick_cal(n):
+                    done_cal[0] += n
+                    bar(done_cal[0], n_cal)
+
+                noise = calibrate_loop_noise(sim, client, stride=stride, seed=args.seed,
+                                             progress=tick_cal)
+        else:
+            noise = centroid_noise(args.sigma_px)
         setup_s = time.perf_counter() - t0
         extra = 2 if bias is not None else 0
         with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
@@ -70,21 +87,22 @@ def cmd_loop(args) -> int:
                 done[0] += n
                 bar(done[0], frames * (args.runs + extra))
 
-            runs = [run_loop(sim, client, x0=x0, P0=P0, sigma_px=args.sigma_px, case=args.case,
-                             realtime=args.realtime, seed=args.seed + i, progress=tick) for i, x0 in enumerate(x0s)]
+            # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations
+            runs = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
+                             seed=args.seed + i, rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
             if bias is not None:
                 b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
                 xb = nominal.copy()
                 xb[:3] += perpendicular_bias(sim, b_km)
                 Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
                 for pointing in ("truth", "estimate"):
-                    r = run_loop(sim, client, x0=xb, P0=Pb, sigma_px=args.sigma_px, case=args.case, pointing=pointing,
+                    r = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case, pointing=pointing,
                                  seed=args.seed, progress=tick)
                     biased[pointing] = r
         client.close()
     total = time.perf_counter() - t0
     plan = nav_plan(sim, runs)
-    res = campaign_result(runs, plan, sigma_px=args.sigma_px, case=args.case)
+    res = campaign_result(runs, plan, noise=noise, case=args.case)
     summary = summarise({args.case: res}, primary=args.case, time_s=total, plan=plan)
     loop = loop_summary(runs, camera, realtime=args.realtime)
     if biased:
@@ -98,7 +116,7 @@ def cmd_loop(args) -> int:
             for p, r in biased.items()}}
     summary["closed_loop"] = loop
     info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
-            "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": f"{args.sigma_px:g} px (given)",
+            "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": noise.describe(),
             "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s}
     out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info)
     Path(out, "loop.json").write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
@@ -109,7 +127,8 @@ def cmd_loop(args) -> int:
         f"  target in the field {100 * loop['target_in_field_fraction']:.1f} % of frames, centred (within "
         f"{loop['centred_within_px']:.0f} px) {100 * loop['target_centred_fraction']:.1f} %; latency median "
         f"{1e3 * loop['latency_s']['median']:.0f} ms, p99 {1e3 * loop['latency_s']['p99']:.0f} ms"
-        + (f"; {loop['deadline_misses']} deadline misses at {args.realtime:g}x real time" if args.realtime else ""))
+        + (f"; {loop['deadline_misses']} deadline misses at {args.realtime:g}x real time" if args.realtime else ""),
+        f"  R: {noise.describe()}")
     if biased:
         b = loop["biased_initial_state"]
         for key, name in (("open_loop", "open loop (pointed from the truth, as a dataset)"),
@@ -139,7 +158,12 @@ def add_parser(sub) -> None:
     p.add_argument("--service", default=None, metavar="URL", help="use this running skynav serve (default: start one)")
     p.add_argument("--token", default=None, help="the service's token")
     p.add_argument("--workers", type=int, default=1, help="workers of the server started here (default 1)")
-    p.add_argument("--sigma-px", type=float, default=0.1, help="centroid noise the filter assumes, px (default 0.1)")
+    p.add_argument("--sigma-px", type=float, default=None,
+                   help="centroid noise the filter assumes, px (default: measured as bench nav measures it, on a "
+                        "rendering of the cruise pointed from the truth that no run sees)")
+    p.add_argument("--calibration-stride", type=positive_int, default=None, metavar="N",
+                   help="measure the noise on every N-th frame (default: frames // 180, at least 1: about 180 frames; "
+                        "each costs a frame from the service and its image processing)")
     p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial states and the pointing errors")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames of the plan")

@@ -131,3 +131,32 @@ def test_resolved_earth_filling_a_quarter_of_the_field(paper_cam, onboard):
         _never_wrong(res, truth)
         if mode == "improved":
             assert res.status == "ok"
+
+
+def test_lost_in_space_with_coarse_pixels():
+    """20 deg over 256 px (284"/px): the k-vector window is capped in angle (``eps_max_arcsec``).
+
+    0.6 px of such a pixel is 170", a window holding ~750 catalog pairs per spot pair: the true
+    star was outvoted at every spot and lost in space failed on every frame of the closed loop's
+    cruise. Both ways are checked on the same frames, so that the test fails if the cap stops
+    mattering or stops working.
+    """
+    from skynav.pipeline import OnboardCatalog
+    from skynav.pipeline.options import ProcessOptions
+    from skynav.scenes.config import camera_from_mapping
+
+    cam = camera_from_mapping({"preset": "paper", "width": 256, "height": 256, "fov_deg": 20})
+    cat = OnboardCatalog.load(camera=cam)
+    uncapped = ProcessOptions(eps_max_arcsec=float("inf"))
+    ok = old = 0
+    for i, (ra, dec) in enumerate(((83.0, -5.0), (200.0, 30.0), (300.0, -40.0), (20.0, 60.0))):
+        obs, truth = render_observation(R_cam_icrs=attitude_towards(ra, dec, 10.0), camera=cam, seed=10 + i)
+        res = process_frame(obs, catalog=cat, predicted_state=_state(truth))
+        err = _never_wrong(res, truth)
+        if err is not None:
+            assert err < 0.5 * cam.ifov_rad   # a small fraction of the 284" pixel
+            ok += 1
+        old += _never_wrong(process_frame(obs, catalog=cat, predicted_state=_state(truth), options=uncapped),
+                            truth) is not None
+    assert ok == 4, f"lost in space on {ok} of 4 frames of 256 px over 20 deg"
+    assert old <= 2, f"without the cap {old} of 4 frames identified: the test no longer needs the cap"

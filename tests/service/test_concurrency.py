@@ -79,3 +79,30 @@ def test_clients_that_disconnect_mid_request_or_mid_response(server, client):
     assert client.health()["status"] == "ok"
     small = small_scene(size=64)
     assert client.render(small, outputs=("png",)).dn.shape == (64, 64)
+
+
+def test_workers_are_separate_processes_with_their_share_of_threads(server):
+    """Two workers are two processes (renders in parallel, no shared lock), and each starts with
+    cores // workers threads for every library that starts a pool (Dr.Jit and OpenEXR through
+    SKYNAV_THREADS, OpenBLAS, OpenMP, MKL): pools as wide as the machine would spin against each
+    other. A variable the user set is passed through unchanged."""
+    import os
+    from pathlib import Path
+
+    from skynav.datasets.pool import THREAD_VARS
+
+    kids = []
+    for st in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(st.read_text().rsplit(")", 1)[1].split()[1])
+            cmd = (st.parent / "cmdline").read_bytes()
+            environ = (st.parent / "environ").read_bytes().decode(errors="replace")
+        except OSError:
+            continue
+        if parent == server.proc.pid and b"multiprocessing" in cmd and b"resource_tracker" not in cmd:
+            kids.append(dict(x.split("=", 1) for x in environ.split("\0") if "=" in x))
+    assert len(kids) == 2, "two render workers, each its own process"
+    share = str(max(1, (os.cpu_count() or 1) // 2))
+    for env in kids:
+        for name in THREAD_VARS:
+            assert env.get(name) == os.environ.get(name, share), name

@@ -11,9 +11,10 @@ import time
 import numpy as np
 import pytest
 
-# two legs of three frames per planet; 640 px over the paper camera's 20 deg (star ID needs the field)
-SMALL = ["--set", "sequence.legs=2", "--set", "sequence.track_s=300", "--set", "camera.width=640",
-         "--set", "camera.height=640", "--set", "camera.fov_deg=20"]
+# two legs of three frames per planet; 256 px over the paper camera's 20 deg (star ID needs the
+# field's stars; 284"/px works since the k-vector window is capped in angle, ProcessOptions)
+SMALL = ["--set", "sequence.legs=2", "--set", "sequence.track_s=300", "--set", "camera.width=256",
+         "--set", "camera.height=256", "--set", "camera.fov_deg=20"]
 
 DRIVER = """
 import json, sys
@@ -44,6 +45,8 @@ def test_closed_loop_keeps_its_planet_and_loses_it_from_a_biased_start(server, t
     # good pointing: the planet in every frame, near the centre (the controller's 0.01 deg is 0.3 px)
     assert loop["target_in_field_fraction"] == 1.0 and loop["target_centred_fraction"] == 1.0
     assert summary["measurements"]["frames_with_centroid"] == loop["frames"] == 12
+    # R measured as bench nav measures it (calibrate_sigma_px), on a rendering no run sees
+    assert summary["noise"]["frames"] == 12 and 0 < summary["noise"]["sigma0_px"] < 0.5
     b = loop["biased_initial_state"]
     # the same biased start (1.5 half-fields off, and the filter told so by P0): pointed from the
     # truth, as a dataset is, the planet is always in view and the filter converges; pointed from
@@ -74,13 +77,39 @@ def test_realtime_waits_for_the_wall_clock(server):
 
     r = read_recipe_mapping("sequence")
     r["sequence"].update(legs=1, track_s=300)
-    r["camera"].update(width=640, height=640, fov_deg=20)
+    r["camera"].update(width=256, height=256, fov_deg=20)
     sim = Simulator(datasets.validate_recipe(r), limit=3)
     x0 = np.concatenate([*sim.state(sim.schedule()[0][0]), np.zeros(6)])
     t0 = time.perf_counter()
-    run = run_loop(sim, Client(server.url), x0=x0, P0=initial_covariance(), sigma_px=0.1, realtime=500.0)
+    run = run_loop(sim, Client(server.url), x0=x0, P0=initial_covariance(), noise=0.1, realtime=500.0)
     assert time.perf_counter() - t0 >= 0.4
     assert run.in_field.all() and 0 <= int(run.late.sum()) <= 3
+
+
+def test_given_sigma_is_the_filters_noise(server, tmp_path):
+    got, _ = _loop(server, tmp_path / "g", "--bias-km", "none", "--limit", "3", "--sigma-px", "0.2")
+    summary = json.loads((tmp_path / "g" / "summary.json").read_text())
+    assert summary["noise"] == {"sigma0_px": 0.2, "kappa": 0.0, "frames": 0, "classes": {}}
+
+
+def test_runs_and_the_calibration_see_renderings_of_their_own():
+    """Frame k of rendering 0 keeps the dataset's seed scheme SeedSequence([seed, k]); other
+    renderings (later runs, the noise calibration) draw other image noise; the pose is the same."""
+    from skynav import datasets
+    from skynav.datasets.recipes import read_recipe_mapping
+    from skynav.service.loop import CALIBRATION_RENDERING, Simulator
+
+    r = read_recipe_mapping("sequence")
+    r["sequence"].update(legs=1, track_s=300)
+    r["render"] = {"resolved_threshold_px": 5.0, "cosmic_rays_per_frame": 0}
+    sim = Simulator(datasets.validate_recipe(r), limit=2)
+    t = sim.schedule()[1][0]
+    scenes = {g: sim.scene(1, t, np.eye(3), np.random.default_rng(0), g) for g in (0, 1, CALIBRATION_RENDERING)}
+    assert scenes[0]["render"]["seed"] == int(np.random.SeedSequence([sim.master_seed, 1]).generate_state(1)[0])
+    assert len({s["render"]["seed"] for s in scenes.values()}) == 3
+    # the recipe's render keys reach the service, as they reach the dataset's frames
+    assert scenes[0]["render"]["resolved_threshold_px"] == 5.0 and scenes[0]["render"]["cosmic_rays_per_frame"] == 0
+    assert all(s["observer"] == scenes[0]["observer"] and s["attitude"] == scenes[0]["attitude"] for s in scenes.values())
 
 
 @pytest.mark.parametrize("args, words", [
@@ -88,6 +117,9 @@ def test_realtime_waits_for_the_wall_clock(server):
     (["sequence", "-o", "x", "--runs", "0"], "--runs"),
     (["sequence", "-o", "x", "--realtime", "-2"], "--realtime"),
     (["sequence", "-o", "x", "--bias-km", "far"], "--bias-km"),
+    (["sequence", "-o", "x", "--sigma-px", "0"], "--sigma-px"),
+    (["sequence", "-o", "x", "--calibration-stride", "0"], "--calibration-stride"),
+    (["sequence", "-o", "x", "--calibration-stride", "2", "--sigma-px", "0.1"], "one or the other"),
 ])
 def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
     run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", *args, "--service", "http://127.0.0.1:9"],
