@@ -29,11 +29,16 @@ obscuration) of FWHM 1.5 px; ``moffat`` (beta = 3) of FWHM 2.0 px.
 
 Usage::
 
-    python benchmarks/foreign_frames.py OUT [--count 300] [--seed 2323] [--sensor paper fine] [--psf airy moffat]
+    python benchmarks/foreign_frames.py OUT [--count 200] [--seed 2323] [--sensor paper fine] [--psf airy moffat]
+                                            [--resume] [--score]
     skynav bench ip OUT/paper_airy --peers --position-sigma-km 1e4 -o REPORT
 
-writes ``OUT/<sensor>_<psf>/frames/NNNNNN.png|.json``. Frame k of a set draws its scene and its
-noise from ``SeedSequence([seed, k])`` (the same scenes, attitudes and stars in every set).
+writes ``OUT/<sensor>_<psf>/frames/NNNNNN.png|.json`` (``--count`` is capped by
+``SKYNAV_MAX_COUNT``). Frame k of a set draws its scene and its noise from
+``SeedSequence([seed, k])`` (the same scenes, attitudes and stars in every set). ``--score`` then
+runs ``skynav bench ip``'s engine on each set (lost in space, predicted position 1e4 km off per
+axis, the improved mode, tetra3rs beside it when installed) and prints the table of
+``docs/pipeline.md`` ("Other renderers' frames").
 """
 
 from __future__ import annotations
@@ -99,6 +104,23 @@ def make_psf(psf: str, sensor: Sensor):
     raise ValueError(f"psf must be one of {sorted(PSF_FWHM_PAPER_PX)}, got {psf!r}")
 
 
+def make_drawer(psf: str, sensor: Sensor):
+    """``(profile, method)`` that draws the PSF convolved with the pixel. Airy: GalSim's own path
+    (``method="auto"``: the convolution with the pixel by FFT). Moffat: the effective PSF (Moffat
+    convolved with the pixel) sampled every 1/4 px to 96 px, as a quintic ``InterpolatedImage``
+    drawn with ``method="no_pixel"`` (the pixel is in it already): the same pixels within 1e-4 of
+    the peak, 4x faster (its wide wings make every FFT stamp large)."""
+    import galsim  # the foreign renderer (test extra)
+
+    p = make_psf(psf, sensor)
+    if psf == "airy":
+        return p, "auto"
+    n = 2 * 96 * 4 + 1
+    sampled = galsim.Convolve(p, galsim.Pixel(1.0)).drawImage(nx=n, ny=n, scale=0.25, method="no_pixel")
+    return galsim.InterpolatedImage(sampled, x_interpolant="quintic", calculate_stepk=False,
+                                    calculate_maxk=False), "no_pixel"
+
+
 def electrons_of_v(v_mag, sensor: Sensor):
     """Expected photo-electrons of a point source of magnitude V in one exposure."""
     area_m2 = math.pi * (sensor.focal_length_mm / sensor.f_number * 1e-3 / 2) ** 2
@@ -129,7 +151,7 @@ def skynav_camera(sensor: Sensor):
                   pixel_pitch_um=sensor.pixel_pitch_um, f_number=sensor.f_number, exposure_s=sensor.exposure_s)
 
 
-def draw_points(image, psf, xy, electrons, *, stamp_fwhm: float):
+def draw_points(image, psf, xy, electrons, *, stamp_fwhm: float, method: str = "auto"):
     """Add point sources (skynav pixel coordinates ``xy``, flux ``electrons``) to a GalSim image
     whose bounds start at (0, 0). Each is drawn (PSF convolved with the pixel) into a stamp
     that reaches where its PSF falls below ~0.05 e- per pixel, at most 96 px."""
@@ -146,11 +168,12 @@ def draw_points(image, psf, xy, electrons, *, stamp_fwhm: float):
         if not b.isDefined():
             continue
         psf.withFlux(float(f)).drawImage(image=image[b], center=galsim.PositionD(float(x), float(y)),
-                                         add_to_image=True)
+                                         add_to_image=True, method=method)
 
 
-def render_frame(k: int, *, sensor: Sensor, psf: str, seed: int, ephemeris=None, catalog=None):
-    """``(dn uint16 (H, W), truth dict)`` of frame ``k`` (module docstring)."""
+def render_frame(k: int, *, sensor: Sensor, psf: str, seed: int, ephemeris=None, catalog=None, drawer=None):
+    """``(dn uint16 (H, W), truth dict)`` of frame ``k`` (module docstring); ``drawer``: the
+    :func:`make_drawer` of ``psf`` and ``sensor``, made here when None."""
     import galsim  # the foreign renderer (test extra)
 
     from skynav.scenes.scene import build_scene
@@ -167,11 +190,11 @@ def render_frame(k: int, *, sensor: Sensor, psf: str, seed: int, ephemeris=None,
     bodies = [b for b in scene.bodies if b.in_fov]
     body_e = electrons_of_v([b.v_mag for b in bodies], sensor)
 
-    p = make_psf(psf, sensor)
+    p, method = make_drawer(psf, sensor) if drawer is None else drawer
     fwhm_px = PSF_FWHM_PAPER_PX[psf] * SENSORS["paper"].pixel_pitch_um / sensor.pixel_pitch_um
     image = galsim.ImageD(sensor.width, sensor.width, xmin=0, ymin=0, scale=1.0)
-    draw_points(image, p, st.xy, star_e, stamp_fwhm=fwhm_px)
-    draw_points(image, p, [b.xy for b in bodies], body_e, stamp_fwhm=fwhm_px)
+    draw_points(image, p, st.xy, star_e, stamp_fwhm=fwhm_px, method=method)
+    draw_points(image, p, [b.xy for b in bodies], body_e, stamp_fwhm=fwhm_px, method=method)
     image += sensor.sky_e
     noise = galsim.CCDNoise(galsim.BaseDeviate(int(noise_seed)), gain=1.0, read_noise=sensor.read_noise_e)
     image.addNoise(noise)  # Poisson of (signal + sky) electrons, then Gaussian read noise
@@ -229,31 +252,75 @@ def write_frame(folder: Path, k: int, dn, truth) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", help="output folder (one sub-folder per sensor and PSF)")
-    ap.add_argument("--count", type=int, default=300, help="frames per sensor and PSF (default 300)")
+    ap.add_argument("--count", type=int, default=200, help="frames per sensor and PSF (default 200)")
     ap.add_argument("--seed", type=int, default=2323)
     ap.add_argument("--sensor", nargs="+", choices=sorted(SENSORS), default=["paper", "fine"])
     ap.add_argument("--psf", nargs="+", choices=sorted(PSF_FWHM_PAPER_PX), default=["airy", "moffat"])
     ap.add_argument("--resume", action="store_true", help="keep the frames already written (each frame is "
                     "the same whenever it is drawn: its own seed)")
+    ap.add_argument("--score", action="store_true", help="score each set (bench ip's engine, tetra3rs beside it) "
+                    "and print the table")
     a = ap.parse_args(argv)
     if a.count < 1:
         print(f"foreign_frames: --count must be >= 1, got {a.count}", file=sys.stderr)
         return 2
     from skynav.scenes.catalog_hipparcos import load_catalog
+    from skynav.scenes.count_cap import cap_count
     from skynav.scenes.ephemeris_jpl import default_ephemeris
 
+    count = cap_count(a.count, "foreign frames per set")
     eph, cat = default_ephemeris(), load_catalog()
+    folders = []
     for s in a.sensor:
         for p in a.psf:
             folder = Path(a.out) / f"{s}_{p}"
+            folders.append((s, p, folder))
             t0 = time.perf_counter()
-            for k in range(a.count):
+            drawer = make_drawer(p, SENSORS[s])
+            for k in range(count):
                 if a.resume and (folder / "frames" / f"{k:06d}.json").exists():
                     continue
-                dn, truth = render_frame(k, sensor=SENSORS[s], psf=p, seed=a.seed, ephemeris=eph, catalog=cat)
+                dn, truth = render_frame(k, sensor=SENSORS[s], psf=p, seed=a.seed, ephemeris=eph, catalog=cat,
+                                         drawer=drawer)
                 write_frame(folder, k, dn, truth)
-            print(f"{folder}: {a.count} frames, {time.perf_counter() - t0:.0f} s")
+            print(f"{folder}: {count} frames, {time.perf_counter() - t0:.0f} s")
+    if a.score:
+        print_scores(folders, count)
     return 0
+
+
+def score_set(folder, count):
+    """``(ours, peers)``: ``bench ip``'s summary of the set (lost in space, sigma 1e4 km, improved
+    mode) and its peers' (``summary["peers"]``)."""
+    from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
+
+    rows, meta = run_benchmark(folder, sigmas_km=(1e4,), mode="improved", progress=False, limit=count, peers=True)
+    return summarise(rows, frames=meta["frames"], sigmas_km=(1e4,)), summarise_peers(meta["peer_rows"], rows, 1e4), meta
+
+
+def print_scores(folders, count):
+    """The table of docs/pipeline.md: per set, skynav's and tetra3rs's correct rate, wrong count
+    and median attitude error (lost in space; tetra3rs's "correct": solved within 500")."""
+    print("| sensor | PSF | frames | skynav correct | skynav wrong | tetra3rs correct | tetra3rs wrong "
+          "| median error skynav | median error tetra3rs |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    note = None
+    for s, p, folder in folders:
+        ours, peers, meta = score_set(folder, count)
+        n = ours["frames"]
+        att = ours["attitude"]
+        t3 = peers.get("tetra3rs")
+        note = note or meta["peer_notes"].get("tetra3rs")
+        if t3 is None:
+            t3c = t3w = t3e = "-"
+        else:
+            t3w = round(t3["wrong_rate"] * n)
+            t3c = f"{100 * (t3['solved_rate'] - t3['wrong_rate']):.1f} %"
+            t3e = f"{t3['error_arcsec_median']:.2f}\""
+        print(f"| {s} | {p} | {n} | {100 * att['correct_rate']:.1f} % | {round(att['wrong_rate'] * n)} | {t3c} | {t3w} "
+              f"| {att['error_arcsec_median']:.2f}\" | {t3e} |")
+    if note:
+        print(f"tetra3rs: {note}")
 
 
 if __name__ == "__main__":

@@ -184,7 +184,7 @@ class ImprovedMode(Mode):
         against the flux (:func:`~skynav.pipeline.attitude.weighted_attitude_result`): a bright
         star's centroid is ~10x better than a faint one's, and equal weights let the faint stars
         of the deep association set the error (with another renderer's PSF and noise as with ours)."""
-        if len(match.spot_index) < 4:
+        if len(match.spot_index) < 4 or not opt.variance_weights:
             return attitude_result(match, b_matched, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov), match
         idx, u_all = star_dirs(match.R_cam_icrs[2], half_fov, source)
         pos = {s: k for k, s in enumerate(idx.tolist())}

@@ -39,25 +39,28 @@ def _generator():
 ff = _generator()
 
 
-@pytest.mark.parametrize("x, y", [(40.3, 25.7), (22.0, 33.5), (30.62, 30.11)])
-def test_a_galsim_star_lands_where_skynav_puts_it(x, y):
+@pytest.mark.parametrize("psf", ["airy", "moffat"])
+@pytest.mark.parametrize("x, y", [(60.3, 55.7), (62.0, 63.5), (70.62, 58.11)])
+def test_a_galsim_star_lands_where_skynav_puts_it(psf, x, y):
     """A half-pixel slip between GalSim's pixel centres and skynav's (CONVENTIONS.md: the
     top-left pixel's centre is (0, 0)) would move every star by 0.5 px (~35" on the paper
-    camera) and solvers would still "solve". A bright, noiseless star drawn by the generator at
-    skynav's (x, y): its first moment over a 41 x 41 window is (x, y) within 0.01 px (a Moffat of
-    FWHM 3 px, flux beyond 20 px ~1e-4 of the total), and skynav's centroid (Eq. 7-8, the
-    thresholded region) within 0.05 px (its I^2 weighting of a sampled PSF: a few 0.01 px)."""
-    psf = galsim.Moffat(beta=3.0, fwhm=3.0)
-    image = galsim.ImageD(64, 64, xmin=0, ymin=0, scale=1.0)
-    ff.draw_points(image, psf, [(x, y)], [1e5], stamp_fwhm=3.0)
+    camera) and solvers would still "solve". A bright, noiseless star drawn as the generator
+    draws it (the fine sensor's PSFs, FWHM 3 and 4 px) at skynav's (x, y): its first moment over
+    an 81 x 81 window is (x, y) within 0.01 px (the Airy's flux beyond 40 px, ~1 %, is cut
+    nearly symmetrically), and skynav's centroid (Eq. 7-8 on the thresholded region) within
+    0.05 px (its I^2 weighting of a sampled PSF: a few 0.01 px)."""
+    p, method = ff.make_drawer(psf, ff.SENSORS["fine"])
+    fwhm = ff.PSF_FWHM_PAPER_PX[psf] * 2
+    image = galsim.ImageD(128, 128, xmin=0, ymin=0, scale=1.0)
+    ff.draw_points(image, p, [(x, y)], [1e5], stamp_fwhm=fwhm, method=method)
     a = image.array
-    assert a.shape == (64, 64)
+    assert a.shape == (128, 128)
     iy, ix = int(round(y)), int(round(x))
-    w = a[iy - 20:iy + 21, ix - 20:ix + 21]
-    yy, xx = np.mgrid[iy - 20:iy + 21, ix - 20:ix + 21]
+    w = a[iy - 40:iy + 41, ix - 40:ix + 41]
+    yy, xx = np.mgrid[iy - 40:iy + 41, ix - 40:ix + 41]
     assert abs((w * xx).sum() / w.sum() - x) < 0.01
     assert abs((w * yy).sum() / w.sum() - y) < 0.01
-    spots = detect_spots(a, T=5.0, threshold_dn=100.0, background_dn=0.0)
+    spots = detect_spots(a, T=5.0, threshold_dn=a.max() / 20, background_dn=0.0)
     assert len(spots) == 1
     assert np.hypot(*(spots.xy_px[0] - (x, y))) < 0.05
 
