@@ -190,7 +190,7 @@ class ImprovedMode(Mode):
         pos = {s: k for k, s in enumerate(idx.tolist())}
         u = u_all.take([pos[s] for s in np.asarray(match.star_index).tolist()], axis=0)
         att, res = weighted_attitude_result(b_matched, u, flux_dn, match.R_cam_icrs, ifov_rad=ifov,
-                                            min_sigma_rad=0.05 * ifov)
+                                            min_sigma_rad=0.01 * ifov)
         return att, StarMatch(R_cam_icrs=att.R_cam_icrs, spot_index=match.spot_index, star_index=match.star_index,
                               residual_rad=res)
 
