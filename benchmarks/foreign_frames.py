@@ -53,9 +53,10 @@ from pathlib import Path
 
 import numpy as np
 
-AU_KM = 149_597_870.7
-GM_SUN_KM3_S2 = 1.32712440018e11
-OBLIQUITY_RAD = math.radians(23.439281)     # J2000 ecliptic -> ICRS (equator)
+from skynav.scenes.camera import paper_camera
+from skynav.scenes.constants import AU_KM, GM_SUN_KM3_S2, OBLIQUITY_J2000_RAD
+from skynav.scenes.frames import rot1
+
 V0_PHOTONS_S_M2 = 8.8e9                     # V = 0: ~1000 photons/s/cm^2/A over an 88 nm V band
 EPOCH_RANGE_JD = (2461041.5, 2462867.5)     # 2026-01-01 .. 2031-01-01 TDB
 STAR_V_LIMIT = 9.5                          # the faintest catalogue stars drawn (background included)
@@ -77,12 +78,8 @@ class Sensor:
     exposure_s: float = 0.4
     qe: float = 0.49
 
-    @property
-    def focal_px(self) -> float:
-        return self.focal_length_mm * 1e3 / self.pixel_pitch_um
 
-
-_PAPER_PITCH_UM = 2.0 * 40.0 * math.tan(math.radians(10.0)) / 1024 * 1e3
+_PAPER_PITCH_UM = paper_camera().pixel_pitch_um  # 13.78 um: 1024 px across 20 deg at f = 40 mm
 SENSORS = {
     "paper": Sensor("paper", 1024, _PAPER_PITCH_UM, read_noise_e=8.0, sky_e=20.0),
     # half the pitch: a quarter of the sky per pixel; a smaller, quieter pixel
@@ -135,8 +132,7 @@ def random_scene(rng):
     r_ecl = r_au * AU_KM * np.array([math.cos(lon), math.sin(lon), 0.0])
     v_circ = math.sqrt(GM_SUN_KM3_S2 / (r_au * AU_KM))
     v_ecl = v_circ * np.array([-math.sin(lon), math.cos(lon), 0.0])
-    c, s = math.cos(OBLIQUITY_RAD), math.sin(OBLIQUITY_RAD)
-    ecl_to_icrs = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    ecl_to_icrs = rot1(OBLIQUITY_J2000_RAD).T  # rot1 is passive: v_ecl = rot1(eps) @ v_icrs
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)  # uniform on SO(3)
     from skynav.scenes.frames import quat_to_dcm
