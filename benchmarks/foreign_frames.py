@@ -254,6 +254,8 @@ def main(argv=None) -> int:
     ap.add_argument("--psf", nargs="+", choices=sorted(PSF_FWHM_PAPER_PX), default=["airy", "moffat"])
     ap.add_argument("--resume", action="store_true", help="keep the frames already written (each frame is "
                     "the same whenever it is drawn: its own seed)")
+    ap.add_argument("--first", type=int, default=0, help="draw frames FIRST..count-1 only (split a set "
+                    "between processes)")
     ap.add_argument("--score", action="store_true", help="score each set (bench ip's engine, tetra3rs beside it) "
                     "and print the table")
     a = ap.parse_args(argv)
@@ -273,7 +275,7 @@ def main(argv=None) -> int:
             folders.append((s, p, folder))
             t0 = time.perf_counter()
             drawer = make_drawer(p, SENSORS[s])
-            for k in range(count):
+            for k in range(a.first, count):
                 if a.resume and (folder / "frames" / f"{k:06d}.json").exists():
                     continue
                 dn, truth = render_frame(k, sensor=SENSORS[s], psf=p, seed=a.seed, ephemeris=eph, catalog=cat,
@@ -286,23 +288,30 @@ def main(argv=None) -> int:
 
 
 def score_set(folder, count):
-    """``(ours, peers)``: ``bench ip``'s summary of the set (lost in space, sigma 1e4 km, improved
-    mode) and its peers' (``summary["peers"]``)."""
+    """``(ours, equal, peers, meta)``: ``bench ip``'s summaries of the set (lost in space, sigma
+    1e4 km, improved mode) with the variance weights and with equal weights (before issue 23),
+    and its peers' (``summary["peers"]``)."""
+    from skynav.pipeline.options import ProcessOptions
     from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
 
     rows, meta = run_benchmark(folder, sigmas_km=(1e4,), mode="improved", progress=False, limit=count, peers=True)
-    return summarise(rows, frames=meta["frames"], sigmas_km=(1e4,)), summarise_peers(meta["peer_rows"], rows, 1e4), meta
+    rows_eq, _ = run_benchmark(folder, sigmas_km=(1e4,), mode="improved", progress=False, limit=count,
+                               options=ProcessOptions(variance_weights=False))
+    return (summarise(rows, frames=meta["frames"], sigmas_km=(1e4,)),
+            summarise(rows_eq, frames=meta["frames"], sigmas_km=(1e4,)),
+            summarise_peers(meta["peer_rows"], rows, 1e4), meta)
 
 
 def print_scores(folders, count):
     """The table of docs/pipeline.md: per set, skynav's and tetra3rs's correct rate, wrong count
-    and median attitude error (lost in space; tetra3rs's "correct": solved within 500")."""
+    and median attitude error (lost in space; tetra3rs's "correct": solved within 500"), and
+    skynav's median with equal weights."""
     print("| sensor | PSF | frames | skynav correct | skynav wrong | tetra3rs correct | tetra3rs wrong "
-          "| median error skynav | median error tetra3rs |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| median error skynav | tetra3rs | skynav, equal weights |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     note = None
     for s, p, folder in folders:
-        ours, peers, meta = score_set(folder, count)
+        ours, equal, peers, meta = score_set(folder, count)
         n = ours["frames"]
         att = ours["attitude"]
         t3 = peers.get("tetra3rs")
@@ -314,7 +323,7 @@ def print_scores(folders, count):
             t3c = f"{100 * (t3['solved_rate'] - t3['wrong_rate']):.1f} %"
             t3e = f"{t3['error_arcsec_median']:.2f}\""
         print(f"| {s} | {p} | {n} | {100 * att['correct_rate']:.1f} % | {round(att['wrong_rate'] * n)} | {t3c} | {t3w} "
-              f"| {att['error_arcsec_median']:.2f}\" | {t3e} |")
+              f"| {att['error_arcsec_median']:.2f}\" | {t3e} | {equal['attitude']['error_arcsec_median']:.2f}\" |")
     if note:
         print(f"tetra3rs: {note}")
 
