@@ -30,7 +30,7 @@ obscuration) of FWHM 1.5 px; ``moffat`` (beta = 3) of FWHM 2.0 px.
 Usage::
 
     python benchmarks/foreign_frames.py OUT [--count 200] [--seed 2323] [--sensor paper fine] [--psf airy moffat]
-                                            [--resume] [--score]
+                                            [--resume] [--first K] [--score]
     skynav bench ip OUT/paper_airy --peers --position-sigma-km 1e4 -o REPORT
 
 writes ``OUT/<sensor>_<psf>/frames/NNNNNN.png|.json`` (``--count`` is capped by
