@@ -16,11 +16,14 @@ import math
 
 import numpy as np
 
+from scipy.optimize import nnls
+
 from skynav.scenes.constants import ARCSEC_RAD
 
 from .results import AttitudeResult
 
-__all__ = ["wahba_svd", "attitude_covariance", "attitude_result", "rotation_angle_rad"]
+__all__ = ["wahba_svd", "attitude_covariance", "attitude_result", "rotation_angle_rad", "centroid_variance_px2",
+           "weighted_attitude_result"]
 
 
 def wahba_svd(b_cam, r_icrs, weights=None) -> np.ndarray:
@@ -89,3 +92,62 @@ def attitude_result(match, b_matched, *, floor_rad, min_sigma_rad):
     P = attitude_covariance(b_matched, sigma)
     return AttitudeResult(R_cam_icrs=match.R_cam_icrs, covariance_rad2=P, n_stars=n,
                           error_estimate_arcsec=float(np.sqrt(np.trace(P)) / ARCSEC_RAD))
+
+
+#: Fewest matched stars from which :func:`centroid_variance_px2` fits its model (fewer: equal weights).
+MIN_STARS_VARIANCE_FIT = 12
+
+
+def centroid_variance_px2(residual_px, flux_dn):
+    """Per-axis centroid variance of each matched star, px^2, from the frame's own residuals.
+
+    A centroid's error has three parts: a floor independent of the flux (the PSF's sampling on
+    the pixel grid, blends, catalogue errors), the photon noise of the star (variance
+    proportional to 1 / F) and the background's noise (variance proportional to 1 / F^2; Howell
+    2006 sec. 5.3, King 1983). ``sigma^2 = a + c / F + d / F^2`` with ``a, c, d >= 0`` is fitted
+    by non-negative least squares to ``|r|^2 / 2`` (a 2-D residual has two axes), so the weights
+    follow any PSF, noise model and gain without knowing them. With fewer than
+    :data:`MIN_STARS_VARIANCE_FIT` stars (or a degenerate fit) every star gets the mean
+    ``|r|^2 / 2``: equal weights.
+
+    Parameters
+    ----------
+    residual_px : ndarray, shape (N,)
+        Angle between each star's predicted and measured direction, in pixels.
+    flux_dn : ndarray, shape (N,)
+        Background-subtracted flux of each star's spot, DN (> 0).
+    """
+    r2 = np.asarray(residual_px, float) ** 2 / 2.0
+    F = np.maximum(np.asarray(flux_dn, float), 1e-9)
+    mean = float(r2.mean()) if len(r2) else 0.0
+    if len(r2) < MIN_STARS_VARIANCE_FIT:
+        return np.full(len(r2), mean)
+    X = np.stack([np.ones_like(F), 1.0 / F, 1.0 / F ** 2], axis=1)
+    scale = X.mean(axis=0)
+    coef, _ = nnls(X / scale, r2)
+    var = (X / scale) @ coef
+    if not np.all(np.isfinite(var)) or var.max() <= 0.0:
+        return np.full(len(r2), mean)
+    # a star the fit gives ~zero variance would take all the weight: floor at 1 % of the median
+    return np.maximum(var, 0.01 * float(np.median(var)))
+
+
+def weighted_attitude_result(b_matched, u_icrs, flux_dn, A, *, ifov_rad, min_sigma_rad, iterations=2):
+    """``(AttitudeResult, residual_rad)``: Wahba weighted by ``1 / sigma_i^2`` of each star's
+    centroid variance (:func:`centroid_variance_px2`, refitted on each pass's residuals), and the
+    covariance of those sigmas (:func:`attitude_covariance`), the per-star sigma floored at
+    ``min_sigma_rad``. ``A``: the unweighted solution the residuals start from."""
+    b = np.asarray(b_matched, float)
+    u = np.asarray(u_icrs, float)
+    for _ in range(iterations):
+        res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
+        var = centroid_variance_px2(res / ifov_rad, flux_dn)
+        A = wahba_svd(b, u, 1.0 / var)
+    res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
+    n = len(b)
+    # the fit takes 3 degrees of freedom from 2 n residual components
+    sigma = np.maximum(np.sqrt(centroid_variance_px2(res / ifov_rad, flux_dn) * n / max(n - 1.5, 1.0)) * ifov_rad,
+                       min_sigma_rad)
+    P = attitude_covariance(b, sigma)
+    return AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n,
+                          error_estimate_arcsec=float(np.sqrt(np.trace(P)) / ARCSEC_RAD)), res

@@ -22,6 +22,7 @@ import abc
 
 import numpy as np
 
+from .attitude import attitude_result, weighted_attitude_result
 from .beacon_id import identify_closest, identify_joint
 from .centroids import Spots, detect_spots
 from .levels import detect_robust
@@ -68,6 +69,12 @@ class Mode(abc.ABC):
         """The final association: ``(match, source)``, ``source`` None for the ID catalog."""
 
     @abc.abstractmethod
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+        """``(AttitudeResult, match)`` of the final association; ``b_matched``: the matched spots'
+        lines of sight, ``flux_dn`` their fluxes, ``source`` the stars' source (None: the ID
+        catalog)."""
+
+    @abc.abstractmethod
     def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
         """:class:`~skynav.pipeline.results.BeaconResult` per predicted beacon."""
 
@@ -108,6 +115,10 @@ class PaperMode(Mode):
         """The final association (paper: the ID's inliers as they are): ``(match, source)``,
         ``source`` None for the ID catalog."""
         return match, None
+
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+        """The paper's attitude (Eq. 10-12, equal weights) and its covariance from the residuals' RMS."""
+        return attitude_result(match, b_matched, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov), match
 
     def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
         return identify_closest(preds, spots, match, opt)
@@ -167,6 +178,21 @@ class ImprovedMode(Mode):
         match = StarMatch(R_cam_icrs=m2.R_cam_icrs, spot_index=bright[m2.spot_index], star_index=m2.star_index,
                           residual_rad=m2.residual_rad)
         return clip_outliers(match, b, deep, star_dirs, half_fov), deep
+
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+        """Wahba weighted by each star's centroid variance, fitted on the frame's own residuals
+        against the flux (:func:`~skynav.pipeline.attitude.weighted_attitude_result`): a bright
+        star's centroid is ~10x better than a faint one's, and equal weights let the faint stars
+        of the deep association set the error (with another renderer's PSF and noise as with ours)."""
+        if len(match.spot_index) < 4 or not opt.variance_weights:
+            return attitude_result(match, b_matched, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov), match
+        idx, u_all = star_dirs(match.R_cam_icrs[2], half_fov, source)
+        pos = {s: k for k, s in enumerate(idx.tolist())}
+        u = u_all.take([pos[s] for s in np.asarray(match.star_index).tolist()], axis=0)
+        att, res = weighted_attitude_result(b_matched, u, flux_dn, match.R_cam_icrs, ifov_rad=ifov,
+                                            min_sigma_rad=0.01 * ifov)
+        return att, StarMatch(R_cam_icrs=att.R_cam_icrs, spot_index=match.spot_index, star_index=match.star_index,
+                              residual_rad=res)
 
     def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
         return identify_joint(preds, cam, A, spots, match, catalog, opt, ref_vmag)

@@ -33,6 +33,7 @@ class ProcessOptions:
     refine_v_mag: float = 7.5           # improved: catalog depth of the final attitude (5.5: off)
     refine_px: float = 1.5              # improved: association radius of the final attitude, px
     refine_max_spots: int = 400         # improved: brightest spots offered to the final association
+    variance_weights: bool = True       # improved: the final Wahba weighted by each star's centroid variance
     blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
     # tracking, improved mode: spots only in windows around the stars (to refine_v_mag) and beacons
     # predicted from previous_attitude; window half-size = track_window_px (covers a prior

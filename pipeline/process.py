@@ -19,7 +19,6 @@ import numpy as np
 
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 
-from .attitude import attitude_result
 from .beacon_id import add_attitude_covariance
 from .beacons import BodyStates, predict_beacons
 from .centroids import Spots
@@ -161,15 +160,16 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     ta0 = time.perf_counter()
     ref = catalog
     if windowed_source is not None:  # windowed tracking associated every catalog star to refine_v_mag
-        ref = windowed_source
+        ref = source = windowed_source
     else:
-        match, deep = how.deepen(match, b, spots, catalog, star_dirs, half_fov=half_fov, opt=opt, ifov=ifov)
-        ref = catalog if deep is None else deep
+        match, source = how.deepen(match, b, spots, catalog, star_dirs, half_fov=half_fov, opt=opt, ifov=ifov)
+        ref = catalog if source is None else source
     ref_hip, ref_vmag = np.asarray(ref.hip), np.asarray(ref.v_mag)
-    A = match.R_cam_icrs
     # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
     bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
-    att = attitude_result(match, bm, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov)
+    att, match = how.final_attitude(match, bm, spots.flux_dn[match.spot_index], star_dirs, source, half_fov=half_fov,
+                                    opt=opt, ifov=ifov)
+    A = match.R_cam_icrs
     P = att.covariance_rad2
     timings["attitude"] = (time.perf_counter() - ta0) * 1e3
 
