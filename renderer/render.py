@@ -343,22 +343,24 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
     if not poly:
-        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre)
-        irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl) if with_irradiance else None
+        electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre,
+                              stamp_e=e_pts)
+        irradiance = rasterize(shape, paths, irr_pts, psf, flux_fraction_lost=ffl, stamp_e=e_pts) if with_irradiance else None
     else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
         n_s = len(star_e)
         lam = star_effective_wavelengths_nm(cam, stars.teff_k)
         electrons = rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support,
-                              centre_of_light=centre[:n_s], wavelength_nm=lam)
-        irradiance = (rasterize(shape, paths[:n_s], irr_pts[:n_s], psf, flux_fraction_lost=ffl, wavelength_nm=lam)
+                              centre_of_light=centre[:n_s], wavelength_nm=lam, stamp_e=e_pts[:n_s])
+        irradiance = (rasterize(shape, paths[:n_s], irr_pts[:n_s], psf, flux_fraction_lost=ffl, wavelength_nm=lam,
+                                stamp_e=e_pts[:n_s])
                       if with_irradiance else None)
         for j, b in enumerate(points):
             kern = kernel_for(cam, ("body", b.name), ffl)
             sel = slice(n_s + j, n_s + j + 1)
             rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
-                      centre_of_light=centre[sel], out=electrons)
+                      centre_of_light=centre[sel], out=electrons, stamp_e=e_pts[sel])
             if irradiance is not None:
-                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance)
+                rasterize(shape, paths[sel], irr_pts[sel], kern, flux_fraction_lost=ffl, out=irradiance, stamp_e=e_pts[sel])
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
 
