@@ -207,6 +207,10 @@ class TablePSF:
     linear blend, in log wavelength, of the two tables around its own effective wavelength
     (``wavelength_nm`` of :meth:`stamps`; clamped at the ends).
 
+    With ``noise_floor_e`` (the camera's read noise, e-) a faint point may be drawn with a smaller
+    stamp (:meth:`half_sizes_px`, :meth:`cut`; the rasteriser's ``stamp_e``). The limits are found
+    for every table alone; a blend's change of a pixel is the blend of its tables' changes.
+
     Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
     """
 
@@ -313,12 +317,12 @@ class TablePSF:
             for k in range(len(self.tables)):
                 full, tot = self._stamps_one(k, f, big)
                 full = full / tot[:, None, None]
+                kb = np.arange(-big, big + 1, dtype=float)
                 for h in range(1, big):
                     cut, ct = self._stamps_one(k, f, h)
                     cut = cut / ct[:, None, None]
                     kk = np.arange(-h, h + 1, dtype=float)
                     inner = full[:, big - h:big + h + 1, big - h:big + h + 1]
-                    kb = np.arange(-big, big + 1, dtype=float)
                     moved = max(float(np.max(np.abs(cut.sum(axis=1) @ kk - full.sum(axis=1) @ kb))),
                                 float(np.max(np.abs(cut.sum(axis=2) @ kk - full.sum(axis=2) @ kb))))
                     if moved > STAMP_CENTRE_TOLERANCE_PX:

@@ -165,6 +165,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         return image.reshape(h_img, w_img)
 
     if stamp_e is not None and hasattr(psf, "half_sizes_px"):  # one call per stamp size
+        if np.shape(stamp_e) != e.shape:
+            raise ConfigValueError("raster.stamp_e", np.shape(stamp_e), f"shape ({p.shape[0]},) to match paths_xy")
         sizes = psf.half_sizes_px(stamp_e, flux_fraction_lost)
         lam_all = None if wavelength_nm is None else np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)
         for h in np.unique(sizes):
