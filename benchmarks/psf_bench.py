@@ -1,7 +1,8 @@
 """Speed of each PSF model: the default frame (1024^2, stars to V = 9, full noise) per model.
 
 For each model prints the one-off table build (once per camera, cached; not in the frame time),
-the stamp half size, and the median wall and CPU time of ``render`` with the ratio to the
+the stamp half size (a table kernel's, and in brackets the median star's: a faint star's stamp
+is sized by its charge, ``TablePSF.half_sizes_px``), and the median wall and CPU time of ``render`` with the ratio to the
 Gaussian frame measured in the same run. One thread (``DRJIT_NUM_THREADS=1``), as
 ``render_bench.py``. The tabulated models read PSF images this script writes to a temporary
 folder (a coma PSF at 4 samples/px; a 3 x 3 field grid of them with the coma growing outwards).
@@ -68,16 +69,14 @@ def model_dict(name, folder):
     raise SystemExit(f"psf_bench: unknown model {name!r}; allowed: {', '.join(MODELS)}")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=9)
-    ap.add_argument("--models", default=",".join(MODELS))
-    ap.add_argument("--size", type=int, default=1024, help="image width = height, px (default 1024)")
-    ap.add_argument("--same-scene", action="store_true", help="render the same frame every round (stamps reused)")
-    args = ap.parse_args()
-
+def measure(models, repeat=9, size=1024, same_scene=False):
+    """Time the default frame with each PSF model of ``models`` (names of :data:`MODELS`), in
+    interleaved rounds. Returns rows ``(name, table build s, half px, median wall ms, median CPU
+    ms, stars in view)``, in the order given; ``half`` of a table kernel is the pair (its
+    table's, the median star's stamp: a faint star's is sized by its charge)."""
     from skynav.renderer import jit_backend
     from skynav.renderer.optics import kernel_for
+    from skynav.renderer.radiometry import Radiometry
     from skynav.renderer.render import RenderOptions, render
     from skynav.scenes import presets
     from skynav.scenes.scene import build_from_spec
@@ -96,9 +95,9 @@ def main():
     rows = []
     runs = []
     with tempfile.TemporaryDirectory() as folder:
-        for name in args.models.split(","):
-            cam = base.camera.replace(psf=model_dict(name, folder), width=args.size, height=args.size)
-            twists = [0.0] if args.same_scene else [1e-3 * (r + 1) for r in range(args.repeat)]
+        for name in models:
+            cam = base.camera.replace(psf=model_dict(name, folder), width=size, height=size)
+            twists = [0.0] if same_scene else [1e-3 * (r + 1) for r in range(repeat)]
             scenes = [build_from_spec(dataclasses.replace(spec, camera=cam, attitude=dataclasses.replace(
                 spec.attitude, twist_rad=spec.attitude.twist_rad + t))) for t in twists]
             scene = build_from_spec(dataclasses.replace(spec, camera=cam))
@@ -106,11 +105,16 @@ def main():
             k = kernel_for(cam, None, opts.flux_fraction_lost)
             render(scene, rng=rng, options=opts)  # every table of the frame (all nodes of a polychromatic Airy)
             build = time.perf_counter() - t0
-            runs.append((name, scenes, build, k.half_size_px(opts.flux_fraction_lost)))
+            h = k.half_size_px(opts.flux_fraction_lost)
+            if hasattr(k, "half_sizes_px"):  # a faint star's stamp is sized by its charge: the median star's
+                st = scene.stars
+                e = np.asarray(Radiometry.for_camera(cam).star_electrons_per_s(st.v_mag, st.teff_k)) * cam.exposure_s
+                h = (h, int(np.median(k.half_sizes_px(e[st.in_fov], opts.flux_fraction_lost))))
+            runs.append((name, scenes, build, h))
         # interleaved rounds: a busy moment of a shared machine slows every model alike
         wall = {r[0]: [] for r in runs}
         cpu = {r[0]: [] for r in runs}
-        for i in range(args.repeat):
+        for i in range(repeat):
             for name, scenes, _, _ in runs:
                 scene = scenes[i % len(scenes)]
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -120,14 +124,34 @@ def main():
         for name, scenes, build, h in runs:
             rows.append((name, build, h, 1e3 * float(np.median(wall[name])), 1e3 * float(np.median(cpu[name])),
                          int(scenes[0].stars.in_fov.sum())))
+    return rows
+
+
+def report(rows, repeat, size, same_scene):
+    """Print the rows of :func:`measure` with their ratios to the Gaussian's (or the first row's)."""
     g = next((r for r in rows if r[0] == "gaussian"), rows[0])
-    print(f"default scene, {args.size}x{args.size} paper camera (f/2.2, 13.8 um: lambda F = 0.09 px at 550 nm), "
-          f"full noise, one thread; medians of {args.repeat}, wall | CPU; ratio to {g[0]} in this run; "
-          f"{'the same frame every round' if args.same_scene else 'a new frame (twist) every round'}; "
+    print(f"default scene, {size}x{size} paper camera (f/2.2, 13.8 um: lambda F = 0.09 px at 550 nm), "
+          f"full noise, one thread; medians of {repeat}, wall | CPU; ratio to {g[0]} in this run; "
+          f"{'the same frame every round' if same_scene else 'a new frame (twist) every round'}; "
           f"load average {os.getloadavg()[0]:.2f}")
     for name, build, h, w, c, n in rows:
-        print(f"{name:16s} stars {n:4d}  half {h:2d} px  tables {1e3 * build:7.0f} ms  frame {w:7.1f} ms | {c:7.1f} ms CPU"
+        half = f"{h:2d} px      " if isinstance(h, int) else f"{h[0]:2d} px ({h[1]:2d})"
+        print(f"{name:16s} stars {n:4d}  half {half}  tables {1e3 * build:7.0f} ms  frame {w:7.1f} ms | {c:7.1f} ms CPU"
               f"   ratio {w / g[3]:5.2f} | {c / g[4]:5.2f} CPU")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--models", default=",".join(MODELS))
+    ap.add_argument("--size", type=int, default=1024, help="image width = height, px (default 1024)")
+    ap.add_argument("--same-scene", action="store_true", help="render the same frame every round (stamps reused)")
+    args = ap.parse_args()
+    models = args.models.split(",")
+    for name in models:
+        if name not in MODELS:
+            ap.error(f"--models: unknown model {name!r}; allowed: {', '.join(MODELS)}")
+    report(measure(models, args.repeat, args.size, args.same_scene), args.repeat, args.size, args.same_scene)
 
 
 if __name__ == "__main__":

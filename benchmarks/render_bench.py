@@ -8,6 +8,11 @@ load average. One thread: the CI machine's single core is the reference (``DRJIT
 is set below).
 
     python benchmarks/render_bench.py [--repeat 15]
+    python benchmarks/render_bench.py --psf airy [--repeat 15] [--size 1024]
+
+``--psf MODEL`` (airy, airy-poly, optical, tabulated, field; see ``psf_bench.py``) times the
+default frame drawn with that PSF against the Gaussian frame, interleaved in the same run, a new
+frame each round, and prints the ratio (the measurement of ``psf_bench.py``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ os.environ.setdefault("DRJIT_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+
+PSF_CHOICES = ("airy", "airy-h10", "airy-poly", "optical", "tabulated", "field")
 
 
 def median_ms(fns: dict, repeat):
@@ -46,7 +53,16 @@ def median_ms(fns: dict, repeat):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=15)
+    ap.add_argument("--psf", metavar="MODEL", choices=PSF_CHOICES,
+                    help=f"time the frame with this PSF against the Gaussian one: {', '.join(PSF_CHOICES)}")
+    ap.add_argument("--size", type=int, default=1024, help="with --psf: image width = height, px (default 1024)")
     args = ap.parse_args()
+    if args.psf is not None:
+        import psf_bench  # this folder's, the same measurement
+
+        name = {"field": "tabulated-field"}.get(args.psf, args.psf)
+        psf_bench.report(psf_bench.measure(["gaussian", name], args.repeat, args.size), args.repeat, args.size, False)
+        return
 
     from skynav.renderer import jit_backend
     from skynav.renderer.render import RenderOptions, render

@@ -388,6 +388,8 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
     (``wavelength_nm``). A source (``("star", teff_k)``, ``("body", name)``, ``("spectrum",
     wavelengths, values)``, hashable) on a polychromatic camera: :func:`source_kernel`, the
     exact table of its own spectrum. A Gaussian is :class:`~skynav.renderer.psf.GaussianPSF`.
+    Table kernels size a faint source's stamps by the camera's read noise
+    (:meth:`~skynav.renderer.psf.TablePSF.half_sizes_px`).
     """
     from .psf import GaussianPSF, TablePSF
 
@@ -395,11 +397,12 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
     if isinstance(model, GaussianPSFModel):
         return GaussianPSF(model.sigma_px)
     half = int(model.half_size_px(flux_fraction_lost, camera))
+    floor = camera.sensor.read_noise_e  # the noise a faint source's smaller stamps are sized by
     if isinstance(model, AiryPSFModel):
         if model.wavelength_nm is not None:
             lf = float(lambda_f_px(camera, model.wavelength_nm))
             n = fine_sampling(lf)
-            return TablePSF((airy_table(lf, [1.0], model.obscuration, half, n),), n, half)
+            return TablePSF((airy_table(lf, [1.0], model.obscuration, half, n),), n, half, noise_floor_e=floor)
         if source is not None:
             return source_kernel(camera, source, flux_fraction_lost)
         nodes = spectral_nodes(camera)
@@ -408,14 +411,15 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
         for teff in nodes.teff_k:
             wl, e = electron_spectrum(camera, ("star", teff))
             tables.append(airy_table(lambda_f_px(camera, wl), e, model.obscuration, half, n))
-        return TablePSF(tuple(tables), n, half, wavelengths_nm=nodes.wavelength_nm)
+        return TablePSF(tuple(tables), n, half, wavelengths_nm=nodes.wavelength_nm, noise_floor_e=floor)
     if isinstance(model, OpticalPSFModel):
         lf = float(lambda_f_px(camera, model.wavelength_nm))
         n = fine_sampling(lf)
-        return TablePSF((optical_table(lf, model.obscuration, model.zernike_waves, half, n),), n, half)
+        return TablePSF((optical_table(lf, model.obscuration, model.zernike_waves, half, n),), n, half,
+                        noise_floor_e=floor)
     if isinstance(model, TabulatedPSFModel):
         tables, n = tabulated_tables(model, half)
-        return TablePSF(tables, n, half, grid=model.grid)
+        return TablePSF(tables, n, half, grid=model.grid, noise_floor_e=floor)
     raise TypeError(f"unknown PSF model {model!r}")
 
 
@@ -432,7 +436,7 @@ def source_kernel(camera, source, flux_fraction_lost: float = 1e-6):
     wl, e = electron_spectrum(camera, source)
     lf = lambda_f_px(camera, wl)
     n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
-    return TablePSF((airy_table(lf, e, model.obscuration, half, n),), n, half)
+    return TablePSF((airy_table(lf, e, model.obscuration, half, n),), n, half, noise_floor_e=camera.sensor.read_noise_e)
 
 
 def is_polychromatic(camera) -> bool:

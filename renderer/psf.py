@@ -21,7 +21,20 @@ from scipy.special import erf, erfinv
 
 from skynav.scenes.errors import ConfigValueError
 
-__all__ = ["PSF", "GaussianPSF", "TablePSF", "stamp_origin"]
+__all__ = ["PSF", "GaussianPSF", "TablePSF", "CutPSF", "stamp_origin", "STAMP_NOISE_FRACTION",
+           "STAMP_CENTRE_TOLERANCE_PX"]
+
+#: Largest change of any pixel, in units of its noise (the read noise and the point's own shot
+#: noise), that drawing a faint point with a stamp smaller than its kernel's table may make
+#: (:meth:`TablePSF.half_sizes_px`): the light beyond the smaller stamp is folded back into it,
+#: its flux kept.
+STAMP_NOISE_FRACTION = 0.1
+
+#: Largest move of a point's centre of light, px, that drawing it with a smaller stamp than its
+#: kernel's table may make (the fold-back of an asymmetric wing moves it): half the 1e-3 px
+#: the truth's centre of light is checked to (tests/renderer/test_psf_models.py), the other
+#: half left to phases between the 1/16 px grid the limit is found on.
+STAMP_CENTRE_TOLERANCE_PX = 5e-4
 
 
 def stamp_origin(xy, half_size: int) -> np.ndarray:
@@ -194,10 +207,14 @@ class TablePSF:
     linear blend, in log wavelength, of the two tables around its own effective wavelength
     (``wavelength_nm`` of :meth:`stamps`; clamped at the ends).
 
+    With ``noise_floor_e`` (the camera's read noise, e-) a faint point may be drawn with a smaller
+    stamp (:meth:`half_sizes_px`, :meth:`cut`; the rasteriser's ``stamp_e``). The limits are found
+    for every table alone; a blend's change of a pixel is the blend of its tables' changes.
+
     Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
     """
 
-    def __init__(self, tables, n: int, half: int, grid=None, wavelengths_nm=None):
+    def __init__(self, tables, n: int, half: int, grid=None, wavelengths_nm=None, noise_floor_e=None):
         # FFT ringing leaves values of ~1e-16 of the peak below 0: a charge is never negative
         self.tables = tuple(np.ascontiguousarray(np.maximum(t, 0.0), dtype=float) for t in tables)
         self.n = int(n)
@@ -206,14 +223,16 @@ class TablePSF:
         self.wavelengths_nm = None if wavelengths_nm is None else tuple(float(w) for w in wavelengths_nm)
         if self.wavelengths_nm is not None and (grid is not None or len(self.wavelengths_nm) != len(self.tables)):
             raise ValueError("TablePSF: one effective wavelength per table, and no field grid with them")
+        self.noise_floor_e = None if noise_floor_e is None else float(noise_floor_e)
         self._block_cache = {}
-        self._last = None
+        self._limits = None
+        self._last = {}
         import hashlib
 
         h = hashlib.sha256()
         for t in self.tables:
             h.update(t.tobytes())
-        h.update(repr((self.n, self.half, grid, self.wavelengths_nm)).encode())
+        h.update(repr((self.n, self.half, grid, self.wavelengths_nm, self.noise_floor_e)).encode())
         self._key = h.hexdigest()
 
     def __eq__(self, other):
@@ -273,6 +292,71 @@ class TablePSF:
         s_top = sums[iy, ix] + tx * (sums[iy, ix + 1] - sums[iy, ix])
         s_bot = sums[iy + 1, ix] + tx * (sums[iy + 1, ix + 1] - sums[iy + 1, ix])
         return top, s_top + ty * (s_bot - s_top)
+
+    def _noise_limits(self) -> np.ndarray:
+        """``F_max[h]``, e-: the largest charge of a point that may be drawn with its stamp cut
+        to ``h`` < :attr:`half` (the light beyond folded back in proportion, as :meth:`stamps`
+        does), from every table alone at every phase on a grid of 1/16 px:
+
+        - no pixel of the full stamp changes by more than ``kappa`` =
+          :data:`STAMP_NOISE_FRACTION` of its noise ``sqrt(sigma^2 + F s)`` (``sigma``
+          :attr:`noise_floor_e`, ``s`` the full stamp's fraction there: the point's own shot
+          noise); the pixels beyond the cut count with their whole value. Per pixel changed by
+          ``|d|``, ``F |d| <= kappa sqrt(sigma^2 + F s)`` holds up to
+          ``F = (kappa^2 s + sqrt(kappa^4 s^2 + 4 d^2 kappa^2 sigma^2)) / (2 d^2)``;
+        - the centre of light moves by at most :data:`STAMP_CENTRE_TOLERANCE_PX` (else 0:
+          never cut to ``h``; a coma's asymmetric wings move it most).
+        """
+        if self._limits is None:
+            kap, sig = STAMP_NOISE_FRACTION, self.noise_floor_e
+            g = (np.arange(16) + 0.5) / 16.0 - 0.5
+            f = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+            big = self.half
+            lim = np.full(big + 1, np.inf)
+            lim[0] = 0.0
+            for k in range(len(self.tables)):
+                full, tot = self._stamps_one(k, f, big)
+                full = full / tot[:, None, None]
+                kb = np.arange(-big, big + 1, dtype=float)
+                for h in range(1, big):
+                    cut, ct = self._stamps_one(k, f, h)
+                    cut = cut / ct[:, None, None]
+                    kk = np.arange(-h, h + 1, dtype=float)
+                    inner = full[:, big - h:big + h + 1, big - h:big + h + 1]
+                    moved = max(float(np.max(np.abs(cut.sum(axis=1) @ kk - full.sum(axis=1) @ kb))),
+                                float(np.max(np.abs(cut.sum(axis=2) @ kk - full.sum(axis=2) @ kb))))
+                    if moved > STAMP_CENTRE_TOLERANCE_PX:
+                        lim[h] = 0.0
+                        continue
+                    d = full.copy()
+                    d[:, big - h:big + h + 1, big - h:big + h + 1] = cut - inner
+                    d = np.abs(d).reshape(-1)
+                    s = full.reshape(-1)
+                    ok = d > 0
+                    d, s = d[ok], s[ok]
+                    root = (kap * kap * s + np.sqrt((kap * kap * s) ** 2 + 4.0 * d * d * kap * kap * sig * sig)) / (2.0 * d * d)
+                    lim[h] = min(lim[h], float(root.min()) if root.size else np.inf)
+            self._limits = lim
+        return self._limits
+
+    def half_sizes_px(self, flux_e, flux_fraction_lost: float = 1e-6) -> np.ndarray:
+        """Stamp half size of each point of charge ``flux_e`` (N,), e-: the smallest ``h`` whose
+        cut stamp (:meth:`stamps` at ``h`` < :attr:`half`, flux kept) changes no pixel by more
+        than ``kappa`` of its noise nor its centre of light by more than
+        :data:`STAMP_CENTRE_TOLERANCE_PX` (:meth:`_noise_limits`); :attr:`half` for
+        every point without a :attr:`noise_floor_e`."""
+        e = np.abs(np.asarray(flux_e, dtype=float).reshape(-1))
+        out = np.full(e.shape, self.half, dtype=np.int64)
+        if self.noise_floor_e is None or self.half < 2:
+            return out
+        lim = self._noise_limits()
+        for h in range(self.half - 1, 0, -1):  # smallest admissible: overwrite downwards
+            out[e <= lim[h]] = h
+        return out
+
+    def cut(self, half_size: int) -> "CutPSF":
+        """This kernel drawn with stamps of ``half_size`` (see :class:`CutPSF`)."""
+        return CutPSF(self, int(half_size))
 
     def _field_weights(self, xy):
         """Bilinear weights (M, K) of the grid tables at points ``xy``."""
@@ -364,19 +448,22 @@ class TablePSF:
         ``wavelength_nm`` (M,) or scalar, nm: the points' effective wavelengths (required by a
         polychromatic kernel, ignored by others).
 
-        Read-only: the last call's result is kept and returned again for the same points (the
-        irradiance pass of a frame repeats the electrons' pass)."""
+        A stamp smaller than the table's (``half_size`` < :attr:`half`) holds the flux beyond it
+        folded back in proportion, as the table's own stamp holds the light beyond the table.
+
+        Read-only: the last call's result per half size is kept and returned again for the same
+        points (the irradiance pass of a frame repeats the electrons' pass)."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         lam = None
         if self.wavelengths_nm is not None and wavelength_nm is not None:
             lam = np.ascontiguousarray(np.broadcast_to(np.asarray(wavelength_nm, dtype=float), (xy.shape[0],)))
         key = (xy.tobytes(), int(half_size), None if lam is None else lam.tobytes())
-        last = self._last  # one read: another thread may replace it
+        last = self._last.get(int(half_size))  # one read: another thread may replace it
         if last is not None and last[0] == key:
             return last[1]
         out = self._stamps(xy, half_size, lam)
         out.flags.writeable = False
-        self._last = (key, out)
+        self._last[int(half_size)] = (key, out)
         return out
 
     def _stamps(self, xy, half_size, lam=None):
@@ -419,3 +506,31 @@ class TablePSF:
     def stamp(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
         """Stamp of one point ``xy`` (2,), shape (2h+1, 2h+1); origin ``stamp_origin(xy, h)``."""
         return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size, wavelength_nm)[0]
+
+
+class CutPSF:
+    """A :class:`TablePSF` drawn with stamps of one half size (its :meth:`TablePSF.stamps` at
+    ``half``): what the rasteriser draws a class of points with, once
+    :meth:`TablePSF.half_sizes_px` has sized their stamps by their charge."""
+
+    def __init__(self, psf: TablePSF, half: int):
+        self.psf = psf
+        self.half = int(half)
+
+    def __eq__(self, other):
+        return isinstance(other, CutPSF) and other.psf == self.psf and other.half == self.half
+
+    def __hash__(self):
+        return hash((self.psf, self.half))
+
+    def __repr__(self):
+        return f"CutPSF({self.psf!r}, half={self.half})"
+
+    def half_size_px(self, flux_fraction_lost: float) -> int:
+        return self.half
+
+    def quadrature_step_px(self) -> float:
+        return self.psf.quadrature_step_px()
+
+    def stamps(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
+        return self.psf.stamps(xy, half_size, wavelength_nm)

@@ -99,7 +99,8 @@ def _accumulate(images, flat, weights, support=None) -> None:
 
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
               support: list | None = None, centre_of_light: np.ndarray | None = None,
-              out: np.ndarray | None = None, wavelength_nm=None, also: tuple | None = None) -> np.ndarray:
+              out: np.ndarray | None = None, wavelength_nm=None, also: tuple | None = None,
+              stamp_e=None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -135,6 +136,11 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         the same stamps into ``image`` (shape (H, W), float64, C-contiguous), as a second call
         with ``out=image`` would draw it, to the bit, at the cost of one: the stamps, their
         pixels and their order are computed once.
+    stamp_e : ndarray, shape (N,), e-, optional
+        Each source's charge, to size its stamps by (a kernel with ``half_sizes_px``, e.g. a
+        :class:`~skynav.renderer.psf.TablePSF`, draws faint sources with smaller stamps, their
+        flux kept); None: every stamp the kernel's full size. Pass the electrons for the
+        irradiance image too, so that both are drawn with the same stamps.
 
     Returns
     -------
@@ -172,15 +178,30 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         drawn = np.isfinite(e) & (e != 0)
         if not np.array_equal(drawn, np.isfinite(e2) & (e2 != 0)):  # other sources drawn: two calls
             rasterize(shape, p, e2, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, out=out2,
-                      wavelength_nm=wavelength_nm)
+                      wavelength_nm=wavelength_nm, stamp_e=stamp_e)
             return rasterize(shape, p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, support=support,
-                             centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm)
+                             centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm, stamp_e=stamp_e)
         image2 = out2.reshape(-1)
     if centre_of_light is not None:
         centre_of_light[...] = np.nan
     if p.shape[0] == 0:
         return image.reshape(h_img, w_img)
 
+    if stamp_e is not None and hasattr(psf, "half_sizes_px"):  # one call per stamp size
+        if np.shape(stamp_e) != e.shape:
+            raise ConfigValueError("raster.stamp_e", np.shape(stamp_e), f"shape ({p.shape[0]},) to match paths_xy")
+        sizes = psf.half_sizes_px(stamp_e, flux_fraction_lost)
+        lam_all = None if wavelength_nm is None else np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)
+        for h in np.unique(sizes):
+            sel = np.flatnonzero(sizes == h)
+            c = None if centre_of_light is None else np.empty((sel.size, 2))
+            rasterize(shape, p[sel], e[sel], psf.cut(h), flux_fraction_lost=flux_fraction_lost, step_px=step_px,
+                      support=support, centre_of_light=c, out=image.reshape(h_img, w_img),
+                      wavelength_nm=None if lam_all is None else lam_all[sel],
+                      also=None if also is None else (e2[sel], out2))
+            if c is not None:
+                centre_of_light[sel] = c
+        return image.reshape(h_img, w_img)
     half = int(psf.half_size_px(flux_fraction_lost))
     # drop sources that cannot touch the image (their whole path plus the stamp is outside)
     ok = np.all(np.isfinite(p), axis=(1, 2)) & np.isfinite(e) & (e != 0)

@@ -345,19 +345,19 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     if not poly:
         irradiance = np.zeros(shape) if with_irradiance else None
         electrons = rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre,
-                              also=(irr_pts, irradiance) if with_irradiance else None)
+                              also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts)
     else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
         n_s = len(star_e)
         lam = star_effective_wavelengths_nm(cam, stars.teff_k)
         irradiance = np.zeros(shape) if with_irradiance else None
         electrons = rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support,
-                              centre_of_light=centre[:n_s], wavelength_nm=lam,
+                              centre_of_light=centre[:n_s], wavelength_nm=lam, stamp_e=e_pts[:n_s],
                               also=(irr_pts[:n_s], irradiance) if with_irradiance else None)
         for j, b in enumerate(points):
             kern = kernel_for(cam, ("body", b.name), ffl)
             sel = slice(n_s + j, n_s + j + 1)
             rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
-                      centre_of_light=centre[sel], out=electrons,
+                      centre_of_light=centre[sel], out=electrons, stamp_e=e_pts[sel],
                       also=(irr_pts[sel], irradiance) if with_irradiance else None)
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}

@@ -43,8 +43,9 @@ __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "T
 #: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
 #: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
 #: beyond 24 px); stamps are cut there and normalised to the whole flux. The stamp's size sets
-#: most of a frame's cost (benchmarks/psf_bench.py: the default frame with an Airy PSF takes
-#: 1.8x the Gaussian frame's CPU time at 16, 1.2x at 10).
+#: most of a frame's cost; a faint source's is cut further by the renderer
+#: (``TablePSF.half_sizes_px``; benchmarks/psf_bench.py: the default frame with an Airy PSF
+#: takes 1.3x the Gaussian frame's CPU time at 16, 1.2x at 10).
 MAX_HALF_SIZE_PX = 16
 
 
