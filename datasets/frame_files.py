@@ -269,7 +269,6 @@ def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
     file order as little-endian words, after the header ``head`` (see above)."""
     H, n_words = rows.shape
     N = 2 * n_words  # bytes in each half of a scanline: its even-indexed bytes, then its odd ones
-    U = rows.view("<u2").reshape(-1)  # byte 2k of a scanline is U's low byte, 2k + 1 its high byte
     nz = rows != 0
     # d[j] (either half) differs from 128 only where t[j] or t[j-1] is not 0: words 2p, 2p + 1 of
     # a non-zero 4-byte word p, and the word after it; and where a half begins
@@ -277,17 +276,18 @@ def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
     dirty[:, 1:] |= nz[:, :-1]
     dirty[:, 0] = True
     p = np.flatnonzero(dirty)
-    w0 = 2 * p  # (flat) 2-byte words 2p and 2p + 1 of each dirty 4-byte word
-    first = np.concatenate(([0], np.cumsum(np.count_nonzero(dirty, axis=1))[:-1]))  # each row's first (p at 0)
-    c0, c1 = U[w0], U[w0 + 1]
-    b0 = U[w0 - 1]  # the word before 2p (wraps at 0: replaced below)
+    first = np.searchsorted(p, np.arange(H) * n_words)  # each row's first (its word 0, always dirty)
+    words = rows.reshape(-1)
+    cur, before = words[p], words[p - 1]  # (the word before a row's word 0 is replaced below)
+    c0, c1, b0 = cur & 0xFFFF, cur >> 16, before >> 16  # 2-byte words 2p, 2p + 1 and 2p - 1
     lo0 = ((c0 & 0xFF) + 128 - (b0 & 0xFF)).astype(np.uint8)  # mod 256
     lo1 = ((c1 & 0xFF) + 128 - (c0 & 0xFF)).astype(np.uint8)
     hi0 = ((c0 >> 8) + 128 - (b0 >> 8)).astype(np.uint8)
     hi1 = ((c1 >> 8) + 128 - (c0 >> 8)).astype(np.uint8)
-    row_first = U[w0[first]]
+    row_first = c0[first]
     lo0[first] = (row_first & 0xFF).astype(np.uint8)  # d[0] = t[0]
-    hi0[first] = ((row_first >> 8) + 128 - (U[w0[first] + N - 1] & 0xFF)).astype(np.uint8)  # t[N] - t[N-1]
+    last_lo = (words[p[first] + n_words - 1] >> 16) & 0xFF  # t[N - 1]: the low byte of the row's last 2-byte word
+    hi0[first] = ((row_first >> 8) + 128 - last_lo).astype(np.uint8)  # t[N] - t[N-1]
     # islands of dirty words (position 2 x index in a half), cut where 3 or more 128s lie between
     k = p % n_words  # the word's index in its row
     new = np.ones(p.size, bool)
