@@ -13,7 +13,10 @@ renderer. File contracts are those of CONVENTIONS.md "Files":
   writes; docs/conventions.md "What changed"): RLE 26 ms, 460 kB; ZIP 36 ms, 362 kB (its
   ``zipCompressionLevel`` 1..9 changes neither); ZIPS 60 ms; ZSTD 43 ms, 429 kB (and OpenEXR >= 3.4
   only); PIZ 94 ms, 0.9 MB; none 9 ms, 8.4 MB. The Python binding holds the GIL while it writes,
-  so a writer thread would not overlap it with rendering.
+  so a writer thread would not overlap it with rendering. The RLE chunks of files whose channels
+  are all 4-byte (float32, uint32) are written by :func:`_exr_rle_file`, which touches only the
+  bytes near non-zero pixels (10 -> 4 ms on that frame, 5 % larger files; OpenEXR reads the same
+  bits back), inside OpenEXR's own header; ``_exr_bytes(..., sparse=False)`` is OpenEXR's encoder.
 - **PNG**: greyscale, uint8 for bit depth <= 8, uint16 for 9-16 bit; DN of fewer bits than the
   sample (a 12-bit sensor, a 10-bit screen) are scaled to the full range with an ``sBIT`` chunk
   naming the significant bits (the PNG specification's way, section 12.4), so viewers show them;
