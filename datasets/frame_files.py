@@ -275,8 +275,8 @@ def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
     nz = rows != 0
     # d[j] (either half) differs from 128 only where t[j] or t[j-1] is not 0: words 2p, 2p + 1 of
     # a non-zero 4-byte word p, and the word after it; and where a half begins
-    dirty = nz.copy()
-    dirty[:, 1:] |= nz[:, :-1]
+    dirty = np.empty_like(nz)
+    np.logical_or(nz[:, 1:], nz[:, :-1], out=dirty[:, 1:])
     dirty[:, 0] = True
     p = np.flatnonzero(dirty)
     first = np.searchsorted(p, np.arange(H) * n_words)  # each row's first (its word 0, always dirty)
