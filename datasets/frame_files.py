@@ -224,8 +224,9 @@ def _exr_bytes(channels: Mapping, header: Mapping | None, *, sparse: bool = True
 # byte) and literals (-count, bytes); a chunk that does not shrink is stored raw. The runs and
 # literals may be cut at other places than OpenEXR's own encoder cuts them, so the file's bytes
 # can differ from OpenEXR's while every decoded pixel is the same (tests/datasets/test_exr_rle.py
-# reads both back with OpenEXR). The header (and the file layout) is OpenEXR's own: it writes a
-# zero image of the same shape, channels and attributes once, and its header is reused.
+# reads the files back with OpenEXR). The header (and the file layout) is OpenEXR's own: it writes
+# a zero image of the same shape, channels and attributes once per process (~10 ms), and its
+# header is reused.
 _EXR_LAYOUTS: dict = {}
 _RLE_GAP = 3  # runs of this many 128s or more between non-128 bytes end a literal
 
