@@ -19,7 +19,7 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
    b. then, in the same process, makes the same N frames again stage by stage: **sample**
       (the sampler's frame request and ``build_scene``), **render** (``render``: the bare
       render), **encode** (the PNG, EXR and JSON bytes in memory), **write** (the three files
-      written atomically on parallel threads, their SHA-256 and the frame's journal record), each timed as CPU and
+      written atomically on one thread as the runner's writer thread writes them, their SHA-256 and the frame's journal record), each timed as CPU and
       wall-clock.
 
    The first ``W`` frames (``--warmup``, default 8: Dr.Jit compiles its kernels, caches fill) are
@@ -184,8 +184,8 @@ def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
     import numpy as np
 
     from skynav.datasets import generate, layout
-    from skynav.datasets.atomic_files import sha256_file
-    from skynav.datasets.frame_files import frame_file_bytes, write_files
+    from skynav.datasets.atomic_files import atomic_write_many, sha256_file
+    from skynav.datasets.frame_files import frame_file_bytes
     from skynav.datasets.journal import write_record
     from skynav.datasets.recipes import validate_recipe
     from skynav.datasets.samplers import frame_seed, make_plan
@@ -228,7 +228,7 @@ def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
         blobs = {fmt: frame_file_bytes(frame, fmt) for fmt in formats}
         laps.append(clock.lap())
         rel = layout.frame_relpaths(k, formats)
-        write_files((out / rel[fmt], data) for fmt, data in blobs.items())
+        atomic_write_many((out / rel[fmt], data) for fmt, data in blobs.items())
         write_record(out, k, {rel[fmt]: sha256_file(out / rel[fmt]) for fmt in formats})
         laps.append(clock.lap())
         if k >= warmup:

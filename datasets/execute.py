@@ -175,14 +175,15 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
 def commit_frame(made: EncodedFrame) -> FrameResult:
     """The second half of :func:`produce_frame`: write the frame's files (each atomically),
     their SHA-256, then the frame's checksum record, its commit point."""
-    from .frame_files import sha256_file, write_files
+    from .atomic_files import atomic_write_many
+    from .frame_files import sha256_file
     from .journal import write_record
 
     t0 = time.perf_counter()
     k, formats = made.frame, tuple(made.blobs)
     rel = layout.frame_relpaths(k, formats)
     paths = {fmt: made.out_dir / rel[fmt] for fmt in formats}
-    write_files((paths[fmt], made.blobs[fmt]) for fmt in formats)
+    atomic_write_many((paths[fmt], made.blobs[fmt]) for fmt in formats)  # on this (writer) thread, one folder fsync
     files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
     record = write_record(made.out_dir, k, files)  # the frame's commit point: written last, atomically
     t = made.timings_s

@@ -508,3 +508,14 @@ def test_write_frame_writes_each_format_and_refuses_unknown_ones(tmp_path, rng):
     assert header["CRPIX1"] == cam["K"][0][2] + 1.0
     with pytest.raises(SkynavError, match="formats"):
         write_frame(frame, tmp_path / "out", "g", formats=("tiff",))
+
+
+def test_atomic_write_many_writes_all_and_leaves_no_temp_files(tmp_path):
+    from skynav.datasets.atomic_files import atomic_write_many
+
+    (tmp_path / "b.json").write_bytes(b"old")
+    atomic_write_many([(tmp_path / "a.exr", b"\x00" * 10), (tmp_path / "b.json", b"{}")])
+    assert (tmp_path / "a.exr").read_bytes() == b"\x00" * 10 and (tmp_path / "b.json").read_bytes() == b"{}"
+    with pytest.raises(FileNotFoundError):  # a folder that does not exist: nothing renamed, no temp left
+        atomic_write_many([(tmp_path / "c.png", b"1"), (tmp_path / "missing" / "d.png", b"2")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "b.json"]
