@@ -445,11 +445,13 @@ class Sensor:
                 out = dn.numpy()
                 if hit is not None and hit[0].size:
                     # the pixels hit: the same chain on their own, with their charge, from their
-                    # own streams (a stream is a hash of the frame key and the pixel index)
+                    # own streams (a stream is a hash of the frame key and the pixel index); traced,
+                    # not replayed: their number changes from frame to frame, and a recording whose
+                    # sizes change is recorded again (Dr.Jit warns after ten)
                     idx = hit[0]
                     g32, d32 = fixed_patterns(p, self.shape)
-                    sub = _frozen_exposure(small_dn)(Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
-                                                     Float(hit[1].astype(np.float32)), *args, UInt32(idx.astype(np.uint32)))
+                    sub = _jit_exposure(Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
+                                        Float(hit[1].astype(np.float32)), *args, UInt32(idx.astype(np.uint32)), small_dn)
                     dr.eval(sub)
                     out = out.copy() if not out.flags.writeable else out
                     out[idx] = sub.numpy()

@@ -181,3 +181,31 @@ def test_thread_budget_sizes_drjit_and_openexr_pools(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     cores = os.cpu_count() or 1
     assert int(out.stdout.split()[1]) == (cores if cores >= 2 else 0)
+
+
+def test_frames_with_different_cosmic_ray_hits_replay_without_recording_again(tmp_path):
+    # Each frame's cosmic rays hit another number of pixels. The whole-image kernel is a Dr.Jit
+    # frozen function replayed frame after frame; were the hit pixels' kernel frozen too, every new
+    # count would record it again and Dr.Jit would print "The frozen function has been recorded
+    # N times" into a dataset run's output after ten. A fresh interpreter: the log is the process's.
+    import subprocess
+    import sys
+
+    status = jb.configure_llvm()
+    if not status.available:
+        pytest.skip(f"LLVM backend unavailable: {status.reason}")
+    code = (
+        "import numpy as np\n"
+        "from skynav.renderer import jit_backend, detector\n"
+        "from skynav.scenes.camera import SensorParams\n"
+        "assert jit_backend.configure_llvm().available\n"
+        "s = detector.Sensor(SensorParams(), (32, 32))\n"
+        "for k in range(14):\n"
+        "    x = detector.PixelCharge(index=np.arange(k + 1) * 7, electrons=np.full(k + 1, 900.0))\n"
+        "    s.expose(np.full((32, 32), 50.0), 0.1, np.random.default_rng(k), backend='llvm', extra_charge_e=x)\n"
+        "print('OK')\n"
+    )
+    env = dict(os.environ, SKYNAV_CACHE_DIR=str(tmp_path))
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-2000:]
+    assert "recorded" not in proc.stderr + proc.stdout, proc.stderr[-2000:]
