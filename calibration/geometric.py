@@ -17,12 +17,15 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import LSQBivariateSpline
+from scipy.optimize import least_squares
 
 from skynav.scenes.facility import ARCSEC, Facility, FlatField, GeometricModel, ResidualField
 
+from .detect import detect_dots, relative_response
 from .errors import CalibrationInputError, CaptureMismatchError, IdentificationError
+from .identify import identify
 from .patterns import Pattern
-
 
 #: the largest held-out fraction (the fit needs the rest) and the fewest held-out dots (a p99)
 MAX_HOLDOUT = 0.9
@@ -55,9 +58,6 @@ class GeometricResult:
 
 
 def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observations:
-    from .detect import detect_dots, relative_response
-    from .identify import identify
-
     cam = facility.camera
     sc = facility.screen
     cam_per_screen = cam.focal_length_px / (facility.geometric.focal_length_mm / (sc.pixel_pitch_um * 1e-3))
@@ -108,8 +108,6 @@ _FREE = np.array([True, True, True, True, True, True, True, True, True, True, Fa
 
 
 def _fit_physical(facility: Facility, s, v, g0: GeometricModel) -> GeometricModel:
-    from scipy.optimize import least_squares
-
     sc = facility.screen
     p0 = g0.vector()
 
@@ -131,8 +129,6 @@ def _fit_physical(facility: Facility, s, v, g0: GeometricModel) -> GeometricMode
 
 def _residual_field(sc, s, dt, n_nodes: int = 41, n_knots: int = 10) -> ResidualField:
     """Least-squares bicubic spline of tangent-plane residuals over the screen, sampled on a grid."""
-    from scipy.interpolate import LSQBivariateSpline
-
     x0, x1 = s[:, 0].min(), s[:, 0].max()
     y0, y1 = s[:, 1].min(), s[:, 1].max()
     tx = np.linspace(x0, x1, n_knots + 2)[1:-1]
@@ -157,8 +153,6 @@ def _angles_arcsec(model, sc, s, v):
 
 
 def _flat_field(facility: Facility, pats, images, n_nodes: int = 17, block: int = 8) -> FlatField | None:
-    from scipy.interpolate import LSQBivariateSpline
-
     flats = [p for p in pats if p.kind == "flat"]
     dark = next((images[p.file].astype(float) for p in pats if p.kind == "dark"), None)
     if not flats:

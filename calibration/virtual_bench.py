@@ -22,8 +22,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
+from skynav.renderer.detector import Sensor
 from skynav.scenes.facility import ARCSEC, Facility, GeometricModel, RadiometricModel, ResidualField
+
+from .patterns import design
 
 #: most exposures a capture averages (each is a full camera frame of noise: 256 on the paper
 #: camera's 1024 x 1024 sensor is about a minute per pattern)
@@ -72,8 +76,6 @@ def scenario(name: str, facility: Facility) -> TrueBench:
         return TrueBench(geometric=GeometricModel(**b, residual=_ripple(facility.screen, 3.0)), radiometric_scale=1.3,
                          vignetting=0.35)
     if name == "shifted":
-        from .patterns import design
-
         step_mm = design(facility, phases=1)[0].grid_step_px * facility.screen.pixel_pitch_um * 1e-3
         return TrueBench(geometric=GeometricModel(**dict(base, decentre_x_mm=base["decentre_x_mm"] - step_mm)))
     if name == "roll90":
@@ -141,8 +143,6 @@ class VirtualBench:
 
     def expected_electrons(self, screen_dn: np.ndarray) -> np.ndarray:
         """Noise-free camera electrons of a screen image, shape (H, W) of the camera."""
-        from scipy import ndimage
-
         cam = self.facility.camera
         xy, area = self.camera_map()
         k = self.facility.electrons_per_s_per_w_m2() * cam.exposure_s
@@ -156,8 +156,6 @@ class VirtualBench:
     def capture(self, screen_dn: np.ndarray, rng: np.random.Generator, frames: int = 16, exposure_scale: float = 1.0) -> np.ndarray:
         """The camera's (averaged) capture of a screen image, DN at the camera's bit depth;
         ``exposure_scale`` lengthens the camera's exposure (the lab's exposure setting)."""
-        from skynav.renderer.detector import Sensor
-
         cam = self.facility.camera
         e = self.expected_electrons(screen_dn) * exposure_scale
         sensor = Sensor(cam.sensor, e.shape)

@@ -28,8 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.renderer.render import RenderOptions, render
+from skynav.scenes.scene import build_scene
+
 from . import layout
 from .errors import DatasetMismatchError
+from .frame_files import sha256_file, write_frame
+from .journal import write_record
+from .plan import frame_seed
 from .pool import THREAD_VARS, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
 __all__ = ["FrameResult", "produce_frame", "run_in_process", "run_process_pool",
@@ -104,13 +110,6 @@ def produce_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_l
         The recipe's faintest catalog V.
     render_options : RenderOptions, optional
     """
-    from skynav.renderer.render import RenderOptions, render
-    from skynav.scenes.scene import build_scene
-
-    from .frame_files import sha256_file, write_frame
-    from .journal import write_record
-    from .plan import frame_seed
-
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
@@ -178,6 +177,7 @@ def _produce_dask(k, *, blob, out_dir, master_seed, formats, mag, options):
     # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
     # 1); size skynav's pools to that unless the cluster's environment says otherwise.
     if "SKYNAV_THREADS" not in os.environ:
+        # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
@@ -210,6 +210,7 @@ def run_process_pool(plan, accept, n_workers: int) -> tuple:
 
 def run_dask(plan, accept, client) -> tuple:
     """Make the plan's frames as Dask tasks on ``client``. Returns ``(workers, executor name)``."""
+    # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
     from distributed import as_completed
 
     n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))

@@ -347,6 +347,7 @@ class Sensor:
     # ----------------------------------------------------------------- Dr.Jit LLVM path
     def _patterns_llvm(self):
         if self._jit_patterns is None:
+            # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
             from drjit.llvm import Float
 
             gain, dark = fixed_patterns(self.params, self.shape)
@@ -354,6 +355,7 @@ class Sensor:
         return self._jit_patterns
 
     def _expose_llvm(self, e, t, rng, x, *, details) -> ExposureDetails:
+        # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
         import drjit as dr
         from drjit.llvm import Float, UInt32
 
@@ -491,6 +493,7 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     Algorithms for Random Number Generation", Harvey Mudd College HMC-CS-2014-0905.
     Mitsuba 3, ``PCG32Sampler::seed`` (``src/render/sampler.cpp``).
     """
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     from drjit.llvm import UInt64
 
     v0, v1 = tea_encrypt(index, 0, key, rounds=rounds)
@@ -505,6 +508,7 @@ def _jit_charge(mean, extra, key):
     the kernel does not depend on their values); pixel ``i`` of ``mean`` gets the PCG32 stream
     seeded by :func:`pixel_stream_seeds`.
     """
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
     from drjit.llvm import PCG32, Bool, Float, Float64, UInt32
 
@@ -572,6 +576,7 @@ def _jit_charge(mean, extra, key):
 
 def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn):
     """Read + reset noise, gain, offset, ADC (round half up), saturation -> UInt32 DN (lazy)."""
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
     from drjit.llvm import UInt32
 

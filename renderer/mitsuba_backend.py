@@ -99,9 +99,10 @@ from skynav.scenes.constants import PLANCK_J_S as _H_J_S
 from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.frames import propagate_attitude
 
-from . import spectra
+from . import jit_backend, spectra
 from .brdf import BRDF, default_brdf
 from .errors import ProjectionCropError
+from .radiometry import Radiometry
 
 __all__ = [
     "RESOLVED_THRESHOLD_PX",
@@ -184,13 +185,12 @@ class ResolvedBodyImage:
 # ------------------------------------------------------------------------------ variant
 def current_variant(variant: str | None = None) -> str:
     """Set (if needed) and return the Mitsuba variant: ``variant`` or the probed choice."""
-    from . import jit_backend
-
     if variant is None:
         variant, _ = jit_backend.select_mitsuba_variant()
     elif variant.startswith("llvm"):
         if not jit_backend.configure_llvm().available:
             raise ConfigValueError("mitsuba.variant", variant, "a variant whose backend works here (LLVM probe failed)")
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     if mi.variant() != variant:
@@ -368,6 +368,7 @@ def _register_plugins(variant: str) -> None:
     Oren-Nayar) and the ``skynav_projection`` sensor."""
     if variant in _registered:
         return
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import drjit as dr
     import mitsuba as mi
 
@@ -550,6 +551,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
         if hit is not None:
             _cache.move_to_end(key)
             return hit
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     _register_plugins(variant)
@@ -659,6 +661,7 @@ def render_resolved_body(
     cam = scene.camera
     proj = cam if projection is None else projection
     variant = current_variant(variant)
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     u = np.asarray(body.u_icrs, dtype=float)
@@ -706,8 +709,6 @@ def render_resolved_body(
     electrons = e_per_s * cam.exposure_s
     raw_total = float(electrons.sum())
     if normalize == "phase_law":
-        from .radiometry import Radiometry
-
         target = float(Radiometry.for_camera(cam).body_electrons_per_s(body.name, body.v_mag)) * cam.exposure_s
         if raw_total > 0 and math.isfinite(target):
             electrons = electrons * (target / raw_total)

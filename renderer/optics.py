@@ -37,8 +37,12 @@ import functools
 import math
 
 import numpy as np
+from scipy.special import j1
 
 from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel
+
+from . import spectra
+from .psf import GaussianPSF, TablePSF
 
 __all__ = ["noll_to_nm", "zernike", "airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
            "optical_table", "tabulated_tables", "electron_spectrum", "TEFF_BIN_EDGES_K"]
@@ -108,8 +112,6 @@ def airy_intensity(r_px, lf_px: float, obscuration: float = 0.0) -> np.ndarray:
     obscuration : float
         Diameter ratio of the central obstruction.
     """
-    from scipy.special import j1
-
     e = float(obscuration)
     v = np.pi * np.asarray(r_px, dtype=float) / lf_px
     small = v < 1e-8
@@ -237,8 +239,6 @@ def tabulated_tables(model: TabulatedPSFModel, half: int) -> tuple:
 def electron_spectrum(camera, source) -> tuple:
     """Wavelengths (nm, 10 nm steps over the camera's band) and relative electrons per nm of a
     source: ``("star", teff_k)`` (a blackbody) or ``("body", name)`` (Sun x reflectance)."""
-    from . import spectra
-
     lo, hi = min(camera.response_wavelengths_nm), max(camera.response_wavelengths_nm)
     wl = np.arange(lo, hi + 1e-9, 10.0)
     if source[0] == "star":
@@ -266,8 +266,6 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
     ``source``: None (monochromatic models), ``("star", bin)`` or ``("body", name)`` for a
     polychromatic Airy. A Gaussian is :class:`~skynav.renderer.psf.GaussianPSF` itself.
     """
-    from .psf import GaussianPSF, TablePSF
-
     model = camera.psf
     if isinstance(model, GaussianPSFModel):
         return GaussianPSF(model.sigma_px)

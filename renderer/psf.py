@@ -12,6 +12,7 @@ images, a field grid of them), normalised so that every stamp holds the point's 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -202,7 +203,6 @@ class TablePSF:
         self.grid = grid
         self._block_cache = {}
         self._last = None
-        import hashlib
 
         h = hashlib.sha256()
         for t in self.tables:

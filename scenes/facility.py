@@ -30,10 +30,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import RectBivariateSpline
 
 from .camera import Camera, paper_camera
+from .config import camera_from_mapping
 from .constants import C_M_S, PLANCK_J_S
 from .errors import ConfigValueError
+from .facility_schema import validate_facility_mapping
 
 SCHEMA = "skynav.facility/1"
 ARCSEC = math.pi / (180.0 * 3600.0)
@@ -102,8 +105,6 @@ class ResidualField:
 
     @functools.cached_property
     def _splines(self):
-        from scipy.interpolate import RectBivariateSpline
-
         x, y = np.array(self.x_px), np.array(self.y_px)
         return (RectBivariateSpline(y, x, np.array(self.dx_rad), kx=3, ky=3),
                 RectBivariateSpline(y, x, np.array(self.dy_rad), kx=3, ky=3))
@@ -321,8 +322,6 @@ class FlatField:
 
     @functools.cached_property
     def _spline(self):
-        from scipy.interpolate import RectBivariateSpline
-
         k = min(3, len(self.x_px) - 1, len(self.y_px) - 1)
         return RectBivariateSpline(np.array(self.y_px), np.array(self.x_px), np.array(self.relative), kx=k, ky=k)
 
@@ -502,9 +501,6 @@ def facility_from_mapping(d) -> Facility:
     ConfigValueError
         One line naming the dotted key, the value and what is allowed.
     """
-    from .config import camera_from_mapping
-    from .facility_schema import validate_facility_mapping
-
     validate_facility_mapping(d)
     s = d["screen"]
     screen = Screen(width_px=int(s["width_px"]), height_px=int(s["height_px"]), pixel_pitch_um=float(s["pixel_pitch_um"]),

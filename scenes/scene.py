@@ -14,7 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import apparent, frames, photometry
 from .camera import Camera
+from .catalog_hipparcos import load_catalog
+from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+from .errors import ConfigValueError, ObserverInsideBodyError
+from .timescales import tdb_seconds
 from .visibility import VisibilityCriteria
 
 
@@ -179,10 +184,6 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     ObserverInsideBodyError
         When the observer is inside one of the bodies (geometric distance <= radius).
     """
-    from . import apparent, photometry
-    from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-    from .errors import ObserverInsideBodyError
-
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
@@ -209,10 +210,6 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
 
 
 def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
-    from . import apparent, photometry
-    from .ephemeris_jpl import BODY_RADII_KM
-    from .errors import ObserverInsideBodyError
-
     out = []
     for name in names:
         d = apparent.apparent_body(eph, name, r, v, t_tdb_s)
@@ -234,8 +231,6 @@ def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
     magnitude (for ``point_at: auto``)."""
     candidates = [b for b in bodies if visibility.outside_sun_exclusion(b.elongation_rad) and np.isfinite(b.v_mag)]
     if not candidates:
-        from .errors import ConfigValueError
-
         raise ConfigValueError("attitude.point_at", "auto", "a scene with at least one planet outside the Sun exclusion angle")
     return min(candidates, key=lambda b: b.v_mag)
 
@@ -283,11 +278,6 @@ def build_scene(
     sky : optional
         Precomputed ``sky_bodies(...)`` result for this epoch and observer.
     """
-    from . import apparent, frames
-    from .catalog_hipparcos import load_catalog
-    from .ephemeris_jpl import default_ephemeris
-    from .timescales import tdb_seconds
-
     vis = VisibilityCriteria() if visibility is None else visibility
     t = float(epoch) if isinstance(epoch, (int, float, np.floating)) else float(tdb_seconds(epoch))
     eph = ephemeris or default_ephemeris()
@@ -358,10 +348,6 @@ def resolve_spec(spec, *, ephemeris=None):
     Returns ``(t_tdb_s, position_km, velocity_km_s, R_cam_icrs, sky)`` where ``sky`` is the
     :func:`sky_bodies` result (reused by :func:`build_scene`).
     """
-    from . import frames
-    from .ephemeris_jpl import default_ephemeris
-    from .timescales import tdb_seconds
-
     eph = ephemeris or default_ephemeris()
     t = float(tdb_seconds(spec.epoch_tdb_iso))
     r = np.asarray(spec.position_km, dtype=float)
@@ -386,8 +372,6 @@ def resolve_spec(spec, *, ephemeris=None):
 
 def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
     """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
-    from .ephemeris_jpl import default_ephemeris
-
     eph = ephemeris or default_ephemeris()
     t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
     a = spec.attitude

@@ -28,6 +28,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from skynav.datasets.errors import RecipeError
+from skynav.datasets.observation import Observation
+from skynav.datasets.plan import epoch_iso
+from skynav.datasets.recipes import recipe_camera
+from skynav.datasets.samplers import make_plan
+from skynav.pipeline import NavFilter, OnboardCatalog, PredictedState, process_frame
+from skynav.pipeline.filter_dynamics import FilterDynamics
+from skynav.pipeline.measurement import CASES
+from skynav.pipeline.pairs import candidates_from_state, optimal_pair
+from skynav.pipeline.scoring_nav import UPDATE_ITERATIONS, CampaignResult, CentroidNoise, NavPlan, centroid_usable
+from skynav.scenes import frames
+from skynav.scenes.constants import C_KM_S, SECONDS_PER_DAY
+from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+from skynav.scenes.timescales import tdb_seconds
+
 #: A target is "centred" when its true pixel is within this fraction of the half-width of the
 #: field from the principal point (the 1024 px paper camera: 51 px).
 CENTRED_FRACTION = 0.1
@@ -37,9 +52,6 @@ class Simulator:
     """The truth side of the loop: a ``sequence`` recipe's cruise and the pointing controller."""
 
     def __init__(self, recipe: dict, *, limit: int | None = None):
-        from skynav.datasets.errors import RecipeError
-        from skynav.datasets.samplers import make_plan
-
         if recipe.get("kind") != "sequence":
             raise RecipeError("kind", recipe.get("kind"), "sequence (a cruise with navigation legs) for bench loop")
         self.recipe = recipe
@@ -55,9 +67,6 @@ class Simulator:
     # what the flight software may know: the camera schedule and the commanded pointing plan
     def schedule(self):
         """``[(frame time TDB s, leg, phase, target)]`` of the frames (the commanded observation plan)."""
-        from skynav.datasets.plan import epoch_iso
-        from skynav.scenes.timescales import tdb_seconds
-
         out = []
         for k in range(self.frames):
             leg, phase, target, _ = self.plan.frame_info[k]
@@ -71,9 +80,6 @@ class Simulator:
 
     def scene(self, k: int, t: float, R_commanded: np.ndarray, rng: np.random.Generator) -> dict:
         """The scene mapping of frame ``k``: the true state, the commanded attitude with the controller's error."""
-        from skynav.datasets.plan import epoch_iso
-        from skynav.scenes import frames
-
         s = self.recipe["sequence"]
         err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
         jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
@@ -93,13 +99,6 @@ class FlightSoftware:
 
     def __init__(self, camera, x0, P0, t0: float, t_end: float, *, sigma_px: float, case: int = 1, dynamics=None,
                  twist_rad: float = 0.0):
-        from skynav.pipeline import NavFilter, OnboardCatalog
-        from skynav.pipeline.filter_dynamics import FilterDynamics
-        from skynav.pipeline.measurement import CASES
-        from skynav.pipeline.scoring_nav import UPDATE_ITERATIONS
-        from skynav.scenes.constants import SECONDS_PER_DAY
-        from skynav.scenes.ephemeris_jpl import default_ephemeris
-
         self.camera, self.sigma_px, self.twist_rad = camera, float(sigma_px), float(twist_rad)
         self.eph = default_ephemeris()
         dyn = (dynamics or FilterDynamics()).bind(self.eph, t0 - SECONDS_PER_DAY, t_end + SECONDS_PER_DAY)
@@ -109,9 +108,6 @@ class FlightSoftware:
 
     def command(self, t: float, target: str) -> np.ndarray:
         """Propagate to ``t``; the attitude that puts ``target`` on the boresight as the estimate predicts it."""
-        from skynav.scenes import frames
-        from skynav.scenes.constants import C_KM_S
-
         self.kf.propagate(t)
         r = self.kf.x[0, :3]
         p = self.eph.position(target, t)
@@ -121,11 +117,6 @@ class FlightSoftware:
 
     def observe(self, k: int, t: float, dn: np.ndarray, target: str) -> dict:
         """Process the image of frame ``k`` and update the filter; what happened, for the report."""
-        from skynav.datasets.observation import Observation
-        from skynav.pipeline import PredictedState, process_frame
-        from skynav.pipeline.scoring_nav import centroid_usable
-        from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
-
         obs = Observation(index=k, dn=dn, epoch_tdb_s=t, exposure_s=self.camera.exposure_s, camera=self.camera)
         x, P = self.kf.x[0], self.kf.P[0]
         radius = BODY_RADII_KM.get(target, 0.0)
@@ -181,10 +172,6 @@ def run_loop(sim: Simulator, client, *, x0, P0, sigma_px: float, case: int = 1, 
     wall second; frame k is asked no earlier than its time on that clock, and is late when its
     step ends after the next frame's time (the last frame: one cadence after its own).
     """
-    from skynav.datasets.recipes import recipe_camera
-    from skynav.pipeline.pairs import candidates_from_state, optimal_pair
-    from skynav.scenes import frames
-
     sched = sim.schedule()
     F = len(sched)
     camera = recipe_camera(sim.recipe)
@@ -258,9 +245,6 @@ def centred_px(camera) -> float:
 
 def bias_for_lost_planet(sim: Simulator, factor: float = 1.5) -> float:
     """An initial position error (km) that puts the first target ``factor`` half-fields off the boresight."""
-    from skynav.datasets.recipes import recipe_camera
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
-
     t, _, _, target = sim.schedule()[0]
     r, _ = sim.state(t)
     cam = recipe_camera(sim.recipe)
@@ -270,8 +254,6 @@ def bias_for_lost_planet(sim: Simulator, factor: float = 1.5) -> float:
 
 def perpendicular_bias(sim: Simulator, bias_km: float) -> np.ndarray:
     """A position offset of ``bias_km`` perpendicular to the first line of sight (it moves the planet in the image)."""
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
-
     t, _, _, target = sim.schedule()[0]
     r, _ = sim.state(t)
     u = default_ephemeris().position(target, t) - r
@@ -282,8 +264,6 @@ def perpendicular_bias(sim: Simulator, bias_km: float) -> np.ndarray:
 
 def nav_plan(sim: Simulator, runs: list):
     """The :class:`~skynav.pipeline.scoring_nav.NavPlan` of the loop's cruise, for ``bench nav``'s report."""
-    from skynav.pipeline.scoring_nav import NavPlan
-
     sched = sim.schedule()
     r = np.array([sim.state(t)[0] for t, *_ in sched])
     v = np.array([sim.state(t)[1] for t, *_ in sched])
@@ -297,8 +277,6 @@ def nav_plan(sim: Simulator, runs: list):
 
 def campaign_result(runs: list, plan, *, sigma_px: float, case: int = 1):
     """``bench nav``'s :class:`~skynav.pipeline.scoring_nav.CampaignResult` of the loop's runs."""
-    from skynav.pipeline.scoring_nav import CampaignResult, CentroidNoise
-
     return CampaignResult(case=case, noise=CentroidNoise(sigma0_px=float(sigma_px)), t_tdb_s=plan.t_tdb_s,
                           error=np.stack([r.error for r in runs]), cov=np.stack([r.cov for r in runs]),
                           residual_px=np.stack([r.residual_px for r in runs]),
