@@ -20,7 +20,8 @@ import numpy as np
 from scipy.interpolate import LSQBivariateSpline
 from scipy.optimize import least_squares
 
-from skynav.scenes.facility import ARCSEC, Facility, FlatField, GeometricModel, ResidualField
+from skynav.scenes.constants import ARCSEC_RAD
+from skynav.scenes.facility import Facility, FlatField, GeometricModel, ResidualField
 
 from .detect import detect_dots, relative_response
 from .errors import CalibrationInputError, CaptureMismatchError, IdentificationError
@@ -149,7 +150,7 @@ def _angles_arcsec(model, sc, s, v):
     t = model.tangent(sc, s)
     u = np.concatenate([t, np.ones((len(t), 1))], -1)
     u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    return np.linalg.norm(np.cross(u, v), axis=-1) / ARCSEC
+    return np.linalg.norm(np.cross(u, v), axis=-1) / ARCSEC_RAD
 
 
 def _flat_field(facility: Facility, pats, images, n_nodes: int = 17, block: int = 8) -> FlatField | None:

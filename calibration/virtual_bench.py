@@ -25,7 +25,8 @@ import numpy as np
 from scipy import ndimage
 
 from skynav.renderer.detector import Sensor
-from skynav.scenes.facility import ARCSEC, Facility, GeometricModel, RadiometricModel, ResidualField
+from skynav.scenes.constants import ARCSEC_RAD
+from skynav.scenes.facility import Facility, GeometricModel, RadiometricModel, ResidualField
 
 from .patterns import design
 
@@ -52,7 +53,7 @@ def _ripple(screen, amplitude_arcsec: float, n: int = 33) -> ResidualField:
     x = np.linspace(-0.5, screen.width_px - 0.5, n)
     y = np.linspace(-0.5, screen.height_px - 0.5, n)
     X, Y = np.meshgrid(x / screen.width_px, y / screen.height_px)
-    a = amplitude_arcsec * ARCSEC
+    a = amplitude_arcsec * ARCSEC_RAD
     return ResidualField(x_px=x, y_px=y, dx_rad=a * np.sin(2 * np.pi * (2.0 * X + 0.7 * Y) + 0.3),
                          dy_rad=a * np.cos(2 * np.pi * (1.3 * X - 1.8 * Y) + 1.1))
 
@@ -174,4 +175,4 @@ def uncalibrated_error_arcsec(facility: Facility, truth: TrueBench, n: int = 41)
     xy = facility.projection.project(cam.line_of_sight(g))
     true = dataclasses.replace(facility.projection, model=truth.geometric).line_of_sight(xy)
     nom = facility.projection.line_of_sight(xy)
-    return float(np.max(np.linalg.norm(np.cross(true, nom), axis=-1)) / ARCSEC)
+    return float(np.max(np.linalg.norm(np.cross(true, nom), axis=-1)) / ARCSEC_RAD)

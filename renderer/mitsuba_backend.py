@@ -98,6 +98,7 @@ from skynav.scenes.constants import C_M_S as _C_M_S
 from skynav.scenes.constants import PLANCK_J_S as _H_J_S
 from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.frames import propagate_attitude
+from skynav.scenes.scene import RESOLVED_THRESHOLD_PX  # the default diameter (px) above which a body is ray-traced
 
 from . import jit_backend, spectra
 from .brdf import BRDF, default_brdf
@@ -115,9 +116,6 @@ __all__ = [
     "solar_irradiance_nodes_w_m2_nm",
 ]
 
-#: Default angular diameter (px) above which a body is ray-traced (the scene sets the
-#: ``resolved`` flag with the same default, ``skynav.scenes.scene.RESOLVED_THRESHOLD_PX``).
-RESOLVED_THRESHOLD_PX = 2.0
 
 #: Margin around the body's disk (and its streak) in the crop, px.
 CROP_MARGIN_PX = 2.0

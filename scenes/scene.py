@@ -17,6 +17,7 @@ import numpy as np
 from . import apparent, frames, photometry
 from .camera import Camera
 from .catalog_hipparcos import load_catalog
+from .constants import ARCSEC_RAD
 from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 from .errors import ConfigValueError, ObserverInsideBodyError
 from .timescales import tdb_seconds
@@ -157,8 +158,6 @@ SCENE_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn"
 
 #: Default angular diameter above which a body is ray-traced rather than drawn as a point, px.
 RESOLVED_THRESHOLD_PX = 2.0
-
-ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -332,7 +331,7 @@ def build_scene(
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
             elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
-            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) * ARCSEC_PER_RAD),
+            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) / ARCSEC_RAD),
             in_fov=in_fov,
             visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
             resolved=bool(diam_px > resolved_threshold_px),

@@ -29,6 +29,7 @@ from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_repor
 from skynav.scenes.count_cap import cap_count
 
 from .cli_common import (
+    MAX_WORKERS,
     OverrideError,
     add_quiet,
     add_set_argument,
@@ -42,8 +43,6 @@ from .cli_common import (
 
 #: most Monte Carlo runs (each run's filter history, frames x 6 states, is kept for the report)
 MAX_RUNS = 100_000
-#: most worker processes
-MAX_WORKERS = 256
 #: the largest centroid sigma (px) --sigma-px takes: beyond it no star is matched anyway
 MAX_SIGMA_PX = 100.0
 

@@ -42,6 +42,9 @@ __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "f
            "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set", "apply_overrides",
            "dataclass_from_overrides", "OverrideError", "add_quiet", "say", "ProgressBar"]
 
+#: most local worker processes a command starts (bench nav's runs, hil export's frames)
+MAX_WORKERS = 256
+
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -297,6 +300,7 @@ def parse_set(text: str):
         raise argparse.ArgumentTypeError(f"{text!r}: {why} (KEY: names and list indices joined by dots)")
     # lazy: every command loads this module, skynav --help too; the scene reader loads with --set
     import yaml
+
     from skynav.scenes.config import load_yaml
 
     try:

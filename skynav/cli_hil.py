@@ -12,6 +12,7 @@ from skynav.scenes.scene import build_from_spec
 
 from .cli_common import (
     COMMAND_HELP,
+    MAX_WORKERS,
     ProgressBar,
     add_quiet,
     add_set_argument,
@@ -21,9 +22,6 @@ from .cli_common import (
     say,
     warn,
 )
-
-#: most local worker processes of an export (each holds a screen frame, ~100 MB on the 'bench' preset)
-MAX_WORKERS = 256
 
 
 def uncalibrated_note(facility, name) -> str | None:
