@@ -301,7 +301,7 @@ def parse_set(text: str):
     # lazy: every command loads this module, skynav --help too; the scene reader loads with --set
     import yaml
 
-    from skynav.scenes.config import load_yaml
+    from skynav.scenes.config import load_yaml  # lazy, as yaml above: skynav --help loads no room
 
     try:
         value = load_yaml(io.StringIO(raw)) if raw.strip() else None
