@@ -46,6 +46,7 @@ from importlib import metadata
 from pathlib import Path
 
 from skynav.scenes.data_files import cache_dir
+from skynav.scenes.errors import SkynavError  # noqa: F401  (tests name it through this module)
 from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
 
 from .errors import BackendUnavailableError  # noqa: F401  (its home is renderer/errors.py; re-exported)
