@@ -16,6 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from skynav.datasets.frame_files import PNG_SCALING, atomic_write_bytes, read_png, write_png
+from skynav.datasets.hil_export import export_dataset
+from skynav.datasets.lock import dataset_lock
+from skynav.datasets.reader import open_dataset
+from skynav.datasets.recipes import preset_recipe
+from skynav.datasets.runner import generate
+from skynav.renderer.detector import Sensor
 from skynav.scenes.camera import Camera
 from skynav.scenes.facility import Facility
 
@@ -38,8 +44,6 @@ def write_patterns(facility: Facility, directory, **kw) -> list[Pattern]:
     ``patterns.json`` says so (``png_scaling``, ``significant_bits``). :func:`read_captures` and
     :func:`simulate` read these and the unscaled PNGs of skynav <= 0.3.0 alike
     (:func:`~skynav.datasets.frame_files.read_png`)."""
-    from skynav.datasets.lock import dataset_lock
-
     d = Path(directory)
     sc = facility.screen
     pats = design(facility, **kw)  # the bad-input checks, before anything is written
@@ -136,8 +140,6 @@ def simulate(facility: Facility, patterns_dir, out_dir, *, scenario_name: str = 
     skynav.datasets.lock.DatasetLockedError
         Another run writes into ``out_dir``.
     """
-    from skynav.datasets.lock import dataset_lock
-
     if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= MAX_FRAMES:
         raise CalibrationInputError(f"frames = {frames!r}: expected an integer in 1..{MAX_FRAMES} (exposures averaged per "
                                     "capture; each is a full camera frame of noise)")
@@ -179,10 +181,6 @@ def closed_loop_dataset(bench, dataset_dir, export_dir, *, seed: int = 0, v_max:
     calibrated facility) on ``bench`` (a :class:`~skynav.calibration.virtual_bench.VirtualBench`)
     and compare with the dataset's software frames (see the module docstring). Frame k's camera
     noise draws from ``SeedSequence([seed, k])``."""
-    from skynav.renderer.detector import Sensor
-
-    from skynav.datasets.reader import open_dataset
-
     ds = open_dataset(dataset_dir)
     todo = range(len(ds)) if frames is None else range(min(int(frames), len(ds)))
     cols = {k: [] for k in ("frame", "kind", "name", "v_mag")}
@@ -256,10 +254,6 @@ def run_closed_loop(facility, calibrated, work_dir, *, scenario_name: str = "rea
     the bench with the ``calibrated`` facility (as ``skynav hil export``), captured on the
     virtual bench ``scenario_name`` of the nominal ``facility`` and measured
     (:func:`closed_loop_dataset`). Both folders resume if already there."""
-    from skynav.datasets.hil_export import export_dataset
-    from skynav.datasets.recipes import preset_recipe
-    from skynav.datasets.runner import generate
-
     work = Path(work_dir)
     recipe = preset_recipe("montecarlo")
     recipe.update(frames=int(frames), seed=int(dataset_seed), camera=facility.camera.to_dict())

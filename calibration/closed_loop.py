@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skynav.scenes.facility import ARCSEC
+from skynav.scenes.constants import ARCSEC_RAD
 
 from .measure import measure_sources
 
@@ -171,5 +171,5 @@ def measure_pair(cam, images: dict, guess_xy):
 def angle_arcsec(cam, xy, v_cam):
     u = cam.line_of_sight(np.where(np.isfinite(xy), xy, 0.0))
     v = v_cam / np.linalg.norm(v_cam, axis=-1, keepdims=True)
-    a = np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("ij,ij->i", u, v)) / ARCSEC
+    a = np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("ij,ij->i", u, v)) / ARCSEC_RAD
     return np.where(np.all(np.isfinite(xy), axis=1), a, np.nan)

@@ -31,6 +31,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.special import erfc
+from skimage import measure
 
 # fit region: the dot's threshold radius plus this margin (px); the background annulus lies
 # between the fit region and the window's edge, ANNULUS_PX wide
@@ -74,9 +77,6 @@ def detect_dots(image, *, background=None, gain=None, window_px: int | None = No
     Blobs
         Centres in CONVENTIONS pixel coordinates (x = column, the top-left pixel's centre at 0).
     """
-    from scipy import ndimage
-    from skimage import measure
-
     img = np.asarray(image, dtype=float)
     bg = float(np.median(img if background is None else background))
     sig = img - bg
@@ -136,8 +136,6 @@ def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3, return_kep
 def _fit_windows(sig, cyx, r_blob, h, noise):
     """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``
     (pixels beyond the image left out); NaN where the fit fails or the blob is not a dot."""
-    from scipy.special import erfc
-
     H, W = sig.shape
     n = len(cyx)
     out = np.full((n, 2), np.nan)

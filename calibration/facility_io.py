@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import difflib
 import os
 import tempfile
 from pathlib import Path
 
-from skynav.scenes import facility as fac
+import yaml
 
+from skynav.scenes import facility as fac
 from skynav.scenes.errors import ConfigValueError
+from skynav.scenes.psf import resolve_psf_files
 
 from .errors import FacilityFileError
-
 
 #: the largest facility file read (a calibrated one is ~30 kB)
 MAX_FILE_BYTES = 16 << 20
@@ -19,14 +21,10 @@ MAX_FILE_BYTES = 16 << 20
 
 def load_facility(arg) -> fac.Facility:
     """A facility from a preset name (``bench``, ``bench_small``) or a YAML file path."""
-    import yaml
-
     if str(arg) in fac.PRESETS:
         return fac.PRESETS[str(arg)]()
     path = Path(arg)
     if not path.is_file():
-        import difflib
-
         close = difflib.get_close_matches(str(arg), list(fac.PRESETS), n=1)
         hint = f"did you mean the preset {close[0]}? " if close else ""
         raise FacilityFileError(f"{arg}: no such facility file{' (a folder)' if path.is_dir() else ''}; {hint}give a .yaml "
@@ -38,8 +36,6 @@ def load_facility(arg) -> fac.Facility:
             data = yaml.safe_load(fobj)
     except yaml.YAMLError as exc:
         raise FacilityFileError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    from skynav.scenes.psf import resolve_psf_files
-
     try:
         return fac.facility_from_mapping(resolve_psf_files(data, path.resolve().parent))  # PSF files beside the file
     except ConfigValueError as exc:  # name the file too
@@ -57,8 +53,6 @@ def write_text_atomic(path, text: str) -> Path:
 
 
 def write_facility(facility: fac.Facility, path) -> Path:
-    import yaml
-
     text = (f"# skynav facility file ({fac.SCHEMA}); angles in degrees/arcsec, lengths mm, irradiance W/m^2\n"
             + yaml.safe_dump(facility.to_mapping(), sort_keys=False, default_flow_style=None, width=120))
     return write_text_atomic(path, text)

@@ -17,12 +17,16 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import LSQBivariateSpline
+from scipy.optimize import least_squares
 
-from skynav.scenes.facility import ARCSEC, Facility, FlatField, GeometricModel, ResidualField
+from skynav.scenes.constants import ARCSEC_RAD
+from skynav.scenes.facility import Facility, FlatField, GeometricModel, ResidualField
 
+from .detect import detect_dots, relative_response
 from .errors import CalibrationInputError, CaptureMismatchError, IdentificationError
+from .identify import identify
 from .patterns import Pattern
-
 
 #: the largest held-out fraction (the fit needs the rest) and the fewest held-out dots (a p99)
 MAX_HOLDOUT = 0.9
@@ -55,9 +59,6 @@ class GeometricResult:
 
 
 def observe(facility: Facility, pats: list[Pattern], images: dict) -> Observations:
-    from .detect import detect_dots, relative_response
-    from .identify import identify
-
     cam = facility.camera
     sc = facility.screen
     cam_per_screen = cam.focal_length_px / (facility.geometric.focal_length_mm / (sc.pixel_pitch_um * 1e-3))
@@ -108,8 +109,6 @@ _FREE = np.array([True, True, True, True, True, True, True, True, True, True, Fa
 
 
 def _fit_physical(facility: Facility, s, v, g0: GeometricModel) -> GeometricModel:
-    from scipy.optimize import least_squares
-
     sc = facility.screen
     p0 = g0.vector()
 
@@ -131,8 +130,6 @@ def _fit_physical(facility: Facility, s, v, g0: GeometricModel) -> GeometricMode
 
 def _residual_field(sc, s, dt, n_nodes: int = 41, n_knots: int = 10) -> ResidualField:
     """Least-squares bicubic spline of tangent-plane residuals over the screen, sampled on a grid."""
-    from scipy.interpolate import LSQBivariateSpline
-
     x0, x1 = s[:, 0].min(), s[:, 0].max()
     y0, y1 = s[:, 1].min(), s[:, 1].max()
     tx = np.linspace(x0, x1, n_knots + 2)[1:-1]
@@ -153,12 +150,10 @@ def _angles_arcsec(model, sc, s, v):
     t = model.tangent(sc, s)
     u = np.concatenate([t, np.ones((len(t), 1))], -1)
     u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    return np.linalg.norm(np.cross(u, v), axis=-1) / ARCSEC
+    return np.linalg.norm(np.cross(u, v), axis=-1) / ARCSEC_RAD
 
 
 def _flat_field(facility: Facility, pats, images, n_nodes: int = 17, block: int = 8) -> FlatField | None:
-    from scipy.interpolate import LSQBivariateSpline
-
     flats = [p for p in pats if p.kind == "flat"]
     dark = next((images[p.file].astype(float) for p in pats if p.kind == "dark"), None)
     if not flats:

@@ -17,6 +17,7 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .errors import IdentificationError
 
@@ -44,8 +45,6 @@ def _fit_poly(src, dst, deg, centre, scale):
 
 
 def _mutual(pred, det, tol):
-    from scipy.spatial import cKDTree
-
     if len(det) == 0 or len(pred) == 0:
         return np.zeros(0, int), np.zeros(0, int)
     d1, j = cKDTree(det).query(pred, distance_upper_bound=tol)
@@ -60,8 +59,6 @@ def _mutual(pred, det, tol):
 def identify(dots_screen, fiducials, blobs, *, step_screen_px: float, cam_per_screen_px: float, image_size,
              name: str = "capture") -> Matches:
     """Match a pattern's dots (screen px) with a capture's blobs (camera px)."""
-    from scipy.spatial import cKDTree
-
     det = blobs.xy_px
     n_det = len(det)
     step = step_screen_px * cam_per_screen_px

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -149,8 +150,6 @@ def _bad(path, where, value, allowed):
 def check_pattern_file_name(name, path, where) -> str:
     """A pattern's ``file``: a plain ``*.png`` name inside the pattern folder (no folder part, not
     hidden, not ``..``), so no path read from ``patterns.json`` leaves its folder."""
-    import re
-
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}\.png", name) or ".." in name:
         raise _bad(path, where, name, "a plain file name ending .png, inside the pattern folder (letters, digits, _ . -; "
                    "no folder, not hidden)")

@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .radiometric import v_mag_of_dn
+
 __all__ = ["residual_figure", "radiometric_figure"]
 
 
 def _figure(width_in: float, height_in: float, dpi: int = 100):
+    # matplotlib only when a figure is drawn
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -47,8 +50,6 @@ def residual_figure(holdout_arcsec, fit_arcsec):
 def radiometric_figure(result):
     """The fitted screen curve (DN -> pupil irradiance) with the power-meter readings, and the V
     magnitude each DN stands for."""
-    from .radiometric import v_mag_of_dn
-
     fac = result.facility
     rm = fac.radiometric
     dn = np.arange(0, rm.max_dn + 1)

@@ -20,7 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares
 
+from skynav.renderer.radiometry import Radiometry
 from skynav.scenes.facility import Facility, RadiometricModel
 
 from .errors import MeasurementError
@@ -116,8 +118,6 @@ class RadiometricResult:
 def v_mag_of_dn(facility: Facility, dn, *, psf_pixels: float) -> np.ndarray:
     """V magnitude of an A0V star whose camera electrons equal ``psf_pixels`` screen pixels at
     ``dn`` above black (flat field 1), via the renderer's radiometry zero point."""
-    from skynav.renderer.radiometry import Radiometry
-
     rad = Radiometry.for_camera(facility.camera)
     rm = facility.radiometric
     e_per_s = (rm.irradiance_w_m2(dn) - rm.black_w_m2) * facility.electrons_per_s_per_w_m2() * psf_pixels
@@ -126,8 +126,6 @@ def v_mag_of_dn(facility: Facility, dn, *, psf_pixels: float) -> np.ndarray:
 
 
 def calibrate_radiometric(facility: Facility, csv_path, *, psf_pixels: float = 20.0) -> RadiometricResult:
-    from scipy.optimize import least_squares
-
     d, n, e = read_measurements(csv_path, max_dn=facility.screen.max_dn)
     per = e / n
     m = facility.screen.max_dn

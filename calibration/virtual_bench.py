@@ -29,8 +29,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.signal import fftconvolve
 
-from skynav.scenes.facility import ARCSEC, Facility, GeometricModel, RadiometricModel, ResidualField
+from skynav.renderer.detector import Sensor
+from skynav.renderer.optics import is_polychromatic, kernel_for
+from skynav.scenes.constants import ARCSEC_RAD
+from skynav.scenes.facility import Facility, GeometricModel, RadiometricModel, ResidualField
+from skynav.scenes.psf import GaussianPSFModel
+
+from .patterns import design
 
 #: Samples per camera pixel, at least, of the grid a non-Gaussian camera PSF is applied on. A
 #: diffraction kernel sharper than a screen pixel (lambda F = 0.4 camera px = 0.9 screen px on
@@ -68,7 +76,7 @@ def _ripple(screen, amplitude_arcsec: float, n: int = 33) -> ResidualField:
     x = np.linspace(-0.5, screen.width_px - 0.5, n)
     y = np.linspace(-0.5, screen.height_px - 0.5, n)
     X, Y = np.meshgrid(x / screen.width_px, y / screen.height_px)
-    a = amplitude_arcsec * ARCSEC
+    a = amplitude_arcsec * ARCSEC_RAD
     return ResidualField(x_px=x, y_px=y, dx_rad=a * np.sin(2 * np.pi * (2.0 * X + 0.7 * Y) + 0.3),
                          dy_rad=a * np.cos(2 * np.pi * (1.3 * X - 1.8 * Y) + 1.1))
 
@@ -92,8 +100,6 @@ def scenario(name: str, facility: Facility) -> TrueBench:
         return TrueBench(geometric=GeometricModel(**b, residual=_ripple(facility.screen, 3.0)), radiometric_scale=1.3,
                          vignetting=0.35)
     if name == "shifted":
-        from .patterns import design
-
         step_mm = design(facility, phases=1)[0].grid_step_px * facility.screen.pixel_pitch_um * 1e-3
         return TrueBench(geometric=GeometricModel(**dict(base, decentre_x_mm=base["decentre_x_mm"] - step_mm)))
     if name == "roll90":
@@ -166,9 +172,6 @@ class VirtualBench:
         ``up`` x ``up`` per screen pixel (:data:`PSF_SAMPLES_PER_CAMERA_PX`), weights (H * W, K)
         the share of each in every camera pixel (one kernel: all ones); None for the Gaussian,
         which blurs by :func:`scipy.ndimage.gaussian_filter`. Built once per bench."""
-        from skynav.renderer.optics import is_polychromatic, kernel_for
-        from skynav.scenes.psf import GaussianPSFModel
-
         cam = self.facility.camera
         if isinstance(cam.psf, GaussianPSFModel):
             return None
@@ -193,9 +196,6 @@ class VirtualBench:
         each camera pixel's screen point ``xy`` (H, W, 2), per screen px: tile by tile, the
         screen crop under a tile (plus the kernel's reach) cut into ``up`` x ``up`` uniform
         squares, convolved with the kernel(s) and read by cubic interpolation."""
-        from scipy import ndimage
-        from scipy.signal import fftconvolve
-
         kernels, weights, up = self.psf_kernels()
         H, W = xy.shape[:2]
         reach = max(g.shape[0] // 2 for g in kernels) // up + 4  # screen px
@@ -230,8 +230,6 @@ class VirtualBench:
 
     def expected_electrons(self, screen_dn: np.ndarray) -> np.ndarray:
         """Noise-free camera electrons of a screen image, shape (H, W) of the camera."""
-        from scipy import ndimage
-
         cam = self.facility.camera
         xy, area = self.camera_map()
         k = self.facility.electrons_per_s_per_w_m2() * cam.exposure_s
@@ -248,8 +246,6 @@ class VirtualBench:
     def capture(self, screen_dn: np.ndarray, rng: np.random.Generator, frames: int = 16, exposure_scale: float = 1.0) -> np.ndarray:
         """The camera's (averaged) capture of a screen image, DN at the camera's bit depth;
         ``exposure_scale`` lengthens the camera's exposure (the lab's exposure setting)."""
-        from skynav.renderer.detector import Sensor
-
         cam = self.facility.camera
         e = self.expected_electrons(screen_dn) * exposure_scale
         sensor = Sensor(cam.sensor, e.shape)
@@ -268,4 +264,4 @@ def uncalibrated_error_arcsec(facility: Facility, truth: TrueBench, n: int = 41)
     xy = facility.projection.project(cam.line_of_sight(g))
     true = dataclasses.replace(facility.projection, model=truth.geometric).line_of_sight(xy)
     nom = facility.projection.line_of_sight(xy)
-    return float(np.max(np.linalg.norm(np.cross(true, nom), axis=-1)) / ARCSEC)
+    return float(np.max(np.linalg.norm(np.cross(true, nom), axis=-1)) / ARCSEC_RAD)

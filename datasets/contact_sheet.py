@@ -9,10 +9,20 @@ RGB PNG, atomically.
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
+from skimage.draw import circle_perimeter
+
+from . import layout
+from .errors import DatasetError
+from .frame_files import atomic_write_bytes
+from .plots import plot_leg_magnitudes
+from .reader import open_dataset
+from .samplers import make_plan
 
 __all__ = ["preview", "contact_sheet"]
 
@@ -31,9 +41,6 @@ def _stretch(dn: np.ndarray, max_dn: int) -> np.ndarray:
 
 
 def _tile(record, tile_px: int, label: str, star_v_max: float = 7.0):
-    from PIL import Image, ImageDraw
-    from skimage.draw import circle_perimeter
-
     truth = record.truth
     cam = truth["camera"]
     h, w = int(cam["height"]), int(cam["width"])
@@ -69,8 +76,6 @@ def _tile(record, tile_px: int, label: str, star_v_max: float = 7.0):
 
 def contact_sheet(records, *, columns: int = 4, tile_px: int = 256, star_v_max: float = 7.0):
     """A Pillow RGB image of frames (records with ``dn``, ``truth``, ``index``) in a grid."""
-    from PIL import Image
-
     records = list(records)
     if not records:
         raise ValueError("no frames to show")
@@ -101,11 +106,6 @@ def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, ti
     star_v_max : float
         Circle the stars brighter than this V magnitude.
     """
-    import io
-
-    from .frame_files import atomic_write_bytes
-    from .reader import open_dataset
-
     ds = open_dataset(path)
     n = len(ds)
     if frames is None:
@@ -128,11 +128,6 @@ def leg_plot(path, out_png, *, step_s: float = 6 * 3600.0) -> Path:
     DatasetError
         The dataset is not a ``sequence``.
     """
-    from . import layout
-    from .errors import DatasetError
-    from .plots import plot_leg_magnitudes
-    from .samplers import make_plan
-
     recipe = layout.read_manifest(path)["recipe"]
     if recipe.get("kind") != "sequence":
         raise DatasetError(f"{path}: a {recipe.get('kind')!r} dataset has no navigation legs to plot; only 'sequence' has")

@@ -25,13 +25,21 @@ import dataclasses
 import os
 import pickle
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from skynav.renderer.render import RenderOptions, render
+from skynav.scenes.scene import build_scene
+
 from . import layout
+from .atomic_files import atomic_write_many
 from .errors import DatasetMismatchError
+from .frame_files import encode_frame, sha256_file
+from .journal import write_record
+from .plan import frame_seed
 from .pool import THREAD_VARS, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
 __all__ = ["FrameResult", "EncodedFrame", "produce_frame", "make_frame", "commit_frame", "run_in_process",
@@ -131,12 +139,6 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
                render_options=None) -> EncodedFrame:
     """The first half of :func:`produce_frame` (same parameters): sample, render and encode
     frame ``k`` in memory."""
-    from skynav.renderer.render import RenderOptions, render
-    from skynav.scenes.scene import build_scene
-
-    from .frame_files import encode_frame
-    from .plan import frame_seed
-
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
@@ -175,10 +177,6 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
 def commit_frame(made: EncodedFrame) -> FrameResult:
     """The second half of :func:`produce_frame`: write the frame's files (each atomically),
     their SHA-256, then the frame's checksum record, its commit point."""
-    from .atomic_files import atomic_write_many
-    from .frame_files import sha256_file
-    from .journal import write_record
-
     t0 = time.perf_counter()
     k, formats = made.frame, tuple(made.blobs)
     rel = layout.frame_relpaths(k, formats)
@@ -214,6 +212,7 @@ def _produce_dask(ks, *, blob, out_dir, master_seed, formats, mag, options) -> l
     # A Dask worker process owns `nthreads` cores (its nanny already sets OpenBLAS/OpenMP/MKL to
     # 1); size skynav's pools to that unless the cluster's environment says otherwise.
     if "SKYNAV_THREADS" not in os.environ:
+        # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
@@ -239,8 +238,6 @@ def _made_and_written(jobs, accept) -> None:
     thread while this thread makes frame k + 1; ``accept`` sees each frame in order, after its
     record is written. A failure in either half ends the loop once the frame being written is
     complete."""
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
         pending = None
         for j in jobs:
@@ -303,6 +300,7 @@ def run_dask(plan, accept, client) -> tuple:
     """Make the plan's frames as Dask tasks on ``client``, each up to :data:`POOL_CHUNK`
     consecutive frames with their writes overlapped (as :func:`run_process_pool`). Returns
     ``(workers, executor name)``."""
+    # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
     from distributed import as_completed
 
     n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))

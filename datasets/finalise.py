@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from . import frame_files, layout
+from .frame_files import atomic_write_bytes, sha256_file
 from .plan import SEED_SCHEME
 
 __all__ = ["base_manifest", "Progress", "write_checkpoint", "finalise"]
@@ -123,8 +124,6 @@ def finalise(plan, progress: Progress) -> None:
 
     Call only when every frame is done (``progress.complete``).
     """
-    from .frame_files import atomic_write_bytes, sha256_file
-
     root = Path(plan.root)
     n = plan.n_frames
     files = dict(progress.files)

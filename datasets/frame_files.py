@@ -50,11 +50,16 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
+from skynav.scenes.camera import Camera
 from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
+from skynav.scenes.timescales import time_from_tdb_seconds
 
 from .atomic_files import _open_binary, atomic_path, atomic_write_bytes, sha256_file  # noqa: F401  (re-exported)
-from .errors import ConfigValueError, OutputFormatError
+from .errors import ConfigValueError, OutputFormatError, OutputPathError
+from .frame_truth import epoch_tdb_seconds
+from .truth_schema import truth_json_bytes
 
 __all__ = [
     "FRAME_FORMATS",
@@ -105,8 +110,6 @@ def check_output_dir(directory, *, what: str = "output folder") -> Path:
     ------
     OutputPathError
     """
-    from .errors import OutputPathError
-
     d = Path(os.path.abspath(os.fspath(directory)))
     for sysdir in _SYSTEM_DIRS:
         if str(d) == sysdir or str(d).startswith(sysdir + "/"):
@@ -131,8 +134,6 @@ def check_stem(stem, *, what: str = "file name") -> str:
     ------
     OutputPathError
     """
-    from .errors import OutputPathError
-
     if not isinstance(stem, str) or not stem.strip() or "/" in stem or os.sep in stem or stem.startswith(".") \
             or "\0" in stem:
         raise OutputPathError(f"{what} {stem!r}: expected a plain file name (not empty, no '/', "
@@ -379,6 +380,7 @@ def write_exr(path, channels: Mapping, *, header: Mapping | None = None) -> None
 
 def read_exr(source) -> dict:
     """Channels of an OpenEXR file, ``{name: ndarray (H, W)}`` (float32 or uint32)."""
+    # OpenEXR only for EXR files: the reader imports this module for PNGs
     import OpenEXR
 
     with _open_binary(source) as f:
@@ -388,6 +390,7 @@ def read_exr(source) -> dict:
 
 def read_exr_header(source) -> dict:
     """Header attributes of an OpenEXR file (including OpenEXR's own structural ones)."""
+    # OpenEXR only for EXR files: the reader imports this module for PNGs
     import OpenEXR
 
     with _open_binary(source) as f:
@@ -578,8 +581,6 @@ def read_png_layout(source) -> dict:
     exceed ``2**sBIT - 1``. ``"raw"``: the values are the DN (files of skynav <= 0.3.0, whose
     ``sBIT`` named the bit depth of unscaled DN, and PNGs without ``sBIT``).
     """
-    from PIL import Image
-
     with _open_binary(source) as f:
         data = f.read()
     with Image.open(io.BytesIO(data)) as image:
@@ -594,8 +595,6 @@ def read_png(source) -> np.ndarray:
     raw ones (skynav <= 0.3.0, plain PNGs) are returned as stored. Either way the DN are those
     that were written.
     """
-    from PIL import Image
-
     with _open_binary(source) as f:
         data = f.read()
     with Image.open(io.BytesIO(data)) as image:
@@ -707,12 +706,8 @@ def fits_frame_header(truth: Mapping) -> dict:
     truth : mapping
         A ``skynav.frame/2`` dict (``epoch``, ``observer``, ``camera`` with its ``sensor``).
     """
+    # astropy (~0.2-0.7 s to import) only for FITS files: the reader imports this module for PNGs
     from astropy.time import TimeDelta
-
-    from skynav.scenes.camera import Camera
-    from skynav.scenes.timescales import time_from_tdb_seconds
-
-    from .frame_truth import epoch_tdb_seconds
 
     cam = Camera.from_dict(dict(truth["camera"]))
     sp = cam.sensor
@@ -787,6 +782,7 @@ def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mappin
 
 def _fits_bytes(image, wcs_header, header) -> bytes:
     """The checked bytes of :func:`write_fits`."""
+    # astropy (~0.2-0.7 s to import) only for FITS files: the reader imports this module for PNGs
     from astropy.io import fits
 
     a = np.asarray(image)
@@ -815,6 +811,7 @@ def _fits_bytes(image, wcs_header, header) -> bytes:
 
 def read_fits(source):
     """(image ndarray (H, W), header as ``astropy.io.fits.Header``) of the primary HDU."""
+    # astropy (~0.2-0.7 s to import) only for FITS files: the reader imports this module for PNGs
     from astropy.io import fits
 
     with _open_binary(source) as f, fits.open(f, memmap=False) as hdul:
@@ -854,8 +851,6 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
     OutputFormatError, TruthSchemaError
         Data the format cannot hold.
     """
-    from .errors import OutputPathError
-
     check_stem(stem)
     directory = Path(directory)
     if not directory.is_dir():  # an existing folder (a dataset's frames/) needs no more checks per frame
@@ -914,7 +909,5 @@ def frame_file_bytes(frame, fmt: str) -> bytes:
     if fmt == "exr":
         return exr_bytes({"electrons": frame.electrons, "irradiance_w_m2": frame.irradiance_w_m2})
     if fmt == "json":
-        from .truth_schema import truth_json_bytes
-
         return truth_json_bytes(frame.truth)
     raise ConfigValueError("formats", fmt, "png, exr or json")

@@ -17,7 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.scenes.timescales import tdb_seconds
+
 from .errors import TruthSchemaError
+from .truth_schema import FRAME_SCHEMA, read_truth_json, schema_problems
 
 __all__ = ["StarsTruth", "BodyTruth", "CosmicRaysTruth", "FrameTruth", "read_frame_truth", "epoch_tdb_seconds"]
 
@@ -61,7 +64,6 @@ def epoch_tdb_seconds(epoch: dict) -> float:
     s = epoch.get("tdb_seconds_past_j2000")
     if s is not None:
         return float(s)
-    from skynav.scenes.timescales import tdb_seconds
 
     return float(tdb_seconds(epoch["tdb_iso"]))
 
@@ -243,8 +245,6 @@ class FrameTruth:
             The dict violates the schema (one line: the source and the first JSON path).
         """
         if validate:
-            from .truth_schema import FRAME_SCHEMA, schema_problems
-
             problems = schema_problems(truth, FRAME_SCHEMA)
             if problems:
                 more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
@@ -273,6 +273,4 @@ class FrameTruth:
 
 def read_frame_truth(source, *, validate: bool = True) -> FrameTruth:
     """:class:`FrameTruth` of a frame's JSON file (path or binary file object)."""
-    from .truth_schema import read_truth_json
-
     return FrameTruth.from_dict(read_truth_json(source), validate=validate, source=str(getattr(source, "name", source)))

@@ -28,24 +28,35 @@ camera, visibility, catalogue limit) and drawn by :func:`skynav.renderer.display
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 
-from .frame_files import PNG_SCALING, atomic_write_bytes, png_bytes
+from skynav.renderer.display import screen_frame
+from skynav.scenes.camera import Camera
+from skynav.scenes.errors import SkynavError
+from skynav.scenes.scene import build_scene
+from skynav.scenes.visibility import VisibilityCriteria
+
+from . import open_dataset
+from .errors import DatasetMismatchError, OutputFormatError, OutputPathError, TruthSchemaError
+from .frame_files import PNG_SCALING, atomic_write_bytes, png_bytes, sha256_file
+from .frame_truth import epoch_tdb_seconds
+from .journal import frame_problem, write_record
+from .layout import MANIFEST_NAME, frame_relpaths, package_version
+from .lock import dataset_lock
+from .pool import process_pool_map
+from .runner import connect_dask
 
 SCHEMA = "skynav.hil_frame/2"
 
 
 def scene_from_truth(truth: dict):
-    from skynav.scenes.camera import Camera
-    from skynav.scenes.scene import build_scene
-    from skynav.scenes.visibility import VisibilityCriteria
-
-    from .frame_truth import epoch_tdb_seconds
-
     kw = {}
     if "visibility" in truth:
         kw["visibility"] = VisibilityCriteria.from_dict(truth["visibility"])
@@ -68,8 +79,6 @@ def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, see
 
 def screen_frame_bytes(facility, scene, *, source: dict, seed: int = 0, options=None):
     """Render one screen frame in memory: ``(PNG bytes, JSON record)``, what :func:`write_screen_frame` writes."""
-    from skynav.renderer.display import screen_frame
-
     sf = screen_frame(scene, facility, rng=np.random.default_rng(seed), options=options)
     sc = facility.screen
     on = facility.projection.in_screen(sf.stars_xy) if len(sf.stars_xy) else np.zeros(0, bool)
@@ -103,10 +112,6 @@ FORMATS = ("png", "json")
 def _export_one(job):
     """Make screen frame k (files, then the checksum record); returns ``(k, {relpath: sha256})``."""
     facility, root, out, k = job
-    from . import open_dataset
-    from .frame_files import sha256_file
-    from .journal import write_record
-    from .layout import frame_relpaths
 
     ds = open_dataset(root)
     truth = ds[k].truth  # the raw ground-truth dict
@@ -120,9 +125,8 @@ def _export_one(job):
 
 
 def _export_dask(k, *, facility, root, out):
-    import os
-
     if "SKYNAV_THREADS" not in os.environ:
+        # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
         from distributed import get_worker
 
         os.environ["SKYNAV_THREADS"] = str(max(1, int(get_worker().state.nthreads)))
@@ -136,13 +140,6 @@ _SCENE_KEYS = ("epoch", "observer", "attitude", "camera")
 def _check_scene_sections(truth: dict, where, k: int) -> None:
     """The truth sections a screen frame is rebuilt from, read as :func:`scene_from_truth` reads
     them (without the schema validator: a few microseconds a frame): one line naming the key."""
-    import math
-
-    from skynav.scenes.errors import SkynavError
-
-    from .errors import TruthSchemaError
-    from .frame_truth import epoch_tdb_seconds
-
     def vector(section, key, shape):
         try:
             a = np.asarray(truth[section][key], dtype=float)
@@ -166,8 +163,6 @@ def _check_scene_sections(truth: dict, where, k: int) -> None:
     vector("attitude", "R_cam_icrs", (3, 3))
     vector("attitude", "angular_velocity_rad_s", (3,))
     if "visibility" in truth:
-        from skynav.scenes.visibility import VisibilityCriteria
-
         try:
             VisibilityCriteria.from_dict(truth["visibility"])
         except (SkynavError, KeyError, TypeError, ValueError, AttributeError):
@@ -182,11 +177,6 @@ def check_dataset_cameras(ds, facility, dataset_path) -> None:
     """Refuse a dataset the facility cannot show: a frame whose truth lacks what the screen frame
     is rebuilt from, or whose camera is not the facility's (the bench's camera must be the one the
     dataset was made for, as ``render --hil`` requires). One line naming the frame file."""
-    from skynav.scenes.camera import Camera
-    from skynav.scenes.errors import SkynavError
-
-    from .errors import DatasetMismatchError, TruthSchemaError
-
     seen = {}
     for k in range(len(ds)):
         truth = ds._read(k, dn=False)[0]
@@ -206,8 +196,6 @@ def check_dataset_cameras(ds, facility, dataset_path) -> None:
                                        f"{' '.join(str(exc).split())[:120]})", []) from None
         cam, fc = seen[key], facility.camera
         if cam != fc:
-            import dataclasses
-
             diff = [f.name for f in dataclasses.fields(cam) if getattr(cam, f.name) != getattr(fc, f.name)]
             first = diff[0] if diff else "?"
             raise DatasetMismatchError(
@@ -219,8 +207,6 @@ def check_dataset_cameras(ds, facility, dataset_path) -> None:
 
 def facility_sha256(facility) -> str:
     """SHA-256 of the facility's canonical mapping (what a facility file holds)."""
-    import hashlib
-
     return hashlib.sha256(json.dumps(facility.to_mapping(), sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -237,14 +223,6 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
         (:class:`~skynav.datasets.errors.DatasetMismatchError`); another process is exporting
         into it (:class:`~skynav.datasets.lock.DatasetLockedError`); no Dask scheduler there.
     """
-    import hashlib
-
-    from . import open_dataset
-    from .errors import DatasetMismatchError, OutputFormatError, OutputPathError
-    from .journal import frame_problem
-    from .layout import MANIFEST_NAME, package_version
-    from .lock import dataset_lock
-
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise OutputFormatError(f"workers = {workers!r}: expected an integer >= 1")
     ds = open_dataset(dataset_path)
@@ -317,19 +295,16 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
 
 
 def _run_pool(jobs, accept, n_workers):
-    from .pool import process_pool_map
-
     process_pool_map(_export_one, jobs, n_workers, accept=accept)
     return n_workers, "processes (spawn)"
 
 
 def _run_dask(jobs, accept, client, address):
-    from .runner import connect_dask
-
     own = client is None
     if own:
         client = connect_dask(address)
     try:
+        # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
         from distributed import as_completed
 
         n_workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))

@@ -10,12 +10,21 @@ on disk). Each problem is one line naming the file (and, for a schema violation,
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
+from skynav.scenes.camera import Camera
+
 from . import layout
+from .errors import DatasetError, SkynavError
+from .frame_files import sha256_file
+from .journal import RECORD_EXT, decode_problem, record_relpath
+from .truth_schema import FRAME_SCHEMA, schema_problems, validate_manifest
 
 __all__ = ["VerifyReport", "verify", "info"]
 
@@ -58,10 +67,6 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     progress : bool
         Show a tqdm bar over the files.
     """
-    from .errors import DatasetError
-    from .frame_files import sha256_file
-    from .truth_schema import FRAME_SCHEMA, schema_problems, validate_manifest
-
     root = Path(path)
     problems: list = []
     try:
@@ -83,8 +88,6 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     if recipe.get("kind") == "montecarlo" and recipe.get("frames") != n:
         problems.append(f"{layout.MANIFEST_NAME}: counts.frames = {n} but the recipe asks for {recipe.get('frames')}")
 
-    from .journal import RECORD_EXT, decode_problem, record_relpath
-
     # datasets made since per-frame checksum records exist list them in the manifest
     has_records = any(rel.endswith("." + RECORD_EXT) for rel in files)
     expected = set()
@@ -101,8 +104,6 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     names = sorted(files)
     it = names
     if progress:
-        from tqdm.auto import tqdm
-
         it = tqdm(names, unit="file", desc="verify")
     checked = 0
     for rel in it:
@@ -172,8 +173,6 @@ def info(path) -> dict:
         No dataset there, or a manifest or ``index.csv`` too damaged to summarise (one line
         naming the file; ``verify`` says more).
     """
-    from .errors import DatasetError, SkynavError
-
     root = Path(path)
     m = layout.read_manifest(root)
     try:
@@ -187,14 +186,10 @@ def info(path) -> dict:
 
 
 def _csv_error():
-    import csv
-
     return csv.Error
 
 
 def _info(root: Path, m: dict) -> dict:
-    from skynav.scenes.camera import Camera
-
     r = m["recipe"]
     cam = Camera.from_dict(m["camera"])
     c = m.get("counts", {})

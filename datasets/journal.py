@@ -14,10 +14,12 @@ same temp + fsync + rename as the frame's files, so it is either whole or absent
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
 from . import layout
+from .frame_files import atomic_write_bytes, read_exr, read_fits, read_png, sha256_file
 
 __all__ = ["RECORD_EXT", "record_relpath", "record_bytes", "write_record", "read_record", "decode_problem", "frame_problem",
            "check_frame"]
@@ -37,10 +39,6 @@ def record_bytes(files: dict) -> bytes:
 
 def write_record(root, k: int, files: dict) -> dict:
     """Write frame ``k``'s record atomically (after its files); returns ``{record relpath: sha256}``."""
-    import hashlib
-
-    from .frame_files import atomic_write_bytes
-
     data = record_bytes(files)
     rel = record_relpath(k)
     # Atomic rename, no fsync: the frame's files are already durable (each fsynced with its
@@ -68,8 +66,6 @@ def read_record(root, k: int):
 
 def decode_problem(path) -> str | None:
     """None if the file decodes as its format (PNG, EXR, JSON, FITS), else a short reason."""
-    from .frame_files import read_exr, read_fits, read_png
-
     path = Path(path)
     ext = path.suffix.lower()
     try:
@@ -103,10 +99,6 @@ def frame_problem(root, k: int, formats, *, recorded=None, decode: bool = True):
         table, where it has the file) and every file decodes; ``files`` is then
         ``{relpath: sha256}`` and ``record`` ``{record relpath: sha256}``.
     """
-    import hashlib
-
-    from .frame_files import sha256_file
-
     root = Path(root)
     recorded = recorded or {}
     rels = list(layout.frame_relpaths(k, formats).values())

@@ -22,10 +22,15 @@ import io
 import json
 import math
 import os
+from importlib.metadata import version
 from pathlib import Path
 
-from .errors import DatasetError, DatasetMismatchError, IncompleteDatasetError
+import numpy as np
+
+from skynav.scenes.frames import dcm_to_radec_twist
+
 from .atomic_files import atomic_write_bytes, sha256_file
+from .errors import DatasetError, DatasetMismatchError, IncompleteDatasetError
 
 __all__ = [
     "MANIFEST_SCHEMA",
@@ -56,8 +61,6 @@ INDEX_COLUMNS = [
 def package_version() -> str:
     """Installed version of the ``skynav`` distribution."""
     try:
-        from importlib.metadata import version
-
         return version("skynav")
     except Exception:  # pragma: no cover - not installed
         return "unknown"
@@ -140,10 +143,6 @@ def _fmt(x) -> str:
 
 def index_row(truth: dict, k: int, files: dict) -> dict:
     """One ``index.csv`` row from a frame's ground truth (numbers as ``repr``: exact)."""
-    import numpy as np
-
-    from skynav.scenes.frames import dcm_to_radec_twist
-
     ds = truth.get("dataset", {}) or {}
     obs = truth["observer"]
     R = np.asarray(truth["attitude"]["R_cam_icrs"], dtype=float)

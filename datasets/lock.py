@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
 import socket
 from pathlib import Path
@@ -60,8 +61,6 @@ def dataset_lock(root, *, what: str = "dataset"):
     DatasetLockedError
         Another live process holds it.
     """
-    import fcntl
-
     path = Path(root) / LOCK_NAME
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)

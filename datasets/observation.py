@@ -22,7 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.scenes.camera import Camera
+from skynav.scenes.timescales import time_from_tdb_seconds
+
 from .errors import ConfigValueError
+from .frame_truth import epoch_tdb_seconds
 
 __all__ = ["CalibrationErrorModel", "CalibrationOffsets", "Observation", "make_observation"]
 
@@ -150,8 +154,6 @@ class Observation:
     @property
     def epoch(self):
         """Mid-exposure epoch as ``astropy.time.Time`` in the TDB scale (two-part JD, exact)."""
-        from skynav.scenes.timescales import time_from_tdb_seconds
-
         return time_from_tdb_seconds(self.epoch_tdb_s)
 
     def __repr__(self) -> str:
@@ -174,10 +176,6 @@ def make_observation(truth: dict, dn: np.ndarray, *, index: int,
     calibration_error : CalibrationErrorModel, optional
         Perturb the camera by this model.
     """
-    from skynav.scenes.camera import Camera
-
-    from .frame_truth import epoch_tdb_seconds
-
     camera = Camera.from_dict(truth["camera"])
     if calibration_error is not None:
         camera = calibration_error.apply(camera)

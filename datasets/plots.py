@@ -21,6 +21,9 @@ import math
 import numpy as np
 
 from skynav.scenes.constants import SECONDS_PER_DAY
+from skynav.scenes.scene import sky_bodies
+
+from .frame_files import atomic_write_bytes
 
 __all__ = ["plot_lines_png", "lines_figure", "leg_magnitudes", "leg_magnitudes_figure", "plot_leg_magnitudes",
            "figure_png", "new_figure"]
@@ -32,6 +35,7 @@ _COLOURS = {"mercury": "#969696", "venus": "#d4a017", "earth": "#3c82ff", "moon"
 
 def new_figure(size_px=(900, 520), dpi: int = 100):
     """A matplotlib Figure of ``size_px`` pixels on an Agg canvas (no pyplot)."""
+    # matplotlib only when a figure is drawn
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -101,8 +105,6 @@ def lines_figure(x, series: dict, *, title: str, xlabel: str, ylabel: str, inver
 
 def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "venus", "earth", "mars", "jupiter", "saturn")):
     """(days since the cruise start (N,), {planet: V (N,)}, {planet: sun angle deg (N,)}) along a sequence plan."""
-    from skynav.scenes.scene import sky_bodies
-
     t = np.arange(plan.start_tdb_s, plan.end_tdb_s, step_s)
     mags = {p: np.empty(t.size) for p in planets}
     sun = {p: np.empty(t.size) for p in planets}
@@ -116,8 +118,6 @@ def leg_magnitudes(plan, *, step_s: float = 6 * 3600.0, planets=("mercury", "ven
 
 def plot_leg_magnitudes(plan, out_png, *, step_s: float = 6 * 3600.0) -> None:
     """PNG of :func:`leg_magnitudes_figure` (atomic write)."""
-    from .frame_files import atomic_write_bytes
-
     atomic_write_bytes(out_png, figure_png(leg_magnitudes_figure(plan, step_s=step_s)))
 
 

@@ -18,12 +18,27 @@ Reading loads no renderer, Mitsuba or Dr.Jit code (``tests/test_architecture.py`
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
+from skynav.scenes.camera import Camera
+
 from . import layout
-from .errors import SkynavError, DatasetError, FrameIndexError, IncompleteDatasetError
+from .errors import (
+    DatasetError,
+    FrameIndexError,
+    IncompleteDatasetError,
+    OutputFormatError,
+    SkynavError,
+    TruthSchemaError,
+)
+from .frame_files import read_exr, read_png
+from .frame_truth import FrameTruth
+from .journal import decode_problem
+from .observation import make_observation
+from .truth_schema import FRAME_SCHEMA, read_truth_json, schema_problems
 
 __all__ = ["Dataset", "FrameRecord", "open_dataset", "read_image_dn", "read_frame_pair"]
 
@@ -35,9 +50,6 @@ def read_image_dn(path) -> np.ndarray:
     files (``sBIT``, skynav after 0.3.0) are unscaled, raw ones returned as stored; a colour
     PNG gives the mean of its RGB channels (float). Raises ``OSError`` for an unreadable file.
     """
-    from .errors import OutputFormatError
-    from .frame_files import read_png
-
     try:
         return read_png(path)
     except OutputFormatError:  # not greyscale: read as colour, the mean of R, G, B
@@ -58,10 +70,6 @@ def read_frame_pair(png_path, json_path, *, index: int):
     ``epoch``. A camera without ``sensor`` gets one of the JSON's ``bit_depth``. Raises
     :class:`DatasetError` naming the file for an unreadable PNG, JSON or camera.
     """
-    import json
-
-    from .observation import make_observation
-
     png_path, json_path = Path(png_path), Path(json_path)
     try:
         truth = json.loads(json_path.read_text(encoding="utf-8"))
@@ -118,8 +126,6 @@ class FrameRecord:
 
     def _channels(self):
         if self._exr is None and self._exr_path is not None:
-            from .frame_files import read_exr
-
             ch = read_exr(self._exr_path)
             for a in ch.values():
                 if isinstance(a, np.ndarray):
@@ -168,9 +174,6 @@ class Dataset:
 
     def _read(self, i: int, *, dn: bool = True):
         """(truth dict, DN or None, relative paths) of frame ``i``."""
-        from .frame_files import read_png
-        from .truth_schema import read_truth_json
-
         rel = layout.frame_relpaths(i, self.formats)
         try:
             truth = read_truth_json(self.root / rel["json"])
@@ -180,8 +183,6 @@ class Dataset:
         except SkynavError:
             raise
         except Exception as exc:  # noqa: BLE001 - a damaged file (0 bytes, truncated, corrupt)
-            from .journal import decode_problem
-
             bad = next((r for r in rel.values() if decode_problem(self.root / r) is not None), rel.get("png", rel["json"]))
             raise DatasetError(f"{self.root / bad}: frame {i} is damaged ({exc.__class__.__name__}); "
                                f"run `skynav dataset verify`") from None
@@ -211,8 +212,6 @@ class Dataset:
             ``dn`` (H, W), ``epoch_tdb_s`` (TDB s past J2000; ``.epoch`` as astropy ``Time``),
             ``exposure_s``, ``camera`` as calibrated, ``calibration_error``.
         """
-        from .observation import make_observation
-
         i = self._frame_index(k)
         truth, dn, _ = self._read(i)
         if dn is None:
@@ -226,8 +225,6 @@ class Dataset:
         """Typed ground truth of frame ``k`` (for scoring code): a
         :class:`~skynav.datasets.frame_truth.FrameTruth`, checked against ``frame.schema.json``
         unless ``validate=False``. ``ds[k].truth`` stays the plain dict."""
-        from .frame_truth import FrameTruth
-
         i = self._frame_index(k)
         truth, _, rel = self._read(i, dn=False)
         try:
@@ -238,9 +235,6 @@ class Dataset:
     def _truth_error(self, i: int, exc: Exception):
         """One-line :class:`TruthSchemaError` for a frame truth the reader could not use: the first
         schema problem when there is one, else the error's kind."""
-        from .errors import TruthSchemaError
-        from .truth_schema import FRAME_SCHEMA, schema_problems
-
         if isinstance(exc, (DatasetError, TruthSchemaError, FrameIndexError)):  # already one line naming the file
             return exc
         rel = layout.frame_relpaths(i, self.formats)["json"]
@@ -264,8 +258,6 @@ class Dataset:
 
     @property
     def camera(self):
-        from skynav.scenes.camera import Camera
-
         return Camera.from_dict(self.manifest["camera"])
 
     def __repr__(self) -> str:

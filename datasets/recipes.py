@@ -32,12 +32,22 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 
-from skynav.scenes.config import (RENDER_KEYS, camera_from_mapping, render_settings_from_mapping,
-                                  scene_spec_from_mapping, visibility_from_mapping)
+import yaml
 
-from skynav.scenes.errors import MovedKeyError
+from skynav.scenes.config import (
+    RENDER_KEYS,
+    camera_from_mapping,
+    load_yaml,
+    render_settings_from_mapping,
+    scene_spec_from_mapping,
+    visibility_from_mapping,
+)
 from skynav.scenes.count_cap import cap_count
+from skynav.scenes.errors import MovedKeyError
+from skynav.scenes.psf import resolve_psf_files
+from skynav.scenes.timescales import to_time
 
 from .errors import RecipeError
 
@@ -158,8 +168,6 @@ def _list(d, key, where, n, **kw):
 
 
 def _epoch(value, name) -> str:
-    from skynav.scenes.timescales import to_time
-
     try:
         t = to_time(str(value)).tdb
         iso = t.isot
@@ -375,12 +383,6 @@ def read_recipe_mapping(path) -> dict:
     RecipeError
         A missing file (naming the presets) or malformed YAML (naming the line).
     """
-    import os
-
-    import yaml
-
-    from skynav.scenes.config import load_yaml
-
     if isinstance(path, str) and path in PRESETS and not os.path.isfile(path):
         return preset_recipe(path)
     try:
@@ -392,8 +394,6 @@ def read_recipe_mapping(path) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise RecipeError("recipe", str(path), f"valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__}{where})") from None
-    from skynav.scenes.psf import resolve_psf_files
-
     # a PSF file named in the recipe is found beside the recipe, wherever it is run from
     return resolve_psf_files(data, os.path.dirname(os.path.abspath(path)))
 
@@ -461,8 +461,6 @@ KEY_COMMENTS.update({f"render.{k}": text for k, (_, text) in RENDER_KEYS.items()
 
 def _flow(value) -> str:
     """One YAML value on one line (flow style)."""
-    import yaml
-
     text = yaml.safe_dump(value, default_flow_style=True, width=10_000, sort_keys=False).strip()
     return text[:-len("\n...")].strip() if text.endswith("...") else text
 
@@ -478,8 +476,6 @@ def _emit(lines: list, mapping: dict, prefix: str, indent: int) -> None:
             lines.append(f"{pad}{key}:")
             _emit(lines, value, dotted + ".", indent + 2)
         elif dotted == "scenes":
-            import yaml
-
             lines.append(f"{pad}{key}:")
             block = yaml.safe_dump(value, default_flow_style=None, sort_keys=False, width=100)
             lines.extend(pad + "  " + line for line in block.splitlines())

@@ -37,11 +37,22 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import layout
+from tqdm.auto import tqdm
+
+from skynav.renderer import jit_backend
+from skynav.renderer.render import RenderOptions, sensor_backend
+
+from . import execute, layout
 from .errors import DatasetError, RecipeError
 from .execute import FrameResult, check_backends, produce_frame
+from .finalise import Progress, base_manifest, finalise, write_checkpoint
+from .frame_files import atomic_write_bytes, check_output_dir
+from .journal import frame_problem
+from .lock import dataset_lock
 from .plan import RunPlan
-from .recipes import recipe_camera, validate_recipe
+from .recipes import RECIPE_RENDER_OPTIONS, recipe_camera, validate_recipe
+from .samplers import make_plan
+from .truth_schema import read_truth_json
 
 __all__ = ["FrameResult", "GenerateSummary", "produce_frame", "plan_run", "resolve_backends", "generate",
            "regenerate_frame"]
@@ -83,8 +94,6 @@ def _frame_present(root: Path, k: int, formats, recorded: dict):
     the record and the manifest (where it recorded the file), and every file decodes (PNG, EXR,
     JSON). Anything else (interrupted, truncated, altered) is made again.
     """
-    from .journal import frame_problem
-
     problem, files, record = frame_problem(root, k, formats, recorded=recorded)
     return None if problem is not None else (files, record)
 
@@ -96,8 +105,6 @@ def _existing_row(root: Path, k: int, files: dict, backends: dict):
     it as the run stopped) is kept only if its truth names no other sensor backend or Mitsuba
     variant than ``backends``.
     """
-    from .truth_schema import read_truth_json
-
     truth = read_truth_json(root / layout.frame_relpaths(k, ["json"])["json"])
     sensor = (truth.get("render") or {}).get("backend_used")
     if sensor in ("llvm", "numpy") and backends.get("sensor") not in (None, sensor):
@@ -124,9 +131,6 @@ def resolve_backends(render_options) -> dict:
     sensor ``"llvm"`` or ``"numpy"``; Mitsuba ``"cuda_ad_spectral"``, ``"llvm_ad_spectral"`` or
     ``"scalar_spectral"`` (None when ``render_options.resolved`` is False: nothing is ray-traced).
     """
-    from skynav.renderer import jit_backend
-    from skynav.renderer.render import sensor_backend
-
     variant = jit_backend.select_mitsuba_variant()[0] if render_options.resolved else None
     return {"sensor": sensor_backend(render_options.backend), "mitsuba_variant": variant}
 
@@ -141,6 +145,7 @@ def connect_dask(address: str, *, timeout_s: float = 10.0):
         or ``distributed`` is not installed.
     """
     try:
+        # dask.distributed (the optional 'dask' extra) only with a Dask scheduler
         from distributed import Client
     except ImportError:
         raise DatasetError(f"--dask-scheduler {address}: the 'distributed' package is not installed") from None
@@ -159,8 +164,6 @@ def make_folder(root) -> Path:
     DatasetError
         The path is a file, lies under a file, is not writable, or is in a system folder.
     """
-    from .frame_files import check_output_dir
-
     root = Path(root)
     check_output_dir(root, what="dataset folder")
     try:
@@ -176,8 +179,6 @@ def recipe_render_options(recipe: dict, options):
     """``options`` with the fields the recipe's ``render:`` mapping sets (``cosmic_rays_per_frame``,
     ``mitsuba_spp``) replaced: the recipe's keys win over the ``render_options`` argument, and the
     manifest records the result."""
-    from .recipes import RECIPE_RENDER_OPTIONS
-
     given = {k: v for k, v in (recipe.get("render") or {}).items() if k in RECIPE_RENDER_OPTIONS}
     return dataclasses.replace(options, **given) if given else options
 
@@ -193,12 +194,6 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
     ------
     RecipeError, DatasetMismatchError, DatasetError
     """
-    from .frame_files import atomic_write_bytes
-    from skynav.renderer.render import RenderOptions
-
-    from .finalise import base_manifest, write_checkpoint
-    from .samplers import make_plan
-
     recipe = validate_recipe(recipe)
     options = recipe_render_options(recipe, render_options if render_options is not None else RenderOptions())
     root = Path(out_dir)
@@ -241,8 +236,6 @@ def plan_run(recipe, out_dir, *, render_options=None, ephemeris=None, max_frames
 def _make_progress(progress, total: int, initial: int):
     """(update(n), close()) for a tqdm bar, a callback ``progress(done, total)``, or nothing."""
     if progress is True:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=total, initial=initial, unit="frame", desc="frames", smoothing=0.1)
         return bar.update, bar.close
     if callable(progress):
@@ -299,7 +292,6 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
         n_workers = int(workers) if workers is not None else (os.cpu_count() or 1)
         if n_workers < 1:
             raise RecipeError("workers", workers, "an integer >= 1")
-    from .lock import dataset_lock
 
     recipe = validate_recipe(recipe)  # a bad recipe is refused before anything is created
     make_folder(out_dir)
@@ -320,9 +312,6 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
 def _generate_locked(recipe, out_dir, *, use_dask, n_workers, client, progress, render_options,
                      flush_every_s, ephemeris, max_frames, t_start) -> GenerateSummary:
     """:func:`generate` once the folder's lock is held."""
-    from . import execute
-    from .finalise import Progress, finalise
-
     plan = plan_run(recipe, out_dir, render_options=render_options, ephemeris=ephemeris, max_frames=max_frames)
     n = plan.n_frames
     reused = len(plan.present)
@@ -366,10 +355,6 @@ def regenerate_frame(path, k: int, out_dir, *, render_options=None):
     :class:`FrameResult`; its checksums equal the manifest's when the package, recipe, seed and
     backends are the same.
     """
-    from skynav.renderer.render import RenderOptions
-
-    from .samplers import make_plan
-
     m = layout.read_manifest(path)
     recipe = m["recipe"]
     if render_options is None and isinstance(m.get("render_options"), dict):

@@ -28,11 +28,17 @@ import math
 import numpy as np
 
 from skynav.scenes import frames
+from skynav.scenes.config import scene_spec_from_mapping
 from skynav.scenes.constants import AU_KM, GM_KM3_S2, OBLIQUITY_J2000_RAD
+from skynav.scenes.ephemeris_jpl import default_ephemeris
+from skynav.scenes.errors import ObserverInsideBodyError
+from skynav.scenes.scene import SCENE_BODIES, resolve_spec, sky_bodies, sky_sun
 from skynav.scenes.timescales import tdb_seconds
 
 from .errors import SceneSamplingError
 from .plan import FrameRequest, epoch_iso, frame_rng, frame_seed  # noqa: F401  (re-exported)
+from .recipes import recipe_camera, recipe_visibility
+from .sequence import SequencePlan
 
 __all__ = [
     "OBLIQUITY_J2000_RAD",
@@ -112,7 +118,6 @@ class MonteCarloPlan:
     def __init__(self, recipe: dict, camera, *, ephemeris=None):
         self.recipe = recipe
         self.camera = camera
-        from .recipes import recipe_visibility
 
         self.visibility = recipe_visibility(recipe)
         self.s = recipe["montecarlo"]
@@ -124,8 +129,6 @@ class MonteCarloPlan:
     @property
     def ephemeris(self):
         if self._eph is None:
-            from skynav.scenes.ephemeris_jpl import default_ephemeris
-
             self._eph = default_ephemeris()
         return self._eph
 
@@ -168,7 +171,6 @@ class MonteCarloPlan:
         None when no keep-filter looks at bodies (every body is then computed)."""
         if not {"visible_planet", "body_in_fov"} & set(self.s["keep"]):
             return None
-        from skynav.scenes.scene import SCENE_BODIES
 
         limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
         out = []
@@ -188,9 +190,6 @@ class MonteCarloPlan:
         decision equals evaluating the filters on all of them. A pose inside any body is rejected.
         ``candidates`` is None or non-empty (:meth:`frame_request` skips a pose with none).
         """
-        from skynav.scenes.errors import ObserverInsideBodyError
-        from skynav.scenes.scene import SCENE_BODIES, sky_bodies, sky_sun
-
         s = self.s
         try:
             if candidates is None:
@@ -233,7 +232,6 @@ class MonteCarloPlan:
         bodies are computed first, not the result (see :meth:`_sky`)."""
         if not {"visible_planet", "body_in_fov"} & set(self.s["keep"]):
             return [None] * len(t)
-        from skynav.scenes.scene import SCENE_BODIES
 
         limit = math.cos(min(math.pi, self.camera.half_diagonal_fov_rad + math.radians(1.0)))
         d = self._positions(t, SCENE_BODIES) - r[:, None, :]  # (n, bodies, 3)
@@ -300,10 +298,6 @@ class ScenesPlan:
     kind = "scenes"
 
     def __init__(self, recipe: dict, camera, *, ephemeris=None):
-        from skynav.scenes.config import scene_spec_from_mapping
-
-        from .recipes import recipe_visibility
-
         self.recipe = recipe
         self.camera = camera
         self.visibility = recipe_visibility(recipe)
@@ -314,8 +308,6 @@ class ScenesPlan:
         self._eph = ephemeris
 
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
-        from skynav.scenes.scene import resolve_spec
-
         spec = self.specs[k]
         given = self.recipe["scenes"][k]
         render = dict(given.get("render") or {})
@@ -339,14 +331,11 @@ class ScenesPlan:
 
 def make_plan(recipe: dict, *, ephemeris=None):
     """The plan of a validated recipe (for a sequence: computes the trajectory and legs)."""
-    from .recipes import recipe_camera
-
     camera = recipe_camera(recipe)
     if recipe["kind"] == "montecarlo":
         return MonteCarloPlan(recipe, camera, ephemeris=ephemeris)
     if recipe["kind"] == "scenes":
         return ScenesPlan(recipe, camera, ephemeris=ephemeris)
-    from .sequence import SequencePlan
 
     return SequencePlan(recipe, camera, ephemeris=ephemeris)
 

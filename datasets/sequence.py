@@ -36,14 +36,17 @@ from scipy.integrate import solve_ivp
 
 from skynav.scenes import frames
 from skynav.scenes.constants import GM_KM3_S2, SECONDS_PER_DAY
+from skynav.scenes.count_cap import cap_count
 from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
+from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import LambertError
 from skynav.scenes.lambert import solve_lambert
-from skynav.scenes.count_cap import cap_count
+from skynav.scenes.scene import sky_bodies
+from skynav.scenes.timescales import tdb_seconds
 
-from .errors import SceneSamplingError
-from .recipes import PLANETS
+from .errors import RecipeError, SceneSamplingError
 from .plan import FrameRequest, epoch_iso
+from .recipes import PLANETS, recipe_visibility
 
 __all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
 
@@ -158,13 +161,8 @@ class SequencePlan:
     kind = "sequence"
 
     def __init__(self, recipe: dict, camera, *, ephemeris=None):
-        from skynav.scenes.ephemeris_jpl import default_ephemeris
-        from skynav.scenes.scene import sky_bodies
-        from skynav.scenes.timescales import tdb_seconds
-
         self.recipe = recipe
         self.camera = camera
-        from .recipes import recipe_visibility
 
         self.visibility = recipe_visibility(recipe)
         s = self.s = recipe["sequence"]
@@ -204,8 +202,6 @@ class SequencePlan:
         total = len(rows)
         n = recipe.get("frames") or total
         if n > total:
-            from .errors import RecipeError
-
             raise RecipeError("frames", n, f"at most {total} (frames planned by the legs)")
         n = cap_count(n, "sequence frames")
         rows = rows[:n]
@@ -239,8 +235,6 @@ class SequencePlan:
         return d
 
     def frame_request(self, k: int, rng: np.random.Generator) -> FrameRequest:
-        from skynav.scenes.scene import sky_bodies
-
         s = self.s
         t = float(self.frame_tdb_s[k])
         leg, phase, target, j = self.frame_info[k]

@@ -22,12 +22,13 @@ import json
 import math
 import os
 from collections.abc import Mapping
+from importlib.resources import files
 
 import numpy as np
 import orjson
 
-from .errors import TruthSchemaError
 from .atomic_files import _open_binary, atomic_write_bytes
+from .errors import TruthSchemaError
 from .layout import MANIFEST_SCHEMA
 
 __all__ = [
@@ -294,8 +295,6 @@ def read_truth_json(source) -> dict:
 # ----------------------------------------------------------------------------- JSON Schema
 @functools.lru_cache(maxsize=None)
 def _schema_text(name: str) -> str:
-    from importlib.resources import files
-
     if name not in _SCHEMA_FILES:
         raise KeyError(f"no published schema {name!r}; known: {', '.join(_SCHEMA_FILES)}")
     return (files("skynav.datasets") / "schemas" / _SCHEMA_FILES[name]).read_text(encoding="utf-8")

@@ -33,8 +33,8 @@ from .process import process_frame
 from .results import PredictedState
 from .scoring_peers import available_peers
 
-__all__ = ["FrameTruthLite", "open_frames", "predicted_state", "run_benchmark", "summarise", "WRONG_ATTITUDE_ARCSEC",
-           "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
+__all__ = ["FrameTruthLite", "BeaconScore", "FrameScore", "PeerScore", "open_frames", "predicted_state", "score_frame",
+           "run_benchmark", "summarise", "summarise_peers", "WRONG_ATTITUDE_ARCSEC", "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
 
 WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
 BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is a failure
@@ -50,6 +50,53 @@ class FrameTruthLite:
     position_km: np.ndarray
     velocity_km_s: np.ndarray
     bodies: tuple  # (name, xy (2,), in_fov, visible)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BeaconScore:
+    """One beacon's outcome in one run: an expected beacon (in the field and visible) found within
+    :data:`BEACON_WRONG_PX` (``"correct"``), farther (``"wrong"``) or not at all (``"none"``), or a
+    body the mission rule calls invisible found away from where it is (``"wrong"``)."""
+
+    name: str
+    outcome: str
+    #: distance from the true position (px); nan when not found or not scored
+    error_px: float
+    #: found minus true position (dx, dy) px of an expected beacon found; None otherwise
+    offset_px: tuple | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrameScore:
+    """One run of the pipeline (one frame at one predicted-position sigma) scored against the truth;
+    a row of ``results.csv`` per beacon (one row when it has none)."""
+
+    frame: int
+    sigma_km: float
+    #: the pipeline's status (``ok``, ``too_few_stars``, ...)
+    status: str
+    #: ``"correct"`` (error <= :data:`WRONG_ATTITUDE_ARCSEC`), ``"wrong"`` or ``"none"``
+    attitude: str
+    #: angle between the estimated and the true attitude (arcsec); nan without an attitude
+    error_arcsec: float
+    #: the pipeline's own 1-sigma estimate of that error (arcsec)
+    error_estimate_arcsec: float
+    n_stars: int
+    n_spots: int
+    #: how the stars were identified (``lost_in_space``, ``tracking``, ...)
+    method: str
+    time_ms: float
+    beacons: tuple
+
+
+@dataclass(frozen=True, kw_only=True)
+class PeerScore:
+    """One frame solved (or not) by a peer star tracker (tetra3rs, cedar-solve)."""
+
+    frame: int
+    solved: bool
+    error_arcsec: float
+    time_ms: float
 
 
 class _SkynavSource:
@@ -161,8 +208,8 @@ def predicted_state(truth, sigma_km, rng):
     return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
 
 
-def score_frame(result, truth, sigma_km):
-    """Rows (dicts) for one processed frame: the frame row and its beacon outcomes."""
+def score_frame(result, truth, *, frame, sigma_km) -> FrameScore:
+    """The score of one processed frame: its attitude outcome and its beacons' outcomes."""
     err = float("nan")
     if result.status == "ok":
         err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC_RAD
@@ -176,26 +223,28 @@ def score_frame(result, truth, sigma_km):
         b = found.get(name)
         if name in expected:
             if b is None or b.xy_px is None:
-                beacons.append((name, "none", float("nan"), None))
+                beacons.append(BeaconScore(name=name, outcome="none", error_px=float("nan"), offset_px=None))
             else:
                 e = float(np.hypot(*(b.xy_px - xy)))
                 d = b.xy_px - xy
-                beacons.append((name, "correct" if e <= BEACON_WRONG_PX else "wrong", e, d))
+                beacons.append(BeaconScore(name=name, outcome="correct" if e <= BEACON_WRONG_PX else "wrong", error_px=e,
+                                           offset_px=(float(d[0]), float(d[1]))))
         elif b is not None and b.xy_px is not None:
             # a body the mission rule calls invisible (V > limit, inside the Sun exclusion) but
             # rendered in the field: found where it is, it is not scored; found elsewhere, wrong
             e = float(np.hypot(*(b.xy_px - xy))) if in_fov and np.all(np.isfinite(xy)) else float("inf")
             if not e <= BEACON_WRONG_PX:
-                beacons.append((name, "wrong", float("nan"), None))
-    return {"status": result.status, "attitude": outcome, "error_arcsec": err, "n_stars": result.attitude.n_stars,
-            "n_spots": len(result.centroids_xy_px), "method": result.star_id_method,
-            "time_ms": float(result.timings_ms.get("total", float("nan"))),
-            "error_estimate_arcsec": result.attitude.error_estimate_arcsec, "beacons": beacons}
+                beacons.append(BeaconScore(name=name, outcome="wrong", error_px=float("nan"), offset_px=None))
+    return FrameScore(frame=int(frame), sigma_km=float(sigma_km), status=result.status, attitude=outcome, error_arcsec=err,
+                      error_estimate_arcsec=result.attitude.error_estimate_arcsec, n_stars=result.attitude.n_stars,
+                      n_spots=len(result.centroids_xy_px), method=result.star_id_method,
+                      time_ms=float(result.timings_ms.get("total", float("nan"))), beacons=tuple(beacons))
 
 
 def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0, progress=True, limit=None,
                   catalog=None, peers=False, options=None):
-    """Process every frame at every sigma; rows of results and the frame count.
+    """Process every frame at every sigma: ``(scores, info)``, a :class:`FrameScore` per run and
+    the run's facts (``frames``, ``wall_s``, ..., ``peer_rows``: a list of :class:`PeerScore` per peer).
 
     ``options`` (a :class:`~skynav.pipeline.process.ProcessOptions`, default its defaults) is
     passed to every :func:`process_frame`.
@@ -233,14 +282,12 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
             R, ms = peer.solve(obs.dn, predicted_state(truth, float(sigmas_km[0]),
                                                         np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
             err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC_RAD if R is not None else float("nan")
-            peer_rows[name].append({"frame": k, "solved": R is not None, "error_arcsec": err, "time_ms": ms})
+            peer_rows[name].append(PeerScore(frame=k, solved=R is not None, error_arcsec=err, time_ms=ms))
         for i, s in enumerate(sigmas_km):
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
             ps = predicted_state(truth, float(s), rng)
             res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode, options=options)
-            row = score_frame(res, truth, float(s))
-            row.update(frame=k, sigma_km=float(s))
-            rows.append(row)
+            rows.append(score_frame(res, truth, frame=k, sigma_km=float(s)))
         if bar is not None:
             bar.update(1)  # one frame, at every sigma
     if bar is not None:
@@ -253,16 +300,16 @@ def summarise_peers(peer_rows, our_rows, sigma0):
     """``peers.<name>.{solved_rate, error_arcsec_median, time_ms_median}`` plus our numbers on the
     same frames (side by side)."""
     out = {}
-    ours = {r["frame"]: r for r in our_rows if r["sigma_km"] == float(sigma0)}
+    ours = {r.frame: r for r in our_rows if r.sigma_km == float(sigma0)}
     for name, rows in peer_rows.items():
         n = len(rows)
-        e = np.array([r["error_arcsec"] for r in rows if r["solved"]])
-        out[name] = {"solved_rate": _rate(sum(r["solved"] for r in rows), n),
+        e = np.array([r.error_arcsec for r in rows if r.solved])
+        out[name] = {"solved_rate": _rate(sum(r.solved for r in rows), n),
                      "wrong_rate": _rate(int(np.sum(e > WRONG_ATTITUDE_ARCSEC)), n),
                      "error_arcsec_median": float(np.median(e)) if len(e) else float("nan"),
-                     "time_ms_median": float(np.median([r["time_ms"] for r in rows])) if n else float("nan")}
-        both = [(r["error_arcsec"], ours[r["frame"]]["error_arcsec"]) for r in rows
-                if r["solved"] and ours.get(r["frame"], {}).get("attitude") == "correct"]
+                     "time_ms_median": float(np.median([r.time_ms for r in rows])) if n else float("nan")}
+        both = [(r.error_arcsec, ours[r.frame].error_arcsec) for r in rows
+                if r.solved and r.frame in ours and ours[r.frame].attitude == "correct"]
         if both:
             b = np.array(both)
             out[name]["both_solved_frames"] = len(b)
@@ -276,16 +323,16 @@ def _rate(x, n):
 
 def summarise(rows, *, frames, sigmas_km):
     """``summary.json`` (its fixed keys, which readers rely on, plus details)."""
-    s0 = [r for r in rows if r["sigma_km"] == float(sigmas_km[0])]
+    s0 = [r for r in rows if r.sigma_km == float(sigmas_km[0])]
     n = len(s0)
-    errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] == "correct"])
-    times = np.array([r["time_ms"] for r in rows])
+    errs = np.array([r.error_arcsec for r in s0 if r.attitude == "correct"])
+    times = np.array([r.time_ms for r in rows])
     out = {
         "frames": int(frames),
         "attitude": {
-            "correct_rate": _rate(sum(r["attitude"] == "correct" for r in s0), n),
-            "wrong_rate": _rate(sum(r["attitude"] == "wrong" for r in s0), n),
-            "none_rate": _rate(sum(r["attitude"] == "none" for r in s0), n),
+            "correct_rate": _rate(sum(r.attitude == "correct" for r in s0), n),
+            "wrong_rate": _rate(sum(r.attitude == "wrong" for r in s0), n),
+            "none_rate": _rate(sum(r.attitude == "none" for r in s0), n),
             "error_arcsec_median": float(np.median(errs)) if len(errs) else float("nan"),
             "error_arcsec_p90": float(np.percentile(errs, 90)) if len(errs) else float("nan"),
             # the 68.27th percentile of the error angle (a "1 sigma" that is robust to outliers)
@@ -296,32 +343,32 @@ def summarise(rows, *, frames, sigmas_km):
         "status_counts": {},
     }
     for r in s0:
-        out["status_counts"][r["status"]] = out["status_counts"].get(r["status"], 0) + 1
+        out["status_counts"][r.status] = out["status_counts"].get(r.status, 0) + 1
     for s in sigmas_km:
-        rs = [r for r in rows if r["sigma_km"] == float(s)]
-        b = [bb for r in rs for bb in r["beacons"]]
+        rs = [r for r in rows if r.sigma_km == float(s)]
+        b = [bb for r in rs for bb in r.beacons]
         nb = len(b)
-        e = [bb[2] for bb in b if bb[1] == "correct"]
-        d = np.array([bb[3] for bb in b if bb[1] == "correct"]).reshape(-1, 2)
-        with_att = [bb for r in rs if r["attitude"] != "none" for bb in r["beacons"]]
-        with_right = [bb for r in rs if r["attitude"] == "correct" for bb in r["beacons"]]
-        frames_with = [r for r in rs if r["beacons"]]
+        e = [bb.error_px for bb in b if bb.outcome == "correct"]
+        d = np.array([bb.offset_px for bb in b if bb.outcome == "correct"]).reshape(-1, 2)
+        with_att = [bb for r in rs if r.attitude != "none" for bb in r.beacons]
+        with_right = [bb for r in rs if r.attitude == "correct" for bb in r.beacons]
+        frames_with = [r for r in rs if r.beacons]
         out["beacon"][_key(s)] = {
-            "correct_rate": _rate(sum(bb[1] == "correct" for bb in b), nb),
-            "wrong_rate": _rate(sum(bb[1] == "wrong" for bb in b), nb),
-            "none_rate": _rate(sum(bb[1] == "none" for bb in b), nb),
+            "correct_rate": _rate(sum(bb.outcome == "correct" for bb in b), nb),
+            "wrong_rate": _rate(sum(bb.outcome == "wrong" for bb in b), nb),
+            "none_rate": _rate(sum(bb.outcome == "none" for bb in b), nb),
             "error_px_mean": float(np.mean(e)) if e else float("nan"),
             "beacons": nb,
             "frames_with_beacon": len(frames_with),
             # paper 000 Table 3 columns 5 and 6: failures (wrong or none) among beacons of frames
             # with an attitude, and of frames with the right attitude
-            "failure_rate_with_attitude": _rate(sum(bb[1] != "correct" for bb in with_att), len(with_att)),
-            "failure_rate_with_right_attitude": _rate(sum(bb[1] != "correct" for bb in with_right), len(with_right)),
+            "failure_rate_with_attitude": _rate(sum(bb.outcome != "correct" for bb in with_att), len(with_att)),
+            "failure_rate_with_right_attitude": _rate(sum(bb.outcome != "correct" for bb in with_right), len(with_right)),
             "error_mean_px": d.mean(axis=0).tolist() if len(d) else [float("nan")] * 2,
             "error_cov_px2": np.cov(d.T).tolist() if len(d) > 2 else None,
         }
-        ra = [r for r in rs if r["attitude"] != "none"]
-        out["beacon"][_key(s)]["attitude_wrong_rate"] = _rate(sum(r["attitude"] == "wrong" for r in rs), len(rs))
+        ra = [r for r in rs if r.attitude != "none"]
+        out["beacon"][_key(s)]["attitude_wrong_rate"] = _rate(sum(r.attitude == "wrong" for r in rs), len(rs))
         del ra
     return out
 

@@ -62,12 +62,12 @@ def time_histogram_figure(rows):
     """Histogram of the pipeline's time per run (one run: one frame at one sigma_r), the first
     :data:`WARMUP_FRAMES` frame(s) left out; times above 1.25 x the 99th percentile go to an
     overflow bin. Returns ``(figure, caption)``."""
-    warm = [r for r in rows if r["frame"] < WARMUP_FRAMES]
-    t = np.array([r["time_ms"] for r in rows if r["frame"] >= WARMUP_FRAMES], dtype=float)
+    warm = [r for r in rows if r.frame < WARMUP_FRAMES]
+    t = np.array([r.time_ms for r in rows if r.frame >= WARMUP_FRAMES], dtype=float)
     t = t[np.isfinite(t)]
     fig = new_figure((800, 350))
     ax = fig.add_subplot()
-    warm_ms = ", ".join(f"{r['time_ms']:.1f}" for r in warm) or "none"
+    warm_ms = ", ".join(f"{r.time_ms:.1f}" for r in warm) or "none"
     which = "Frame 0" if WARMUP_FRAMES == 1 else f"Frames 0-{WARMUP_FRAMES - 1}"
     caption = (f"{which} left out: warm-up (the first calls' lazy imports and caches), its runs took {warm_ms} ms. "
                "Each run is one frame at one σr.")
@@ -90,8 +90,8 @@ def time_histogram_figure(rows):
 def report_figures(rows, summary, sigmas):
     """The report's figures: a list of ``(title, caption, matplotlib Figure)``."""
     out = []
-    s0 = [r for r in rows if r["sigma_km"] == float(sigmas[0])]
-    errs = np.array([r["error_arcsec"] for r in s0 if r["attitude"] != "none"])
+    s0 = [r for r in rows if r.sigma_km == float(sigmas[0])]
+    errs = np.array([r.error_arcsec for r in s0 if r.attitude != "none"])
     fig = new_figure((1000, 380))
     ax = fig.subplots(1, 2)
     if len(errs):
@@ -128,7 +128,7 @@ def report_figures(rows, summary, sigmas):
     axes = np.atleast_1d(fig.subplots(1, len(sigmas), squeeze=False)[0])
     t = np.linspace(0, 2 * np.pi, 100)
     for ax, s in zip(axes, sigmas):
-        d = np.array([bb[3] for r in rows if r["sigma_km"] == float(s) for bb in r["beacons"] if bb[1] == "correct"]).reshape(-1, 2)
+        d = np.array([bb.offset_px for r in rows if r.sigma_km == float(s) for bb in r.beacons if bb.outcome == "correct"]).reshape(-1, 2)
         if len(d):
             ax.scatter(d[:, 0], d[:, 1], s=3, alpha=0.5, label="found minus true")
         if len(d) > 2:
@@ -174,12 +174,12 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info)
         w = csv.writer(f)
         w.writerow(CSV_FIELDS)
         for r in rows:
-            base = [r["frame"], f"{r['sigma_km']:g}", r["status"], r["attitude"], f"{r['error_arcsec']:.3f}",
-                    f"{r['error_estimate_arcsec']:.3f}", r["n_stars"], r["n_spots"], r["method"], f"{r['time_ms']:.3f}"]
-            if not r["beacons"]:
+            base = [r.frame, f"{r.sigma_km:g}", r.status, r.attitude, f"{r.error_arcsec:.3f}",
+                    f"{r.error_estimate_arcsec:.3f}", r.n_stars, r.n_spots, r.method, f"{r.time_ms:.3f}"]
+            if not r.beacons:
                 w.writerow(base + ["", "", ""])
-            for name, outcome, e, _ in r["beacons"]:
-                w.writerow(base + [name, outcome, f"{e:.4f}"])
+            for b in r.beacons:
+                w.writerow(base + [b.name, b.outcome, f"{b.error_px:.4f}"])
     full = dict(summary)
     full["run"] = {"source": str(source), "mode": mode, "seed": int(seed), "sigmas_km": [float(s) for s in sigmas_km],
                    **{k: v for k, v in info.items()}}

@@ -417,6 +417,7 @@ class Sensor:
     # ----------------------------------------------------------------- Dr.Jit LLVM path
     def _patterns_llvm(self):
         if self._jit_patterns is None:
+            # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
             from drjit.llvm import Float
 
             gain, dark = fixed_patterns(self.params, self.shape)
@@ -424,6 +425,7 @@ class Sensor:
         return self._jit_patterns
 
     def _expose_llvm(self, e, t, rng, x, *, details) -> ExposureDetails:
+        # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
         import drjit as dr
         from drjit.llvm import Float, UInt32
 
@@ -483,6 +485,7 @@ def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, sma
     """The sensor chain without blooming, lazy: PRNU and dark current, Poisson, extra charge,
     full well, read noise, gain, ADC (:func:`_jit_charge`, :func:`_jit_readout`); ``index``:
     the pixels' flat indices (None: all the image's, in order)."""
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     mean = dr.fma(sig, gain, dark * t)
@@ -504,6 +507,7 @@ def _frozen_exposure(small_dn: bool):
     test_detector_emva1288.py``). Every per-frame number is an input (an opaque variable), never a
     constant of the recording. Calls are serialised by ``_frozen_lock`` (a recording is state).
     """
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     def exposure(sig, gain, dark, extra, t, key, full_well, readout, index):
@@ -621,6 +625,7 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     Algorithms for Random Number Generation", Harvey Mudd College HMC-CS-2014-0905.
     Mitsuba 3, ``PCG32Sampler::seed`` (``src/render/sampler.cpp``).
     """
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     from drjit.llvm import UInt64
 
     v0, v1 = tea_encrypt(index, 0, key, rounds=rounds)
@@ -635,6 +640,7 @@ def _jit_charge(mean, extra, key, index=None):
     the kernel does not depend on their values); lane ``j`` of ``mean`` gets the PCG32 stream
     seeded by :func:`pixel_stream_seeds` for the pixel ``index[j]`` (default: ``j``).
     """
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
     from drjit.llvm import PCG32, Bool, Float, Float64, UInt32
 
@@ -716,6 +722,7 @@ def _jit_charge(mean, extra, key, index=None):
 def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn, *, small_dn=False):
     """Read + reset noise, gain, offset, ADC (round half up), saturation -> DN (lazy): UInt8
     when ``small_dn`` (``max_dn`` < 256), else UInt32."""
+    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
     from drjit.llvm import UInt8, UInt32
 

@@ -22,6 +22,9 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage, signal
+
+from .render import RenderOptions, expected_image
 
 
 @dataclass(frozen=True)
@@ -59,8 +62,6 @@ def _full_scale_e(facility) -> float:
 def _diffuse_excess(win, lim, max_iterations):
     """Iterative fallback: the excess over ``lim`` convolved with a normalised symmetric 3 x 3 kernel
     and added back until no pixel exceeds its limit (keeps the total and the first moment)."""
-    from scipy import ndimage
-
     k = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 16.0
     for _ in range(max_iterations):
         ex = np.maximum(win - lim, 0.0)
@@ -78,8 +79,6 @@ def _gaussian_kernel_1d(sigma_px: float) -> np.ndarray:
 
 def _blur(a, sigma_px: float):
     """``a`` convolved with a normalised, sampled 2-D Gaussian (zero outside ``a``)."""
-    from scipy import ndimage
-
     if sigma_px <= 0.0:
         return a
     g = _gaussian_kernel_1d(sigma_px)
@@ -99,8 +98,6 @@ def _disc_kernel(radius_px: float) -> np.ndarray:
 
 def _spread_disc(a, radius_px: float):
     """``a`` convolved with :func:`_disc_kernel` (zero outside ``a``)."""
-    from scipy import signal
-
     if radius_px <= 0.0:
         return a
     return signal.fftconvolve(a, _disc_kernel(radius_px), mode="same")
@@ -113,8 +110,6 @@ def _over_groups(over_idx, shape, pad: int, block: int = 8):
     groups' boxes. Only the few ``block`` x ``block`` blocks that hold such pixels are labelled at
     full resolution: two pixels within 4 px lie in the same or in adjacent blocks, so every group
     lies in one connected group of blocks."""
-    from scipy import ndimage
-
     H, W = shape
     rows, cols = np.divmod(np.asarray(over_idx), W)
     coarse = np.zeros((-(-H // block), -(-W // block)), bool)
@@ -194,8 +189,6 @@ def _spread_in_place(out, facility, lit_idx, *, core_dilation_px: int = 4, edge_
     """:func:`spread_over_full_scale` on ``out`` (float64, modified in place) whose nonzero pixels
     are among the flat indices ``lit_idx``. Returns ``(pixels over the limit, undo)``: the
     windows changed, ``[(r0, r1, c0, c1, original), ...]`` in the order written."""
-    from scipy import ndimage
-
     e_full = _full_scale_e(facility)
     # candidates against the flat field's lowest grid value (a spline may dip a little below it)
     f_min = 0.9 * min(min(r) for r in facility.flat_field.relative) if facility.flat_field is not None else 1.0
@@ -249,8 +242,6 @@ def _spread_in_place(out, facility, lit_idx, *, core_dilation_px: int = 4, edge_
 
 def screen_frame(scene, facility, *, rng: np.random.Generator, options=None, screen_psf_sigma_px: float = 0.5) -> ScreenFrame:
     """Render ``scene`` for the bench ``facility``'s screen (see the module docstring)."""
-    from .render import RenderOptions, expected_image
-
     options = options or RenderOptions()
     cam = scene.camera.replace(defocus_sigma_px=screen_psf_sigma_px)
     sc_scene = dataclasses.replace(scene, camera=cam)

@@ -46,7 +46,7 @@ from importlib import metadata
 from pathlib import Path
 
 from skynav.scenes.data_files import cache_dir
-from skynav.scenes.errors import SkynavError
+from skynav.scenes.errors import SkynavError  # noqa: F401  (tests name it through this module)
 from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
 
 from .errors import BackendUnavailableError  # noqa: F401  (its home is renderer/errors.py; re-exported)
@@ -358,6 +358,7 @@ def _apply_thread_count() -> None:
         return
     with _lock:
         if _threads_applied != n:
+            # Dr.Jit only once the LLVM backend is chosen: import skynav.renderer loads neither Dr.Jit nor Mitsuba
             import drjit as dr
 
             dr.set_thread_count(n)

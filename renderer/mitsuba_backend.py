@@ -110,15 +110,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.scenes.camera import Camera
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.constants import C_M_S as _C_M_S
 from skynav.scenes.constants import PLANCK_J_S as _H_J_S
 from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.frames import propagate_attitude
+from skynav.scenes.scene import RESOLVED_THRESHOLD_PX  # the default diameter (px) above which a body is ray-traced
 
-from . import spectra
+from . import jit_backend, spectra
 from .brdf import BRDF, default_brdf
 from .errors import ProjectionCropError
+from .radiometry import Radiometry
 
 __all__ = [
     "RESOLVED_THRESHOLD_PX",
@@ -132,9 +135,6 @@ __all__ = [
     "plain_pinhole",
 ]
 
-#: Default angular diameter (px) above which a body is ray-traced (the scene sets the
-#: ``resolved`` flag with the same default, ``skynav.scenes.scene.RESOLVED_THRESHOLD_PX``).
-RESOLVED_THRESHOLD_PX = 2.0
 
 #: Margin around the body's disk (and its streak) in the crop, px.
 CROP_MARGIN_PX = 2.0
@@ -214,13 +214,12 @@ class ResolvedBodyImage:
 # ------------------------------------------------------------------------------ variant
 def current_variant(variant: str | None = None) -> str:
     """Set (if needed) and return the Mitsuba variant: ``variant`` or the probed choice."""
-    from . import jit_backend
-
     if variant is None:
         variant, _ = jit_backend.select_mitsuba_variant()
     elif variant.startswith("llvm"):
         if not jit_backend.configure_llvm().available:
             raise ConfigValueError("mitsuba.variant", variant, "a variant whose backend works here (LLVM probe failed)")
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     if mi.variant() != variant:
@@ -290,8 +289,6 @@ def _to_world(R_cam_icrs: np.ndarray, position) -> np.ndarray:
 def plain_pinhole(projection) -> bool:
     """True if ``projection`` is a :class:`~skynav.scenes.camera.Camera` whose rays Mitsuba's
     ``perspective`` sensor traces exactly: no lens distortion and square pixels (fx == fy)."""
-    from skynav.scenes.camera import Camera
-
     return isinstance(projection, Camera) and projection.distortion.is_identity and projection.pixel_pitch_y_um is None
 
 
@@ -429,6 +426,7 @@ def _register_plugins(variant: str) -> None:
     Oren-Nayar) and the ``skynav_projection`` sensor."""
     if variant in _registered:
         return
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import drjit as dr
     import mitsuba as mi
 
@@ -605,6 +603,7 @@ def _sensor_dict(kind: str, camera, w: int, h: int) -> dict:
     """The sensor of a crop's scene, without its film and sampler (see the module notes)."""
     if kind == "projection":
         return {"type": "skynav_projection"}
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     return {
@@ -630,6 +629,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
         if hit is not None:
             _cache.move_to_end(key)
             return hit
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     _register_plugins(variant)
@@ -745,6 +745,7 @@ def render_resolved_body(
     proj = cam if projection is None else projection
     kind = _sensor_kind(proj, sensor)
     variant = current_variant(variant)
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
     u = np.asarray(body.u_icrs, dtype=float)
@@ -799,8 +800,6 @@ def render_resolved_body(
     electrons = e_per_s * cam.exposure_s
     raw_total = float(electrons.sum())
     if normalize == "phase_law":
-        from .radiometry import Radiometry
-
         target = float(Radiometry.for_camera(cam).body_electrons_per_s(body.name, body.v_mag)) * cam.exposure_s
         if raw_total > 0 and math.isfinite(target):
             electrons = electrons * (target / raw_total)

@@ -46,8 +46,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import j1
 
 from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel
+
+from . import spectra
+from .psf import GaussianPSF, TablePSF
 
 __all__ = ["noll_to_nm", "zernike", "airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
            "optical_table", "tabulated_tables", "electron_spectrum", "effective_wavelength_nm", "SpectralNodes",
@@ -125,8 +129,6 @@ def airy_intensity(r_px, lf_px: float, obscuration: float = 0.0) -> np.ndarray:
     obscuration : float
         Diameter ratio of the central obstruction.
     """
-    from scipy.special import j1
-
     e = float(obscuration)
     v = np.pi * np.asarray(r_px, dtype=float) / lf_px
     small = v < 1e-8
@@ -256,8 +258,6 @@ def electron_spectrum(camera, source) -> tuple:
     source: ``("star", teff_k)`` (a blackbody), ``("body", name)`` (Sun x reflectance) or
     ``("spectrum", wavelengths_nm, relative_w_m2_nm)`` (any emitter, e.g. a bench screen; read
     linearly, zero outside its table)."""
-    from . import spectra
-
     lo, hi = min(camera.response_wavelengths_nm), max(camera.response_wavelengths_nm)
     wl = np.arange(lo, hi + 1e-9, 10.0)
     if source[0] == "star":
@@ -279,8 +279,6 @@ def effective_wavelength_nm(camera, source) -> float:
 
 def star_effective_wavelengths_nm(camera, teff_k) -> np.ndarray:
     """:func:`effective_wavelength_nm` of blackbodies, vectorised over ``teff_k`` (N,), nm."""
-    from . import spectra
-
     t = np.asarray(teff_k, dtype=float).reshape(-1)
     lo, hi = min(camera.response_wavelengths_nm), max(camera.response_wavelengths_nm)
     wl = np.arange(lo, hi + 1e-9, 10.0)
@@ -345,8 +343,6 @@ def spectral_nodes(camera, tolerance: float = SPECTRAL_TOLERANCE, max_intervals:
     paper camera's lambda F = 0.09 px) needs a single interval; a sampled one (2.2 px) a few
     dozen.
     """
-    from . import spectra
-
     model = camera.psf
     lams = list(star_effective_wavelengths_nm(camera, SPECTRAL_TEFF_RANGE_K))
     lams += [effective_wavelength_nm(camera, ("body", b)) for b in sorted(spectra._REFLECTANCE) + ["earth"]]
@@ -391,8 +387,6 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
     Table kernels size a faint source's stamps by the camera's read noise
     (:meth:`~skynav.renderer.psf.TablePSF.half_sizes_px`).
     """
-    from .psf import GaussianPSF, TablePSF
-
     model = camera.psf
     if isinstance(model, GaussianPSFModel):
         return GaussianPSF(model.sigma_px)
@@ -429,8 +423,6 @@ def source_kernel(camera, source, flux_fraction_lost: float = 1e-6):
     body (reflected sunlight, whose absorption bands make a pattern no blackbody's matches to
     1e-3: 8e-3 of the peak for Mars at lambda F = 2.2 px); :func:`kernel_for` caches it per
     camera and source."""
-    from .psf import TablePSF
-
     model = camera.psf
     half = int(model.half_size_px(flux_fraction_lost, camera))
     wl, e = electron_spectrum(camera, source)

@@ -12,11 +12,13 @@ images, a field grid of them), normalised so that every stamp holds the point's 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 from scipy.special import erf, erfinv
 
 from skynav.scenes.errors import ConfigValueError
@@ -227,7 +229,6 @@ class TablePSF:
         self._block_cache = {}
         self._limits = None
         self._last = {}
-        import hashlib
 
         h = hashlib.sha256()
         for t in self.tables:
@@ -427,8 +428,6 @@ class TablePSF:
         grid with it and reading the result at a pixel's point there draws what this PSF draws
         in that pixel.
         """
-        from scipy.ndimage import map_coordinates
-
         J = np.asarray(jacobian, dtype=float).reshape(2, 2)
         table = self.tables[k_table]
         c = table.shape[0] // 2

@@ -31,11 +31,24 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import convolve1d
+from scipy.signal import fftconvolve
 
 from skynav.scenes import frames
 from skynav.scenes.camera import Camera
 from skynav.scenes.errors import ConfigValueError
+from skynav.scenes.projection import Projection
 from skynav.scenes.scene import Scene
+
+from . import cosmic_rays as cr
+from . import jit_backend
+from .brdf import photocentre_offset_xy
+from .detector import PixelCharge, Sensor
+from .mitsuba_backend import render_resolved_body
+from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
+from .radiometry import Radiometry
+from .raster import rasterize
+from .truth import frame_truth
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -249,8 +262,6 @@ def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, proje
 
 
 def _check_projection(scene: Scene, projection, own_size: bool = False):
-    from skynav.scenes.projection import Projection
-
     if projection is None:
         return scene.camera
     if not isinstance(projection, Projection):
@@ -303,11 +314,6 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     -------
     ExpectedImage
     """
-    from .brdf import photocentre_offset_xy
-    from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
-    from .radiometry import Radiometry
-    from .raster import rasterize
-
     proj = _check_projection(scene, projection, own_size)
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
@@ -366,8 +372,6 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     resolved = {}
     variant = None
     if traced:
-        from .mitsuba_backend import render_resolved_body
-
         body_rng = rng.spawn(1)[0]
         for b in traced:
             img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
@@ -400,8 +404,6 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
 def sensor_backend(requested: str) -> str:
     """The sensor backend a request resolves to here: ``"auto"`` is ``"llvm"`` where
     :func:`~skynav.renderer.jit_backend.llvm_available`, else ``"numpy"``."""
-    from . import jit_backend
-
     if requested == "auto":
         return "llvm" if jit_backend.llvm_available() else "numpy"
     return requested
@@ -428,9 +430,6 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     -------
     Detection
     """
-    from . import cosmic_rays as cr
-    from .detector import PixelCharge, Sensor
-
     cam = camera
     electrons = expected.electrons
     shape = (cam.height, cam.width)
@@ -473,8 +472,6 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     projection : Projection, optional
         Pixel <-> line of sight (default ``scene.camera``).
     """
-    from .truth import frame_truth
-
     if rng is None:
         rng = np.random.default_rng(seed)
     expected = expected_image(scene, projection=projection, rng=rng, options=options)
@@ -502,11 +499,9 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wave
         k = np.asarray(psf.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
         k /= k.sum()
         padded = np.pad(np.asarray(crop, dtype=float), h)
-        from scipy.ndimage import convolve1d
 
         out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
         return out, h
-    from scipy.signal import fftconvolve
 
     h = int(psf.half_size_px(flux_fraction_lost))
     at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))

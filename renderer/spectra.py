@@ -22,7 +22,6 @@ cached): the renderer itself opens no file.
 
 from __future__ import annotations
 
-import functools
 import warnings
 
 import numpy as np
@@ -65,8 +64,8 @@ V_PASSBAND_RESPONSE = "energy"
 
 # ------------------------------------------------------------------------------- data tables
 # Read by the scenes adapter (skynav.scenes.reference_spectra): the renderer does no file I/O.
-from skynav.scenes.reference_spectra import read_calspec, read_synphot_csv  # noqa: E402,F401  (re-exported)
 from skynav.scenes.reference_spectra import johnson_v_table as _v_table  # noqa: E402
+from skynav.scenes.reference_spectra import read_calspec, read_synphot_csv  # noqa: E402,F401  (re-exported)
 from skynav.scenes.reference_spectra import sun_table as _sun_table  # noqa: E402
 from skynav.scenes.reference_spectra import vega_table as _vega_table  # noqa: E402
 
@@ -185,6 +184,7 @@ def blackbody_w_m2_nm_shape(teff_k, wl) -> np.ndarray:
     with warnings.catch_warnings():
         # colour-science warns at import that matplotlib (plotting only) is absent
         warnings.simplefilter("ignore")
+        # colour-science: ~1 s to import, only the blackbody shape needs it
         from colour.colorimetry import planck_law
 
     wl = np.asarray(wl, dtype=float)

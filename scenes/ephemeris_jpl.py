@@ -31,6 +31,8 @@ from .constants import J2000_JD, SECONDS_PER_DAY
 # jplephem's own constants (jplephem.spk.T0, S_PER_DAY), used to repeat its interval arithmetic
 _T0 = J2000_JD
 _S_PER_DAY = SECONDS_PER_DAY
+from jplephem.spk import SPK
+
 from .data_files import de421_path
 from .errors import DataFileError, EphemerisRangeError, UnknownBodyError
 
@@ -141,8 +143,6 @@ class Ephemeris:
         if self._kernel is None:
             with self._lock:
                 if self._kernel is None:
-                    from jplephem.spk import SPK
-
                     try:
                         kernel = SPK.open(self.path)
                     except OSError as exc:

@@ -30,13 +30,15 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import RectBivariateSpline
 
 from .camera import Camera, paper_camera
-from .constants import C_M_S, PLANCK_J_S
+from .config import camera_from_mapping
+from .constants import ARCSEC_RAD, C_M_S, PLANCK_J_S
 from .errors import ConfigValueError
+from .facility_schema import validate_facility_mapping
 
 SCHEMA = "skynav.facility/1"
-ARCSEC = math.pi / (180.0 * 3600.0)
 
 
 def _check(cond: bool, key: str, value, allowed: str) -> None:
@@ -102,8 +104,6 @@ class ResidualField:
 
     @functools.cached_property
     def _splines(self):
-        from scipy.interpolate import RectBivariateSpline
-
         x, y = np.array(self.x_px), np.array(self.y_px)
         return (RectBivariateSpline(y, x, np.array(self.dx_rad), kx=3, ky=3),
                 RectBivariateSpline(y, x, np.array(self.dy_rad), kx=3, ky=3))
@@ -321,8 +321,6 @@ class FlatField:
 
     @functools.cached_property
     def _spline(self):
-        from scipy.interpolate import RectBivariateSpline
-
         k = min(3, len(self.x_px) - 1, len(self.y_px) - 1)
         return RectBivariateSpline(np.array(self.y_px), np.array(self.x_px), np.array(self.relative), kx=k, ky=k)
 
@@ -465,8 +463,8 @@ class Facility:
         if g.residual is not None:
             r = g.residual
             geo["residual_field"] = {"x_px": list(r.x_px), "y_px": list(r.y_px),
-                                     "dx_arcsec": [[v / ARCSEC for v in row] for row in r.dx_rad],
-                                     "dy_arcsec": [[v / ARCSEC for v in row] for row in r.dy_rad]}
+                                     "dx_arcsec": [[v / ARCSEC_RAD for v in row] for row in r.dx_rad],
+                                     "dy_arcsec": [[v / ARCSEC_RAD for v in row] for row in r.dy_rad]}
         geo.update(self.calibrated_geometric or {"status": "nominal (not calibrated)"})
         rm = self.radiometric
         rad = {"model": "gamma/1", "parameters": {"black_w_m2": rm.black_w_m2, "peak_w_m2": rm.peak_w_m2, "gamma": rm.gamma}}
@@ -502,9 +500,6 @@ def facility_from_mapping(d) -> Facility:
     ConfigValueError
         One line naming the dotted key, the value and what is allowed.
     """
-    from .config import camera_from_mapping
-    from .facility_schema import validate_facility_mapping
-
     validate_facility_mapping(d)
     s = d["screen"]
     screen = Screen(width_px=int(s["width_px"]), height_px=int(s["height_px"]), pixel_pitch_um=float(s["pixel_pitch_um"]),
@@ -517,8 +512,8 @@ def facility_from_mapping(d) -> Facility:
     if geo.get("residual_field"):
         rf = geo["residual_field"]
         residual = ResidualField(x_px=rf["x_px"], y_px=rf["y_px"],
-                                 dx_rad=(np.asarray(rf["dx_arcsec"], dtype=float) * ARCSEC).tolist(),
-                                 dy_rad=(np.asarray(rf["dy_arcsec"], dtype=float) * ARCSEC).tolist())
+                                 dx_rad=(np.asarray(rf["dx_arcsec"], dtype=float) * ARCSEC_RAD).tolist(),
+                                 dy_rad=(np.asarray(rf["dy_arcsec"], dtype=float) * ARCSEC_RAD).tolist())
     g = GeometricModel(
         focal_length_mm=float(p.get("focal_length_mm", focal)),
         decentre_x_mm=float(p.get("decentre_x_mm", 0.0)), decentre_y_mm=float(p.get("decentre_y_mm", 0.0)),

@@ -28,6 +28,7 @@ skynav.scenes.errors.ConfigValueError: screen = None is not allowed; expected a 
 from __future__ import annotations
 
 import difflib
+import json
 import math
 
 from .errors import ConfigValueError
@@ -175,8 +176,6 @@ FACILITY_SCHEMA = {
 
 def schema_json() -> str:
     """The schema as the published file holds it."""
-    import json
-
     return json.dumps(FACILITY_SCHEMA, indent=1) + "\n"
 
 

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import copy
 
+from .config import scene_spec_from_mapping
+from .errors import ConfigValueError
+
 DEFAULT_SCENE = {
     "epoch": "2027-02-01T00:00:00",
     "observer": {
@@ -42,14 +45,10 @@ PRESETS = {"default": DEFAULT_SCENE, "earth_departure": EARTH_DEPARTURE_SCENE}
 
 def preset_mapping(name: str = "default") -> dict:
     """A deep copy of a built-in scene mapping (the same keys a scene YAML file has)."""
-    from .errors import ConfigValueError
-
     if name not in PRESETS:
         raise ConfigValueError("scene", name, "a YAML file or one of the presets: " + ", ".join(PRESETS))
     return copy.deepcopy(PRESETS[name])
 
 
 def default_scene_spec():
-    from .config import scene_spec_from_mapping
-
     return scene_spec_from_mapping(preset_mapping("default"))

@@ -22,6 +22,7 @@ import os
 import warnings
 
 import numpy as np
+from astropy.io import fits
 
 from .data_files import pyphot_table_path
 
@@ -42,8 +43,6 @@ def read_calspec(fobj) -> tuple[np.ndarray, np.ndarray]:
     wavelength_nm : ndarray, shape (M,), nm
     flux_w_m2_nm : ndarray, shape (M,), W m^-2 nm^-1
     """
-    from astropy.io import fits
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # CALSPEC headers carry float TNULLn: harmless VerifyWarning
         with fits.open(io.BytesIO(fobj.read())) as hdul:

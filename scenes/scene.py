@@ -14,7 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import apparent, frames, photometry
 from .camera import Camera
+from .catalog_hipparcos import load_catalog
+from .constants import ARCSEC_RAD
+from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+from .errors import ConfigValueError, ObserverInsideBodyError
+from .timescales import tdb_seconds
 from .visibility import VisibilityCriteria
 
 
@@ -153,8 +159,6 @@ SCENE_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn"
 #: Default angular diameter above which a body is ray-traced rather than drawn as a point, px.
 RESOLVED_THRESHOLD_PX = 2.0
 
-ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
-
 
 @dataclass(frozen=True, kw_only=True)
 class SkyBody:
@@ -181,10 +185,6 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
     ObserverInsideBodyError
         When the observer is inside one of the bodies (geometric distance <= radius).
     """
-    from . import apparent, photometry
-    from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-    from .errors import ObserverInsideBodyError
-
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
@@ -213,10 +213,6 @@ def sky_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None):
     ObserverInsideBodyError
         When the observer is inside the Sun.
     """
-    from . import apparent
-    from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-    from .errors import ObserverInsideBodyError
-
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
@@ -236,9 +232,6 @@ def _name_the_body(eph, t_tdb_s, r, names) -> None:
     with a message that blames something else (the epoch): name the body instead (raises
     ObserverInsideBodyError; returns when the observer is inside none). Called only on failure,
     so a good frame pays no extra ephemeris look-ups."""
-    from .ephemeris_jpl import BODY_RADII_KM
-    from .errors import ObserverInsideBodyError
-
     for name in names:
         rb, _ = eph.position_velocity(name, t_tdb_s)
         dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
@@ -247,10 +240,6 @@ def _name_the_body(eph, t_tdb_s, r, names) -> None:
 
 
 def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
-    from . import apparent, photometry
-    from .ephemeris_jpl import BODY_RADII_KM
-    from .errors import ObserverInsideBodyError
-
     out = []
     # the Sun at the epoch, read once for every body's deflection (apparent_body's own read)
     sun_now = apparent.position_at(eph, "sun", t_tdb_s) if names else None
@@ -274,8 +263,6 @@ def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
     magnitude (for ``point_at: auto``)."""
     candidates = [b for b in bodies if visibility.outside_sun_exclusion(b.elongation_rad) and np.isfinite(b.v_mag)]
     if not candidates:
-        from .errors import ConfigValueError
-
         raise ConfigValueError("attitude.point_at", "auto", "a scene with at least one planet outside the Sun exclusion angle")
     return min(candidates, key=lambda b: b.v_mag)
 
@@ -323,11 +310,6 @@ def build_scene(
     sky : optional
         Precomputed ``sky_bodies(...)`` result for this epoch and observer.
     """
-    from . import apparent, frames
-    from .catalog_hipparcos import load_catalog
-    from .ephemeris_jpl import default_ephemeris
-    from .timescales import tdb_seconds
-
     vis = VisibilityCriteria() if visibility is None else visibility
     t = float(epoch) if isinstance(epoch, (int, float, np.floating)) else float(tdb_seconds(epoch))
     eph = ephemeris or default_ephemeris()
@@ -382,7 +364,7 @@ def build_scene(
             position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
             radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
             elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
-            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) * ARCSEC_PER_RAD),
+            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) / ARCSEC_RAD),
             in_fov=in_fov,
             visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
             resolved=bool(diam_px > resolved_threshold_px),
@@ -398,10 +380,6 @@ def resolve_spec(spec, *, ephemeris=None):
     Returns ``(t_tdb_s, position_km, velocity_km_s, R_cam_icrs, sky)`` where ``sky`` is the
     :func:`sky_bodies` result (reused by :func:`build_scene`).
     """
-    from . import frames
-    from .ephemeris_jpl import default_ephemeris
-    from .timescales import tdb_seconds
-
     eph = ephemeris or default_ephemeris()
     t = float(tdb_seconds(spec.epoch_tdb_iso))
     r = np.asarray(spec.position_km, dtype=float)
@@ -426,8 +404,6 @@ def resolve_spec(spec, *, ephemeris=None):
 
 def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
     """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
-    from .ephemeris_jpl import default_ephemeris
-
     eph = ephemeris or default_ephemeris()
     t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
     a = spec.attitude

@@ -8,7 +8,6 @@ dataset runner sets it to ``cores // workers`` in its worker processes.
 
 from __future__ import annotations
 
-
 from .environment import positive_int_from_env
 
 ENV_VAR = "SKYNAV_THREADS"

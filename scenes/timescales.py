@@ -1,23 +1,43 @@
 """Epochs: astropy ``Time`` at the edge, TDB seconds past J2000 inside.
 
-Importing this module turns astropy's IERS auto-download off: skynav never touches the
-network at run time. TDB-TT is computed by astropy/ERFA analytically and needs no IERS table.
+astropy is loaded on the first epoch conversion, not with this module (``astropy.time`` takes
+about 0.7 s to import, and reading a dataset or printing ``skynav --help`` converts none); loading
+it turns astropy's IERS auto-download off: skynav never touches the network at run time. TDB-TT
+is computed by astropy/ERFA analytically and needs no IERS table.
 """
 
 from __future__ import annotations
 
+import sys
+from typing import TYPE_CHECKING
+
 import numpy as np
-from astropy.time import Time
-from astropy.utils import iers
 
 from .constants import J2000_JD, SECONDS_PER_DAY
 
-iers.conf.auto_download = False
-iers.conf.auto_max_age = None
+if TYPE_CHECKING:
+    from astropy.time import Time
+
+
+def _astropy_time():
+    """astropy's ``Time`` class, with IERS auto-download off (module docstring)."""
+    # astropy.time: ~0.7 s to import, loaded on the first epoch conversion (module docstring)
+    from astropy.time import Time
+    from astropy.utils import iers
+
+    iers.conf.auto_download = False
+    iers.conf.auto_max_age = None
+    return Time
+
+
+def _is_time(epoch) -> bool:
+    """Whether ``epoch`` is an astropy ``Time`` (one exists only once astropy.time is loaded)."""
+    module = sys.modules.get("astropy.time")
+    return module is not None and isinstance(epoch, module.Time)
 
 
 def _is_float_epoch(epoch) -> bool:
-    return not isinstance(epoch, (Time, str)) and np.issubdtype(np.asarray(epoch).dtype, np.number)
+    return not (_is_time(epoch) or isinstance(epoch, str)) and np.issubdtype(np.asarray(epoch).dtype, np.number)
 
 
 def to_time(epoch) -> Time:
@@ -27,10 +47,11 @@ def to_time(epoch) -> Time:
     meaning of a float epoch in skynav (names end in ``_tdb_s``); a Julian date goes through
     ``Time(jd, format="jd", scale="tdb")`` explicitly.
     """
-    if isinstance(epoch, Time):
+    if _is_time(epoch):
+        _astropy_time()  # a Time made elsewhere: its conversions must not download IERS tables either
         return epoch
     if isinstance(epoch, str):
-        return Time(epoch, scale="tdb")
+        return _astropy_time()(epoch, scale="tdb")
     return time_from_tdb_seconds(epoch)
 
 
@@ -54,4 +75,4 @@ def tdb_jd(epoch) -> tuple:
 def time_from_tdb_seconds(t_tdb_s) -> Time:
     """Inverse of :func:`tdb_seconds`: ``Time`` of TDB seconds past J2000."""
     t_tdb_s = np.asarray(t_tdb_s, dtype=float)
-    return Time(J2000_JD, t_tdb_s / SECONDS_PER_DAY, format="jd", scale="tdb")
+    return _astropy_time()(J2000_JD, t_tdb_s / SECONDS_PER_DAY, format="jd", scale="tdb")

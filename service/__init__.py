@@ -15,6 +15,8 @@ Three halves (docs/service.md):
 
 from __future__ import annotations
 
+import importlib
+
 __all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
 
 _LAZY = {"Client": "client", "LocalServer": "client", "RenderResult": "client", "ServiceError": "client"}
@@ -22,7 +24,5 @@ _LAZY = {"Client": "client", "LocalServer": "client", "RenderResult": "client", 
 
 def __getattr__(name):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

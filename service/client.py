@@ -15,11 +15,15 @@ from __future__ import annotations
 import http.client
 import io
 import json
+import signal
+import subprocess
+import sys
 import threading
 import time
 import urllib.parse
 from dataclasses import dataclass, field
 
+from skynav.datasets.frame_files import read_exr, read_png
 from skynav.scenes.errors import SkynavError
 
 from .protocol import API_PREFIX, MULTIPART, OUTPUTS
@@ -56,7 +60,6 @@ class RenderResult:
         """Digital counts, (H, W) uint8/uint16 (the PNG decoded, sBIT scaling undone)."""
         if self.png is None:
             return None
-        from skynav.datasets.frame_files import read_png
 
         return read_png(io.BytesIO(self.png))
 
@@ -70,8 +73,6 @@ class RenderResult:
         return None if self.exr is None else self._exr()["irradiance_w_m2"]
 
     def _exr(self) -> dict:
-        from skynav.datasets.frame_files import read_exr
-
         return read_exr(io.BytesIO(self.exr))
 
 
@@ -234,9 +235,6 @@ class LocalServer:
         self.url = None
 
     def __enter__(self) -> str:
-        import subprocess
-        import sys
-
         self.proc = subprocess.Popen([sys.executable, "-m", "skynav", "serve", "--port", "0", "--workers",
                                       str(self.workers), *self.args], stdout=subprocess.PIPE, text=True)
         t_end = time.monotonic() + self.timeout_s
@@ -250,8 +248,6 @@ class LocalServer:
         return self.url
 
     def __exit__(self, *exc):
-        import signal
-
         if self.proc is not None and self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:

@@ -24,9 +24,25 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from skynav.datasets.errors import RecipeError
+from skynav.datasets.observation import Observation
+from skynav.datasets.plan import epoch_iso
+from skynav.datasets.recipes import recipe_camera
+from skynav.datasets.samplers import make_plan
+from skynav.pipeline import NavFilter, OnboardCatalog, PredictedState, process_frame
+from skynav.pipeline.filter_dynamics import FilterDynamics
+from skynav.pipeline.measurement import CASES
+from skynav.pipeline.pairs import candidates_from_state, optimal_pair
+from skynav.pipeline.scoring_nav import (UPDATE_ITERATIONS, CampaignResult, CentroidNoise, NavPlan, centroid_usable,
+                                         calibrate_sigma_px, diameter_px)
+from skynav.scenes import frames
+from skynav.scenes.constants import C_KM_S, SECONDS_PER_DAY
+from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+from skynav.scenes.timescales import tdb_seconds
 
 #: A target is "centred" when its true pixel is within this fraction of the half-width of the
 #: field from the principal point (the 1024 px paper camera: 51 px).
@@ -46,9 +62,6 @@ CALIBRATION_RENDERING = 0xCA1
 def point_at(ephemeris, target: str, t: float, position_km, twist_rad: float = 0.0) -> np.ndarray:
     """The attitude that puts ``target`` on the boresight seen from ``position_km`` at ``t``: the
     planet where it was one (first-order) light-time earlier, as the on-board ephemeris gives it."""
-    from skynav.scenes import frames
-    from skynav.scenes.constants import C_KM_S
-
     r = np.asarray(position_km, dtype=float)
     lt = np.linalg.norm(ephemeris.position(target, t) - r) / C_KM_S
     return frames.point_boresight(frames.normalize(ephemeris.position(target, t - lt) - r), twist_rad)
@@ -56,15 +69,11 @@ def point_at(ephemeris, target: str, t: float, position_km, twist_rad: float = 0
 
 def observation(k: int, t: float, dn: np.ndarray, camera):
     """What the flight software has of frame ``k``: the image, its time, the calibrated camera."""
-    from skynav.datasets.observation import Observation
-
     return Observation(index=k, dn=dn, epoch_tdb_s=t, exposure_s=camera.exposure_s, camera=camera)
 
 
 def centroid_noise(noise):
     """``noise`` as a :class:`~skynav.pipeline.scoring_nav.CentroidNoise` (a number: that sigma, px)."""
-    from skynav.pipeline.scoring_nav import CentroidNoise
-
     return noise if isinstance(noise, CentroidNoise) else CentroidNoise(sigma0_px=float(noise))
 
 
@@ -72,9 +81,6 @@ class Simulator:
     """The truth side of the loop: a ``sequence`` recipe's cruise and the pointing controller."""
 
     def __init__(self, recipe: dict, *, limit: int | None = None):
-        from skynav.datasets.errors import RecipeError
-        from skynav.datasets.samplers import make_plan
-
         if recipe.get("kind") != "sequence":
             raise RecipeError("kind", recipe.get("kind"), "sequence (a cruise with navigation legs) for bench loop")
         self.recipe = recipe
@@ -89,9 +95,6 @@ class Simulator:
     # what the flight software may know: the camera schedule and the commanded pointing plan
     def schedule(self):
         """``[(frame time TDB s, leg, phase, target)]`` of the frames (the commanded observation plan)."""
-        from skynav.datasets.plan import epoch_iso
-        from skynav.scenes.timescales import tdb_seconds
-
         out = []
         for k in range(self.frames):
             leg, phase, target, _ = self.plan.frame_info[k]
@@ -109,9 +112,6 @@ class Simulator:
         ``rendering`` picks the image noise: frame ``k``'s render seed comes from
         ``SeedSequence([seed, k])`` for rendering 0, ``SeedSequence([seed, k, rendering])`` otherwise
         (the recipe's ``seed``), so that runs of one campaign may each see a rendering of their own."""
-        from skynav.datasets.plan import epoch_iso
-        from skynav.scenes import frames
-
         s = self.recipe["sequence"]
         err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
         jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
@@ -132,13 +132,6 @@ class FlightSoftware:
 
     def __init__(self, camera, x0, P0, t0: float, t_end: float, *, noise, case: int = 1, dynamics=None,
                  twist_rad: float = 0.0, track_frames: dict | None = None):
-        from skynav.pipeline import NavFilter, OnboardCatalog
-        from skynav.pipeline.filter_dynamics import FilterDynamics
-        from skynav.pipeline.measurement import CASES
-        from skynav.pipeline.scoring_nav import UPDATE_ITERATIONS
-        from skynav.scenes.constants import SECONDS_PER_DAY
-        from skynav.scenes.ephemeris_jpl import default_ephemeris
-
         self.camera, self.noise, self.twist_rad = camera, centroid_noise(noise), float(twist_rad)
         self.track_frames = dict(track_frames or {})   # frames per (leg, phase): the commanded observation plan
         self.eph = default_ephemeris()
@@ -157,10 +150,6 @@ class FlightSoftware:
 
         ``track``: the frame's ``(leg, phase)`` in the observation plan (the measurement noise of a
         class with a track-constant part depends on the track's length, as in ``bench nav``)."""
-        from skynav.pipeline import PredictedState, process_frame
-        from skynav.pipeline.scoring_nav import centroid_usable, diameter_px
-        from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
-
         obs = observation(k, t, dn, self.camera)
         x, P = self.kf.x[0], self.kf.P[0]
         radius = BODY_RADII_KM.get(target, 0.0)
@@ -231,9 +220,6 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
     wall second; frame k is asked no earlier than its time on that clock, and is late when its
     step ends after the next frame's time (the last frame: one cadence after its own).
     """
-    from skynav.datasets.recipes import recipe_camera
-    from skynav.pipeline.pairs import candidates_from_state, optimal_pair
-
     sched = sim.schedule()
     F = len(sched)
     camera = recipe_camera(sim.recipe)
@@ -305,9 +291,6 @@ def centred_px(camera) -> float:
 
 def bias_for_lost_planet(sim: Simulator, factor: float = 1.5) -> float:
     """An initial position error (km) that puts the first target ``factor`` half-fields off the boresight."""
-    from skynav.datasets.recipes import recipe_camera
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
-
     t, _, _, target = sim.schedule()[0]
     r, _ = sim.state(t)
     cam = recipe_camera(sim.recipe)
@@ -317,8 +300,6 @@ def bias_for_lost_planet(sim: Simulator, factor: float = 1.5) -> float:
 
 def perpendicular_bias(sim: Simulator, bias_km: float) -> np.ndarray:
     """A position offset of ``bias_km`` perpendicular to the first line of sight (it moves the planet in the image)."""
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
-
     t, _, _, target = sim.schedule()[0]
     r, _ = sim.state(t)
     u = default_ephemeris().position(target, t) - r
@@ -329,8 +310,6 @@ def perpendicular_bias(sim: Simulator, bias_km: float) -> np.ndarray:
 
 def nav_plan(sim: Simulator, runs: list):
     """The :class:`~skynav.pipeline.scoring_nav.NavPlan` of the loop's cruise, for ``bench nav``'s report."""
-    from skynav.pipeline.scoring_nav import NavPlan
-
     sched = sim.schedule()
     r = np.array([sim.state(t)[0] for t, *_ in sched])
     v = np.array([sim.state(t)[1] for t, *_ in sched])
@@ -344,8 +323,6 @@ def nav_plan(sim: Simulator, runs: list):
 
 def campaign_result(runs: list, plan, *, noise, case: int = 1):
     """``bench nav``'s :class:`~skynav.pipeline.scoring_nav.CampaignResult` of the loop's runs."""
-    from skynav.pipeline.scoring_nav import CampaignResult
-
     return CampaignResult(case=case, noise=centroid_noise(noise), t_tdb_s=plan.t_tdb_s,
                           error=np.stack([r.error for r in runs]), cov=np.stack([r.cov for r in runs]),
                           residual_px=np.stack([r.residual_px for r in runs]),
@@ -386,12 +363,6 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings:
     the loop starts.
     ``progress(1)`` after each frame.
     """
-    from dataclasses import replace
-
-    from skynav.datasets.recipes import recipe_camera
-    from skynav.pipeline.scoring_nav import calibrate_sigma_px
-    from skynav.scenes.ephemeris_jpl import default_ephemeris
-
     sched = sim.schedule()
     camera = recipe_camera(sim.recipe)
     s = sim.recipe["sequence"]

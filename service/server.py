@@ -10,7 +10,9 @@ wait, the next gets 503. Every error is a 4xx/5xx with a one-line JSON body ``{"
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
+import ipaddress
 import json
 import multiprocessing
 import os
@@ -20,10 +22,31 @@ import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
-from .protocol import (API_PREFIX, AUTH_HEADER, MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES, MEDIA_TYPES,
-                       MULTIPART, OUTPUTS, SCENE_KEYS)
+import uvicorn
+from starlette.applications import Starlette
+from starlette.exceptions import HTTPException
+from starlette.requests import ClientDisconnect
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route
+
+from skynav.datasets.pool import WorkerThreads
+
+from .openapi import openapi_document
+from .protocol import (
+    API_PREFIX,
+    AUTH_HEADER,
+    MAX_CAMERA_PIXELS,
+    MAX_QUEUE,
+    MAX_REQUEST_BYTES,
+    MEDIA_TYPES,
+    MULTIPART,
+    OUTPUTS,
+    SCENE_KEYS,
+)
+from .worker import worker_main
 
 
 class ServiceStartError(Exception):
@@ -39,10 +62,6 @@ class Limits:
 
 class _Worker:
     def __init__(self, ctx, facility, threads):
-        from skynav.datasets.pool import WorkerThreads
-
-        from .worker import worker_main
-
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=worker_main, args=(child, facility, threads), daemon=True)
         # the spawned worker reads its thread budget from the environment it starts with: Dr.Jit
@@ -154,8 +173,6 @@ class _HTTPError(Exception):
 
 
 def _error(status: int, message: str):
-    from starlette.responses import JSONResponse
-
     return JSONResponse({"error": " ".join(str(message).split())}, status_code=status)
 
 
@@ -208,14 +225,6 @@ def multipart_body(parts: dict) -> tuple[bytes, str]:
 
 def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits()):
     """The Starlette application of protocol v1 around a started :class:`WorkerPool`."""
-    from starlette.applications import Starlette
-    from starlette.exceptions import HTTPException
-    from starlette.requests import ClientDisconnect
-    from starlette.responses import JSONResponse, Response
-    from starlette.routing import Route
-
-    from .openapi import openapi_document
-
     has_facility = pool.info.get("facility") is not None
     document = openapi_document()
 
@@ -291,8 +300,6 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
     def startup():
         pool.attach()
 
-    from contextlib import asynccontextmanager
-
     @asynccontextmanager
     async def lifespan(app):
         startup()
@@ -303,8 +310,6 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
 
 
 def is_loopback(host: str) -> bool:
-    import ipaddress
-
     if host == "localhost":
         return True
     try:
@@ -314,10 +319,6 @@ def is_loopback(host: str) -> bool:
 
 
 def _server_class():
-    import contextlib
-
-    import uvicorn
-
     class _Server(uvicorn.Server):
         """uvicorn's server, without re-raising SIGINT/SIGTERM after its graceful shutdown: the
         caller still has to stop the worker processes, then returns normally."""
@@ -341,8 +342,6 @@ def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facili
     On a signal uvicorn stops accepting, lets the running renders finish and answer, then the
     workers are stopped.
     """
-    import uvicorn
-
     _Server = _server_class()
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)

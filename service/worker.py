@@ -13,11 +13,22 @@ PNG, EXR and truth bytes are those of its files.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
 import traceback
 import warnings
+
+from skynav.calibration.errors import CalibrationInputError
+from skynav.calibration.facility_io import load_facility
+from skynav.datasets.frame_files import frame_file_bytes
+from skynav.datasets.hil_export import screen_frame_bytes
+from skynav.renderer.render import RenderOptions, render
+from skynav.scenes.config import scene_spec_from_mapping
+from skynav.scenes.errors import ConfigValueError, SkynavError
+from skynav.scenes.presets import preset_mapping
+from skynav.scenes.scene import build_from_spec
 
 from .protocol import OUTPUTS
 
@@ -27,18 +38,11 @@ def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: 
 
     Raises a :class:`~skynav.scenes.errors.SkynavError` for a bad mapping (the scene-file words).
     """
-    from skynav.datasets.frame_files import frame_file_bytes
-    from skynav.renderer.render import RenderOptions, render
-    from skynav.scenes.config import scene_spec_from_mapping
-    from skynav.scenes.scene import build_from_spec
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spec = scene_spec_from_mapping(mapping)
         px = spec.camera.width * spec.camera.height
         if max_camera_pixels is not None and px > max_camera_pixels:
-            from skynav.scenes.errors import ConfigValueError
-
             raise ConfigValueError("camera", f"{spec.camera.width}x{spec.camera.height}",
                                    f"at most {max_camera_pixels} pixels a frame on this server (--max-camera-pixels)")
         scene = build_from_spec(spec)
@@ -54,15 +58,9 @@ def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: 
                 if o in files:
                     parts[o] = frame_file_bytes(frame, files[o])
         if "screen_png" in outputs:
-            from skynav.datasets.hil_export import screen_frame_bytes
-
             if facility is None:
-                from skynav.scenes.errors import ConfigValueError
-
                 raise ConfigValueError("outputs", "screen_png", "png, exr or truth (this server has no facility)")
             if scene.camera != facility.camera:
-                from skynav.calibration.errors import CalibrationInputError
-
                 raise CalibrationInputError(
                     f"camera: the scene's camera ({scene.camera.width}x{scene.camera.height}, f "
                     f"{scene.camera.focal_length_mm:g} mm) is not the facility's ({facility.camera.width}x"
@@ -75,8 +73,6 @@ def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: 
 
 def warm_up(facility=None) -> float:
     """Render the built-in scenes once (catalogue, ephemeris, radiometry, Mitsuba kernels); seconds."""
-    from skynav.scenes.presets import preset_mapping
-
     t0 = time.perf_counter()
     render_outputs(preset_mapping("default"), ("png", "exr", "truth"))
     small = preset_mapping("earth_departure")   # resolved Earth and Moon: Mitsuba's scenes and kernels
@@ -87,19 +83,14 @@ def warm_up(facility=None) -> float:
 
 def worker_main(conn, facility_arg, threads) -> None:
     """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
-    import os
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if threads:
         os.environ["SKYNAV_THREADS"] = str(threads)
-    from skynav.scenes.errors import SkynavError
 
     try:
         facility = None
         if facility_arg is not None:
-            from skynav.calibration.facility_io import load_facility
-
             facility = load_facility(facility_arg)
             facility.check_coverage()
         seconds = warm_up(facility)

@@ -8,188 +8,41 @@ bug and keeps its traceback.
 
 from __future__ import annotations
 
-import argparse
-import math
+import importlib
 import sys
-import time
-from pathlib import Path
 
 from . import __version__
+from .cli_common import COMMAND_HELP, OneLineParser, run_command
+
+#: The module of each command (``skynav.cli_*``), in the order ``skynav --help`` lists them. Only
+#: the module of the command being run is imported: each imports the rooms its command needs at its
+#: top, so ``skynav --help`` loads none of them.
+COMMAND_MODULES = {"scene": "cli_render", "render": "cli_render", "dataset": "cli_dataset", "bench": "cli_bench",
+                   "calibrate": "cli_calibrate", "hil": "cli_hil", "serve": "cli_serve"}
 
 
-def _fail(message: str) -> int:
-    from .cli_common import fail
-
-    return fail(message)
-
-
-def _load_spec(arg: str | None, overrides=()):
-    """The scene of a file or preset, with the ``--set`` overrides applied to its mapping."""
-    from skynav.scenes import config, presets
-
-    from .cli_common import apply_overrides
-
-    if arg is None or arg in presets.PRESETS:
-        mapping = presets.preset_mapping(arg or "default")
-    else:
-        path = Path(arg)
-        if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
-            from skynav.scenes.errors import SceneFileError
-
-            raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
-        mapping = config.load_scene_mapping(path)
-    if overrides:
-        mapping = apply_overrides(mapping, overrides)
-    return config.scene_spec_from_mapping(mapping)
-
-
-# ----------------------------------------------------------------------------- scene
-def _fmt(x, spec="8.2f"):
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        width = "".join(c for c in spec.split(".")[0] if c.isdigit())
-        return "-".rjust(int(width) if width else 1)  # a column's dash as wide as its numbers
-    return format(x, spec)
-
-
-def cmd_scene(args) -> int:
-    import numpy as np
-
-    from skynav.scenes.constants import AU_KM
-    from skynav.scenes.scene import build_from_spec
-
-    spec = _load_spec(args.scene, args.overrides)
-    scene = build_from_spec(spec)
-    cam = scene.camera
-    ra, dec = (math.degrees(a) for a in __import__("skynav.scenes.frames", fromlist=["x"]).unit_to_radec(scene.R_cam_icrs[2]))
-    print(f"epoch {spec.epoch_tdb_iso} TDB   boresight RA {ra:.4f} deg  Dec {dec:.4f} deg   "
-          f"camera {cam.width}x{cam.height}, FOV {math.degrees(cam.fov_x_rad):.2f} deg, {cam.exposure_s * 1e3:.0f} ms")
-    r_au = np.linalg.norm(scene.position_km) / AU_KM
-    print(f"observer {r_au:.4f} AU from the barycentre, {np.linalg.norm(scene.velocity_km_s):.3f} km/s;  "
-          f"Sun {math.degrees(scene.boresight_sun_angle_rad):.2f} deg from the boresight "
-          f"(exclusion {math.degrees(scene.visibility.sun_exclusion_rad):.0f} deg; visible: V <= {scene.visibility.limiting_v_mag:g})")
-    print()
-    print(f"{'body':<9} {'V':>7} {'x px':>9} {'y px':>9} {'light-time s':>13} {'aberr. arcsec':>14} "
-          f"{'diam px':>8} {'phase deg':>9} {'elong deg':>9}  flags")
-    for b in sorted(scene.bodies, key=lambda b: (not b.in_fov, b.v_mag)):
-        flags = ",".join(f for f, on in (("in_fov", b.in_fov), ("visible", b.visible), ("resolved", b.resolved)) if on)
-        print(f"{b.name:<9} {_fmt(b.v_mag, '7.2f')} {_fmt(b.xy[0], '9.2f') if b.in_fov else '        -'} "
-              f"{_fmt(b.xy[1], '9.2f') if b.in_fov else '        -'} {b.light_time_s:13.3f} {b.aberration_arcsec:14.3f} "
-              f"{b.angular_diameter_px:8.3f} {math.degrees(b.phase_angle_rad):9.2f} {math.degrees(b.elongation_rad):9.2f}  {flags}")
-    print()
-    vm = scene.stars.v_mag[scene.stars.in_fov]
-    edges = [-2, 3, 4, 5, 6, 7, 8, scene.catalog_limiting_v_mag]
-    edges = sorted(set(e for e in edges if e <= scene.catalog_limiting_v_mag))
-    counts = [int(((vm > lo) & (vm <= hi)).sum()) for lo, hi in zip(edges[:-1], edges[1:])]
-    print(f"stars in view: {len(vm)} (V <= {scene.catalog_limiting_v_mag:g})   " +
-          "  ".join(f"V {lo:g}..{hi:g}: {n}" for lo, hi, n in zip(edges[:-1], edges[1:], counts)))
-    return 0
-
-
-# ----------------------------------------------------------------------------- render
-def cmd_render(args) -> int:
-    import numpy as np
-
-    from skynav.datasets.frame_files import write_frame
-    from skynav.renderer.render import RenderOptions, render
-    from skynav.scenes.scene import build_from_spec
-
-    from skynav.datasets.frame_files import check_output_dir, check_stem
-
-    from .cli_common import say
-
-    spec = _load_spec(args.scene, args.overrides)
-    seed = spec.seed if args.seed is None else args.seed
-    if seed < 0:
-        return _fail(f"--seed {seed}: expected a non-negative integer")
-    check_stem(args.name, what="--name")
-    check_output_dir(args.output, what="-o/--output folder")  # before the work, not after
-    if args.hil:
-        from .cli_hil import render_hil
-
-        return render_hil(args, spec, seed)
-    t0 = time.perf_counter()
-    scene = build_from_spec(spec)
-    options = RenderOptions(noise=not args.no_noise, backend=args.backend,
-                            cosmic_rays_per_frame=spec.cosmic_rays_per_frame, mitsuba_spp=spec.mitsuba_spp)
-    frame = render(scene, seed=seed, options=options)
-    t1 = time.perf_counter()
-    out = Path(args.output)
-    formats = ("png", "exr", "json") + (("fits",) if args.fits else ())
-    files = write_frame(frame, out, args.name, formats=formats)
-    t2 = time.perf_counter()
-    truth = frame.truth
-    stars = truth["stars"]
-    maxdn = (1 << scene.camera.sensor.bit_depth) - 1
-    say(args, f"rendered {scene.camera.width}x{scene.camera.height} frame in {t1 - t0:.2f} s (seed {seed}), wrote in {t2 - t1:.2f} s")
-    say(args, f"sources: {len(stars)} stars in view, "
-          f"{sum(b['in_fov'] for b in truth['bodies'])} bodies in view, {len(truth['cosmic_rays'])} cosmic rays")
-    for b in truth["bodies"]:
-        if b["in_fov"]:
-            say(args, f"  {b['name']}: V {b['v_mag']:.2f} at ({b['xy'][0]:.2f}, {b['xy'][1]:.2f}) px, "
-                  f"{b['electrons']:.4g} e-, {b['rendered_as']}{', visible' if b['visible'] else ''}")
-    if stars:
-        s = min(stars, key=lambda s: s["v_mag"])
-        say(args, f"  brightest star: HIP {s['hip']} V {s['v_mag']:.2f} at ({s['xy'][0]:.2f}, {s['xy'][1]:.2f}) px, {s['electrons']:.4g} e-")
-    say(args, f"saturated pixels: {int((frame.dn >= maxdn).sum())}   max DN {int(frame.dn.max())} of {maxdn}")
-    for fmt, path in files.items():
-        say(args, f"  {fmt:<5} {path}")
-    return 0
-
-
-# ----------------------------------------------------------------------------- parser
-def build_parser() -> argparse.ArgumentParser:
-    from .cli_common import OneLineParser, add_set_argument
-
+def build_parser(command: str | None = None) -> OneLineParser:
+    """The ``skynav`` parser, complete for ``command`` (for every command when it is None); the
+    other commands are registered with their one-line help only."""
     p = OneLineParser(prog="skynav", description="Deep-space optical navigation imagery: "
                                 "render star fields and planets as a spacecraft camera sees them.")
     p.add_argument("--version", action="version", version=f"skynav {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
-
-    s = sub.add_parser("scene", help="print what is in view (bodies, stars, Sun angle)",
-                       description="Compute a scene and print what the camera sees: bodies with magnitude, "
-                       "apparent pixel position, light-time and aberration; star counts by magnitude; Sun angle.")
-    s.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
-    add_set_argument(s, "the scene file (or preset), e.g. --set camera.fov_deg=10")
-    s.set_defaults(func=cmd_scene)
-
-    r = sub.add_parser("render", help="render one frame (PNG, EXR, ground-truth JSON)",
-                       description="Render one frame of a scene: PNG (digital counts), EXR (electrons, irradiance), "
-                       "ground-truth JSON; optional FITS with a TAN WCS. --set changes any key of the scene file "
-                       "(or preset) before it is read, e.g. --set camera.exposure_s=0.2 --set "
-                       "render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256.")
-    r.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
-    r.add_argument("-o", "--output", default="skynav-out", help="output folder (default: skynav-out)")
-    r.add_argument("--name", default="frame", help="file stem (default: frame)")
-    r.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's render.seed)")
-    r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
-    r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
-    from .cli_common import add_quiet
-
-    add_quiet(r)
-    r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
-    r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
-    add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
-    r.set_defaults(func=cmd_render)
-
-    try:
-        from . import cli_dataset
-
-        cli_dataset.add_parser(sub)
-    except ImportError:  # pragma: no cover - datasets command not available in this build
-        pass
-    from . import cli_bench, cli_calibrate, cli_hil, cli_serve
-
-    cli_bench.add_parser(sub)
-    cli_calibrate.add_parser(sub)
-    cli_hil.add_parser(sub)
-    cli_serve.add_parser(sub)
+    for module in dict.fromkeys(COMMAND_MODULES.values()):
+        names = [n for n, m in COMMAND_MODULES.items() if m == module]
+        if command is None or command in names:
+            # the command's module and the rooms it imports load only when that command runs
+            importlib.import_module(f"skynav.{module}").add_parser(sub)
+        else:
+            for name in names:
+                sub.add_parser(name, help=COMMAND_HELP[name], add_help=False)
     return p
 
 
 def main(argv=None) -> int:
-    from .cli_common import run_command
-
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), "")  # "": only the one-line helps
+    parser = build_parser(command)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

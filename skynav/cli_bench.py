@@ -9,7 +9,22 @@ from __future__ import annotations
 
 import importlib
 
-from .cli_common import add_quiet, check_output, float_in, positive_int, say, seed_int
+from skynav.pipeline.errors import BenchInputError
+from skynav.pipeline.process import ProcessOptions
+from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
+from skynav.pipeline.scoring_report import write_report
+
+from .cli_common import (
+    COMMAND_HELP,
+    add_quiet,
+    add_set_argument,
+    check_output,
+    dataclass_from_overrides,
+    float_in,
+    positive_int,
+    say,
+    seed_int,
+)
 
 #: the largest predicted-position sigma: 1e10 km is 67 au, beyond any mission's uncertainty
 MAX_SIGMA_KM = 1e10
@@ -20,10 +35,6 @@ SUBCOMMAND_MODULES = ("skynav.cli_bench_nav", "skynav.cli_bench_loop")
 
 
 def cmd_ip(args) -> int:
-    from skynav.pipeline.errors import BenchInputError
-    from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
-    from skynav.pipeline.scoring_report import write_report
-
     if args.mode not in ("paper", "improved"):
         raise BenchInputError(f"--mode {args.mode!r}: give paper or improved")
     if len(args.position_sigma_km) > MAX_SIGMAS:
@@ -33,9 +44,6 @@ def cmd_ip(args) -> int:
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
     sigmas = tuple(float(s) for s in args.position_sigma_km)
     check_output(args.output, [("DIR", args.dir)])
-    from skynav.pipeline.process import ProcessOptions
-
-    from .cli_common import dataclass_from_overrides
 
     options = dataclass_from_overrides(ProcessOptions, args.overrides, what="ProcessOptions")
     rows, info = run_benchmark(args.dir, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
@@ -84,7 +92,6 @@ def _add_ip(bsub) -> None:
     p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     add_quiet(p)
-    from .cli_common import add_set_argument
 
     add_set_argument(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")
     p.set_defaults(func=cmd_ip)
@@ -95,7 +102,7 @@ REGISTRARS = [_add_ip]
 
 def add_parser(sub) -> None:
     """Register ``bench`` and its sub-commands on the top-level subparsers."""
-    b = sub.add_parser("bench", help="benchmark navigation software on datasets",
+    b = sub.add_parser("bench", help=COMMAND_HELP["bench"],
                        description="Benchmarks: score the pipeline against the ground truth of a dataset.")
     bsub = b.add_subparsers(dest="bench_command", metavar="ACTION")
     for reg in REGISTRARS:

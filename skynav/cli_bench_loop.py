@@ -5,28 +5,36 @@ Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`ad
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from pathlib import Path
 
+import numpy as np
+
+from skynav.datasets.recipes import recipe_camera
+from skynav.pipeline.ekf import initial_covariance
+from skynav.pipeline.scoring_nav import NavInputError
+from skynav.pipeline.scoring_nav_report import summarise, write_report
+from skynav.service.client import Client, LocalServer
+from skynav.service.loop import (
+    CALIBRATION_FRAMES,
+    Simulator,
+    bias_for_lost_planet,
+    calibrate_loop_noise,
+    campaign_result,
+    centroid_noise,
+    loop_summary,
+    nav_plan,
+    perpendicular_bias,
+    run_loop,
+)
+
 from .cli_common import ProgressBar, add_quiet, add_set_argument, positive_int, say
+from .cli_dataset import _recipe
 
 
 def cmd_loop(args) -> int:
-    import contextlib
-
-    import numpy as np
-
-    from skynav.pipeline.ekf import initial_covariance
-    from skynav.pipeline.scoring_nav import NavInputError
-    from skynav.pipeline.scoring_nav_report import summarise, write_report
-    from skynav.service.client import Client, LocalServer
-    from skynav.service.loop import (CALIBRATION_FRAMES, Simulator, bias_for_lost_planet, calibrate_loop_noise,
-                                     campaign_result, centroid_noise, loop_summary, nav_plan, perpendicular_bias,
-                                     run_loop)
-
-    from .cli_dataset import _recipe
-
     if args.runs < 1:
         raise NavInputError(f"--runs {args.runs}: give at least 1")
     if args.realtime is not None and not args.realtime > 0:
@@ -51,7 +59,6 @@ def cmd_loop(args) -> int:
     recipe = _recipe(args.recipe, None, None, args.overrides)
     t0 = time.perf_counter()
     sim = Simulator(recipe, limit=args.limit)
-    from skynav.datasets.recipes import recipe_camera
 
     camera = recipe_camera(recipe)
     P0 = initial_covariance()

@@ -6,26 +6,48 @@ Registered by ``skynav/cli_bench.py`` (``SUBCOMMAND_MODULES``) through :func:`ad
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from .cli_common import add_quiet, float_in, int_in, positive_int, say, seed_int
+from tqdm.auto import tqdm
+
+from skynav.pipeline.filter_dynamics import FilterDynamics
+from skynav.pipeline.references import NAVIGATION
+from skynav.pipeline.scoring_nav import (
+    CentroidNoise,
+    NavInputError,
+    calibrate_sigma_px,
+    check_realisations,
+    load_plan,
+    run_campaign,
+    run_realisations,
+)
+from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
+from skynav.scenes.count_cap import cap_count
+
+from .cli_common import (
+    MAX_WORKERS,
+    OverrideError,
+    add_quiet,
+    add_set_argument,
+    check_output,
+    float_in,
+    int_in,
+    positive_int,
+    say,
+    seed_int,
+)
 
 #: most Monte Carlo runs (each run's filter history, frames x 6 states, is kept for the report)
 MAX_RUNS = 100_000
-#: most worker processes
-MAX_WORKERS = 256
 #: the largest centroid sigma (px) --sigma-px takes: beyond it no star is matched anyway
 MAX_SIGMA_PX = 100.0
 
 
 def cmd_nav(args) -> int:
-    from skynav.pipeline.scoring_nav import (CentroidNoise, NavInputError, calibrate_sigma_px, load_plan, run_campaign,
-                                             check_realisations, run_realisations)
-    from skynav.pipeline.scoring_nav_report import summarise, write_report
-
-    from .cli_common import check_output
-
     check_output(args.output, [("dataset", args.dataset), ("--images", args.images)])
     cases = list(dict.fromkeys(args.case))
     for c in cases:
@@ -33,7 +55,6 @@ def cmd_nav(args) -> int:
             raise NavInputError(f"--case {c}: give 1, 2, 3, 4 or 5")
     if args.runs < 2:
         raise NavInputError(f"--runs {args.runs}: at least 2 runs are needed for sample statistics")
-    from skynav.scenes.count_cap import cap_count
 
     args.runs = cap_count(args.runs, "--runs", minimum=2)
     if args.workers < 1:
@@ -63,7 +84,6 @@ def cmd_nav(args) -> int:
     if args.sigma_px is None:
         noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
                                    phase_offset=not args.no_phase_offset)
-        from dataclasses import replace
 
         noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
     else:
@@ -76,8 +96,6 @@ def cmd_nav(args) -> int:
         bar = None
         if realisations is not None:
             if not args.quiet:
-                from tqdm.auto import tqdm
-
                 bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {c}, {args.runs} runs")
             results[c] = run_realisations(realisations, runs=args.runs, case=c, seed=args.seed, workers=args.workers,
                                           noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
@@ -88,8 +106,6 @@ def cmd_nav(args) -> int:
             fl_s += results[c].filter_time_s
             continue
         if not args.quiet and args.workers == 1:
-            from tqdm.auto import tqdm
-
             bar = tqdm(total=plan.frames, unit="frame", desc=f"case {c}, {args.runs} runs")
         results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise, dynamics=dynamics,
                                   phase_offset=not args.no_phase_offset, progress=None if bar is None else bar.update)
@@ -105,8 +121,6 @@ def cmd_nav(args) -> int:
             "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "dynamics": {k: getattr(dynamics or _default_dynamics(), k) for k in DYNAMICS_KEYS}, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
             "filter_time_s": fl_s}
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
-    from skynav.pipeline.references import NAVIGATION
-    from skynav.pipeline.scoring_nav_report import PAPER_002
 
     f = summary["final"]
     n = summary["nees"]
@@ -129,22 +143,12 @@ DYNAMICS_KEYS = ("correlation_time_s", "sigma_residual_km_s2", "sigma_srp_km_s2"
 
 
 def _default_dynamics():
-    from skynav.pipeline.filter_dynamics import FilterDynamics
-
     return FilterDynamics()
 
 
 def _dynamics(args):
     """The filter's FilterDynamics from ``--gm-sigma`` then ``--set dynamics.FIELD=VALUE`` (in order),
     or None for the defaults. Each value must be a positive finite number."""
-    import dataclasses
-    import math
-
-    from skynav.pipeline.filter_dynamics import FilterDynamics
-    from skynav.pipeline.scoring_nav import NavInputError
-
-    from .cli_common import OverrideError
-
     kw = {}
     if args.gm_sigma is not None:
         if not 0 < args.gm_sigma < 1e-6:
@@ -202,7 +206,6 @@ def add_parser(bsub) -> None:
     p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
     p.add_argument("-o", "--output", required=True, help="report folder")
     add_quiet(p)
-    from .cli_common import add_set_argument
 
     add_set_argument(p, "the filter's dynamics (dynamics." + ", dynamics.".join(DYNAMICS_KEYS)
                      + "; e.g. dynamics.sigma_residual_km_s2=5e-12), applied after --gm-sigma")

@@ -4,14 +4,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .cli_common import ProgressBar, add_quiet, check_output, float_in, int_in, say, seed_int
+from skynav.calibration.bench_files import calibrate_geometric, simulate, write_patterns
+from skynav.calibration.facility_io import load_facility, write_facility
+from skynav.calibration.geometric import MAX_HOLDOUT
+from skynav.calibration.patterns import MAX_PHASES
+from skynav.calibration.plots import radiometric_figure, residual_figure
+from skynav.calibration.radiometric import calibrate_radiometric
+from skynav.calibration.virtual_bench import MAX_FRAMES, SCENARIO_NAMES
+from skynav.datasets.frame_files import atomic_write_bytes
+from skynav.datasets.plots import figure_png
+from skynav.scenes.count_cap import cap_count
+
+from .cli_common import COMMAND_HELP, ProgressBar, add_quiet, check_output, float_in, int_in, say, seed_int
 
 
 def _write_figure(fig, path) -> Path:
     """Write a calibration figure as PNG (atomic), next to the facility file."""
-    from skynav.datasets.frame_files import atomic_write_bytes
-    from skynav.datasets.plots import figure_png
-
     atomic_write_bytes(path, figure_png(fig))
     return Path(path)
 
@@ -24,9 +32,6 @@ def _check_plot_path(output, suffix, inputs) -> None:
 
 
 def cmd_patterns(args) -> int:
-    from skynav.calibration.facility_io import load_facility
-    from skynav.calibration.bench_files import write_patterns
-
     check_output(args.output, [("facility", args.facility)])
     fac = load_facility(args.facility)
     pats = write_patterns(fac, args.output, phases=args.phases)
@@ -38,11 +43,6 @@ def cmd_patterns(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from skynav.calibration.facility_io import load_facility
-    from skynav.calibration.bench_files import simulate
-
-    from skynav.scenes.count_cap import cap_count
-
     check_output(args.output, [("facility", args.facility), ("--patterns", args.patterns)])
     args.frames = cap_count(args.frames, "--frames (exposures averaged per capture)")
     fac = load_facility(args.facility)
@@ -55,10 +55,6 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_geometric(args) -> int:
-    from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.calibration.plots import residual_figure
-    from skynav.calibration.bench_files import calibrate_geometric
-
     check_output(args.output, [("facility", args.facility), ("--patterns", args.patterns), ("--captures", args.captures)],
                  kind="file")
     _check_plot_path(args.output, "_residuals.png", [args.facility])
@@ -79,10 +75,6 @@ def cmd_geometric(args) -> int:
 
 
 def cmd_radiometric(args) -> int:
-    from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.calibration.plots import radiometric_figure
-    from skynav.calibration.radiometric import calibrate_radiometric
-
     check_output(args.output, [("facility", args.facility), ("--measurements", args.measurements)], kind="file")
     _check_plot_path(args.output, "_radiometric.png", [args.facility, args.measurements])
     fac = load_facility(args.facility)
@@ -100,11 +92,7 @@ def cmd_radiometric(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from skynav.calibration.geometric import MAX_HOLDOUT
-    from skynav.calibration.patterns import MAX_PHASES
-    from skynav.calibration.virtual_bench import MAX_FRAMES, SCENARIO_NAMES
-
-    c = sub.add_parser("calibrate", help="calibrate a hardware-in-the-loop bench (patterns, fits, virtual bench)",
+    c = sub.add_parser("calibrate", help=COMMAND_HELP["calibrate"],
                        description="Bench calibration: write patterns, simulate captures on a virtual bench, fit the "
                        "geometric and radiometric models into a facility file. FACILITY: a YAML file or a preset (bench, bench_small).")
     cs = c.add_subparsers(dest="calibrate_command", metavar="STEP")

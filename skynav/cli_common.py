@@ -12,17 +12,38 @@ system refuses, a frame too large for memory); a traceback only for a bug.
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 import errno
+import io
 import logging
+import math
 import os
+import re
 import sys
 import warnings
+from pathlib import Path
 
-from skynav.scenes.errors import SkynavError
+from skynav.scenes.errors import SkynavError, SkynavWarning
+
+#: The one-line help of each ``skynav`` command (``skynav --help`` lists them without importing
+#: the commands' modules; each module's ``add_parser`` uses its line).
+COMMAND_HELP = {
+    "scene": "print what is in view (bodies, stars, Sun angle)",
+    "render": "render one frame (PNG, EXR, ground-truth JSON)",
+    "dataset": "generate, verify, inspect and preview datasets",
+    "bench": "benchmark navigation software on datasets",
+    "calibrate": "calibrate a hardware-in-the-loop bench (patterns, fits, virtual bench)",
+    "hil": "hardware-in-the-loop bench: facility files, screen-frame export",
+    "serve": "render service: frames by pose over HTTP for flight software and simulators",
+}
 
 __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
            "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set", "apply_overrides",
            "dataclass_from_overrides", "OverrideError", "add_quiet", "say", "ProgressBar"]
+
+#: most local worker processes a command starts (bench nav's runs, hil export's frames)
+MAX_WORKERS = 256
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
@@ -72,6 +93,7 @@ class ProgressBar:
         if self.quiet:
             return
         if self._bar is None:
+            # tqdm: ~35 ms to import; every command loads this module, skynav --help too
             from tqdm.auto import tqdm
 
             self._bar = tqdm(total=total, unit=self.unit, desc=self.desc)
@@ -186,8 +208,6 @@ def float_in(low: float, high: float, *, low_open: bool = False, high_open: bool
     >>> float_in(0, 1, low_open=True)("0.2")
     0.2
     """
-    import math
-
     rng = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
     allowed = f"a finite number in {rng}" + (f" {unit}" if unit else "")
 
@@ -222,10 +242,6 @@ def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -
     ------
     PathConflictError
     """
-    from pathlib import Path
-
-    from skynav.datasets.frame_files import check_output_dir
-
     out = Path(output)
     if kind == "file" and out.is_dir():
         raise PathConflictError(f"{flag} {output}: is a folder; give a file name (e.g. {Path(output) / 'facility.yaml'})")
@@ -234,6 +250,9 @@ def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -
     if kind == "folder" and out.exists() and not out.is_dir():
         raise PathConflictError(f"{flag} {output}: is a file, not a folder; give a folder")
     # a kernel file system (/proc, /sys, /dev), under a file, not writable: the datasets' rule
+    # (lazy: every command loads this module, skynav --help too, and the datasets load with a command)
+    from skynav.datasets.frame_files import check_output_dir
+
     check_output_dir(out if kind == "folder" else (out.parent if str(out.parent) else Path(".")),
                      what=f"the folder of {flag} {output}" if kind == "file" else f"the {flag} folder")
     ro = out.resolve()
@@ -271,13 +290,6 @@ def parse_set(text: str):
     >>> parse_set("scenes[1].epoch=2027-03-15T00:00:00")[1]
     ('scenes', 1, 'epoch')
     """
-    import io
-    import re
-
-    import yaml
-
-    from skynav.scenes.config import load_yaml
-
     key, eq, raw = text.partition("=")
     key = key.strip()
     why = "expected KEY.SUB=VALUE, e.g. camera.exposure_s=0.2"
@@ -286,6 +298,11 @@ def parse_set(text: str):
     parts = re.sub(r"\[(\d+)\]", r".\1", key).split(".")
     if any(not re.fullmatch(r"[A-Za-z0-9_-]+", p) for p in parts):
         raise argparse.ArgumentTypeError(f"{text!r}: {why} (KEY: names and list indices joined by dots)")
+    # lazy: every command loads this module, skynav --help too; the scene reader loads with --set
+    import yaml
+
+    from skynav.scenes.config import load_yaml  # lazy, as yaml above: skynav --help loads no room
+
     try:
         value = load_yaml(io.StringIO(raw)) if raw.strip() else None
     except yaml.YAMLError as exc:
@@ -315,8 +332,6 @@ def apply_overrides(mapping, overrides, *, known_keys_only: bool = False, what: 
     OverrideError
         The path goes through a value that is not a mapping or list, or past a list's end.
     """
-    import copy
-
     out = copy.deepcopy(mapping) if mapping is not None else {}
     if not isinstance(out, dict):
         raise OverrideError(f"--set: the file is not a mapping ({type(out).__name__}); fix the file first")
@@ -366,9 +381,6 @@ def dataclass_from_overrides(cls, overrides, *, what: str):
     ------
     OverrideError
     """
-    import dataclasses
-    import math
-
     defaults = cls()
     fields = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(cls)}
     kw = {}
@@ -395,9 +407,6 @@ def dataclass_from_overrides(cls, overrides, *, what: str):
 def user_path(path) -> str:
     """The path a user gave for one of skynav's hidden temporary files (``DIR/.NAME.XXXXXXXX.tmp``,
     written then renamed onto ``DIR/NAME`` by the atomic writers): ``DIR/NAME``; others unchanged."""
-    import re
-    from pathlib import Path
-
     text = os.fsdecode(path)
     m = re.fullmatch(r"\.(.+)\.[A-Za-z0-9_]{6,12}\.tmp", Path(text).name)
     return str(Path(text).with_name(m.group(1))) if m else text
@@ -427,8 +436,6 @@ def run_command(func, args) -> int:
     command runs with ``-q``. Worker processes have no handler: a note prints once per run, from
     this process. Anything else is a bug and keeps its traceback.
     """
-    from skynav.scenes.errors import SkynavError, SkynavWarning
-
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, SkynavWarning):
             warn(str(message))

@@ -4,17 +4,28 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from skynav import datasets
+from skynav.datasets.atomic_files import atomic_write_bytes
+from skynav.datasets.errors import OutputPathError, RecipeError
+from skynav.datasets.frame_files import check_output_dir, check_stem
+from skynav.datasets.recipes import PRESETS, read_recipe_mapping, recipe_yaml
+
+from .cli_common import (
+    COMMAND_HELP,
+    EXIT_CHECK_FAILED,
+    EXIT_OK,
+    add_quiet,
+    add_set_argument,
+    apply_overrides,
+    non_negative_int,
+    positive_int,
+    say,
+)
+
 
 def _recipe(arg: str, count, seed, overrides=()):
     """The recipe of a file or preset with the ``--set`` overrides, then ``--count`` and ``--seed``."""
-    from skynav import datasets
-    from skynav.datasets.recipes import read_recipe_mapping
-
-    from .cli_common import apply_overrides
-
     if arg not in datasets.PRESETS and not Path(arg).is_file():
-        from skynav.datasets.errors import RecipeError
-
         raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
     recipe = read_recipe_mapping(arg)
     if overrides:
@@ -28,22 +39,15 @@ def _recipe(arg: str, count, seed, overrides=()):
 
 
 def cmd_generate(args) -> int:
-    from skynav import datasets
-
     recipe = _recipe(args.recipe, args.count, args.seed, args.overrides)
     summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                                 progress=not args.quiet)
-    from .cli_common import say
 
     say(args, *summary.lines())
     return 0
 
 
 def cmd_recipe(args) -> int:
-    from skynav.datasets.errors import OutputPathError
-    from skynav.datasets.frame_files import check_output_dir
-    from skynav.datasets.recipes import recipe_yaml
-
     text = recipe_yaml(args.preset)
     if args.output is None:
         print(text, end="")
@@ -54,7 +58,6 @@ def cmd_recipe(args) -> int:
     if out.exists() and not args.force:
         raise OutputPathError(f"{out}: exists; give another path, or --force to replace it")
     check_output_dir(out.parent if str(out.parent) else Path("."), what="-o/--output folder")
-    from skynav.datasets.atomic_files import atomic_write_bytes
 
     atomic_write_bytes(out, text.encode())
     print(f"wrote {out}: the {args.preset} preset, every key commented; edit it, then: "
@@ -63,19 +66,14 @@ def cmd_recipe(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    from skynav import datasets
-
     report = datasets.verify(args.path, progress=not args.quiet)
     for line in report.lines():
         print(line)
-    from .cli_common import EXIT_CHECK_FAILED, EXIT_OK
 
     return EXIT_OK if report.ok else EXIT_CHECK_FAILED
 
 
 def cmd_info(args) -> int:
-    from skynav import datasets
-
     rows = datasets.info(args.path)["rows"]
     width = max(len(k) for k, _ in rows)
     for k, v in rows:
@@ -85,9 +83,6 @@ def cmd_info(args) -> int:
 
 def _check_output_png(out: str) -> None:
     """Refuse a contact-sheet path that cannot be written (before reading the dataset)."""
-    from skynav.datasets.errors import OutputPathError
-    from skynav.datasets.frame_files import check_output_dir, check_stem
-
     p = Path(out)
     if p.is_dir() or out.endswith("/"):
         raise OutputPathError(f"{out}: -o/--output is a folder; give a PNG file path")
@@ -96,8 +91,6 @@ def _check_output_png(out: str) -> None:
 
 
 def cmd_preview(args) -> int:
-    from skynav import datasets
-
     datasets.open(args.path)  # a missing or incomplete dataset is named first
     out = args.output or str(Path(args.path) / "preview.png")
     _check_output_png(out)
@@ -110,11 +103,7 @@ def cmd_preview(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from skynav.datasets.recipes import PRESETS
-
-    from .cli_common import add_quiet, add_set_argument, non_negative_int, positive_int
-
-    d = sub.add_parser("dataset", help="generate, verify, inspect and preview datasets",
+    d = sub.add_parser("dataset", help=COMMAND_HELP["dataset"],
                        description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
     dsub = d.add_subparsers(dest="dataset_command", metavar="ACTION")
     g = dsub.add_parser("generate", help="render a recipe into a dataset folder (resumes a partial one)",

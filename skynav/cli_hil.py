@@ -4,10 +4,24 @@ from __future__ import annotations
 
 import time
 
-from .cli_common import ProgressBar, add_quiet, check_output, int_in, say, warn
+from skynav.calibration.errors import CalibrationInputError
+from skynav.calibration.facility_io import load_facility, write_facility
+from skynav.datasets.hil_export import export_dataset, write_screen_frame
+from skynav.scenes.facility import facility_from_mapping
+from skynav.scenes.scene import build_from_spec
 
-#: most local worker processes of an export (each holds a screen frame, ~100 MB on the 'bench' preset)
-MAX_WORKERS = 256
+from .cli_common import (
+    COMMAND_HELP,
+    MAX_WORKERS,
+    ProgressBar,
+    add_quiet,
+    add_set_argument,
+    apply_overrides,
+    check_output,
+    int_in,
+    say,
+    warn,
+)
 
 
 def uncalibrated_note(facility, name) -> str | None:
@@ -24,8 +38,6 @@ def uncalibrated_note(facility, name) -> str | None:
 
 
 def cmd_facility(args) -> int:
-    from skynav.calibration.facility_io import load_facility, write_facility
-
     check_output(args.output, [("facility", args.preset)], kind="file")
     fac = load_facility(args.preset)
     fac.check_coverage()
@@ -39,15 +51,9 @@ def cmd_facility(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from skynav.calibration.facility_io import load_facility
-    from skynav.datasets.hil_export import export_dataset
-
     check_output(args.output, [("dataset", args.dataset), ("facility", args.facility)])
     fac = load_facility(args.facility)
     if args.overrides:  # the facility's file form, every key written out (what `skynav hil facility` writes)
-        from skynav.scenes.facility import facility_from_mapping
-
-        from .cli_common import apply_overrides
 
         mapping = apply_overrides(fac.to_mapping(), args.overrides, known_keys_only=True, what="the facility")
         if any(path[0] == "camera" and path[1:] != ("K",) for _, path, _ in args.overrides):
@@ -76,15 +82,9 @@ def cmd_export(args) -> int:
 
 def render_hil(args, spec, seed) -> int:
     """``skynav render SCENE --hil FACILITY``: one screen frame."""
-    from skynav.calibration.facility_io import load_facility
-    from skynav.datasets.hil_export import write_screen_frame
-    from skynav.scenes.scene import build_from_spec
-
     fac = load_facility(args.hil)
     scene = build_from_spec(spec)
     if scene.camera != fac.camera:
-        from skynav.calibration.errors import CalibrationInputError
-
         raise CalibrationInputError(f"the scene's camera ({scene.camera.width}x{scene.camera.height}, f {scene.camera.focal_length_mm:g} mm) "
                                     f"is not the facility's ({fac.camera.width}x{fac.camera.height}, f {fac.camera.focal_length_mm:g} mm)")
     fac.check_coverage()
@@ -103,7 +103,7 @@ def render_hil(args, spec, seed) -> int:
 
 
 def add_parser(sub) -> None:
-    h = sub.add_parser("hil", help="hardware-in-the-loop bench: facility files, screen-frame export",
+    h = sub.add_parser("hil", help=COMMAND_HELP["hil"],
                        description="Hardware-in-the-loop bench. FACILITY: a YAML file or a preset (bench, bench_small).")
     hs = h.add_subparsers(dest="hil_command", metavar="STEP")
     h.set_defaults(func=lambda a: (h.print_help(), 2)[1])
@@ -124,7 +124,6 @@ def add_parser(sub) -> None:
                    help=f"local processes, 1..{MAX_WORKERS} (default 1; each holds a screen frame in memory)")
     e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
     add_quiet(e)
-    from .cli_common import add_set_argument
 
     add_set_argument(e, "the facility (screen.*, collimator.*, camera.*, geometric.parameters.*, "
                         "radiometric.parameters.*; keys as 'skynav hil facility' writes them)")

@@ -5,12 +5,14 @@ from __future__ import annotations
 import os
 import sys
 
-from .cli_common import fail, positive_int
+from skynav.calibration.facility_io import load_facility
+from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
+from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
+
+from .cli_common import COMMAND_HELP, fail, positive_int
 
 
 def cmd_serve(args) -> int:
-    from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
-
     if args.port < 0 or args.port > 65535:
         return fail(f"--port {args.port}: expected 0..65535 (0: any free port)")
     token = args.token
@@ -24,7 +26,6 @@ def cmd_serve(args) -> int:
         return fail(f"--host {args.host}: binding an address other than loopback needs --token (or --insecure: "
                     "anyone who reaches it may make the server render)")
     if args.facility is not None:   # a bad facility is one line here, not a worker's failure
-        from skynav.calibration.facility_io import load_facility
 
         load_facility(args.facility).check_coverage()
     limits = Limits(max_request_bytes=args.max_request_bytes, max_camera_pixels=args.max_camera_pixels,
@@ -46,10 +47,8 @@ def cmd_serve(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
-
     s = sub.add_parser(
-        "serve", help="render service: frames by pose over HTTP for flight software and simulators",
+        "serve", help=COMMAND_HELP["serve"],
         description="Start the render service (docs/service.md): worker processes keep the catalogue, ephemeris, "
         "radiometry tables and Mitsuba kernels warm; POST /v1/render takes a scene mapping (the keys of a scene "
         "file plus outputs) and returns PNG/EXR/truth bytes identical to 'skynav render'. Prints one line "

@@ -31,10 +31,10 @@ def small_captures(tmp_path_factory, small_facility, small_patterns):
 def true_error_arcsec(facility, calibrated, truth, n=40):
     import dataclasses
 
-    from skynav.scenes.facility import ARCSEC
+    from skynav.scenes.constants import ARCSEC_RAD
 
     cam = facility.camera
     g = np.stack(np.meshgrid(np.linspace(8, cam.width - 9, n), np.linspace(8, cam.height - 9, n)), -1).reshape(-1, 2)
     xy = calibrated.projection.project(cam.line_of_sight(g))
     true = dataclasses.replace(facility.projection, model=truth.geometric).line_of_sight(xy)
-    return np.linalg.norm(np.cross(true, calibrated.projection.line_of_sight(xy)), axis=-1) / ARCSEC
+    return np.linalg.norm(np.cross(true, calibrated.projection.line_of_sight(xy)), axis=-1) / ARCSEC_RAD

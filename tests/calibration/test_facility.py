@@ -5,16 +5,24 @@ import math
 import numpy as np
 import pytest
 
+from skynav.scenes.constants import ARCSEC_RAD
 from skynav.scenes.errors import ConfigValueError
-from skynav.scenes.facility import (ARCSEC, FlatField, GeometricModel, ResidualField, ScreenProjection, bench_preset,
-                                    bench_small_preset, facility_from_mapping)
+from skynav.scenes.facility import (
+    FlatField,
+    GeometricModel,
+    ResidualField,
+    ScreenProjection,
+    bench_preset,
+    bench_small_preset,
+    facility_from_mapping,
+)
 from skynav.scenes.projection import Projection
 
 
 def _bent(screen, roll_rad=0.004):
     x = np.linspace(-0.5, screen.width_px - 0.5, 9)
     X, Y = np.meshgrid(x / screen.width_px, x / screen.height_px)
-    res = ResidualField(x_px=x, y_px=x, dx_rad=3 * ARCSEC * np.sin(6 * X + Y), dy_rad=3 * ARCSEC * np.cos(4 * Y - X))
+    res = ResidualField(x_px=x, y_px=x, dx_rad=3 * ARCSEC_RAD * np.sin(6 * X + Y), dy_rad=3 * ARCSEC_RAD * np.cos(4 * Y - X))
     return GeometricModel(focal_length_mm=50.3, decentre_x_mm=0.2, decentre_y_mm=-0.1, tilt_x_rad=0.01, tilt_y_rad=-0.02,
                           roll_rad=roll_rad, k1=0.05, k2=-0.02, p1=4e-4, p2=-6e-4, misalignment_rad=(1e-3, -2e-3, 5e-4), residual=res)
 
@@ -29,7 +37,7 @@ def test_inverse_accurate_to_a_hundredth_of_an_arcsec_everywhere(roll_rad):
     xy = np.concatenate([rng.uniform(-0.5, 2559.5, (20000, 2)), edges])
     v = P.line_of_sight(xy)
     xy2 = P.project(v)
-    ang = np.linalg.norm(np.cross(P.line_of_sight(xy2), v), axis=-1) / ARCSEC
+    ang = np.linalg.norm(np.cross(P.line_of_sight(xy2), v), axis=-1) / ARCSEC_RAD
     assert ang.max() < 0.01  # the requirement
     assert np.abs(xy2 - xy).max() < 1e-6
     assert np.allclose(np.linalg.norm(v, axis=-1), 1.0)

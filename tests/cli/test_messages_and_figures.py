@@ -262,11 +262,16 @@ def test_time_histogram_is_not_flattened_by_the_warm_up_frame():
     4 ms runs (not 0-500 ms), and the caption says what was left out and what overflowed."""
     import numpy as np
 
+    from skynav.pipeline.scoring import FrameScore
     from skynav.pipeline.scoring_report import time_histogram_figure
 
+    def run(frame, ms):
+        return FrameScore(frame=frame, sigma_km=1e4, status="ok", attitude="correct", error_arcsec=1.0,
+                          error_estimate_arcsec=1.0, n_stars=10, n_spots=10, method="lost_in_space", time_ms=ms, beacons=())
+
     rng = np.random.default_rng(3)
-    rows = [{"frame": 0, "time_ms": 500.0}] + [{"frame": k, "time_ms": float(4.0 + rng.random())} for k in range(1, 200)]
-    rows.append({"frame": 200, "time_ms": 300.0})
+    rows = [run(0, 500.0)] + [run(k, float(4.0 + rng.random())) for k in range(1, 200)]
+    rows.append(run(200, 300.0))
     fig, caption = time_histogram_figure(rows)
     ax = fig.axes[0]
     assert ax.get_xlim()[1] < 20.0  # 1.25 x the 99th percentile of ~4-5 ms, plus the overflow bin

@@ -156,8 +156,8 @@ def test_bench_ip_options_reach_the_pipeline(tiny_dataset):
 
     rows, _ = run_benchmark(tiny_dataset, sigmas_km=(1e4,), progress=False, options=ProcessOptions(max_spots=0))
     default, _ = run_benchmark(tiny_dataset, sigmas_km=(1e4,), progress=False)
-    assert [r["status"] for r in rows] == ["too_many_spots"]
-    assert default[0]["status"] != "too_many_spots"
+    assert [r.status for r in rows] == ["too_many_spots"]
+    assert default[0].status != "too_many_spots"
 
 
 def test_dataset_recipe_writes_a_file_generate_reads(tmp_path, capsys):

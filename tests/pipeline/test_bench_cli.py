@@ -51,6 +51,31 @@ def test_bench_ip_on_a_folder_of_frames(frame_folder, tmp_path, capsys):
     assert a == b
 
 
+def test_scores_are_frozen_dataclasses_and_the_csv_has_a_row_per_beacon(frame_folder, tmp_path):
+    """Issue 23: results are frozen dataclasses; ``results.csv`` writes one row per beacon of a run
+    (one row for a run without beacons) with the beacon's name, outcome and error."""
+    import csv
+    import dataclasses
+
+    from skynav.pipeline.scoring import BeaconScore, FrameScore, run_benchmark, summarise
+    from skynav.pipeline.scoring_report import CSV_FIELDS, write_report
+
+    rows, info = run_benchmark(frame_folder, sigmas_km=(1e4,), progress=False)
+    assert all(isinstance(r, FrameScore) for r in rows) and len(rows) == 2
+    assert all(isinstance(b, BeaconScore) for r in rows for b in r.beacons)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rows[0].attitude = "wrong"
+    summary = summarise(rows, frames=info["frames"], sigmas_km=(1e4,))
+    out = write_report(tmp_path / "rep", rows, summary, sigmas_km=(1e4,), mode="improved", seed=0, source=frame_folder,
+                       info={k: v for k, v in info.items() if k not in ("peer_rows", "peer_notes")})
+    with open(tmp_path / "rep" / "results.csv", newline="", encoding="utf-8") as f:
+        table = list(csv.DictReader(f))
+    assert list(table[0]) == list(CSV_FIELDS) and out is not None
+    assert len(table) == sum(max(1, len(r.beacons)) for r in rows)
+    found = [(t["frame"], t["beacon_name"], t["beacon_outcome"]) for t in table if t["beacon_name"]]
+    assert found == [(str(r.frame), b.name, b.outcome) for r in rows for b in r.beacons]
+
+
 def test_not_a_dataset_and_missing_keys(frame_folder, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
