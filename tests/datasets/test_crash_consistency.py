@@ -191,7 +191,13 @@ def test_two_generators_on_one_folder_the_second_is_refused(tmp_path):
     while not (out / ".skynav.lock").exists() or not (out / ".skynav.lock").read_text().strip():
         assert first.poll() is None and time.monotonic() < deadline
         time.sleep(0.05)
-    second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    # the first is paused while the second tries: a small dataset is made in well under the
+    # second's start-up time, so without the pause the second could find it done, not running
+    os.kill(first.pid, signal.SIGSTOP)
+    try:
+        second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    finally:
+        os.kill(first.pid, signal.SIGCONT)
     first.wait(300)
     assert first.returncode == 0, first.stderr.read()
     lines = second.stderr.strip().splitlines()
