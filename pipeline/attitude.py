@@ -22,7 +22,7 @@ from skynav.scenes.constants import ARCSEC_RAD
 
 from .results import AttitudeResult
 
-__all__ = ["wahba_svd", "attitude_covariance", "attitude_result", "rotation_angle_rad", "centroid_variance_px2",
+__all__ = ["wahba_svd", "attitude_covariance", "attitude_result", "rotation_angle_rad", "centroid_variance_px2", "flux_design",
            "weighted_attitude_result"]
 
 
@@ -98,7 +98,16 @@ def attitude_result(match, b_matched, *, floor_rad, min_sigma_rad):
 MIN_STARS_VARIANCE_FIT = 12
 
 
-def centroid_variance_px2(residual_px, flux_dn):
+def flux_design(flux_dn) -> np.ndarray:
+    """The columns ``1, 1/F, 1/F^2`` of :func:`centroid_variance_px2`'s fit, each scaled by its
+    mean (N, 3); ``F`` floored at 1e-9 DN. It depends on the fluxes only: a caller that refits on
+    new residuals of the same stars computes it once."""
+    F = np.maximum(np.asarray(flux_dn, float), 1e-9)
+    X = np.stack([np.ones_like(F), 1.0 / F, 1.0 / F ** 2], axis=1)
+    return X / X.mean(axis=0)
+
+
+def centroid_variance_px2(residual_px, flux_dn, design=None):
     """Per-axis centroid variance of each matched star, px^2, from the frame's own residuals.
 
     A centroid's error has three parts: a floor independent of the flux (the PSF's sampling on
@@ -116,18 +125,17 @@ def centroid_variance_px2(residual_px, flux_dn):
         Angle between each star's predicted and measured direction, in pixels.
     flux_dn : ndarray, shape (N,)
         Background-subtracted flux of each star's spot, DN (> 0).
+    design : ndarray, shape (N, 3), optional
+        :func:`flux_design` of ``flux_dn``, when the caller has it already.
     """
     r2 = np.asarray(residual_px, float) ** 2 / 2.0
-    F = np.maximum(np.asarray(flux_dn, float), 1e-9)
-    mean = float(r2.mean()) if len(r2) else 0.0
     if len(r2) < MIN_STARS_VARIANCE_FIT:
-        return np.full(len(r2), mean)
-    X = np.stack([np.ones_like(F), 1.0 / F, 1.0 / F ** 2], axis=1)
-    scale = X.mean(axis=0)
-    coef, _ = nnls(X / scale, r2)
-    var = (X / scale) @ coef
+        return np.full(len(r2), float(r2.mean()) if len(r2) else 0.0)
+    Xs = flux_design(flux_dn) if design is None else design
+    coef, _ = nnls(Xs, r2)
+    var = Xs @ coef
     if not np.all(np.isfinite(var)) or var.max() <= 0.0:
-        return np.full(len(r2), mean)
+        return np.full(len(r2), float(r2.mean()))
     # a star the fit gives ~zero variance would take all the weight: floor at 1 % of the median
     return np.maximum(var, 0.01 * float(np.median(var)))
 
@@ -139,14 +147,15 @@ def weighted_attitude_result(b_matched, u_icrs, flux_dn, A, *, ifov_rad, min_sig
     ``min_sigma_rad``. ``A``: the unweighted solution the residuals start from."""
     b = np.asarray(b_matched, float)
     u = np.asarray(u_icrs, float)
+    Xs = flux_design(flux_dn) if len(b) >= MIN_STARS_VARIANCE_FIT else None
     for _ in range(iterations):
         res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
-        var = centroid_variance_px2(res / ifov_rad, flux_dn)
+        var = centroid_variance_px2(res / ifov_rad, flux_dn, Xs)
         A = wahba_svd(b, u, 1.0 / var)
     res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
     n = len(b)
     # the fit takes 3 degrees of freedom from 2 n residual components
-    sigma = np.maximum(np.sqrt(centroid_variance_px2(res / ifov_rad, flux_dn) * n / max(n - 1.5, 1.0)) * ifov_rad,
+    sigma = np.maximum(np.sqrt(centroid_variance_px2(res / ifov_rad, flux_dn, Xs) * n / max(n - 1.5, 1.0)) * ifov_rad,
                        min_sigma_rad)
     P = attitude_covariance(b, sigma)
     return AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n,
