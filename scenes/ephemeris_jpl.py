@@ -82,6 +82,21 @@ _CHAINS = {
 }
 
 
+def _intervals(a1, a2, inits, intlens, ns):
+    """jplephem's interval arithmetic (``Segment.generate``) for arrays of segments and epochs:
+    ``(index, offset)`` of the Chebyshev interval holding the epoch ``a1 + a2`` (seconds from
+    ``_T0``, in two parts), ``inits``/``intlens``/``ns`` each segment's start, interval length and
+    interval count (broadcast). numpy's float64 divmod is CPython's float divmod (the same IEEE
+    operations), so the same bits as jplephem; an epoch at a segment's very end is the last
+    interval's."""
+    index1, offset1 = np.divmod(a1 - inits, intlens)
+    index2, offset2 = np.divmod(a2, intlens)
+    index3, offset = np.divmod(offset1 + offset2, intlens)
+    index = (index1 + index2 + index3).astype(np.intp)
+    last = index == ns
+    return np.where(last, index - 1, index), np.where(last, offset + intlens, offset)
+
+
 def _jd_to_date(jd: float) -> str:
     """Calendar date (proleptic Gregorian, YYYY-MM-DD) of a Julian date; Fliegel & van Flandern (1968)."""
     j = int(np.floor(jd + 0.5))
@@ -249,18 +264,7 @@ class Ephemeris:
             raise EphemerisRangeError(
                 f"{self._name()} covers {_jd_to_date(self._start_jd)}..{_jd_to_date(self._end_jd)} TDB;"
                 f" epoch {t!r} s outside", time_mask=True, start_jd=self._start_jd, end_jd=self._end_jd)
-        # jplephem's interval arithmetic (Segment.generate) for every segment at once: numpy's
-        # float64 divmod is CPython's float divmod (the same IEEE operations), so the same bits
-        a1 = (float(jd1) - _T0) * _S_PER_DAY
-        a2 = float(jd2) * _S_PER_DAY
-        index1, offset1 = np.divmod(a1 - inits, intlens)
-        index2, offset2 = np.divmod(a2, intlens)
-        index3, offset = np.divmod(offset1 + offset2, intlens)
-        index = (index1 + index2 + index3).astype(np.intp)
-        last = index == ns
-        if last.any():
-            index = np.where(last, index - 1, index)
-            offset = np.where(last, offset + intlens, offset)
+        index, offset = _intervals((float(jd1) - _T0) * _S_PER_DAY, float(jd2) * _S_PER_DAY, inits, intlens, ns)
         # each segment's coefficients of that interval, highest degree first, shorter series
         # padded with leading zeros: (C, 3, P)
         coef = big.take(base + index, axis=0).transpose(1, 2, 0)
@@ -308,16 +312,9 @@ class Ephemeris:
         if not np.all((jd >= self._start_jd) & (jd <= self._end_jd)):
             for b in bodies:  # the error of position(), with its time mask
                 self.position(b, t)
-        a1 = ((jd1 - _T0) * _S_PER_DAY)[None, :]
-        a2 = (jd2 * _S_PER_DAY)[None, :]
         il = intlens[:, None]
-        index1, offset1 = np.divmod(a1 - inits[:, None], il)
-        index2, offset2 = np.divmod(a2, il)
-        index3, offset = np.divmod(offset1 + offset2, il)
-        index = (index1 + index2 + index3).astype(np.intp)  # (P, N)
-        last = index == ns[:, None]
-        index = np.where(last, index - 1, index)
-        offset = np.where(last, offset + il, offset)
+        index, offset = _intervals(((jd1 - _T0) * _S_PER_DAY)[None, :], (jd2 * _S_PER_DAY)[None, :], inits[:, None], il,
+                                   ns[:, None])  # (P, N)
         coef = big[base[:, None] + index]  # (P, N, C, 3), highest degree first
         s = (2.0 * offset / il - 1.0)[:, :, None]
         s2 = 2.0 * s
