@@ -207,6 +207,39 @@ def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
     assert os.environ["OMP_NUM_THREADS"] == "7"
 
 
+def test_warm_heap_spares_the_warm_objects_and_still_collects_new_cycles():
+    import gc
+    import weakref
+
+    from skynav.datasets.pool import WarmHeap
+
+    class Node:
+        pass
+
+    assert gc.get_freeze_count() == 0
+    warm = [[k] for k in range(1000)]
+    with WarmHeap() as heap:
+        heap.warm()
+        assert gc.get_freeze_count() >= len(warm)  # the warm heap is out of the collector's walk
+        cycle = Node()
+        cycle.me = cycle  # a frame's own reference cycle: freed only by the collector
+        alive = weakref.ref(cycle)
+        del cycle
+        gc.collect()
+        assert alive() is None
+    assert gc.get_freeze_count() == 0  # the caller's process is as it was
+    gc.freeze()  # someone else froze this heap: WarmHeap leaves it alone
+    try:
+        fresh = [[0]]
+        with WarmHeap() as heap:
+            heap.warm()
+            assert any(o is fresh for o in gc.get_objects())  # not frozen by warm()
+        assert gc.get_freeze_count() > 0  # nor unfrozen on exit
+    finally:
+        gc.unfreeze()
+    assert warm[-1] == [999]
+
+
 def _children(pid: int) -> list:
     kids = []
     for st in Path("/proc").glob("[0-9]*/stat"):
