@@ -186,8 +186,9 @@ class Detection:
     ----------
     dn : ndarray, shape (H, W), uint8 or uint16
         Digital counts.
-    electrons : ndarray, shape (H, W), float64
-        Expected electrons plus the cosmic-ray charge (no noise), e-.
+    electrons : ndarray, shape (H, W), float32
+        Expected electrons plus the cosmic-ray charge (no noise), e-: each pixel's float64 sum
+        rounded to float32 (the frame's EXR channel).
     hits : CosmicRayHits
         The cosmic-ray hits of the frame.
     backend : str
@@ -444,16 +445,21 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
                          electrons=hits.pixel_electrons)
     hit, hit_e = charge.per_pixel()
-    total = electrons.copy()
-    total.reshape(-1)[hit] += hit_e
-
     sensor = Sensor(cam.sensor, shape)
     if options.noise:
         backend = sensor_backend(options.backend)
-        dn = sensor.expose(electrons, T, rng, backend=backend, extra_charge_e=charge)
+        # the LLVM sensor reads float32 electrons: converted once, and the same array, with the
+        # pixels hit set below, is the frame's electrons image (no float64 copy goes through)
+        e_in = electrons.astype(np.float32) if backend == "llvm" else electrons
+        dn = sensor.expose(e_in, T, rng, backend=backend, extra_charge_e=charge)
+        total = e_in if e_in.dtype == np.float32 else electrons.astype(np.float32)
     else:
         backend = "numpy"
-        dn = sensor.expected_dn(total, T)
+        total64 = electrons.copy()
+        total64.reshape(-1)[hit] += hit_e
+        dn = sensor.expected_dn(total64, T)
+        total = total64.astype(np.float32)
+    total.reshape(-1)[hit] = electrons.reshape(-1)[hit] + hit_e  # summed in float64, rounded once
     return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
 
@@ -477,7 +483,7 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     expected = expected_image(scene, projection=projection, rng=rng, options=options)
     detection = detect(expected, scene.camera, rng, options)
     truth = frame_truth(scene, expected, detection, seed=seed, options=options)
-    return Frame(dn=detection.dn, electrons=detection.electrons.astype(np.float32),
+    return Frame(dn=detection.dn, electrons=detection.electrons,
                  irradiance_w_m2=expected.irradiance_w_m2.astype(np.float32), truth=truth)
 
 
