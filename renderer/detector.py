@@ -447,16 +447,23 @@ class Sensor:
                 out = dn.numpy()
                 if hit is not None and hit[0].size:
                     # the pixels hit: the same chain on their own, with their charge, from their
-                    # own streams (a stream is a hash of the frame key and the pixel index); traced,
-                    # not replayed: their number changes from frame to frame, and a recording whose
-                    # sizes change is recorded again (Dr.Jit warns after ten)
-                    idx = hit[0]
+                    # own streams (a stream is a hash of the frame key and the pixel index). Their
+                    # number changes from frame to frame, and a recording is replayed only on
+                    # inputs of its own size: the lanes are padded to a power of two (the spare
+                    # ones repeat the first pixel and are dropped), so a few recordings serve
+                    # every frame; beyond _HIT_LANES_MAX the chain is traced
+                    idx, charge = hit
+                    lanes = _hit_lanes(idx.size)
+                    if lanes:
+                        idx = np.concatenate([idx, np.full(lanes - idx.size, idx[0])])
+                        charge = np.concatenate([charge, np.full(lanes - charge.size, charge[0])])
                     g32, d32 = fixed_patterns(p, self.shape)
-                    sub = _jit_exposure(Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
-                                        Float(hit[1].astype(np.float32)), *args, UInt32(idx.astype(np.uint32)), small_dn)
+                    sub_in = (Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
+                              Float(charge.astype(np.float32)), *args, UInt32(idx.astype(np.uint32)))
+                    sub = _frozen_exposure(small_dn, True)(*sub_in) if lanes else _jit_exposure(*sub_in, small_dn)
                     dr.eval(sub)
                     out = out.copy() if not out.flags.writeable else out
-                    out[idx] = sub.numpy()
+                    out[hit[0]] = sub.numpy()[:hit[0].size]
             return ExposureDetails(dn=out.reshape(self.shape).astype(self.dtype, copy=False), mean_e=None,
                                    charge_e=None, backend="llvm")
         if isinstance(x, PixelCharge):
@@ -495,9 +502,22 @@ def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, sma
 
 _frozen_lock = threading.Lock()
 
+#: Lanes of the hit pixels' replayed kernel: the next power of two >= their number, at least
+#: _HIT_LANES_MIN; above _HIT_LANES_MAX (a frame of particle showers) the chain is traced. At most
+#: 11 sizes, each recorded once per process (Dr.Jit warns after _HIT_RECORDINGS_WARN recordings).
+_HIT_LANES_MIN = 64
+_HIT_LANES_MAX = 1 << 16
+_HIT_RECORDINGS_WARN = 16
 
-@functools.lru_cache(maxsize=2)
-def _frozen_exposure(small_dn: bool):
+
+def _hit_lanes(n: int) -> int:
+    """Lanes of the hit pixels' kernel for ``n`` pixels hit; 0: trace it instead."""
+    lanes = max(_HIT_LANES_MIN, 1 << max(0, int(n) - 1).bit_length())
+    return lanes if lanes <= _HIT_LANES_MAX else 0
+
+
+@functools.lru_cache(maxsize=4)
+def _frozen_exposure(small_dn: bool, hit_pixels: bool = False):
     """:func:`_jit_exposure` as a Dr.Jit frozen function (``drjit.freeze``).
 
     The first call of each input layout (image size, extra charge or none) traces the chain and
@@ -506,6 +526,8 @@ def _frozen_exposure(small_dn: bool):
     kernel a plain call compiles, so the two give the same bits (``tests/renderer/
     test_detector_emva1288.py``). Every per-frame number is an input (an opaque variable), never a
     constant of the recording. Calls are serialised by ``_frozen_lock`` (a recording is state).
+    ``hit_pixels``: the instance for the pixels cosmic rays hit (one recording per lane count,
+    :func:`_hit_lanes`), apart from the image's so that its recordings do not count against it.
     """
     # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
@@ -513,7 +535,7 @@ def _frozen_exposure(small_dn: bool):
     def exposure(sig, gain, dark, extra, t, key, full_well, readout, index):
         return _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn)
 
-    return dr.freeze(exposure)
+    return dr.freeze(exposure, warn_after=_HIT_RECORDINGS_WARN) if hit_pixels else dr.freeze(exposure)
 
 
 # --------------------------------------------------------------------------- per-pixel streams

@@ -185,9 +185,10 @@ def test_thread_budget_sizes_drjit_and_openexr_pools(tmp_path):
 
 def test_frames_with_different_cosmic_ray_hits_replay_without_recording_again(tmp_path):
     # Each frame's cosmic rays hit another number of pixels. The whole-image kernel is a Dr.Jit
-    # frozen function replayed frame after frame; were the hit pixels' kernel frozen too, every new
-    # count would record it again and Dr.Jit would print "The frozen function has been recorded
-    # N times" into a dataset run's output after ten. A fresh interpreter: the log is the process's.
+    # frozen function replayed frame after frame; the hit pixels' kernel is one too, replayed on
+    # lanes padded to a power of two: were every new count recorded again, Dr.Jit would print "The
+    # frozen function has been recorded N times" into a dataset run's output after ten. Counts of
+    # 1 to 300 (sizes 64, 128, 256, 512). A fresh interpreter: the log is the process's.
     import subprocess
     import sys
 
@@ -200,8 +201,8 @@ def test_frames_with_different_cosmic_ray_hits_replay_without_recording_again(tm
         "from skynav.scenes.camera import SensorParams\n"
         "assert jit_backend.configure_llvm().available\n"
         "s = detector.Sensor(SensorParams(), (32, 32))\n"
-        "for k in range(14):\n"
-        "    x = detector.PixelCharge(index=np.arange(k + 1) * 7, electrons=np.full(k + 1, 900.0))\n"
+        "for k in list(range(14)) + [70, 140, 200, 299] * 4:\n"
+        "    x = detector.PixelCharge(index=np.arange(k + 1) * 3, electrons=np.full(k + 1, 900.0))\n"
         "    s.expose(np.full((32, 32), 50.0), 0.1, np.random.default_rng(k), backend='llvm', extra_charge_e=x)\n"
         "print('OK')\n"
     )
