@@ -211,7 +211,7 @@ def _exr_bytes(channels: Mapping, header: Mapping | None, *, sparse: bool = True
         layout = _exr_layout(arrays, hdr, OpenEXR)
         if layout is not None:
             head, names = layout
-            return _exr_rle_file(head, np.concatenate([arrays[n].view("<u4") for n in names], axis=1))
+            return _exr_rle_file(head, [arrays[n].view("<u4") for n in names])
     buf = io.BytesIO()
     OpenEXR.File(hdr, arrays).write(buf)
     return buf.getvalue()
@@ -270,21 +270,34 @@ def _exr_layout(arrays: dict, hdr: dict, OpenEXR):
     return layout
 
 
-def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
-    """The RLE scanline file of ``rows`` (H, n) 4-byte words, each row one scanline's channels in
-    file order as little-endian words, after the header ``head`` (see above)."""
-    H, n_words = rows.shape
+#: Scanlines the encoder scans at a time: a block of two 1024-px float32 channels is 512 kB, so
+#: the scan stays in the core's cache instead of streaming a full copy of the channels.
+_RLE_BLOCK_ROWS = 64
+
+
+def _exr_rle_file(head: bytes, channels: list) -> bytes:
+    """The RLE scanline file of ``channels`` (each (H, w_c) 4-byte words, little-endian, in file
+    order: a scanline is each channel's row in turn), after the header ``head`` (see above)."""
+    H = channels[0].shape[0]
+    n_words = sum(c.shape[1] for c in channels)
     N = 2 * n_words  # bytes in each half of a scanline: its even-indexed bytes, then its odd ones
-    nz = rows != 0
-    # d[j] (either half) differs from 128 only where t[j] or t[j-1] is not 0: words 2p, 2p + 1 of
-    # a non-zero 4-byte word p, and the word after it; and where a half begins
-    dirty = np.empty_like(nz)
-    np.logical_or(nz[:, 1:], nz[:, :-1], out=dirty[:, 1:])
-    dirty[:, 0] = True
-    p = np.flatnonzero(dirty)
+    # the scanlines' dirty words, a block of scanlines at a time: d[j] (either half) differs from
+    # 128 only where t[j] or t[j-1] is not 0: words 2p, 2p + 1 of a non-zero 4-byte word p, and
+    # the word after it; and where a half begins
+    ps, curs, befores = [], [], []
+    for y0 in range(0, H, _RLE_BLOCK_ROWS):
+        block = np.concatenate([c[y0:y0 + _RLE_BLOCK_ROWS] for c in channels], axis=1)
+        nz = block != 0
+        dirty = np.empty_like(nz)
+        np.logical_or(nz[:, 1:], nz[:, :-1], out=dirty[:, 1:])
+        dirty[:, 0] = True
+        q = np.flatnonzero(dirty)
+        words = block.reshape(-1)
+        curs.append(words[q])
+        befores.append(words[q - 1])  # (the word before a row's word 0 is replaced below)
+        ps.append(q + y0 * n_words)
+    p, cur, before = np.concatenate(ps), np.concatenate(curs), np.concatenate(befores)
     first = np.searchsorted(p, np.arange(H) * n_words)  # each row's first (its word 0, always dirty)
-    words = rows.reshape(-1)
-    cur, before = words[p], words[p - 1]  # (the word before a row's word 0 is replaced below)
     c0, c1, b0 = cur & 0xFFFF, cur >> 16, before >> 16  # 2-byte words 2p, 2p + 1 and 2p - 1
     lo0 = ((c0 & 0xFF) + 128 - (b0 & 0xFF)).astype(np.uint8)  # mod 256
     lo1 = ((c1 & 0xFF) + 128 - (c0 & 0xFF)).astype(np.uint8)
@@ -292,7 +305,7 @@ def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
     hi1 = ((c1 >> 8) + 128 - (c0 >> 8)).astype(np.uint8)
     row_first = c0[first]
     lo0[first] = (row_first & 0xFF).astype(np.uint8)  # d[0] = t[0]
-    last_lo = (words[p[first] + n_words - 1] >> 16) & 0xFF  # t[N - 1]: the low byte of the row's last 2-byte word
+    last_lo = (channels[-1][:, -1] >> 16) & 0xFF  # t[N - 1]: the low byte of the row's last 2-byte word
     hi0[first] = ((row_first >> 8) + 128 - last_lo).astype(np.uint8)  # t[N] - t[N-1]
     # islands of dirty words (position 2 x index in a half), cut where 3 or more 128s lie between
     k = p % n_words  # the word's index in its row
@@ -341,7 +354,7 @@ def _exr_rle_file(head: bytes, rows: np.ndarray) -> bytes:
         else:
             out[where[keep[ids]]] = what[keep[ids]]
     for y in np.flatnonzero(raw):
-        out[region[y] + 8:region[y + 1]] = rows[y].view(np.uint8)
+        out[region[y] + 8:region[y + 1]] = np.concatenate([c[y] for c in channels]).view(np.uint8)
     hdr = np.empty((H, 2), "<i4")
     hdr[:, 0], hdr[:, 1] = np.arange(H), size
     out[region[:-1, None] + np.arange(8)] = hdr.view(np.uint8).reshape(H, 8)
