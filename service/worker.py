@@ -13,8 +13,10 @@ PNG, EXR and truth bytes are those of its files.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+import socket
 import sys
 import time
 import traceback
@@ -81,6 +83,20 @@ def warm_up(facility=None) -> float:
     return time.perf_counter() - t0
 
 
+def _widen_send_buffer(conn, nbytes: int = 4 * 1024 * 1024) -> None:
+    """Ask for a send buffer on the pipe to the server that holds a whole answer (the default
+    1024^2 frame's PNG and truth are ~250 KB; Linux's default buffer is 208 KiB, its ceiling
+    ``net.core.wmem_max``): the worker then writes its answer in one go and goes back to waiting,
+    instead of blocking until the server has read the first part. Best effort: a smaller buffer
+    only means more round trips."""
+    with contextlib.suppress(OSError, ValueError):
+        sock = socket.socket(fileno=os.dup(conn.fileno()))
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, nbytes)
+        finally:
+            sock.close()
+
+
 def worker_main(conn, facility_arg, threads) -> None:
     """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
@@ -101,6 +117,7 @@ def worker_main(conn, facility_arg, threads) -> None:
         traceback.print_exc(file=sys.stderr)
         conn.send(("failed", f"the render worker could not start: {exc.__class__.__name__}: {exc}"))
         return
+    _widen_send_buffer(conn)
     conn.send(("ready", {"warm_s": seconds, "facility": None if facility is None else facility.name}))
     while True:
         try:
