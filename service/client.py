@@ -16,6 +16,7 @@ import http.client
 import io
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -76,6 +77,15 @@ class RenderResult:
         return read_exr(io.BytesIO(self.exr))
 
 
+class _Connection(http.client.HTTPConnection):
+    """``http.client``'s connection with Nagle's algorithm off: it writes a request's header and
+    body in two sends, and the second must not wait for the first's acknowledgement."""
+
+    def connect(self):
+        super().connect()
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
 class Client:
     """A connection to ``skynav serve`` at ``url``; thread-safe (one keep-alive connection per thread).
 
@@ -101,7 +111,7 @@ class Client:
     def _conn(self) -> http.client.HTTPConnection:
         c = getattr(self._local, "conn", None)
         if c is None:
-            c = self._local.conn = http.client.HTTPConnection(self._host, self._port, timeout=self.timeout_s)
+            c = self._local.conn = _Connection(self._host, self._port, timeout=self.timeout_s)
         return c
 
     def _request(self, method: str, path: str, body: bytes | None = None):

@@ -17,7 +17,6 @@ import json
 import multiprocessing
 import os
 import pickle
-import secrets
 import socket
 import struct
 import sys
@@ -42,8 +41,6 @@ from .protocol import (
     MAX_CAMERA_PIXELS,
     MAX_QUEUE,
     MAX_REQUEST_BYTES,
-    MEDIA_TYPES,
-    MULTIPART,
     OUTPUTS,
     SCENE_KEYS,
 )
@@ -101,15 +98,26 @@ class _Worker:
         self.reader, self.writer = await asyncio.open_unix_connection(sock=sock, limit=_STREAM_LIMIT)
 
     async def call(self, msg):
-        """Send one request, return the worker's answer; EOFError/OSError when the worker died."""
+        """Send one request, return the worker's answer; EOFError/OSError when the worker died.
+
+        An ``ok`` answer is two messages, ``("ok", content type, warnings, seconds)`` and the
+        body's raw bytes (not pickled: read once, handed to the response as they are); the
+        answer returned is ``("ok", content type, warnings, seconds, body)``.
+        """
         data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
         head = struct.pack("!i", len(data)) if len(data) <= 0x7FFFFFFF else struct.pack("!iQ", -1, len(data))
         self.writer.write(head + data)
         await self.writer.drain()
+        answer = pickle.loads(await self._message())
+        if answer[0] == "ok":
+            answer = (*answer, await self._message())
+        return answer
+
+    async def _message(self) -> bytes:
         (size,) = struct.unpack("!i", await self.reader.readexactly(4))
         if size == -1:
             (size,) = struct.unpack("!Q", await self.reader.readexactly(8))
-        return pickle.loads(await self.reader.readexactly(size))
+        return await self.reader.readexactly(size)
 
     def detach(self) -> None:
         if self.writer is not None:
@@ -261,28 +269,6 @@ def _short(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-#: The multipart boundary of every answer whose parts do not contain it (practically all: a random
-#: 128-bit string). One fixed string rather than a fresh one per answer because Python's
-#: ``http.client`` (the client's) parses the response header with the e-mail parser, which compiles
-#: a regular expression per new boundary: ~0.25 ms of every frame on the client's side.
-BOUNDARY = "skynav-3d1f0c9b2a8e47c6b5d4e3f2a1b0c9d8"
-
-
-def multipart_body(parts: dict) -> tuple[bytes, str]:
-    """``(body, content type)`` of a multipart/mixed answer; each part carries its Content-Length."""
-    boundary = BOUNDARY
-    if any(boundary.encode("ascii") in data for data in parts.values()):
-        boundary = "skynav-" + secrets.token_hex(16)
-    chunks = []
-    for name, data in parts.items():
-        chunks.append(f"--{boundary}\r\nContent-Type: {MEDIA_TYPES[name]}\r\nContent-Disposition: inline; "
-                      f"name=\"{name}\"\r\nContent-Length: {len(data)}\r\n\r\n".encode("ascii"))
-        chunks.append(data)
-        chunks.append(b"\r\n")
-    chunks.append(f"--{boundary}--\r\n".encode("ascii"))
-    return b"".join(chunks), f'{MULTIPART}; boundary="{boundary}"'
-
-
 def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits()):
     """The Starlette application of protocol v1 around a started :class:`WorkerPool`."""
     has_facility = pool.info.get("facility") is not None
@@ -335,15 +321,11 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
             return _error(400, answer[1])
         if kind != "ok":
             return _error(500, answer[1])
-        _, parts, lines, seconds = answer
-        headers = {"Skynav-Render-Seconds": f"{seconds:.6f}"}
+        _, ctype, lines, seconds, body = answer
+        headers = {"Skynav-Render-Seconds": f"{seconds:.6f}", "content-type": ctype}
         if lines:
             headers["Skynav-Warnings"] = " | ".join(lines).encode("ascii", "replace").decode("ascii")[:4000]
-        if len(parts) == 1:
-            (name, data), = parts.items()
-            return Response(data, media_type=MEDIA_TYPES[name], headers=headers)
-        body, ctype = multipart_body(parts)
-        return Response(body, headers={**headers, "content-type": ctype})
+        return Response(body, headers=headers)
 
     async def http_error(request, exc):
         return _error(exc.status_code, f"{request.method} {request.url.path}: {exc.detail}")

@@ -3,8 +3,9 @@
 Each worker is a process of its own (``spawn``: nothing of the server's memory is shared), so two
 requests never touch the same frame buffers or random streams: frames of concurrent clients cannot
 mix. A worker loads the catalogue, ephemeris, radiometry tables and Mitsuba/Dr.Jit kernels once,
-by rendering the built-in scenes at start, then answers ``(request id, mapping, outputs)`` messages
-on its pipe with the output bytes.
+by rendering the built-in scenes at start, then answers ``(mapping, outputs, max pixels)`` messages
+on its pipe with the answer's HTTP body (:func:`skynav.service.protocol.answer_body`: one output's
+bytes, or the multipart body of several), so that the server only frames it.
 
 The frame is rendered exactly as ``skynav render`` renders a scene file (same validator, same
 options, same seed, same encoders: :func:`skynav.datasets.frame_files.frame_file_bytes`), so the
@@ -32,7 +33,7 @@ from skynav.scenes.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
-from .protocol import OUTPUTS
+from .protocol import OUTPUTS, answer_body
 
 
 def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
@@ -131,7 +132,9 @@ def worker_main(conn, facility_arg, threads) -> None:
         try:
             parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
                                           max_camera_pixels=max_pixels)
-            conn.send(("ok", parts, lines, time.perf_counter() - t0))
+            body, ctype = answer_body(parts)
+            conn.send(("ok", ctype, lines, time.perf_counter() - t0))
+            conn.send_bytes(body)   # raw: the server hands these bytes to the HTTP response as they are
         except SkynavError as exc:
             conn.send(("bad", " ".join(str(exc).split())))
         except MemoryError:
