@@ -13,9 +13,11 @@ both alike, and medians are taken):
   use every core for the render (``--workers 1`` gives its worker ``cores`` threads, as this
   process has). The two alternate, which goes first switching every pair, with ``--pause-ms``
   between calls (the render's thread pool spins a few ms after a frame: the pause keeps that off
-  the next measurement, of either side). Printed: medians, p99 (of 60 pairs by default: close to the largest), the
-  paired median difference, where the service's time goes (its client's wall time less the
-  worker's render time), and the CPU per frame of the server process and of the client. Also one
+  the next measurement, of either side). Printed: medians, p99 (of 60 pairs by default: close to
+  the largest), the paired median difference, the service's own time (its client's wall time less
+  the worker's render time: HTTP, the hand-off to the worker and back, the client's parsing; it
+  does not carry the render's own noise, so on a loaded machine it is the steadier measure of the
+  overhead), and the CPU per frame of the server process and of the client. Also one
   ``skynav render`` (a fresh process: imports, tables, kernels, then one frame and its files),
   the cost the service saves.
 - ``throughput``: ``skynav serve --workers 2``; frames/s of one client asking one frame after the
@@ -114,9 +116,9 @@ def part_overhead(frames: int, repeats: int, pause_s: float) -> None:
     print(f"OVERHEAD per request: median {100 * (rm / lm - 1):+.1f} % (issue: <= 10 %), p99 "
           f"{100 * (_pct(remote, 99) / _pct(local, 99) - 1):+.1f} %; paired: median of the differences "
           f"{1e3 * float(np.median(np.subtract(remote, local))):+.2f} ms")
-    print(f"  the service's own time (round trip less the worker's render): median {1e3 * float(np.median(own)):.2f} ms, "
-          f"p99 {1e3 * _pct(own, 99):.2f} ms; CPU per frame: server process {1e3 * cpu_server:.2f} ms, "
-          f"client {1e3 * cpu_client:.2f} ms")
+    print(f"  the service's own time (round trip less the worker's render): median {1e3 * float(np.median(own)):.2f} ms "
+          f"= {100 * float(np.median(own)) / lm:.1f} % of the in-process median, p99 {1e3 * _pct(own, 99):.2f} ms; "
+          f"CPU per frame: server process {1e3 * cpu_server:.2f} ms, client {1e3 * cpu_client:.2f} ms")
     print(f"  skynav render (fresh process, one frame and its files): median {float(np.median(cli)):.2f} s "
           f"= {float(np.median(cli)) / rm:.0f} x a service frame")
 
