@@ -44,7 +44,7 @@ from .protocol import (
     OUTPUTS,
     SCENE_KEYS,
 )
-from .worker import worker_main
+from .worker import frame_head, worker_main
 
 
 #: Read buffer of a worker's stream: above a frame's answer, so that its bytes are read in one go
@@ -100,13 +100,13 @@ class _Worker:
     async def call(self, msg):
         """Send one request, return the worker's answer; EOFError/OSError when the worker died.
 
-        An ``ok`` answer is two messages, ``("ok", content type, warnings, seconds)`` and the
-        body's raw bytes (not pickled: read once, handed to the response as they are); the
-        answer returned is ``("ok", content type, warnings, seconds, body)``.
+        An ``ok`` answer is two messages in one write (:class:`skynav.service.worker._AnswerPipe`),
+        ``("ok", content type, warnings, seconds)`` and the body's raw bytes (not pickled: read
+        once, handed to the response as they are); the answer returned is ``("ok", content type,
+        warnings, seconds, body)``.
         """
         data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
-        head = struct.pack("!i", len(data)) if len(data) <= 0x7FFFFFFF else struct.pack("!iQ", -1, len(data))
-        self.writer.write(head + data)
+        self.writer.write(frame_head(len(data)) + data)
         await self.writer.drain()
         answer = pickle.loads(await self._message())
         if answer[0] == "ok":
