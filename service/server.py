@@ -105,6 +105,8 @@ class _Worker:
         once, handed to the response as they are); the answer returned is ``("ok", content type,
         warnings, seconds, body)``.
         """
+        if self.writer is None:   # died before, and its replacement could not start: try again
+            raise EOFError("the render worker is gone")
         data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
         self.writer.write(frame_head(len(data)) + data)
         await self.writer.drain()
