@@ -3,8 +3,9 @@
 Each worker is a process of its own (``spawn``: nothing of the server's memory is shared), so two
 requests never touch the same frame buffers or random streams: frames of concurrent clients cannot
 mix. A worker loads the catalogue, ephemeris, radiometry tables and Mitsuba/Dr.Jit kernels once,
-by rendering the built-in scenes at start, then answers ``(request id, mapping, outputs)`` messages
-on its pipe with the output bytes.
+by rendering the built-in scenes at start, then answers ``(mapping, outputs, max pixels)`` messages
+on its pipe with the answer's HTTP body (:func:`skynav.service.protocol.answer_chunks`: one
+output's bytes, or the multipart body of several), so that the server only frames it.
 
 The frame is rendered exactly as ``skynav render`` renders a scene file (same validator, same
 options, same seed, same encoders: :func:`skynav.datasets.frame_files.frame_file_bytes`), so the
@@ -13,8 +14,12 @@ PNG, EXR and truth bytes are those of its files.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import pickle
 import signal
+import socket
+import struct
 import sys
 import time
 import traceback
@@ -30,7 +35,7 @@ from skynav.scenes.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
-from .protocol import OUTPUTS
+from .protocol import OUTPUTS, answer_chunks
 
 
 def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
@@ -81,6 +86,40 @@ def warm_up(facility=None) -> float:
     return time.perf_counter() - t0
 
 
+def frame_head(n: int) -> bytes:
+    """The head of one message of ``n`` bytes on the pipe between server and worker: the framing
+    of :class:`multiprocessing.connection.Connection` (4-byte big-endian signed length; -1 then an
+    8-byte length from 2 GiB), which the worker's ``conn.recv``/``conn.send`` speak too."""
+    return struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!iQ", -1, n)
+
+
+class _AnswerPipe:
+    """The worker's end of the pipe as a socket, for the answers with a body.
+
+    Its send buffer is widened to hold a whole answer (the default 1024^2 frame's PNG and truth
+    are ~250 KB; Linux's default buffer is 208 KiB, its ceiling ``net.core.wmem_max``; best effort),
+    and :meth:`send_ok` writes the answer's two messages, ``("ok", content type, warnings,
+    seconds)`` and the body, in one gathered write: the server wakes once and reads it all, and the
+    worker goes back to waiting without a round trip.
+    """
+
+    def __init__(self, conn, sndbuf: int = 4 * 1024 * 1024):
+        self.sock = socket.socket(fileno=os.dup(conn.fileno()))
+        with contextlib.suppress(OSError):
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, sndbuf)
+
+    def send_ok(self, header: tuple, chunks: list) -> None:
+        head = pickle.dumps(header, protocol=pickle.HIGHEST_PROTOCOL)
+        views = [memoryview(b) for b in
+                 (frame_head(len(head)), head, frame_head(sum(len(c) for c in chunks)), *chunks) if len(b)]
+        while views:
+            sent = self.sock.sendmsg(views)
+            while views and sent >= len(views[0]):
+                sent -= len(views.pop(0))
+            if views and sent:
+                views[0] = views[0][sent:]
+
+
 def worker_main(conn, facility_arg, threads) -> None:
     """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
@@ -101,6 +140,7 @@ def worker_main(conn, facility_arg, threads) -> None:
         traceback.print_exc(file=sys.stderr)
         conn.send(("failed", f"the render worker could not start: {exc.__class__.__name__}: {exc}"))
         return
+    pipe = _AnswerPipe(conn)
     conn.send(("ready", {"warm_s": seconds, "facility": None if facility is None else facility.name}))
     while True:
         try:
@@ -114,7 +154,8 @@ def worker_main(conn, facility_arg, threads) -> None:
         try:
             parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
                                           max_camera_pixels=max_pixels)
-            conn.send(("ok", parts, lines, time.perf_counter() - t0))
+            chunks, ctype = answer_chunks(parts)
+            pipe.send_ok(("ok", ctype, lines, time.perf_counter() - t0), chunks)
         except SkynavError as exc:
             conn.send(("bad", " ".join(str(exc).split())))
         except MemoryError:

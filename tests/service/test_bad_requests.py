@@ -85,6 +85,22 @@ def test_size_and_type_bounds(server):
     assert r.status == 405 and "Method Not Allowed" in _error(r.status, r.read())
 
 
+def test_the_client_gets_the_one_liner_and_keeps_its_connection(server):
+    """A refused request through ``Client`` (a body over the bound, sent whole before the server
+    refuses it) raises the server's line with its status; the next request on the same kept-alive
+    connection gets its frame."""
+    from skynav.service import Client, ServiceError
+
+    c = Client(server.url)
+    scene = small_scene(size=64)
+    want = c.render(scene, outputs=("png",)).png
+    for size in (70_000, 3_000_000):
+        with pytest.raises(ServiceError) as e:
+            c.render({**scene, "junk": "x" * size}, outputs=("png",))
+        assert e.value.status == 413 and "--max-request-bytes" in str(e.value) and "\n" not in str(e.value)
+        assert c.render(scene, outputs=("png",)).png == want
+
+
 _json = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False, allow_infinity=False)
                      | st.text(max_size=12),
                      lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=10), kids, max_size=4),

@@ -106,3 +106,20 @@ def test_workers_are_separate_processes_with_their_share_of_threads(server):
     for env in kids:
         for name in THREAD_VARS:
             assert env.get(name) == os.environ.get(name, share), name
+
+
+def test_a_kept_alive_connection_the_server_closed_while_idle_is_reopened(server):
+    """uvicorn closes a kept-alive connection after 5 s without a request; the client's next
+    request finds it closed before any answer came, opens a new one and gets its frame."""
+    import time
+
+    from skynav.service import Client
+
+    c = Client(server.url)
+    scene = small_scene(size=64)
+    want = c.render(scene, outputs=("png",)).png
+    first = c._local.conn.sock
+    time.sleep(6.0)
+    assert c.render(scene, outputs=("png",)).png == want
+    assert c._local.conn.sock is not first, "a new connection"
+    assert c.health()["status"] == "ok"

@@ -96,3 +96,61 @@ def test_token_then_sigterm_finishes_the_running_render():
     finally:
         if s.proc.poll() is None:
             s.proc.kill()
+
+
+def _worker_pids(server_pid: int) -> list[int]:
+    from pathlib import Path
+
+    pids = []
+    for st in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(st.read_text().rsplit(")", 1)[1].split()[1])
+            cmd = (st.parent / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if parent == server_pid and b"multiprocessing" in cmd and b"resource_tracker" not in cmd:
+            pids.append(int(st.parent.name))
+    return pids
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the worker through /proc")
+def test_a_killed_worker_is_one_503_then_a_fresh_worker_serves():
+    """The server talks to its worker in the event loop: a worker killed mid-frame (as the
+    out-of-memory killer would) is a 503 one-liner for that request, is replaced, and the next
+    request gets its frame from the new worker; the server still stops cleanly."""
+    import os
+
+    from skynav.service import Client, ServiceError
+
+    s = start_server("--workers", "1")
+    try:
+        client = Client(s.url)
+        scene = small_scene(size=96)
+        want = client.render(scene, outputs=("png",)).png
+        (victim,) = _worker_pids(s.proc.pid)
+        big = small_scene(size=4096)   # the largest frame the server takes: ~1 s or more
+        caught = {}
+
+        def doomed():
+            try:
+                Client(s.url).render(big, outputs=("png", "exr", "truth"))
+            except ServiceError as exc:
+                caught["e"] = exc
+
+        t = threading.Thread(target=doomed)
+        t.start()
+        t_end = time.monotonic() + 60
+        while client.health()["busy"] == 0 and time.monotonic() < t_end:
+            time.sleep(0.005)
+        os.kill(victim, signal.SIGKILL)   # while the worker renders that frame
+        t.join(300)
+        assert caught["e"].status == 503 and "worker died" in str(caught["e"]), caught
+        assert "\n" not in str(caught["e"])
+        assert client.render(scene, outputs=("png",)).png == want
+        (fresh,) = _worker_pids(s.proc.pid)
+        assert fresh != victim
+        assert s.stop() == 0, s.output
+        assert "Traceback" not in s.output, s.output
+    finally:
+        if s.proc.poll() is None:
+            s.proc.kill()
