@@ -29,6 +29,7 @@ from skynav.calibration.errors import CalibrationInputError
 from skynav.calibration.facility_io import load_facility
 from skynav.datasets.frame_files import frame_file_bytes
 from skynav.datasets.hil_export import screen_frame_bytes
+from skynav.datasets.pool import WarmHeap
 from skynav.renderer.render import RenderOptions, render
 from skynav.scenes.config import scene_spec_from_mapping
 from skynav.scenes.errors import ConfigValueError, SkynavError
@@ -142,24 +143,26 @@ def worker_main(conn, facility_arg, threads) -> None:
         return
     pipe = _AnswerPipe(conn)
     conn.send(("ready", {"warm_s": seconds, "facility": None if facility is None else facility.name}))
-    while True:
-        try:
-            msg = conn.recv()
-        except (EOFError, OSError):
-            return
-        if msg is None:
-            return
-        mapping, outputs, max_pixels = msg
-        t0 = time.perf_counter()
-        try:
-            parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
-                                          max_camera_pixels=max_pixels)
-            chunks, ctype = answer_chunks(parts)
-            pipe.send_ok(("ok", ctype, lines, time.perf_counter() - t0), chunks)
-        except SkynavError as exc:
-            conn.send(("bad", " ".join(str(exc).split())))
-        except MemoryError:
-            conn.send(("bad", "camera: the frame does not fit in the server's memory; ask for fewer pixels"))
-        except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
-            traceback.print_exc(file=sys.stderr)
-            conn.send(("error", f"internal error while rendering ({exc.__class__.__name__}); see the server's log"))
+    with WarmHeap() as heap:
+        heap.warm()  # warm_up made a frame: the collector leaves the warm heap alone from here
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if msg is None:
+                return
+            mapping, outputs, max_pixels = msg
+            t0 = time.perf_counter()
+            try:
+                parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
+                                              max_camera_pixels=max_pixels)
+                chunks, ctype = answer_chunks(parts)
+                pipe.send_ok(("ok", ctype, lines, time.perf_counter() - t0), chunks)
+            except SkynavError as exc:
+                conn.send(("bad", " ".join(str(exc).split())))
+            except MemoryError:
+                conn.send(("bad", "camera: the frame does not fit in the server's memory; ask for fewer pixels"))
+            except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
+                traceback.print_exc(file=sys.stderr)
+                conn.send(("error", f"internal error while rendering ({exc.__class__.__name__}); see the server's log"))
