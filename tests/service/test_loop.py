@@ -120,6 +120,9 @@ def test_runs_and_the_calibration_see_renderings_of_their_own():
     (["sequence", "-o", "x", "--sigma-px", "0"], "--sigma-px"),
     (["sequence", "-o", "x", "--calibration-stride", "0"], "--calibration-stride"),
     (["sequence", "-o", "x", "--calibration-stride", "2", "--sigma-px", "0.1"], "one or the other"),
+    # 128 px over 20 deg, 568 arcsec/px: star ID finds a third of the attitudes (pipeline/star_id.py)
+    (["sequence", "-o", "x", "--set", "camera.width=128", "--set", "camera.height=128", "--set", "camera.fov_deg=20"],
+     "568 arcsec/px; star identification needs at most 460 arcsec/px"),
 ])
 def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
     run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", *args, "--service", "http://127.0.0.1:9"],
