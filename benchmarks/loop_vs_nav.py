@@ -1,25 +1,38 @@
-"""Closed loop against ``bench nav``: the distributions of their errors over independent renderings.
+"""Closed loop against ``bench nav``, paired: both filters on the same images, over several renderings.
 
-One ``bench loop`` run and one ``bench nav`` campaign each see ONE image sequence: their runs'
-last-leg RMS error is close to one draw of the common error that sequence's centroid errors leave
-(docs/navigation.md, "Filter consistency"), so one loop run against one nav campaign compares two
-draws, not two filters. This script renders the same cruise with several master seeds (same
-trajectory; other image noise, cosmic rays and pointing errors), runs the closed loop once per seed
-(its own rendering through the service) and ``dataset generate`` + the nav campaign once per seed,
-and prints per seed and as mean +- standard deviation: the RMS position error over the last leg,
-the final position error and the filter's final 1-sigma (sqrt of trace of P's position block).
+One ``bench loop`` run and one ``bench nav`` campaign each see ONE image sequence, and their
+errors are mostly that sequence's draw of the error its centroid errors leave (docs/navigation.md,
+"Filter consistency"): one rendering's last-leg RMS over another's is 0.44-4.7 in 90 % of pairs, so
+two filters on two renderings compare two draws, not two filters. Here they see the SAME images:
+per master seed (``--seeds``), the closed loop runs through the render service (its measurement
+noise R calibrated out of sample, :func:`skynav.service.loop.calibrate_loop_noise`), its frames are
+kept, and ``bench nav``'s campaign (:func:`skynav.pipeline.scoring_nav.run_campaign`, one run,
+the same initial-error draw) navigates those frames (``--images``) with three measurement models:
 
-Both filters use the same measurement model: ``--sigma-px S`` for both, or by default the noise
-calibration of ``bench nav`` (:func:`skynav.pipeline.scoring_nav.calibrate_sigma_px`), measured on
-each seed's dataset for the nav campaign and through the service for the loop
-(:func:`skynav.service.loop.calibrate_loop_noise`).
+- ``nav, loop's R``: the loop's own R (the same object): everything equal but the code path;
+- ``nav, R out of sample``: R calibrated by ``bench nav``'s function on ANOTHER seed's frames
+  (the previous seed, cyclically): an out-of-sample calibration like the loop's;
+- ``nav, R in sample``: R calibrated on the navigated frames themselves: ``bench nav``'s default.
 
-    python benchmarks/loop_vs_nav.py [--seeds 1 2 3 4] [--sigma-px S] [--set sequence.track_s=900 ...]
+The per-rendering draw then cancels in the paired ratios (loop / nav per seed) and in the ratio of
+the RMS over seeds, which are printed with 90 % bootstrap intervals over the seeds (resampled
+jointly). ``--pointing-check`` also runs the loop pointed from the truth (the images a dataset
+would have: same seeds, same controller errors) to show what closing the loop costs.
+``--own-rendering`` also runs the former, unpaired design: nav on its own ``dataset generate``
+rendering of each seed (R in sample, ``bench nav``'s default), and compares the measurement noise
+calibrated on the two renderings (the service's frames against the dataset's, class by class).
+
+Printed per seed and over seeds: the RMS position error over the last leg, the final position
+error (3 x its RMS over the seeds: the final sample 3-sigma of ``bench nav``'s report) and the
+filter's final 3-sigma (3 sqrt of the trace of P's position block).
+
+    python benchmarks/loop_vs_nav.py [--seeds 1 2 3 4] [--set sequence.track_s=900 ...] [--pointing-check]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
@@ -31,8 +44,8 @@ import numpy as np
 
 def _recipe(sets, seed):
     from skynav import datasets
-    from skynav.datasets.recipes import read_recipe_mapping
     from skynav.cli_common import apply_overrides, parse_set
+    from skynav.datasets.recipes import read_recipe_mapping
 
     r = read_recipe_mapping("sequence")
     if sets:
@@ -43,97 +56,197 @@ def _recipe(sets, seed):
 
 
 def _stats(error, cov, last_leg):
-    """Per run: (last-leg RMS position error km, final position error km, final filter 1-sigma km)."""
-    e = np.asarray(error)[:, :, :3]
-    rms = np.sqrt(np.mean(np.sum(e[:, last_leg] ** 2, -1), -1))
-    fin = np.linalg.norm(e[:, -1], axis=-1)
-    sig = np.sqrt(np.trace(np.asarray(cov)[:, -1, :3, :3], axis1=-2, axis2=-1))
+    """One run: (last-leg RMS position error km, final position error km, final filter 1-sigma km)."""
+    e = np.asarray(error)[..., :3].reshape(-1, 3)
+    rms = float(np.sqrt(np.mean(np.sum(e[last_leg] ** 2, -1))))
+    fin = float(np.linalg.norm(e[-1]))
+    sig = float(np.sqrt(np.trace(np.asarray(cov).reshape(-1, 6, 6)[-1, :3, :3])))
     return rms, fin, sig
 
 
-def loop_side(seeds, sets, sigma_px, runs_seed, renderings=1, stride=1, pointing="estimate"):
+class _Keeping:
+    """A client that keeps every PNG it receives as ``folder/NNNNNN.png`` (frame order)."""
+
+    def __init__(self, client, folder):
+        self.client, self.folder, self.k = client, Path(folder), 0
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def render(self, mapping, outputs):
+        frame = self.client.render(mapping, outputs=outputs)
+        (self.folder / f"{self.k:06d}.png").write_bytes(frame.png)
+        self.k += 1
+        return frame
+
+
+def _generate(out, seed, sets):
+    cmd = [sys.executable, "-m", "skynav", "dataset", "generate", "sequence", "-o", str(out), "--seed", str(seed),
+           "--workers", "1", "-q", "--set", "formats=[png, json]"]
+    for x in sets:
+        cmd += ["--set", x]
+    subprocess.run(cmd, check=True)
+
+
+def loop_side(seeds, sets, runs_seed, workdir, pointing_check):
+    """Per seed: the loop's R, its closed-loop run (frames kept) and, if asked, the run pointed from the truth."""
     from skynav.pipeline.ekf import initial_covariance
     from skynav.service import Client, LocalServer
     from skynav.service.loop import Simulator, calibrate_loop_noise, run_loop
 
-    rows = []
+    out = {}
     with LocalServer(workers=1) as url:
         client = Client(url)
         for s in seeds:
             t0 = time.perf_counter()
             sim = Simulator(_recipe(sets, s))
             P0 = initial_covariance()
-            rng = np.random.default_rng(np.random.SeedSequence([runs_seed + s, 45]))
+            rng = np.random.default_rng(np.random.SeedSequence([runs_seed + s, 45]))   # as run_campaign's runs
             r0, v0 = sim.state(sim.schedule()[0][0])
             x0 = np.concatenate([r0, v0, np.zeros(6)]) + rng.standard_normal(12) * np.sqrt(np.diag(P0))
-            noise = sigma_px
-            if noise is None:
-                noise = calibrate_loop_noise(sim, client, seed=s, renderings=renderings, stride=stride)
-            run = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s, pointing=pointing)
+            noise = calibrate_loop_noise(sim, client, seed=s)
+            t1 = time.perf_counter()
+            kept = _Keeping(client, Path(workdir) / f"loop{s}")
+            run = run_loop(sim, kept, x0=x0, P0=P0, noise=noise, seed=runs_seed + s)
             last = np.array([lg for _, lg, _, _ in sim.schedule()]) == sim.schedule()[-1][1]
-            rows.append((s, *[float(x[0]) for x in _stats(run.error[None], run.cov[None], last)],
-                         time.perf_counter() - t0))
-            print(f"  loop seed {s}: last-leg RMS {rows[-1][1]:.0f} km, final {rows[-1][2]:.0f} km, "
-                  f"filter 1-sigma {rows[-1][3]:.0f} km ({rows[-1][4]:.0f} s)", flush=True)
-    return rows
+            rec = {"noise": noise, "images": kept.folder, "loop": _stats(run.error, run.cov, last),
+                   "in_field": float(run.in_field.mean())}
+            t2 = time.perf_counter()
+            if pointing_check:
+                tr = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s, pointing="truth")
+                rec["loop, pointed from the truth"] = _stats(tr.error, tr.cov, last)
+            out[s] = rec
+            print(f"  loop seed {s}: last-leg RMS {rec['loop'][0]:.0f} km, final {rec['loop'][1]:.0f} km, filter "
+                  f"1-sigma {rec['loop'][2]:.0f} km; target in the field {100 * rec['in_field']:.0f} % (calibration "
+                  f"{t1 - t0:.0f} s, loop {t2 - t1:.0f} s)", flush=True)
+    return out
 
 
-def nav_side(seeds, sets, sigma_px, runs_seed, workdir):
-    from skynav.pipeline.scoring_nav import CentroidNoise, calibrate_sigma_px, load_plan, run_campaign
+def nav_side_paired(seeds, sets, runs_seed, workdir, loop):
+    """bench nav's campaign on each seed's closed-loop frames, with the loop's R, R out of sample, R in sample."""
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan, run_campaign
 
-    rows = []
+    base = Path(workdir) / "truth"   # the cruise's truth (positions, legs, targets); its own images unused
+    _generate(base, 0, sets)
+    plans = {s: load_plan(base, images=loop[s]["images"]) for s in seeds}
+    t0 = time.perf_counter()
+    own = {s: calibrate_sigma_px(plans[s], seed=s) for s in seeds}   # bench nav's default: on the navigated frames
+    for s in seeds:
+        loop[s]["R, loop frames"] = own[s]
+    print(f"  nav: R calibrated in sample on each seed's frames ({time.perf_counter() - t0:.0f} s)", flush=True)
+    for i, s in enumerate(seeds):
+        other = seeds[i - 1] if len(seeds) > 1 else None
+        last = plans[s].leg == plans[s].leg[-1]
+        for name, noise in (("nav, loop's R", loop[s]["noise"]),
+                            ("nav, R out of sample", None if other is None else own[other]),
+                            ("nav, R in sample", own[s])):
+            if noise is None:
+                continue
+            t0 = time.perf_counter()
+            res = run_campaign(plans[s], runs=1, seed=runs_seed + s, noise=noise)
+            loop[s][name] = _stats(res.error[0], res.cov[0], last)
+            print(f"  {name} seed {s}: last-leg RMS {loop[s][name][0]:.0f} km, final {loop[s][name][1]:.0f} km, "
+                  f"filter 1-sigma {loop[s][name][2]:.0f} km ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def nav_side_own_rendering(seeds, sets, runs_seed, workdir, loop):
+    """The unpaired design: bench nav on its own rendering of each seed (dataset generate), R in sample."""
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan, run_campaign
+
     for s in seeds:
         t0 = time.perf_counter()
         out = Path(workdir) / f"seq{s}"
-        cmd = [sys.executable, "-m", "skynav", "dataset", "generate", "sequence", "-o", str(out), "--seed", str(s),
-               "--workers", "1", "-q", "--set", "formats=[png, json]"]
-        for x in sets:
-            cmd += ["--set", x]
-        subprocess.run(cmd, check=True)
+        _generate(out, s, sets)
         plan = load_plan(out)
-        noise = CentroidNoise(sigma0_px=sigma_px) if sigma_px is not None else calibrate_sigma_px(plan, seed=s)
+        loop[s]["R, dataset frames"] = noise = calibrate_sigma_px(plan, seed=s)
         res = run_campaign(plan, runs=1, seed=runs_seed + s, noise=noise)
-        last = plan.leg == plan.leg[-1]
-        rows.append((s, *[float(x[0]) for x in _stats(res.error, res.cov, last)], time.perf_counter() - t0))
-        print(f"  nav  seed {s}: last-leg RMS {rows[-1][1]:.0f} km, final {rows[-1][2]:.0f} km, "
-              f"filter 1-sigma {rows[-1][3]:.0f} km ({rows[-1][4]:.0f} s)", flush=True)
-    return rows
+        loop[s]["nav, own rendering, R in sample"] = v = _stats(res.error[0], res.cov[0], plan.leg == plan.leg[-1])
+        print(f"  nav (own rendering) seed {s}: last-leg RMS {v[0]:.0f} km, final {v[1]:.0f} km, filter 1-sigma "
+              f"{v[2]:.0f} km ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def compare_noise(records, seeds, a, b):
+    """Per class of measurement: the mean over seeds of sigma and track bias calibrated on frames ``a`` and ``b``."""
+    lines = [f"measurement noise calibrated on {a} / on {b}, per class (mean over seeds; px):"]
+    cls = {}
+    for s in seeds:
+        for which in (a, b):
+            if which in records[s]:
+                for key, sig, n, sb in records[s][which].classes:
+                    cls.setdefault(key, {a: [], b: []})[which].append((sig, sb, n))
+    for key, v in sorted(cls.items()):
+        if v[a] and v[b]:
+            x, y = np.mean(v[a], 0), np.mean(v[b], 0)
+            lines.append(f"  {key}: sigma {x[0]:.3f} / {y[0]:.3f}, track bias {x[1]:.3f} / {y[1]:.3f} "
+                         f"({x[2]:.0f} / {y[2]:.0f} frames, {len(v[a])} / {len(v[b])} seeds)")
+    return lines
+
+
+#: the three figures compared, their index in a record and how they are pooled over seeds
+FIGURES = (("last-leg RMS", 0, "rms"), ("final error, 3 x RMS", 1, "3rms"), ("filter final 3-sigma", 2, "3mean"))
+
+
+def _pool(x, how):
+    x = np.asarray(x, dtype=float)
+    return {"rms": np.sqrt(np.mean(x**2, -1)), "3rms": 3 * np.sqrt(np.mean(x**2, -1)), "3mean": 3 * np.mean(x, -1)}[how]
+
+
+def compare(records, seeds, a, b, n_boot=4000, rng=None):
+    """Lines comparing columns ``a`` and ``b`` over the seeds that have both: the pooled ratio and its
+    90 % bootstrap interval (seeds resampled jointly), the per-seed ratios' median and their correlation."""
+    rng = rng or np.random.default_rng(0)
+    s = [k for k in seeds if a in records[k] and b in records[k]]
+    if not s:
+        return []
+    A = np.array([records[k][a] for k in s])
+    B = np.array([records[k][b] for k in s])
+    idx = rng.integers(0, len(s), (n_boot, len(s)))
+    lines = []
+    for name, j, how in FIGURES:
+        ra, rb = _pool(A[:, j], how), _pool(B[:, j], how)
+        boot = _pool(A[idx, j], how) / _pool(B[idx, j], how)
+        lo, hi = np.percentile(boot, [5, 95])
+        per = A[:, j] / B[:, j]
+        corr = np.corrcoef(A[:, j], B[:, j])[0, 1] if len(s) > 2 else float("nan")
+        lines.append(f"  {name}: {ra:.0f} / {rb:.0f} km = {ra / rb:.2f} (90 % bootstrap {lo:.2f}-{hi:.2f}); per seed "
+                     f"median {np.median(per):.2f}, range {per.min():.2f}-{per.max():.2f}, correlation {corr:.2f}")
+    return [f"{a} / {b} over {len(s)} seeds:"] + lines
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4], help="master seeds (renderings)")
-    ap.add_argument("--sigma-px", type=float, default=None, help="centroid sigma of both filters (default: calibrated)")
     ap.add_argument("--runs-seed", type=int, default=0, help="seed of the initial states and pointing errors")
-    ap.add_argument("--calibration-renderings", type=int, default=1, help="loop: renderings R is pooled from")
-    ap.add_argument("--calibration-stride", type=int, default=1, help="loop: every N-th frame of each")
-    ap.add_argument("--pointing", default="estimate", choices=("estimate", "truth"),
-                    help="loop: point from the estimate (closed loop) or from the truth (as a dataset)")
-    ap.add_argument("--sides", nargs="+", default=["loop", "nav"], choices=("loop", "nav"))
+    ap.add_argument("--own-rendering", action="store_true",
+                    help="also run nav on its own dataset rendering of each seed (the unpaired design)")
+    ap.add_argument("--pointing-check", action="store_true", help="also run the loop pointed from the truth")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help="recipe overrides")
     args = ap.parse_args()
-    import os
-
-    print(f"loop against nav, sequence {' '.join(args.sets)}, seeds {args.seeds}, R: "
-          f"{'%g px' % args.sigma_px if args.sigma_px else 'calibrated'}; load average {os.getloadavg()[0]:.1f}",
-          flush=True)
-    res = {}
+    print(f"loop against nav, sequence {' '.join(args.sets)}, seeds {args.seeds}; "
+          f"load average {os.getloadavg()[0]:.1f}", flush=True)
+    t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
-        if "loop" in args.sides:
-            res["loop"] = loop_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, args.calibration_renderings,
-                                    args.calibration_stride, args.pointing)
-        if "nav" in args.sides:
-            res["nav"] = nav_side(args.seeds, args.sets, args.sigma_px, args.runs_seed, d)
-    for name, rows in res.items():
-        a = np.array([r[1:4] for r in rows])
-        m, sd = a.mean(0), a.std(0, ddof=1) if len(a) > 1 else np.zeros(3)
-        print(f"{name}: last-leg RMS {m[0]:.0f} +- {sd[0]:.0f} km, final error {m[1]:.0f} +- {sd[1]:.0f} km, "
-              f"filter 1-sigma {m[2]:.0f} +- {sd[2]:.0f} km ({len(a)} renderings)")
-    if len(res) == 2:
-        a, b = (np.array([r[1:4] for r in res[k]]) for k in ("loop", "nav"))
-        rms_a, rms_b = np.sqrt(np.mean(a[:, 0] ** 2)), np.sqrt(np.mean(b[:, 0] ** 2))
-        print(f"loop / nav: last-leg RMS over the renderings {rms_a:.0f} / {rms_b:.0f} km = {rms_a / rms_b:.2f}; "
-              f"filter 1-sigma {a[:, 2].mean() / b[:, 2].mean():.2f}")
+        rec = loop_side(args.seeds, args.sets, args.runs_seed, d, args.pointing_check)
+        nav_side_paired(args.seeds, args.sets, args.runs_seed, d, rec)
+        if args.own_rendering:
+            nav_side_own_rendering(args.seeds, args.sets, args.runs_seed, d, rec)
+    cols = [c for c in ("loop", "loop, pointed from the truth", "nav, loop's R", "nav, R out of sample",
+                        "nav, R in sample", "nav, own rendering, R in sample") if any(c in rec[s] for s in args.seeds)]
+    print(f"over the seeds ({time.perf_counter() - t0:.0f} s; load average {os.getloadavg()[0]:.1f}):")
+    for c in cols:
+        a = np.array([rec[s][c] for s in args.seeds if c in rec[s]])
+        print(f"  {c}: last-leg RMS {_pool(a[:, 0], 'rms'):.0f} km, final error 3 x RMS {_pool(a[:, 1], '3rms'):.0f} "
+              f"km, filter final 3-sigma {_pool(a[:, 2], '3mean'):.0f} km ({len(a)} seeds)")
+    for c in cols[1:]:
+        for line in compare(rec, args.seeds, "loop", c):
+            print(line)
+    if "nav, R in sample" in cols:
+        for c in ("nav, loop's R", "nav, R out of sample"):
+            for line in compare(rec, args.seeds, c, "nav, R in sample"):
+                print(line)
+    if args.own_rendering:
+        for line in compare(rec, args.seeds, "nav, R in sample", "nav, own rendering, R in sample"):
+            print(line)
+        for line in compare_noise(rec, args.seeds, "R, loop frames", "R, dataset frames"):
+            print(line)
 
 
 if __name__ == "__main__":

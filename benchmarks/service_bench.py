@@ -28,11 +28,18 @@ both alike, and medians are taken):
   the service's ratio and the ceiling's: two renders that contend for memory bandwidth slow each
   other down without any service, and the service cannot scale better than that. Also: renders
   in flight, the cores the workers obtained, and the CPU per frame (workers, server, client).
-- ``loop``: ``skynav bench loop RECIPE --runs 1 --bias-km none`` against ``skynav dataset
-  generate RECIPE`` + ``skynav bench nav --runs 2`` (bench nav needs two runs) on the same recipe,
-  both with ``--sigma-px 0.1``: wall time and final 3-sigma / errors side by side.
+- ``loop``: the issue's speed criterion, like for like: ``skynav bench loop RECIPE --runs 1
+  --bias-km none`` against ``skynav dataset generate RECIPE`` + ``skynav bench nav --runs 2`` (its
+  least: bench nav needs two runs for sample statistics; the runs share the image processing, the
+  second adds only its filter) on the same recipe, each with its default measurement noise (both
+  calibrate R: the loop on about 180 frames it asks the service for, nav on all its dataset's
+  frames; ``--sigma-px`` gives both a constant instead). The two alternate ``--loop-repeats`` times;
+  medians of the wall times and of the CPU times (the commands' processes and their children), the
+  ratio on the line ``LOOP TIME RATIO`` beside the load average, and the final 3-sigma / errors
+  side by side.
 
-    python benchmarks/service_bench.py [--parts overhead throughput loop] [--frames 20] [--repeats 3]
+    python benchmarks/service_bench.py [--parts overhead throughput loop] [--frames 20] [--repeats 3] [--recipe sequence]
+        [--loop-repeats 1] [--sigma-px S] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -305,27 +313,48 @@ def part_throughput(frames: int, repeats: int = 3) -> None:
 
 
 def _timed(cmd, **kw):
+    """Run ``cmd``; (wall s, CPU s of it and its children, stdout)."""
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     run = subprocess.run(cmd, capture_output=True, text=True, **kw)
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if run.returncode:
         raise SystemExit(f"{' '.join(cmd)} failed: {run.stderr[-2000:]}")
-    return time.perf_counter() - t0, run.stdout
+    return wall, (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime), run.stdout
 
 
-def part_loop(recipe: str, extra: list) -> None:
+def part_loop(recipe: str, extra: list, repeats: int = 1, sigma_px: float | None = None) -> None:
     sk = [sys.executable, "-m", "skynav"]
+    given = ["--sigma-px", f"{sigma_px:g}"] if sigma_px is not None else []
+    times = {"loop": [], "generate": [], "nav": []}
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        t_loop, _ = _timed(sk + ["bench", "loop", recipe, "-o", str(d / "loop"), "--runs", "1", "--bias-km", "none",
-                                 "--sigma-px", "0.1", "-q", *extra])
-        t_gen, _ = _timed(sk + ["dataset", "generate", recipe, "-o", str(d / "ds"), "--workers", "2", "-q", *extra])
-        t_nav, _ = _timed(sk + ["bench", "nav", str(d / "ds"), "-o", str(d / "nav"), "--runs", "2", "--sigma-px", "0.1",
-                                "-q"])
-        a = json.loads((d / "loop" / "summary.json").read_text())
-        b = json.loads((d / "nav" / "summary.json").read_text())
-    print(f"loop ({recipe} {' '.join(extra)}; {a['frames']} frames):")
-    print(f"  bench loop --runs 1: {t_loop:.0f} s; dataset generate {t_gen:.0f} s + bench nav --runs 2 {t_nav:.0f} s "
-          f"= {t_gen + t_nav:.0f} s: ratio {t_loop / (t_gen + t_nav):.2f}")
+        for i in range(repeats):
+            load = os.getloadavg()[0]
+            times["loop"].append(_timed(sk + ["bench", "loop", recipe, "-o", str(d / f"loop{i}"), "--runs", "1",
+                                              "--bias-km", "none", "-q", *given, *extra])[:2])
+            times["generate"].append(_timed(sk + ["dataset", "generate", recipe, "-o", str(d / f"ds{i}"), "-q",
+                                                  *extra])[:2])
+            times["nav"].append(_timed(sk + ["bench", "nav", str(d / f"ds{i}"), "-o", str(d / f"nav{i}"), "--runs",
+                                             "2", "-q", *given])[:2])
+            w = {k: v[-1][0] for k, v in times.items()}
+            print(f"  repeat {i + 1}: bench loop {w['loop']:.0f} s; dataset generate {w['generate']:.0f} s + bench nav "
+                  f"{w['nav']:.0f} s; ratio {w['loop'] / (w['generate'] + w['nav']):.2f} (load average {load:.1f} "
+                  f"before, {os.getloadavg()[0]:.1f} after)", flush=True)
+        a = json.loads((d / "loop0" / "summary.json").read_text())
+        b = json.loads((d / "nav0" / "summary.json").read_text())
+    med = {k: np.median(np.array(v), 0) for k, v in times.items()}   # (wall, cpu)
+    print(f"loop ({recipe} {' '.join(extra)}; {a['frames']} frames; R: {'given' if given else 'calibrated'}; "
+          f"medians of {repeats}):")
+    print(f"  bench loop --runs 1: {med['loop'][0]:.0f} s wall, {med['loop'][1]:.0f} s CPU (R calibration "
+          f"{a['run']['setup_time_s']:.0f} s of it); dataset generate {med['generate'][0]:.0f} s wall, "
+          f"{med['generate'][1]:.0f} s CPU + bench nav --runs 2 {med['nav'][0]:.0f} s wall, {med['nav'][1]:.0f} s CPU "
+          f"(R calibration {b['run']['setup_time_s']:.0f} s of it)")
+    wall = med["loop"][0] / (med["generate"][0] + med["nav"][0])
+    cpu = med["loop"][1] / (med["generate"][1] + med["nav"][1])
+    print(f"LOOP TIME RATIO bench loop / (dataset generate + bench nav): {wall:.2f} x wall, {cpu:.2f} x CPU "
+          f"(issue: <= 1.5); load average {os.getloadavg()[0]:.1f}")
     for key, unit in (("filter_position_3sigma_km", "km"), ("filter_velocity_3sigma_m_s", "m/s"),
                       ("position_3sigma_km", "km"), ("velocity_3sigma_m_s", "m/s"),
                       ("position_error_rms_km", "km"), ("velocity_error_rms_m_s", "m/s")):
@@ -345,6 +374,8 @@ def main():
                     help="throughput: interleaved repeats of one and two clients; overhead: frames x repeats pairs")
     ap.add_argument("--pause-ms", type=float, default=20.0, help="overhead: pause before each call (default 20)")
     ap.add_argument("--recipe", default="sequence")
+    ap.add_argument("--loop-repeats", type=int, default=1, help="loop: alternations of loop and nav (medians)")
+    ap.add_argument("--sigma-px", type=float, default=None, help="loop: a constant R for both (default: calibrated)")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                     help="--set for the loop part's recipe (bench loop and dataset generate alike)")
     args = ap.parse_args()
@@ -354,7 +385,7 @@ def main():
     if "throughput" in args.parts:
         part_throughput(frames, args.repeats)
     if "loop" in args.parts:
-        part_loop(args.recipe, [x for s in args.sets for x in ("--set", s)])
+        part_loop(args.recipe, [x for s in args.sets for x in ("--set", s)], args.loop_repeats, args.sigma_px)
 
 
 if __name__ == "__main__":

@@ -16,9 +16,47 @@ import numpy as np
 
 from .attitude import wahba_svd
 
-__all__ = ["StarDirections", "StarMatch", "lost_in_space", "associate", "refine", "C_KM_S"]
+__all__ = ["StarDirections", "StarMatch", "lost_in_space", "associate", "refine", "C_KM_S",
+           "MAX_STAR_ID_ARCSEC_PX", "MIN_STAR_ID_FOV_DEG", "star_id_camera_check"]
 
 from skynav.scenes.constants import C_KM_S  # noqa: E402
+
+#: The coarsest pixel scale (arcsec per pixel at the principal point) at which lost-in-space
+#: identification is reliable. ``benchmarks/star_id_scale.py`` (40 frames of the ``montecarlo``
+#: preset per camera, identified = attitude within 3 px of the truth), 20 deg fields: 71"/px
+#: 100 %, 142-325"/px 88-95 %, 379"/px 82 %, 413"/px 90 %, 455"/px 82 %, then 505"/px 65 %,
+#: 535"/px 42 %, 568"/px 35 % (30 deg fields: 432"/px 100 %, 512"/px 88 %, 576"/px 75 %). The
+#: k-vector window is capped at ``ProcessOptions.eps_max_arcsec`` while the spots' centroid errors
+#: grow with the pixel: past ~460"/px the true star pairs fall out of the window.
+MAX_STAR_ID_ARCSEC_PX = 460.0
+
+#: Fields narrower than this hold too few stars for a reliable identification, however fine the
+#: pixels (same benchmark: 10 deg fields 18-35 % from 35 to 376"/px; 15 deg 70-80 % up to 283"/px,
+#: 58 % at 377"/px; 20 deg 82-100 %).
+MIN_STAR_ID_FOV_DEG = 15.0
+
+
+def star_id_camera_check(camera) -> tuple[str | None, str | None]:
+    """``(error, warning)``: one-line reasons why star identification will not work with ``camera``.
+
+    ``error`` when its pixels are coarser than :data:`MAX_STAR_ID_ARCSEC_PX` (the identification
+    collapses: a navigation run would quietly get no attitude, hence no measurement, on most
+    frames); ``warning`` when its field is narrower than :data:`MIN_STAR_ID_FOV_DEG` (it still
+    identifies some frames). Either may be None.
+    """
+    scale = float(np.degrees(camera.ifov_rad) * 3600.0)
+    fov = float(np.degrees(min(camera.fov_x_rad, camera.fov_y_rad)))
+    error = warning = None
+    if scale > MAX_STAR_ID_ARCSEC_PX:
+        need = int(np.ceil(camera.width * scale / MAX_STAR_ID_ARCSEC_PX))
+        error = (f"camera {camera.width}x{camera.height} px over {fov:.3g} deg has {scale:.0f} arcsec/px; star "
+                 f"identification needs at most {MAX_STAR_ID_ARCSEC_PX:.0f} arcsec/px (it identifies a third of the "
+                 f"frames at 570): give camera.width >= {need} for this field")
+    if round(fov, 6) < MIN_STAR_ID_FOV_DEG:
+        warning = (f"camera field {fov:.3g} deg, narrower than {MIN_STAR_ID_FOV_DEG:.0f} deg: star identification "
+                   f"finds the attitude of 18-35 % of lost-in-space frames in 10 deg fields; frames without an "
+                   f"attitude give no measurement")
+    return error, warning
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

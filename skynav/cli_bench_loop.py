@@ -16,6 +16,7 @@ from skynav.datasets.recipes import recipe_camera
 from skynav.pipeline.ekf import initial_covariance
 from skynav.pipeline.scoring_nav import NavInputError
 from skynav.pipeline.scoring_nav_report import summarise, write_report
+from skynav.pipeline.star_id import star_id_camera_check
 from skynav.service.client import Client, LocalServer
 from skynav.service.loop import (
     CALIBRATION_FRAMES,
@@ -30,7 +31,7 @@ from skynav.service.loop import (
     run_loop,
 )
 
-from .cli_common import ProgressBar, add_quiet, add_set_argument, positive_int, say
+from .cli_common import ProgressBar, add_quiet, add_set_argument, positive_int, say, warn
 from .cli_dataset import _recipe
 
 
@@ -61,6 +62,11 @@ def cmd_loop(args) -> int:
     sim = Simulator(recipe, limit=args.limit)
 
     camera = recipe_camera(recipe)
+    error, warning = star_id_camera_check(camera)
+    if error:
+        raise NavInputError(error)
+    if warning:
+        warn(warning)
     P0 = initial_covariance()
     rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (paper 002 Eq. 45)
     r0, v0 = sim.state(sim.schedule()[0][0])

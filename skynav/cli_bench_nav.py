@@ -14,6 +14,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+import skynav.datasets as sdat
 from skynav.pipeline.filter_dynamics import FilterDynamics
 from skynav.pipeline.references import NAVIGATION
 from skynav.pipeline.scoring_nav import (
@@ -26,6 +27,7 @@ from skynav.pipeline.scoring_nav import (
     run_realisations,
 )
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
+from skynav.pipeline.star_id import star_id_camera_check
 from skynav.scenes.count_cap import cap_count
 
 from .cli_common import (
@@ -39,6 +41,7 @@ from .cli_common import (
     positive_int,
     say,
     seed_int,
+    warn,
 )
 
 #: most Monte Carlo runs (each run's filter history, frames x 6 states, is kept for the report)
@@ -64,6 +67,11 @@ def cmd_nav(args) -> int:
     _dynamics(args)  # refuse a bad --set or --gm-sigma before reading the dataset
     t0 = time.perf_counter()
     plan = load_plan(args.dataset, images=args.images, limit=args.limit)
+    error, warning = star_id_camera_check(sdat.open(plan.root).camera)
+    if error:
+        raise NavInputError(f"{args.dataset}: {error}")
+    if warning:
+        warn(f"{args.dataset}: {warning}")
     realisations = None
     if args.realisations:
         if args.images is not None:
@@ -76,11 +84,13 @@ def cmd_nav(args) -> int:
             raise NavInputError("--sigma-px and --calibrate-on: give one or the other")
         calib += [load_plan(d, limit=args.limit) for d in args.calibrate_on]
         check_realisations(calib[1:], plan)
-        if realisations is not None:
-            both = {str(Path(p.root).resolve()) for p in calib} & {str(Path(p.root).resolve()) for p in realisations}
-            if both:
-                raise NavInputError(f"{sorted(both)[0]}: in both --calibrate-on and --realisations; R must be "
-                                    "calibrated out of sample")
+    if realisations is not None and args.sigma_px is None:
+        # R comes from DATASET (and --calibrate-on): none of them may be a navigated rendering
+        navigated = {Path(p.root).resolve() for p in realisations}
+        for i, p in enumerate(calib):
+            if Path(p.root).resolve() in navigated:
+                raise NavInputError(f"{p.root}: in both {'DATASET' if i == 0 else '--calibrate-on'} and "
+                                    "--realisations; R must be calibrated out of sample (give other renderings)")
     if args.sigma_px is None:
         noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
                                    phase_offset=not args.no_phase_offset)

@@ -2,6 +2,9 @@
 
 import json
 import shutil
+from pathlib import Path
+
+import numpy as np
 
 import pytest
 
@@ -15,6 +18,18 @@ def seq(tmp_path_factory):
     d = tmp_path_factory.mktemp("nav") / "seq"
     assert main(["dataset", "generate", "sequence", "-o", str(d), "--count", "6", "--workers", "1", "-q"]) == 0
     return d
+
+
+@pytest.fixture(scope="module")
+def renderings(tmp_path_factory):
+    """Two more renderings of ``seq``'s cruise (other seeds: other image noise and pointing errors)."""
+    out = []
+    for seed in (98, 99):
+        d = tmp_path_factory.mktemp("nav") / f"seq{seed}"
+        assert main(["dataset", "generate", "sequence", "-o", str(d), "--count", "6", "--seed", str(seed),
+                     "--workers", "1", "-q"]) == 0
+        out.append(d)
+    return out
 
 
 def test_bench_nav_writes_the_report(seq, tmp_path, capsys):
@@ -143,16 +158,13 @@ def test_synthetic_reference_mode_replaces_the_centroids(seq):
     assert not np.allclose(a.measured_error_px[ok], real.measured_error_px[ok])
 
 
-def test_realisations_deal_the_runs_over_independent_sequences(seq, tmp_path, capsys):
+def test_realisations_deal_the_runs_over_independent_sequences(seq, renderings, tmp_path, capsys):
     """``--realisations``: the same cruise rendered with other seeds; one run per sequence gives
     independent runs, and the summary's band is that of the sequences (chi-square, 6 M dof / M)."""
     from scipy.stats import chi2
 
-    other = tmp_path / "seq_b"
-    assert main(["dataset", "generate", "sequence", "-o", str(other), "--count", "6", "--seed", "99", "--workers", "1",
-                 "-q"]) == 0
     out = tmp_path / "rep"
-    rc = main(["bench", "nav", str(seq), "--realisations", str(seq), str(other), "--runs", "2", "-q",
+    rc = main(["bench", "nav", str(seq), "--realisations", *map(str, renderings), "--runs", "2", "-q",
                "--calibration-stride", "2", "-o", str(out)])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
@@ -161,6 +173,7 @@ def test_realisations_deal_the_runs_over_independent_sequences(seq, tmp_path, ca
     assert abs(s["nees"]["band_sequences_low"] - lo) < 1e-12 and abs(s["nees"]["band_sequences_high"] - hi) < 1e-12
     assert "independent image sequences" in (out / "report.md").read_text()
     capsys.readouterr()
+    other = renderings[1]
 
     short = tmp_path / "seq_short"
     assert main(["dataset", "generate", "sequence", "-o", str(short), "--count", "4", "--workers", "1", "-q"]) == 0
@@ -171,15 +184,13 @@ def test_realisations_deal_the_runs_over_independent_sequences(seq, tmp_path, ca
     assert rc == 2 and len(err) == 1 and "--realisations" in err[0]
 
 
-def test_calibrate_on_pools_renderings_for_r(seq, tmp_path, capsys):
+def test_calibrate_on_pools_renderings_for_r(seq, renderings, tmp_path, capsys):
     """``--calibrate-on``: R measured on the frames of DATASET and of other renderings of the same
     cruise together (every calibration frame of both, none lost or doubled); it must stay out of
     sample for ``--realisations`` and cannot be combined with a given ``--sigma-px``."""
     from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan
 
-    other = tmp_path / "seq_c"
-    assert main(["dataset", "generate", "sequence", "-o", str(other), "--count", "6", "--seed", "98", "--workers", "1",
-                 "-q"]) == 0
+    other = renderings[0]
     a, b = load_plan(seq), load_plan(other)
     na, nb, nab = calibrate_sigma_px(a), calibrate_sigma_px(b), calibrate_sigma_px([a, b])
     assert nab.renderings == 2 and "of 2 renderings" in nab.describe()
@@ -191,10 +202,38 @@ def test_calibrate_on_pools_renderings_for_r(seq, tmp_path, capsys):
     capsys.readouterr()
     rc, err = _err(["bench", "nav", str(seq), "--calibrate-on", str(other), "--realisations", str(other),
                     "-o", str(tmp_path / "r")], capsys)
-    assert rc == 2 and len(err) == 1 and "out of sample" in err[0]
+    assert rc == 2 and len(err) == 1 and "out of sample" in err[0] and "--calibrate-on" in err[0]
     rc, err = _err(["bench", "nav", str(seq), "--calibrate-on", str(other), "--sigma-px", "0.1",
                     "-o", str(tmp_path / "r2")], capsys)
     assert rc == 2 and len(err) == 1 and "--calibrate-on" in err[0]
+
+
+def test_r_calibrated_on_other_renderings_only(seq, renderings, tmp_path, capsys):
+    """Out-of-sample R, as the closed loop has it (benchmarks/loop_vs_nav.py): DATASET and
+    ``--calibrate-on`` give R, ``--realisations`` the navigated rendering; the navigated frames are
+    in no calibration. The report's R and errors are those of R measured on the two calibration
+    renderings alone (pooled) and runs on the navigated one, which differ from the in-sample ones;
+    DATASET among the navigated renderings is refused (R would be in sample)."""
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan, run_realisations
+
+    cal, cal2 = renderings
+    out = tmp_path / "rep"
+    assert main(["bench", "nav", str(cal), "--calibrate-on", str(cal2), "--realisations", str(seq), "--runs", "2",
+                 "-q", "-o", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert [Path(p).name for p in s["run"]["calibrated_on"]] == [cal.name, cal2.name]
+    assert [Path(p).name for p in s["run"]["realisations"]] == [seq.name]
+    outside = calibrate_sigma_px([load_plan(cal), load_plan(cal2)])
+    inside = calibrate_sigma_px([load_plan(seq), load_plan(cal2)])
+    assert s["run"]["noise"] == outside.describe() != inside.describe()
+    nav = load_plan(seq)
+    res = run_realisations([nav], runs=2, noise=outside, reference=load_plan(cal))
+    last = nav.leg == nav.leg[-1]
+    rms = float(np.sqrt(np.mean(np.sum(res.error[:, last, :3] ** 2, -1))))
+    assert s["final"]["position_error_rms_km"] == pytest.approx(rms, rel=1e-9)   # the same code and seeds
+    capsys.readouterr()
+    rc, err = _err(["bench", "nav", str(seq), "--realisations", str(seq), "-o", str(tmp_path / "r")], capsys)
+    assert rc == 2 and len(err) == 1 and "DATASET" in err[0] and "out of sample" in err[0]
 
 
 def test_set_changes_the_filter_dynamics(seq, tmp_path, capsys):

@@ -120,6 +120,9 @@ def test_runs_and_the_calibration_see_renderings_of_their_own():
     (["sequence", "-o", "x", "--sigma-px", "0"], "--sigma-px"),
     (["sequence", "-o", "x", "--calibration-stride", "0"], "--calibration-stride"),
     (["sequence", "-o", "x", "--calibration-stride", "2", "--sigma-px", "0.1"], "one or the other"),
+    # 128 px over 20 deg, 568 arcsec/px: star ID finds a third of the attitudes (pipeline/star_id.py)
+    (["sequence", "-o", "x", "--set", "camera.width=128", "--set", "camera.height=128", "--set", "camera.fov_deg=20"],
+     "568 arcsec/px; star identification needs at most 460 arcsec/px"),
 ])
 def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
     run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", *args, "--service", "http://127.0.0.1:9"],
@@ -127,3 +130,27 @@ def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
     assert run.returncode == 2, run.stderr
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], run.stderr
+
+
+def test_the_command_points_at_the_apparent_direction():
+    """point_at puts the planet's apparent direction (light time and the observer's aberration) on
+    the boresight, where a dataset points: checked against the scene model's iterated light time,
+    deflection and exact aberration (skynav.scenes.scene.sky_bodies) to 0.05 arcsec (the first-order
+    light time and the Sun's deflection, mas). Without the aberration it is ~20 arcsec off, 0.3 px."""
+    from skynav import datasets
+    from skynav.datasets.recipes import read_recipe_mapping
+    from skynav.scenes.ephemeris_jpl import default_ephemeris
+    from skynav.scenes.scene import sky_bodies
+    from skynav.service.loop import Simulator, point_at
+
+    sim = Simulator(datasets.validate_recipe(read_recipe_mapping("sequence")))
+    eph = default_ephemeris()
+    sched = sim.schedule()
+    for k in (0, len(sched) // 2, len(sched) - 1):
+        t, _, _, target = sched[k]
+        r, v = sim.state(t)
+        body = next(b for b in sky_bodies(t, r, v, ephemeris=eph)[0] if b.name == target)
+        u = np.asarray(body.directions.u_icrs)
+        off = [np.degrees(np.arccos(min(1.0, float(point_at(eph, target, t, r, vel)[2] @ u)))) * 3600
+               for vel in (v, np.zeros(3))]
+        assert off[0] < 0.05 and off[1] > 10.0, (k, off)
