@@ -40,7 +40,7 @@ from .errors import DatasetMismatchError
 from .frame_files import encode_frame, sha256_file
 from .journal import write_record
 from .plan import frame_seed
-from .pool import THREAD_VARS, WarmHeap, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
+from .pool import THREAD_VARS, LargeArraysOnHeap, WarmHeap, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
 __all__ = ["FrameResult", "EncodedFrame", "produce_frame", "make_frame", "commit_frame", "run_in_process",
            "run_process_pool", "run_dask", "check_backends"]
@@ -237,8 +237,9 @@ def _made_and_written(jobs, accept) -> None:
     """Make the jobs' frames in order, frame k's files written (:func:`commit_frame`) on a writer
     thread while this thread makes frame k + 1; ``accept`` sees each frame in order, after its
     record is written. A failure in either half ends the loop once the frame being written is
-    complete. After the first frame the collector leaves the warm heap alone (:class:`WarmHeap`)."""
-    with WarmHeap() as heap, ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
+    complete. After the first frame the collector leaves the warm heap alone (:class:`WarmHeap`);
+    the frames' images come from glibc's heap even in a Dask worker (:class:`LargeArraysOnHeap`)."""
+    with LargeArraysOnHeap(), WarmHeap() as heap, ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
         pending = None
         for j in jobs:
             made = _make_job(j)

@@ -240,6 +240,33 @@ def test_warm_heap_spares_the_warm_objects_and_still_collects_new_cycles():
     assert warm[-1] == [999]
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc thresholds")
+def test_large_arrays_come_from_the_heap_where_the_environment_fixed_glibc_thresholds():
+    # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then maps every image a
+    # frame allocates afresh, and its pages fault in again each time. Inside LargeArraysOnHeap they
+    # come from the heap: the page faults of 40 allocations of an 8 MB image fall by far.
+    code = (
+        "import resource, numpy as np\n"
+        "from skynav.datasets.pool import LargeArraysOnHeap\n"
+        "def faults(ctx):\n"
+        "    with ctx:\n"
+        "        np.ones(1 << 20)\n"
+        "        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+        "        for _ in range(40):\n"
+        "            a = np.ones(1 << 20); b = np.ones(1 << 20); del a, b\n"
+        "        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before\n"
+        "import contextlib\n"
+        "print(faults(contextlib.nullcontext()), faults(LargeArraysOnHeap()), faults(contextlib.nullcontext()))\n"
+    )
+    env = dict(os.environ, MALLOC_TRIM_THRESHOLD_="65536")
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    plain, inside, after = (int(v) for v in proc.stdout.split())
+    assert plain > 40 * 100, plain  # faulted in every round (500-1000 faults each here: 4 kB and 2 MB pages)
+    assert inside < plain / 10, (plain, inside)
+    assert after > plain / 2, (plain, after)  # on exit the environment's thresholds are back
+
+
 def _children(pid: int) -> list:
     kids = []
     for st in Path("/proc").glob("[0-9]*/stat"):
