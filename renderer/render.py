@@ -452,13 +452,13 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         # pixels hit set below, is the frame's electrons image (no float64 copy goes through)
         e_in = electrons.astype(np.float32) if backend == "llvm" else electrons
         dn = sensor.expose(e_in, T, rng, backend=backend, extra_charge_e=charge)
-        total = e_in if e_in.dtype == np.float32 else electrons.astype(np.float32)
     else:
         backend = "numpy"
-        total64 = electrons.copy()
-        total64.reshape(-1)[hit] += hit_e
-        dn = sensor.expected_dn(total64, T)
-        total = total64.astype(np.float32)
+        e_in = electrons
+        with_hits = electrons.copy()
+        with_hits.reshape(-1)[hit] += hit_e
+        dn = sensor.expected_dn(with_hits, T)
+    total = e_in if e_in.dtype == np.float32 else electrons.astype(np.float32)
     total.reshape(-1)[hit] = electrons.reshape(-1)[hit] + hit_e  # summed in float64, rounded once
     return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
