@@ -163,6 +163,11 @@ class ExpectedImage:
         stamps), px; NaN for a star not drawn.
     body_centre_of_light : dict of str -> ndarray, shape (2,)
         The same for each drawn body (a resolved one: its blurred crop's first moment).
+    support : ndarray of int, or None
+        Flat indices (an index may repeat) holding every nonzero pixel of ``electrons`` and
+        ``irradiance_w_m2`` as :func:`expected_image` drew them (None: not known; every pixel
+        with a background), so that a dark image is converted to float32 without a full pass
+        (:func:`float32_image`).
     """
 
     electrons: np.ndarray
@@ -176,6 +181,19 @@ class ExpectedImage:
     projection: object
     star_centre_of_light: np.ndarray | None = None
     body_centre_of_light: dict | None = None
+    support: np.ndarray | None = None
+
+
+def float32_image(image: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
+    """``image.astype(np.float32)``, reading only ``support`` (flat indices holding every nonzero
+    pixel; None: every pixel): a float32 zero image with those pixels converted, the same bits.
+    A dark frame's stamps are ~3 % of its pixels, and the full 8 MB read of the float64 image
+    costs ~0.3 ms a frame when it is not in the cache."""
+    if support is None:
+        return image.astype(np.float32)
+    out = np.zeros(image.shape, np.float32)
+    out.reshape(-1)[support] = image.reshape(-1)[support]
+    return out
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -316,6 +334,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     ExpectedImage
     """
     proj = _check_projection(scene, projection, own_size)
+    drawn = [] if support is None else support  # the pixels drawn, for ExpectedImage.support
+    support = drawn
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
@@ -392,14 +412,17 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             resolved[b.name] = img
             variant = img.variant
 
-    if options.background_e_per_px_s > 0:
+    background = options.background_e_per_px_s > 0
+    if background:
         electrons += options.background_e_per_px_s * T
-        if support is not None:
-            support.append(np.arange(electrons.size))
+        support.append(np.arange(electrons.size))
+    n_drawn = sum(a.size for a in drawn)
+    sparse = not background and n_drawn * 4 < electrons.size
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
                          mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
-                         body_centre_of_light=body_centre)
+                         body_centre_of_light=body_centre,
+                         support=(np.concatenate(drawn) if drawn else np.zeros(0, np.int64)) if sparse else None)
 
 
 def sensor_backend(requested: str) -> str:
@@ -450,7 +473,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         backend = sensor_backend(options.backend)
         # the LLVM sensor reads float32 electrons: converted once, and the same array, with the
         # pixels hit set below, is the frame's electrons image (no float64 copy goes through)
-        e_in = electrons.astype(np.float32) if backend == "llvm" else electrons
+        e_in = float32_image(electrons, getattr(expected, "support", None)) if backend == "llvm" else electrons
         dn = sensor.expose(e_in, T, rng, backend=backend, extra_charge_e=charge)
     else:
         backend = "numpy"
@@ -458,7 +481,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         with_hits = electrons.copy()
         with_hits.reshape(-1)[hit] += hit_e
         dn = sensor.expected_dn(with_hits, T)
-    total = e_in if e_in.dtype == np.float32 else electrons.astype(np.float32)
+    total = e_in if e_in.dtype == np.float32 else float32_image(electrons, getattr(expected, "support", None))
     total.reshape(-1)[hit] = electrons.reshape(-1)[hit] + hit_e  # summed in float64, rounded once
     return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
@@ -484,7 +507,7 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     detection = detect(expected, scene.camera, rng, options)
     truth = frame_truth(scene, expected, detection, seed=seed, options=options)
     return Frame(dn=detection.dn, electrons=detection.electrons,
-                 irradiance_w_m2=expected.irradiance_w_m2.astype(np.float32), truth=truth)
+                 irradiance_w_m2=float32_image(expected.irradiance_w_m2, expected.support), truth=truth)
 
 
 def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):

@@ -183,6 +183,24 @@ def test_same_seed_same_frame_with_resolved_bodies(departure):
     assert np.array_equal(a.dn, b.dn) and np.array_equal(a.electrons, b.electrons)
 
 
+def test_support_holds_every_lit_pixel(scene, departure):
+    """``ExpectedImage.support`` lists every nonzero pixel of the electrons and irradiance images
+    (stars, point bodies, the ray-traced Earth and Moon), so the float32 images converted over
+    it alone equal the full conversion: a pixel missed would be a star's charge lost from the
+    frame's EXR and from the sensor's input. With a background every pixel is lit: no support,
+    the full conversion."""
+    from skynav.renderer.render import expected_image, float32_image
+
+    for sc in (scene, departure):
+        exp = expected_image(sc, rng=np.random.default_rng(2), options=RenderOptions())
+        assert exp.support is not None
+        for img in (exp.electrons, exp.irradiance_w_m2):
+            lit = np.flatnonzero(img)
+            assert lit.size > 1000 and np.isin(lit, exp.support).all()
+            np.testing.assert_array_equal(float32_image(img, exp.support), img.astype(np.float32))
+    assert expected_image(scene, rng=np.random.default_rng(2), options=RenderOptions(background_e_per_px_s=1.0)).support is None
+
+
 # ----------------------------------------------------------------------------- truth
 def _with_cosmic_rays(scene, options, rate):
     """The scene and options with ``rate`` cosmic rays per frame, wherever the rate lives."""
