@@ -297,7 +297,9 @@ def _exr_rle_file(head: bytes, channels: list) -> bytes:
         befores.append(words[q - 1])  # (the word before a row's word 0 is replaced below)
         ps.append(q + y0 * n_words)
     p, cur, before = np.concatenate(ps), np.concatenate(curs), np.concatenate(befores)
-    first = np.searchsorted(p, np.arange(H) * n_words)  # each row's first (its word 0, always dirty)
+    # the word's index in its row (a mask where a row is a power of two words, 1024 px x 2)
+    k = p & (n_words - 1) if n_words & (n_words - 1) == 0 else p % n_words
+    first = np.flatnonzero(k == 0)  # each row's first: its word 0, always dirty
     c0, c1, b0 = cur & 0xFFFF, cur >> 16, before >> 16  # 2-byte words 2p, 2p + 1 and 2p - 1
     lo0 = ((c0 & 0xFF) + 128 - (b0 & 0xFF)).astype(np.uint8)  # mod 256
     lo1 = ((c1 & 0xFF) + 128 - (c0 & 0xFF)).astype(np.uint8)
@@ -308,7 +310,6 @@ def _exr_rle_file(head: bytes, channels: list) -> bytes:
     last_lo = (channels[-1][:, -1] >> 16) & 0xFF  # t[N - 1]: the low byte of the row's last 2-byte word
     hi0[first] = ((row_first >> 8) + 128 - last_lo).astype(np.uint8)  # t[N] - t[N-1]
     # islands of dirty words (position 2 x index in a half), cut where 3 or more 128s lie between
-    k = p % n_words  # the word's index in its row
     new = np.ones(p.size, bool)
     new[1:] = np.diff(k) > 1 + _RLE_GAP // 2
     new[first] = True
