@@ -351,7 +351,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     track = {b.name: _body_track_xy(scene, proj, b) for b in scene.bodies}
     near = {b.name: _near_image(proj, track[b.name], b) for b in scene.bodies}
     traced = [b for b in scene.bodies if b.resolved and options.resolved and near[b.name]]
-    points = [b for b in scene.bodies if b not in traced and np.all(np.isfinite(track[b.name][0])) and near[b.name]]
+    points = [b for b in scene.bodies if b not in traced and near[b.name] and all(map(math.isfinite, track[b.name][0].tolist()))]
     body_e = {b.name: float(rad.body_electrons_per_s(b.name, b.v_mag)) * T if np.isfinite(b.v_mag) else 0.0
               for b in scene.bodies}
     body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
@@ -542,15 +542,15 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wave
 
 def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:
     """True if any of a body's positions (mid-exposure, start, end; (3, 2) px) is within
-    ``margin_px`` plus its apparent radius of the image."""
-    pts = np.asarray(track_xy, dtype=float)
-    ok = np.all(np.isfinite(pts), axis=1)
-    if not ok.any():
-        return False
+    ``margin_px`` plus its apparent radius of the image (Python floats: three points, nine
+    bodies a frame, where numpy's per-call cost was 0.3 ms a frame)."""
     margin = margin_px + 0.5 * body.angular_diameter_px
-    x, y = pts[ok, 0], pts[ok, 1]
-    W, H = projection.width, projection.height
-    return bool(((x >= -0.5 - margin) & (x < W - 0.5 + margin) & (y >= -0.5 - margin) & (y < H - 0.5 + margin)).any())
+    x_hi, y_hi = projection.width - 0.5 + margin, projection.height - 0.5 + margin
+    lo = -0.5 - margin
+    for x, y in np.asarray(track_xy, dtype=float).tolist():
+        if math.isfinite(x) and math.isfinite(y) and lo <= x < x_hi and lo <= y < y_hi:
+            return True
+    return False
 
 
 def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int, support: list | None = None) -> None:
