@@ -241,3 +241,19 @@ def test_also_draws_a_second_quantity_as_a_second_call(shape):
         rasterize(shape, paths, e, psf, also=(irr[:5], np.zeros(shape)))
     with pytest.raises(ValueError, match="raster.also"):
         rasterize(shape, paths, e, psf, also=(irr, np.zeros(shape, np.float32)))
+
+
+def test_unique_inverse_is_numpys():
+    """The raster's distinct stamp pixels and each entry's index among them are numpy's
+    ``unique(return_inverse=True)`` answer (the same arrays: integers, no rounding), for stamps
+    that overlap, an empty array and repeated runs."""
+    from skynav.renderer.raster import _unique_inverse
+
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 60, 300) * 256 + rng.integers(0, 60, 300)
+    stamps = (base[:, None] + (np.arange(5)[:, None] * 256 + np.arange(5)).ravel()[None, :]).ravel()
+    for flat in (stamps, np.zeros(0, np.int64), np.array([7, 7, 3, 7, 3, 0])):
+        u, inv = _unique_inverse(flat)
+        ref_u, ref_inv = np.unique(flat, return_inverse=True)
+        assert np.array_equal(u, ref_u) and np.array_equal(inv, ref_inv.ravel())
+        assert np.array_equal(u[inv], flat)
