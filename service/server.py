@@ -1,9 +1,11 @@
 """``skynav serve``: the HTTP server (Starlette on uvicorn) in front of warm render workers.
 
-The server process parses and validates requests (the scene-file validator,
-:func:`skynav.scenes.config.scene_spec_from_mapping`, so errors use the scene-file words) and hands
-each valid one to an idle worker process (:mod:`skynav.service.worker`); it renders nothing itself
-and writes no file. Concurrency is bounded: ``workers`` frames render at once, ``max_queue`` more
+The server process checks a request's envelope (token, media type, size, JSON object, outputs)
+and hands it to an idle worker process (:mod:`skynav.service.worker`), which validates the scene
+once, with the scene-file validator (:func:`skynav.scenes.config.scene_spec_from_mapping`, so
+errors use the scene-file words: a ``bad`` answer becomes the 400's line), and renders it; the
+server renders nothing itself and writes no file. ``POST /v1/render`` is a plain ASGI endpoint
+(:class:`RenderEndpoint`) in front of the Starlette application that serves the rest. Concurrency is bounded: ``workers`` frames render at once, ``max_queue`` more
 wait, the next gets 503. Every error is a 4xx/5xx with a one-line JSON body ``{"error": "..."}``.
 """
 
