@@ -19,6 +19,7 @@ import json
 import multiprocessing
 import os
 import pickle
+import re
 import socket
 import struct
 import sys
@@ -28,6 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
+import orjson
 import uvicorn
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
@@ -320,7 +322,9 @@ def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[d
         raise ValueError(f"{name} is not a JSON number")
 
     try:
-        doc = json.loads(body.decode("utf-8"), parse_constant=no_constant)
+        doc = _fast_json(body)
+        if doc is None:
+            doc = json.loads(body.decode("utf-8"), parse_constant=no_constant)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise _HTTPError(400, f"request body: not a JSON object ({str(exc).splitlines()[0][:120]})") from None
     if not isinstance(doc, dict):
@@ -341,6 +345,25 @@ def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[d
     # the scene itself is validated by the worker (the same validator as scene files): doing it
     # here as well cost ~1 ms of the ~9 ms a request adds to a frame
     return mapping, tuple(outputs)
+
+
+#: A run of 19 digits: an integer that may not fit in 64 bits, which orjson reads as a float.
+_LONG_DIGITS = re.compile(rb"[0-9]{19}")
+
+
+def _fast_json(body: bytes):
+    """The request's JSON value by orjson (~8 us against the standard library's ~40 us with the
+    caches cold, as they are after a frame's render), or None where the standard library must read
+    it: a body orjson refuses (the errors then come in the standard library's words; orjson refuses
+    all it does, NaN included, and a lone surrogate too), and a body with a run of 19 digits (an
+    integer past 64 bits: the standard library's is an int, orjson's a float). Else the two read
+    the same values (the same ints, correctly rounded floats, the last of duplicate keys)."""
+    if _LONG_DIGITS.search(body):
+        return None
+    try:
+        return orjson.loads(body)
+    except orjson.JSONDecodeError:
+        return None
 
 
 def _short(value) -> str:
