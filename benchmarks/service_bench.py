@@ -17,7 +17,8 @@ both alike, and medians are taken):
   the largest), the paired median difference, the service's own time (its client's wall time less
   the worker's render time: HTTP, the hand-off to the worker and back, the client's parsing; it
   does not carry the render's own noise, so on a loaded machine it is the steadier measure of the
-  overhead), and the CPU per frame of the server process and of the client. Also one
+  overhead; its lower quartile, the frames least delayed by other processes, the steadier still),
+  and the CPU per frame of the server process and of the client. Also one
   ``skynav render`` (a fresh process: imports, tables, kernels, then one frame and its files),
   the cost the service saves.
 - ``throughput``: ``skynav serve --workers 2``; frames/s of one client asking one frame after the
@@ -125,7 +126,8 @@ def part_overhead(frames: int, repeats: int, pause_s: float) -> None:
           f"{100 * (_pct(remote, 99) / _pct(local, 99) - 1):+.1f} %; paired: median of the differences "
           f"{1e3 * float(np.median(np.subtract(remote, local))):+.2f} ms")
     print(f"  the service's own time (round trip less the worker's render): median {1e3 * float(np.median(own)):.2f} ms "
-          f"= {100 * float(np.median(own)) / lm:.1f} % of the in-process median, p99 {1e3 * _pct(own, 99):.2f} ms; "
+          f"= {100 * float(np.median(own)) / lm:.1f} % of the in-process median, lower quartile "
+          f"{1e3 * _pct(own, 25):.2f} ms, p99 {1e3 * _pct(own, 99):.2f} ms; "
           f"CPU per frame: server process {1e3 * cpu_server:.2f} ms, client {1e3 * cpu_client:.2f} ms")
     print(f"  skynav render (fresh process, one frame and its files): median {float(np.median(cli)):.2f} s "
           f"= {float(np.median(cli)) / rm:.0f} x a service frame")

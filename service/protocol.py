@@ -46,12 +46,19 @@ def answer_chunks(parts: dict) -> tuple[list, str]:
     its media type; several as a multipart/mixed body, a part per output in the order given, each
     with its Content-Length. The body is the chunks one after the other: the worker writes them to
     the server in one gathered write (no joined copy), the server reads them as one message and
-    hands it to the HTTP response as it is."""
+    hands it to the HTTP response as it is.
+
+    The fixed boundary is used unless a part holds it. A JSON part (the truth) cannot hold a
+    delimiter line (``--`` and the boundary at the start of a line: a JSON text's line breaks are
+    whitespace between tokens, and no token starts with ``--``; nor does the text start with
+    one), so only the images are searched: searching the truth's ~235 KB took ~50 us of every
+    frame's answer."""
     if len(parts) == 1:
         (name, data), = parts.items()
         return [data], MEDIA_TYPES[name]
     boundary = BOUNDARY
-    if any(boundary.encode("ascii") in data for data in parts.values()):
+    if any(MEDIA_TYPES[name] != "application/json" and boundary.encode("ascii") in data
+           for name, data in parts.items()):
         boundary = "skynav-" + secrets.token_hex(16)
     chunks = []
     for name, data in parts.items():

@@ -1,9 +1,11 @@
 """``skynav serve``: the HTTP server (Starlette on uvicorn) in front of warm render workers.
 
-The server process parses and validates requests (the scene-file validator,
-:func:`skynav.scenes.config.scene_spec_from_mapping`, so errors use the scene-file words) and hands
-each valid one to an idle worker process (:mod:`skynav.service.worker`); it renders nothing itself
-and writes no file. Concurrency is bounded: ``workers`` frames render at once, ``max_queue`` more
+The server process checks a request's envelope (token, media type, size, JSON object, outputs)
+and hands it to an idle worker process (:mod:`skynav.service.worker`), which validates the scene
+once, with the scene-file validator (:func:`skynav.scenes.config.scene_spec_from_mapping`, so
+errors use the scene-file words: a ``bad`` answer becomes the 400's line), and renders it; the
+server renders nothing itself and writes no file. ``POST /v1/render`` is a plain ASGI endpoint
+(:class:`RenderEndpoint`) in front of the Starlette application that serves the rest. Concurrency is bounded: ``workers`` frames render at once, ``max_queue`` more
 wait, the next gets 503. Every error is a 4xx/5xx with a one-line JSON body ``{"error": "..."}``.
 """
 
@@ -17,19 +19,21 @@ import json
 import multiprocessing
 import os
 import pickle
+import re
 import socket
 import struct
 import sys
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
+import orjson
 import uvicorn
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
-from starlette.requests import ClientDisconnect
-from starlette.responses import JSONResponse, Response
+from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from skynav.datasets.pool import WorkerThreads
@@ -46,10 +50,7 @@ from .protocol import (
 )
 from .worker import frame_head, worker_main
 
-
-#: Read buffer of a worker's stream: above a frame's answer, so that its bytes are read in one go
-#: rather than with the transport paused and resumed (asyncio's default is 64 KiB).
-_STREAM_LIMIT = 16 * 1024 * 1024
+RENDER_PATH = f"{API_PREFIX}/render"
 
 
 class ServiceStartError(Exception):
@@ -63,6 +64,87 @@ class Limits:
     max_queue: int = MAX_QUEUE
 
 
+class _Answers(asyncio.BufferedProtocol):
+    """The server's end of a worker's pipe: its answers, read straight into their buffers.
+
+    The worker frames each message as :class:`multiprocessing.connection.Connection` does (a
+    4-byte big-endian signed length, -1 then an 8-byte length from 2 GiB, then the bytes). An
+    answer is one pickled message ``(kind, one line)``, or for ``ok`` two in one write
+    (:class:`skynav.service.worker._AnswerPipe`): the pickled ``("ok", content type, warnings,
+    seconds)`` and the body's raw bytes. The event loop reads into the buffer :meth:`get_buffer`
+    hands it, sized to what comes next (the length, the pickle, the body), so the body lands in a
+    buffer of its own size at once: no stream buffer in between, no copy of its ~250 KB, no
+    Python for each chunk.
+    """
+
+    def __init__(self):
+        self.lost = False
+        self._pending = None   # (future, done) of the request in the worker
+        self._head = None      # the ("ok", ...) of the answer whose body is being read
+        self._length = bytearray(8)
+        self._read_length()
+
+    def expect(self, done) -> asyncio.Future:
+        """The future of the next answer (a request is about to be written); ``done(died)`` is
+        called once that answer has been read, or the pipe lost, whatever became of the future
+        (its request may have been cancelled: its client went away)."""
+        future = asyncio.get_running_loop().create_future()
+        self._pending = (future, done)
+        return future
+
+    def _next(self, what: str, buf) -> None:
+        self._what, self._buf, self._view, self._got = what, buf, memoryview(buf), 0
+
+    def _read_length(self) -> None:
+        self._next("length", memoryview(self._length)[:4])
+
+    def get_buffer(self, sizehint):
+        return self._view[self._got:]
+
+    def buffer_updated(self, nbytes) -> None:
+        self._got += nbytes
+        while self._got == len(self._view):     # this item is complete: on to the next
+            if self._what == "length":
+                (size,) = struct.unpack_from("!i", self._length)
+                if size == -1:
+                    self._next("long length", memoryview(self._length))
+                    continue
+                self._payload(size)
+            elif self._what == "long length":
+                self._payload(struct.unpack_from("!Q", self._length)[0])
+            elif self._what == "message":
+                answer = pickle.loads(self._buf)
+                self._read_length()
+                if answer[0] == "ok":
+                    self._head = answer
+                else:
+                    self._deliver(answer)
+            else:   # the body of an ok answer
+                answer, self._head = (*self._head, self._buf), None
+                self._read_length()
+                self._deliver(answer)
+
+    def _payload(self, size: int) -> None:
+        self._next("message" if self._head is None else "body", bytearray(size))
+
+    def _deliver(self, answer) -> None:
+        if self._pending is None:
+            return
+        (future, done), self._pending = self._pending, None
+        done(False)
+        if not future.done():
+            future.set_result(answer)
+
+    def connection_lost(self, exc) -> None:
+        self.lost = True
+        if self._pending is None:
+            return
+        (future, done), self._pending = self._pending, None
+        done(True)
+        if not future.done():
+            future.set_exception(EOFError("the render worker is gone"))
+
+
 class _Worker:
     def __init__(self, ctx, facility, threads):
         self.conn, child = ctx.Pipe()
@@ -73,7 +155,7 @@ class _Worker:
         with WorkerThreads(1, threads=threads):
             self.process.start()
         child.close()
-        self.reader = self.writer = None
+        self.transport = self.answers = None
 
     def wait_ready(self, timeout_s: float) -> dict:
         if not self.conn.poll(timeout_s):
@@ -87,44 +169,38 @@ class _Worker:
         return info
 
     async def attach(self) -> None:
-        """Open this worker's pipe as a stream of the running event loop (after :meth:`wait_ready`).
+        """Open this worker's pipe in the running event loop (after :meth:`wait_ready`).
 
-        The server then talks to the worker without a thread: the request is written, the answer
-        read as its bytes come, in the loop that also serves HTTP. The worker side keeps its
-        :class:`multiprocessing.connection.Connection`, whose framing (a 4-byte big-endian signed
-        length, -1 then an 8-byte length past 2 GiB, then the pickle) :meth:`call` speaks.
+        The server then talks to the worker without a thread, in the loop that also serves HTTP:
+        the request is written to the pipe's transport, the answer read by :class:`_Answers`
+        straight into its buffers as its bytes come. The worker side keeps its
+        :class:`multiprocessing.connection.Connection`, whose framing both speak.
         """
         sock = socket.socket(fileno=os.dup(self.conn.fileno()))
-        self.reader, self.writer = await asyncio.open_unix_connection(sock=sock, limit=_STREAM_LIMIT)
+        loop = asyncio.get_running_loop()
+        self.transport, self.answers = await loop.create_unix_connection(_Answers, sock=sock)
 
-    async def call(self, msg):
-        """Send one request, return the worker's answer; EOFError/OSError when the worker died.
+    def request(self, msg, done) -> asyncio.Future:
+        """Send one request; the future of the worker's answer (EOFError when the worker died).
 
-        An ``ok`` answer is two messages in one write (:class:`skynav.service.worker._AnswerPipe`),
-        ``("ok", content type, warnings, seconds)`` and the body's raw bytes (not pickled: read
-        once, handed to the response as they are); the answer returned is ``("ok", content type,
-        warnings, seconds, body)``.
+        ``done(died)`` is called once the answer has been read or the worker is gone (at once,
+        with True, when it was gone already). An ``ok`` answer is ``("ok", content type,
+        warnings, seconds, body)``, the body the raw bytes of the HTTP answer's body (a
+        :class:`bytearray`, read into once and handed to the response as it is); the others are
+        ``(kind, one line)``.
         """
-        if self.writer is None:   # died before, and its replacement could not start: try again
+        if self.transport is None or self.transport.is_closing() or self.answers.lost:
+            done(True)
             raise EOFError("the render worker is gone")
         data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
-        self.writer.write(frame_head(len(data)) + data)
-        await self.writer.drain()
-        answer = pickle.loads(await self._message())
-        if answer[0] == "ok":
-            answer = (*answer, await self._message())
-        return answer
-
-    async def _message(self) -> bytes:
-        (size,) = struct.unpack("!i", await self.reader.readexactly(4))
-        if size == -1:
-            (size,) = struct.unpack("!Q", await self.reader.readexactly(8))
-        return await self.reader.readexactly(size)
+        future = self.answers.expect(done)
+        self.transport.write(frame_head(len(data)) + data)
+        return future
 
     def detach(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.reader = self.writer = None
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = self.answers = None
 
     def stop(self, timeout_s: float = 30.0) -> None:
         try:
@@ -149,7 +225,7 @@ class WorkerPool:
         self.busy = 0
         self.waiting = 0
         self._idle: asyncio.Queue | None = None
-        self._exchanges: set = set()
+        self._replacing: set = set()
         self._executor = ThreadPoolExecutor(max_workers=max(1, n), thread_name_prefix="skynav-render")
 
     def start(self, timeout_s: float = 600.0) -> float:
@@ -185,36 +261,39 @@ class WorkerPool:
         finally:
             self.waiting -= 1
         self.busy += 1
-        # the exchange with the worker runs to its end even if this request is cancelled (its
-        # client went away): the worker goes back to the idle queue only once its answer has been
-        # read, so that the next request never reads this one's frame
-        task = asyncio.ensure_future(self._exchange(worker, (mapping, outputs, self.limits.max_camera_pixels)))
-        self._exchanges.add(task)
-        task.add_done_callback(self._exchange_done)
-        return await asyncio.shield(task)
-
-    def _exchange_done(self, task) -> None:
-        self._exchanges.discard(task)
-        if not task.cancelled():
-            task.exception()   # retrieved: a cancelled request's error has no one to go to
-
-    async def _exchange(self, worker: _Worker, msg):
+        # the worker goes back to the idle queue when its answer has been read (_Answers calls
+        # done), even if this request is cancelled before (its client went away): the next
+        # request never reads this one's frame
         try:
-            try:
-                return await worker.call(msg)
-            except (EOFError, OSError):
-                # the process died (killed, out of memory): replace it, tell this client
-                worker.detach()
-                worker.stop(1)
-                dead = worker
-                worker = await asyncio.get_running_loop().run_in_executor(self._executor, self._respawn)
-                await worker.attach()
-                self.workers[self.workers.index(dead)] = worker
-                raise _HTTPError(503, "the render worker died while rendering this frame (out of memory?); "
-                                      "ask for a smaller camera or try again") from None
-        finally:
-            self.busy -= 1
+            return await worker.request((mapping, outputs, self.limits.max_camera_pixels),
+                                        lambda died: self._answered(worker, died))
+        except EOFError:
+            raise _HTTPError(503, "the render worker died while rendering this frame (out of memory?); "
+                                  "ask for a smaller camera or try again") from None
+
+    def _answered(self, worker: _Worker, died: bool) -> None:
+        self.busy -= 1
+        if not died:
             self._idle.put_nowait(worker)
+            return
+        # the process died (killed, out of memory): its request gets a 503 now, a fresh worker
+        # takes its place when warm (the requests that come meanwhile wait for it)
+        task = asyncio.ensure_future(self._replace(worker))
+        self._replacing.add(task)
+        task.add_done_callback(self._replacing.discard)
+
+    async def _replace(self, dead: _Worker) -> None:
+        dead.detach()
+        dead.stop(1)
+        try:
+            worker = await asyncio.get_running_loop().run_in_executor(self._executor, self._respawn)
+            await worker.attach()
+        except Exception as exc:  # noqa: BLE001 - logged; the next request tries again
+            print(f"skynav serve: a render worker could not be replaced: {' '.join(str(exc).split())}", file=sys.stderr)
+            self._idle.put_nowait(dead)
+            return
+        self.workers[self.workers.index(dead)] = worker
+        self._idle.put_nowait(worker)
 
     def _respawn(self) -> _Worker:
         w = _Worker(self._ctx, self.facility_arg, self.threads)
@@ -243,7 +322,9 @@ def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[d
         raise ValueError(f"{name} is not a JSON number")
 
     try:
-        doc = json.loads(body.decode("utf-8"), parse_constant=no_constant)
+        doc = _fast_json(body)
+        if doc is None:
+            doc = json.loads(body.decode("utf-8"), parse_constant=no_constant)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise _HTTPError(400, f"request body: not a JSON object ({str(exc).splitlines()[0][:120]})") from None
     if not isinstance(doc, dict):
@@ -266,15 +347,132 @@ def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[d
     return mapping, tuple(outputs)
 
 
+#: A run of 19 digits: an integer that may not fit in 64 bits, which orjson reads as a float.
+_LONG_DIGITS = re.compile(rb"[0-9]{19}")
+
+
+def _fast_json(body: bytes):
+    """The request's JSON value by orjson (~8 us against the standard library's ~40 us with the
+    caches cold, as they are after a frame's render), or None where the standard library must read
+    it: a body orjson refuses (the errors then come in the standard library's words; orjson refuses
+    all it does, NaN included, and a lone surrogate too), and a body with a run of 19 digits (an
+    integer past 64 bits: the standard library's is an int, orjson's a float). Else the two read
+    the same values (the same ints, correctly rounded floats, the last of duplicate keys)."""
+    if _LONG_DIGITS.search(body):
+        return None
+    try:
+        return orjson.loads(body)
+    except orjson.JSONDecodeError:
+        return None
+
+
 def _short(value) -> str:
     text = json.dumps(value) if not isinstance(value, str) else repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _error_body(message) -> bytes:
+    """The one-line JSON error, the bytes Starlette's JSONResponse makes of ``{"error": message}``."""
+    return json.dumps({"error": " ".join(str(message).split())}, ensure_ascii=False, allow_nan=False,
+                      separators=(",", ":")).encode("utf-8")
+
+
+class _ClientGone(Exception):
+    """The client hung up before its request body was read."""
+
+
+class RenderEndpoint:
+    """``POST /v1/render`` as a plain ASGI application.
+
+    :func:`build_app` puts it in front of the Starlette application (every other path and method,
+    and the lifespan, go to Starlette; it is also Starlette's route for the path, so that another
+    method gets Starlette's 405): a request is read from the ASGI messages, handed to the pool,
+    and its answer's body (the worker's buffer) sent as it is, without Starlette's middleware,
+    routing, Request and Response objects on the path of every frame (~0.1 ms of the server's
+    CPU per frame). The checks and the errors are the ones a Starlette endpoint would make.
+    """
+
+    def __init__(self, pool: WorkerPool, *, token: str | None, limits: Limits, has_facility: bool):
+        self.pool, self.limits, self.has_facility = pool, limits, has_facility
+        self.token = None if token is None else token.encode()
+
+    async def __call__(self, scope, receive, send) -> None:
+        try:
+            status, headers, body = await self._answer(scope, receive)
+        except _ClientGone:
+            status, headers, body = 400, [], b""   # no one reads it (uvicorn drops it)
+        except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
+            print(f"skynav serve: internal error on POST {scope['path']}: {exc.__class__.__name__}: {exc}",
+                  file=sys.stderr)
+            traceback.print_exc(file=sys.stderr)
+            status, headers, body = 500, [], _error_body("internal error; see the server's log")
+        if not headers:
+            headers = [(b"content-type", b"application/json")]
+        headers.append((b"content-length", b"%d" % len(body)))
+        await send({"type": "http.response.start", "status": status, "headers": headers})
+        await send({"type": "http.response.body", "body": body})
+
+    async def _answer(self, scope, receive):
+        """``(status, headers, body)`` of one request."""
+        auth = ctype = declared = None
+        for name, value in scope["headers"]:   # the first of each, as Starlette's headers.get
+            if name == b"authorization":
+                auth = value if auth is None else auth
+            elif name == b"content-type":
+                ctype = value if ctype is None else ctype
+            elif name == b"content-length":
+                declared = value if declared is None else declared
+        try:
+            if self.token is not None:
+                scheme, _, value = (auth or b"").decode("latin-1").partition(" ")
+                if not (scheme.lower() == "bearer"
+                        and hmac.compare_digest(value.strip().encode("latin-1"), self.token)):
+                    raise _HTTPError(401, "Authorization: expected 'Bearer TOKEN' with the server's --token")
+            kind = (ctype or b"application/json").decode("latin-1").split(";")[0].strip().lower()
+            if kind not in ("application/json", "application/x-www-form-urlencoded", ""):
+                raise _HTTPError(415, f"Content-Type {kind!r}: send the scene mapping as application/json")
+            body = await self._body(receive, declared)
+            mapping, outputs = parse_request(body, has_facility=self.has_facility, limits=self.limits)
+            answer = await self.pool.render(mapping, outputs)
+        except _HTTPError as exc:
+            return exc.status, [], _error_body(exc.message)
+        if answer[0] != "ok":
+            return (400 if answer[0] == "bad" else 500), [], _error_body(answer[1])
+        _, ctype, lines, seconds, body = answer
+        headers = [(b"content-type", ctype.encode("latin-1")), (b"skynav-render-seconds", b"%.6f" % seconds)]
+        if lines:
+            headers.append((b"skynav-warnings", " | ".join(lines).encode("ascii", "replace")[:4000]))
+        return 200, headers, body
+
+    async def _body(self, receive, declared) -> bytes:
+        bound = self.limits.max_request_bytes
+        if declared is not None:
+            try:
+                n = int(declared)
+            except ValueError:
+                raise _HTTPError(400, f"Content-Length {declared.decode('latin-1')!r}: not a number") from None
+            if n > bound:
+                raise _HTTPError(413, f"request body: {n} bytes; at most {bound} (--max-request-bytes)")
+        chunks, size = [], 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":   # http.disconnect
+                raise _ClientGone
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > bound:
+                raise _HTTPError(413, f"request body: more than {bound} bytes (--max-request-bytes)")
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                return chunks[0] if len(chunks) == 1 else b"".join(chunks)
+
+
 def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits()):
-    """The Starlette application of protocol v1 around a started :class:`WorkerPool`."""
+    """The ASGI application of protocol v1 around a started :class:`WorkerPool`: Starlette's, with
+    ``POST /v1/render`` taken by a :class:`RenderEndpoint` in front of it."""
     has_facility = pool.info.get("facility") is not None
     document = openapi_document()
+    render = RenderEndpoint(pool, token=token, limits=limits, has_facility=has_facility)
 
     async def health(request):
         return JSONResponse({"status": "ok", "api": "v1", "workers": pool.n, "busy": pool.busy, "waiting": pool.waiting,
@@ -283,51 +481,6 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
 
     async def openapi(request):
         return JSONResponse(document)
-
-    async def read_body(request) -> bytes:
-        declared = request.headers.get("content-length")
-        if declared is not None:
-            try:
-                n = int(declared)
-            except ValueError:
-                raise _HTTPError(400, f"Content-Length {declared!r}: not a number") from None
-            if n > limits.max_request_bytes:
-                raise _HTTPError(413, f"request body: {n} bytes; at most {limits.max_request_bytes} (--max-request-bytes)")
-        chunks, size = [], 0
-        async for chunk in request.stream():
-            size += len(chunk)
-            if size > limits.max_request_bytes:
-                raise _HTTPError(413, f"request body: more than {limits.max_request_bytes} bytes (--max-request-bytes)")
-            chunks.append(chunk)
-        return b"".join(chunks)
-
-    async def render(request):
-        try:
-            if token is not None:
-                given = request.headers.get(AUTH_HEADER, "")
-                scheme, _, value = given.partition(" ")
-                if not (scheme.lower() == "bearer" and hmac.compare_digest(value.strip().encode(), token.encode())):
-                    raise _HTTPError(401, "Authorization: expected 'Bearer TOKEN' with the server's --token")
-            ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
-            if ctype not in ("application/json", "application/x-www-form-urlencoded", ""):
-                raise _HTTPError(415, f"Content-Type {ctype!r}: send the scene mapping as application/json")
-            body = await read_body(request)
-            mapping, outputs = parse_request(body, has_facility=has_facility, limits=limits)
-            answer = await pool.render(mapping, outputs)
-        except _HTTPError as exc:
-            return _error(exc.status, exc.message)
-        except ClientDisconnect:
-            return Response(status_code=400)
-        kind = answer[0]
-        if kind == "bad":
-            return _error(400, answer[1])
-        if kind != "ok":
-            return _error(500, answer[1])
-        _, ctype, lines, seconds, body = answer
-        headers = {"Skynav-Render-Seconds": f"{seconds:.6f}", "content-type": ctype}
-        if lines:
-            headers["Skynav-Warnings"] = " | ".join(lines).encode("ascii", "replace").decode("ascii")[:4000]
-        return Response(body, headers=headers)
 
     async def http_error(request, exc):
         return _error(exc.status_code, f"{request.method} {request.url.path}: {exc.detail}")
@@ -339,7 +492,7 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
 
     routes = [Route(f"{API_PREFIX}/health", health, methods=["GET"]),
               Route(f"{API_PREFIX}/openapi.json", openapi, methods=["GET"]),
-              Route(f"{API_PREFIX}/render", render, methods=["POST"])]
+              Route(RENDER_PATH, render, methods=["POST"])]
 
     @asynccontextmanager
     async def lifespan(app):
@@ -347,8 +500,16 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
         yield
         pool.detach()
 
-    return Starlette(routes=routes, lifespan=lifespan,
-                     exception_handlers={HTTPException: http_error, Exception: internal_error})
+    app = Starlette(routes=routes, lifespan=lifespan,
+                    exception_handlers={HTTPException: http_error, Exception: internal_error})
+
+    async def front(scope, receive, send):
+        if scope["type"] == "http" and scope["method"] == "POST" and scope["path"] == RENDER_PATH:
+            await render(scope, receive, send)
+        else:
+            await app(scope, receive, send)
+
+    return front
 
 
 def is_loopback(host: str) -> bool:

@@ -71,6 +71,16 @@ def test_the_seed_is_the_scene_files_render_seed(client):
     assert np.array_equal(a, a2) and not np.array_equal(a, b)
 
 
+def test_a_seed_past_64_bits_is_the_scene_files_seed(client, tmp_path):
+    """The server reads a request with orjson unless a number may be an integer past 64 bits,
+    which orjson would read as a float (here a seed 2**97 + 3, as a float 2**97: another frame);
+    the scene file's seed is the integer, and so is the service's."""
+    mapping = small_scene(size=64, render={"seed": 2**97 + 3})
+    assert client.render(mapping, outputs=("png",)).png == _render_files(mapping, tmp_path, "long")["png"]
+    near = small_scene(size=64, render={"seed": 2**97})
+    assert client.render(near, outputs=("png",)).png != _render_files(mapping, tmp_path, "long")["png"]
+
+
 CLIENT_DECODES = """
 import json, sys
 from skynav.service import Client
