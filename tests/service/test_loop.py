@@ -136,7 +136,8 @@ def test_pointed_from_the_truth_the_loop_sees_the_datasets_attitudes():
     twist = np.radians(sim.recipe["sequence"]["twist_deg"])
     for k in (0, 1, len(sched) // 2, len(sched) - 1):
         t, _, _, target = sched[k]
-        R_loop = frames.quat_to_dcm(sim.scene(k, t, point_at(eph, target, t, *sim.state(t), twist))["attitude"]["q_cam_icrs"])
+        scene = sim.scene(k, t, point_at(eph, target, t, *sim.state(t), twist))
+        R_loop = frames.quat_to_dcm(scene["attitude"]["q_cam_icrs"])
         R_data = sim.plan.frame_request(k, frame_rng(5, k)).R_cam_icrs
         R_other = sim.plan.frame_request(k, frame_rng(6, k)).R_cam_icrs
         off = [np.degrees(np.arccos(min(1.0, (np.trace(R_loop @ R.T) - 1) / 2))) * 3600 / ifov_arcsec
