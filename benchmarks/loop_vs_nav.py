@@ -18,15 +18,24 @@ The per-rendering draw then cancels in the paired ratios (loop / nav per seed) a
 the RMS over seeds, which are printed with 90 % bootstrap intervals over the seeds (resampled
 jointly). ``--pointing-check`` also runs the loop pointed from the truth (the images a dataset
 would have: same seeds, same controller errors) to show what closing the loop costs.
-``--own-rendering`` also runs the former, unpaired design: nav on its own ``dataset generate``
-rendering of each seed (R in sample, ``bench nav``'s default), and compares the measurement noise
-calibrated on the two renderings (the service's frames against the dataset's, class by class).
+
+``--own-rendering`` also runs the unpaired design, ``bench loop`` against ``bench nav`` each as a
+user runs them: nav on its own ``dataset generate`` rendering of each seed (R in sample). The loop
+draws the controller's pointing errors of that dataset frame by frame
+(:meth:`skynav.service.loop.Simulator.scene`), so the two see the same cruise; they differ in
+where the closed loop points (its estimate, not the truth) and in the image noise (the service's
+``render.seed`` against the dataset's stream). It compares, class by class, the measurement noise
+calibrated on the two renderings and, frame by frame, the centroid errors on the dataset's frames
+against those on the loop's. ``--other-draw`` also runs the loop on another draw of the
+controller's errors and image noise (rendering 1): with ``--own-rendering``, the former unpaired
+design, two different cruises (the planet's pixel phase sets most of the centroid error).
 
 Printed per seed and over seeds: the RMS position error over the last leg, the final position
 error (3 x its RMS over the seeds: the final sample 3-sigma of ``bench nav``'s report) and the
 filter's final 3-sigma (3 sqrt of the trace of P's position block).
 
     python benchmarks/loop_vs_nav.py [--seeds 1 2 3 4] [--set sequence.track_s=900 ...] [--pointing-check]
+        [--own-rendering [--other-draw]]
 """
 
 from __future__ import annotations
@@ -86,8 +95,9 @@ def _generate(out, seed, sets):
     subprocess.run(cmd, check=True)
 
 
-def loop_side(seeds, sets, runs_seed, workdir, pointing_check):
-    """Per seed: the loop's R, its closed-loop run (frames kept) and, if asked, the run pointed from the truth."""
+def loop_side(seeds, sets, runs_seed, workdir, pointing_check, other_draw=False):
+    """Per seed: the loop's R, its closed-loop run (frames kept) and, if asked, the run pointed from
+    the truth and the run on another draw of the controller's errors (rendering 1)."""
     from skynav.pipeline.ekf import initial_covariance
     from skynav.service import Client, LocalServer
     from skynav.service.loop import Simulator, calibrate_loop_noise, run_loop
@@ -105,14 +115,19 @@ def loop_side(seeds, sets, runs_seed, workdir, pointing_check):
             noise = calibrate_loop_noise(sim, client, seed=s)
             t1 = time.perf_counter()
             kept = _Keeping(client, Path(workdir) / f"loop{s}")
-            run = run_loop(sim, kept, x0=x0, P0=P0, noise=noise, seed=runs_seed + s)
+            run = run_loop(sim, kept, x0=x0, P0=P0, noise=noise)
             last = np.array([lg for _, lg, _, _ in sim.schedule()]) == sim.schedule()[-1][1]
             rec = {"noise": noise, "images": kept.folder, "loop": _stats(run.error, run.cov, last),
                    "in_field": float(run.in_field.mean())}
             t2 = time.perf_counter()
             if pointing_check:
-                tr = run_loop(sim, client, x0=x0, P0=P0, noise=noise, seed=runs_seed + s, pointing="truth")
+                tr = run_loop(sim, client, x0=x0, P0=P0, noise=noise, pointing="truth")
                 rec["loop, pointed from the truth"] = _stats(tr.error, tr.cov, last)
+            if other_draw:
+                other = _Keeping(client, Path(workdir) / f"other{s}")
+                od = run_loop(sim, other, x0=x0, P0=P0, noise=noise, rendering=1)
+                rec["loop, another draw"] = _stats(od.error, od.cov, last)
+                rec["images, another draw"] = other.folder
             out[s] = rec
             print(f"  loop seed {s}: last-leg RMS {rec['loop'][0]:.0f} km, final {rec['loop'][1]:.0f} km, filter "
                   f"1-sigma {rec['loop'][2]:.0f} km; target in the field {100 * rec['in_field']:.0f} % (calibration "
@@ -148,8 +163,11 @@ def nav_side_paired(seeds, sets, runs_seed, workdir, loop):
 
 
 def nav_side_own_rendering(seeds, sets, runs_seed, workdir, loop):
-    """The unpaired design: bench nav on its own rendering of each seed (dataset generate), R in sample."""
+    """The unpaired design: bench nav on its own rendering of each seed (dataset generate), R in
+    sample; and frame by frame, the centroid errors on the dataset's frames against those on the
+    loop's (and the other draw's) frames."""
     from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan, run_campaign
+    from skynav.pipeline.scoring_nav_noise import centroid_errors
 
     for s in seeds:
         t0 = time.perf_counter()
@@ -161,6 +179,30 @@ def nav_side_own_rendering(seeds, sets, runs_seed, workdir, loop):
         loop[s]["nav, own rendering, R in sample"] = v = _stats(res.error[0], res.cov[0], plan.leg == plan.leg[-1])
         print(f"  nav (own rendering) seed {s}: last-leg RMS {v[0]:.0f} km, final {v[1]:.0f} km, filter 1-sigma "
               f"{v[2]:.0f} km ({time.perf_counter() - t0:.0f} s)", flush=True)
+        loop[s]["centroid errors, dataset frames"] = centroid_errors(plan, seed=s)
+        for name, key in (("loop frames", "images"), ("another draw", "images, another draw")):
+            if key in loop[s]:
+                loop[s][f"centroid errors, {name}"] = centroid_errors(load_plan(out, images=loop[s][key]), seed=s)
+
+
+def compare_centroids(records, seeds, a, b):
+    """Per class of measurement, over the frames both use: the correlation of the centroid errors
+    on frames ``a`` and ``b`` (both axes) and the RMS of their difference, px."""
+    e = {}
+    for s in seeds:
+        if a in records[s] and b in records[s]:
+            (ea, ka), (eb, kb) = records[s][a], records[s][b]
+            for i, k in enumerate(ka):
+                if k and k.split("/")[0] == kb[i].split("/")[0]:
+                    e.setdefault(k.split("/")[0], []).append(np.concatenate([ea[i], eb[i]]))
+    lines = [f"{a} / {b}, frame by frame (same frames, same predicted states):"] if e else []
+    for k, v in sorted(e.items()):
+        v = np.array(v)
+        x, y = v[:, :2].ravel(), v[:, 2:].ravel()
+        lines.append(f"  {k}: correlation {np.corrcoef(x, y)[0, 1]:.2f}, RMS of the difference "
+                     f"{np.sqrt(np.mean((x - y) ** 2)):.3f} px, RMS {np.sqrt(np.mean(x**2)):.3f} / "
+                     f"{np.sqrt(np.mean(y**2)):.3f} px ({len(v)} frames)")
+    return lines
 
 
 def compare_noise(records, seeds, a, b):
@@ -218,17 +260,21 @@ def main():
     ap.add_argument("--own-rendering", action="store_true",
                     help="also run nav on its own dataset rendering of each seed (the unpaired design)")
     ap.add_argument("--pointing-check", action="store_true", help="also run the loop pointed from the truth")
+    ap.add_argument("--other-draw", action="store_true",
+                    help="also run the loop on another draw of the controller's pointing errors and image noise "
+                         "(rendering 1; with --own-rendering: the unpaired design before the loop drew the dataset's)")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help="recipe overrides")
     args = ap.parse_args()
     print(f"loop against nav, sequence {' '.join(args.sets)}, seeds {args.seeds}; "
           f"load average {os.getloadavg()[0]:.1f}", flush=True)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
-        rec = loop_side(args.seeds, args.sets, args.runs_seed, d, args.pointing_check)
+        rec = loop_side(args.seeds, args.sets, args.runs_seed, d, args.pointing_check, args.other_draw)
         nav_side_paired(args.seeds, args.sets, args.runs_seed, d, rec)
         if args.own_rendering:
             nav_side_own_rendering(args.seeds, args.sets, args.runs_seed, d, rec)
-    cols = [c for c in ("loop", "loop, pointed from the truth", "nav, loop's R", "nav, R out of sample",
+    cols = [c for c in ("loop", "loop, pointed from the truth", "loop, another draw", "nav, loop's R",
+                        "nav, R out of sample",
                         "nav, R in sample", "nav, own rendering, R in sample") if any(c in rec[s] for s in args.seeds)]
     print(f"over the seeds ({time.perf_counter() - t0:.0f} s; load average {os.getloadavg()[0]:.1f}):")
     for c in cols:
@@ -243,10 +289,15 @@ def main():
             for line in compare(rec, args.seeds, c, "nav, R in sample"):
                 print(line)
     if args.own_rendering:
-        for line in compare(rec, args.seeds, "nav, R in sample", "nav, own rendering, R in sample"):
-            print(line)
+        for a in ("nav, R in sample", "loop, another draw"):
+            for line in compare(rec, args.seeds, a, "nav, own rendering, R in sample"):
+                print(line)
         for line in compare_noise(rec, args.seeds, "R, loop frames", "R, dataset frames"):
             print(line)
+        for name in ("loop frames", "another draw"):
+            for line in compare_centroids(rec, args.seeds, "centroid errors, dataset frames",
+                                          f"centroid errors, {name}"):
+                print(line)
 
 
 if __name__ == "__main__":

@@ -27,8 +27,8 @@ from .process import process_frame
 from .results import PredictedState
 from .scoring_nav_plan import NavInputError, observation
 
-__all__ = ["CentroidNoise", "MIN_CLASS_FRAMES", "BLEND_PX", "calibrate_sigma_px", "centroid_usable", "diameter_px",
-           "target_beacon", "track_bias_sigma"]
+__all__ = ["CentroidNoise", "MIN_CLASS_FRAMES", "BLEND_PX", "calibrate_sigma_px", "centroid_errors", "centroid_usable",
+           "diameter_px", "target_beacon", "track_bias_sigma"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -129,8 +129,29 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
     return replace(_fit_noise(plans[0], errs, diam, keys, tracks), renderings=len(plans))
 
 
+def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigma_velocity_km_s: float = 0.1,
+                    phase_offset: bool = True) -> tuple[np.ndarray, tuple]:
+    """Frame by frame, the centroid error :func:`calibrate_sigma_px` measures on ``plan``'s frames
+    (its predicted states drawn from ``seed`` as it draws them, so that two plans of one cruise
+    with different images see the same ones): ``(errors (F, 2) px, NaN where the target's centroid
+    is not used; class keys (F,), "" there)``. For comparing two renderings frame by frame."""
+    eph = default_ephemeris()
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
+    ds = sdat.open(plan.root)
+    out = ([], [], [], [], [])
+    _calibrate_rendering(plan, lambda i: observation(ds, plan, i), 0, stride=1, rng=rng, cat=None, eph=eph, out=out,
+                         sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
+                         phase_offset=phase_offset)
+    errs, _, keys, _, idx = out
+    e = np.full((plan.frames, 2), np.nan)
+    k = [""] * plan.frames
+    for j, i in enumerate(idx):
+        e[i], k[i] = errs[j], keys[j]
+    return e, tuple(k)
+
+
 def _calibrate_rendering(plan, get, ip, *, stride, rng, cat, eph, out, sigma_position_km, sigma_velocity_km_s, phase_offset):
-    errs, diam, keys, tracks = out
+    errs, diam, keys, tracks = out[:4]
     prev = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
@@ -157,6 +178,8 @@ def _calibrate_rendering(plan, get, ip, *, stride, rng, cat, eph, out, sigma_pos
             errs.append(np.asarray(b.xy_px) - m.xy_px)
             keys.append(f"{plan.target[i]}/{use}")
             tracks.append((ip, int(plan.leg[i]), plan.phase[i]))
+            if len(out) > 4:
+                out[4].append(i)
             diam.append(diameter_px(BODY_RADII_KM[plan.target[i]], np.linalg.norm(rp - plan.position_km[i]), obs.camera))
     return cat
 

@@ -117,19 +117,27 @@ class Simulator:
         r, v = self.plan.trajectory.state(t)
         return np.asarray(r, dtype=float).reshape(3), np.asarray(v, dtype=float).reshape(3)
 
-    def scene(self, k: int, t: float, R_commanded: np.ndarray, rng: np.random.Generator, rendering: int = 0) -> dict:
+    def scene(self, k: int, t: float, R_commanded: np.ndarray, rendering: int = 0) -> dict:
         """The scene mapping of frame ``k``: the true state, the commanded attitude with the controller's error.
 
-        ``rendering`` picks the image noise: frame ``k``'s render seed comes from
-        ``SeedSequence([seed, k])`` for rendering 0, ``SeedSequence([seed, k, rendering])`` otherwise
-        (the recipe's ``seed``), so that runs of one campaign may each see a rendering of their own."""
+        Frame ``k`` of rendering 0 draws from the dataset's stream of that frame,
+        ``default_rng(SeedSequence([seed, k]))`` (the recipe's ``seed``; CONVENTIONS.md), in the
+        dataset's order: the controller's pointing error (3 axes), then its rate jitter, as
+        ``skynav.datasets.sequence`` draws them, so that ``bench loop`` and ``dataset generate`` of
+        one recipe see the same controller errors, frame by frame, and differ only where the
+        command points. Those errors set the planet's pixel phase, and the centroid's pixel-phase
+        error (0.07 px for Mars's disc on the preset) is most of the frame's centroid error: two
+        draws of them are two different cruises (docs/service.md, "Accuracy against bench nav").
+        The render seed is ``SeedSequence([seed, k]).generate_state(1)[0]``. Rendering ``j > 0``
+        (later runs, the noise calibration) draws both from ``SeedSequence([seed, k, j])``."""
         s = self.recipe["sequence"]
+        key = [self.master_seed, k] + ([int(rendering)] if rendering else [])
+        rng = np.random.default_rng(np.random.SeedSequence(key))
         err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
         jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
         R = frames.rotation_vector_to_dcm(-err) @ np.asarray(R_commanded)   # as the dataset's sequence frames
         w_deg = np.asarray(s["angular_velocity_deg_s"], dtype=float) + np.degrees(jitter)
         r, v = self.state(t)
-        key = [self.master_seed, k] + ([int(rendering)] if rendering else [])
         seed = int(np.random.SeedSequence(key).generate_state(1)[0])
         return {"epoch": epoch_iso(t),
                 "observer": {"position_km": [float(x) for x in r], "velocity_km_s": [float(x) for x in v]},
@@ -218,13 +226,14 @@ def track_frames(schedule) -> dict:
 
 
 def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: str = "estimate",
-             realtime: float | None = None, seed: int = 0, rendering: int = 0, dynamics=None,
+             realtime: float | None = None, rendering: int = 0, dynamics=None,
              progress=None) -> LoopRun:
     """One closed-loop run over the simulator's frames, the frames asked of ``client``.
 
     ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.scoring_nav.CentroidNoise`
     (:func:`calibrate_loop_noise`, as ``bench nav`` calibrates it) or a sigma in px.
-    ``rendering``: which rendering of the cruise the run sees (:meth:`Simulator.scene`).
+    ``rendering``: which rendering of the cruise the run sees, its controller errors and image
+    noise (:meth:`Simulator.scene`; rendering 0: the controller errors of the recipe's dataset).
 
     ``pointing``: ``"estimate"`` (closed loop: the flight software's command) or ``"truth"`` (the
     command of a perfect estimate, as a dataset is pointed). ``realtime``: simulated seconds per
@@ -237,7 +246,6 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
     twist = math.radians(sim.recipe["sequence"]["twist_deg"]) if "twist_deg" in sim.recipe["sequence"] else 0.0
     fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], noise=noise, case=case, dynamics=dynamics,
                          twist_rad=twist, track_frames=track_frames(sched))
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x100B]))
     run = LoopRun(error=np.full((F, 6), np.nan), cov=np.full((F, 6, 6), np.nan), residual_px=np.full((F, 2), np.nan),
                   accepted=np.zeros(F, bool), status=[], in_field=np.zeros(F, bool), offset_px=np.full(F, np.inf),
                   measured_error_px=np.full((F, 2), np.nan), latency_s=np.zeros(F), step_s=np.zeros(F),
@@ -261,7 +269,7 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
             run.pairs.append((leg, plan_pair, None if choice is None else (choice.first, choice.second)))
         if pointing == "truth":
             R_cmd = point_at(fsw.eph, target, t, *sim.state(t), twist)
-        mapping = sim.scene(k, t, R_cmd, rng, rendering)
+        mapping = sim.scene(k, t, R_cmd, rendering)
         c1 = time.perf_counter()
         frame = client.render(mapping, outputs=("png", "truth"))
         c2 = time.perf_counter()
@@ -379,7 +387,6 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings:
     s = sim.recipe["sequence"]
     twist = math.radians(s.get("twist_deg", 0.0))
     eph = default_ephemeris()
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), CALIBRATION_RENDERING]))
     centre = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
     # pointed at the target from the truth: its pixel is the principal point, to the controller's error
     plan = replace(nav_plan(sim, []), target_xy_px=np.tile(centre, (len(sched), 1)))
@@ -387,7 +394,7 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings:
     def render(j, k):
         t, _, _, target = sched[k]
         R = point_at(eph, target, t, *sim.state(t), twist)
-        frame = client.render(sim.scene(k, t, R, rng, CALIBRATION_RENDERING + j), outputs=("png",))
+        frame = client.render(sim.scene(k, t, R, CALIBRATION_RENDERING + j), outputs=("png",))
         if progress is not None:
             progress(1)
         return observation(k, t, frame.dn, camera)

@@ -102,7 +102,7 @@ def cmd_loop(args) -> int:
 
             # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations
             runs = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
-                             seed=args.seed + i, rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
+                             rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
             if bias is not None:
                 b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
                 xb = nominal.copy()
@@ -110,7 +110,7 @@ def cmd_loop(args) -> int:
                 Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
                 for pointing in ("truth", "estimate"):
                     r = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case, pointing=pointing,
-                                 seed=args.seed, progress=tick)
+                                 progress=tick)
                     biased[pointing] = r
         client.close()
     total = time.perf_counter() - t0
@@ -178,7 +178,9 @@ def add_parser(sub) -> None:
                    help="measure the noise on every N-th frame (default: frames // 180, at least 1: about 180 frames; "
                         "each costs a frame from the service and its image processing)")
     p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial states and the pointing errors")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the initial states (the controller's pointing errors and the image noise come "
+                        "from the recipe's seed, frame by frame as in its dataset: --set seed=N)")
     p.add_argument("--limit", type=int, default=None, help="only the first N frames of the plan")
     p.add_argument("--bias-km", default="auto", metavar="KM",
                    help="also run a start this far off (auto: 1.5 half-fields at the first target; none: skip)")

@@ -258,3 +258,21 @@ def test_set_changes_the_filter_dynamics(seq, tmp_path, capsys):
         rc, err = _err([*common, *bad, "-o", str(tmp_path / "bad")], capsys)
         assert rc == 2 and len(err) == 1 and says in err[0] and err[0].startswith("skynav: error: "), err
         assert not (tmp_path / "bad").exists()
+
+
+def test_centroid_errors_are_the_calibrations_frame_by_frame(seq):
+    """``centroid_errors`` (benchmarks/loop_vs_nav.py compares two renderings of a cruise with it):
+    the frames ``calibrate_sigma_px`` measures, none lost or doubled, each error the centroid minus
+    the model at the true state (well under a pixel: the paper camera's planets, 0.05-0.15 px RMS),
+    NaN elsewhere; the same frames through ``--images`` give the same errors."""
+    from skynav.pipeline.scoring_nav import calibrate_sigma_px, load_plan
+    from skynav.pipeline.scoring_nav_noise import centroid_errors
+
+    plan = load_plan(seq)
+    e, keys = centroid_errors(plan, seed=3)
+    noise = calibrate_sigma_px(plan, seed=3)
+    used = np.array([bool(k) for k in keys])
+    assert used.sum() == noise.frames + noise.clipped > 0
+    assert np.isnan(e[~used]).all() and np.isfinite(e[used]).all() and np.abs(e[used]).max() < 0.5
+    again, _ = centroid_errors(load_plan(seq, images=seq / "frames"), seed=3)
+    np.testing.assert_array_equal(again, e)
