@@ -48,7 +48,7 @@ from .errors import RecipeError, SceneSamplingError
 from .plan import FrameRequest, epoch_iso
 from .recipes import PLANETS, recipe_visibility
 
-__all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan"]
+__all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan", "pointing_controller"]
 
 DAY_S = SECONDS_PER_DAY
 
@@ -155,6 +155,27 @@ def choose_pair(sky_list, *, limiting_v_mag: float, elongation_min_rad: float, p
     return a.name, b.name
 
 
+def pointing_controller(rng: np.random.Generator, sequence: dict, R_commanded: np.ndarray):
+    """The pointing controller's error model of a ``sequence`` recipe, drawn from ``rng``.
+
+    The pointing error ``err ~ N(0, pointing_error_deg^2)`` about each camera axis, then the rate
+    jitter ``N(0, jitter_rate_deg_s^2)`` per axis, in this order (a frame's stream: the dataset and
+    ``bench loop`` draw the same errors for the same frame); the camera turned by the small
+    rotation vector ``err`` (camera axes) from the commanded attitude: ``R = exp(-[err x]) R_commanded``.
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        The attitude the camera has (camera <- ICRS).
+    err : ndarray, shape (3,), rad
+    jitter : ndarray, shape (3,), rad/s
+        Added to the recipe's ``angular_velocity_deg_s``.
+    """
+    err = rng.normal(0.0, math.radians(sequence["pointing_error_deg"]), 3)
+    jitter = rng.normal(0.0, math.radians(sequence["jitter_rate_deg_s"]), 3)
+    return frames.rotation_vector_to_dcm(-err) @ R_commanded, err, jitter
+
+
 class SequencePlan:
     """Deterministic plan of a ``sequence`` recipe: transfer, trajectory, legs, frame epochs."""
 
@@ -242,10 +263,7 @@ class SequencePlan:
         sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
         body = next(b for b in sky[0] if b.name == target)
         R_nominal = frames.point_boresight(body.directions.u_icrs, math.radians(s["twist_deg"]))
-        err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
-        jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
-        # the camera turned by the small rotation vector err (camera axes): R = exp(-[err x]) R0
-        R = frames.rotation_vector_to_dcm(-err) @ R_nominal
+        R, err, jitter = pointing_controller(rng, s, R_nominal)
         w = np.radians(np.asarray(s["angular_velocity_deg_s"], dtype=float)) + jitter
         meta = {"kind": "sequence", "frame": int(k), "leg": int(leg), "phase": phase, "target": target,
                 "window_frame": int(j), "pointing_error_rad": [float(x) for x in err]}

@@ -33,6 +33,7 @@ from skynav.datasets.observation import Observation
 from skynav.datasets.plan import epoch_iso
 from skynav.datasets.recipes import recipe_camera
 from skynav.datasets.samplers import make_plan
+from skynav.datasets.sequence import pointing_controller
 from skynav.pipeline import NavFilter, OnboardCatalog, PredictedState, process_frame
 from skynav.pipeline.filter_dynamics import FilterDynamics
 from skynav.pipeline.measurement import CASES
@@ -122,8 +123,8 @@ class Simulator:
 
         Frame ``k`` of rendering 0 draws from the dataset's stream of that frame,
         ``default_rng(SeedSequence([seed, k]))`` (the recipe's ``seed``; CONVENTIONS.md), in the
-        dataset's order: the controller's pointing error (3 axes), then its rate jitter, as
-        ``skynav.datasets.sequence`` draws them, so that ``bench loop`` and ``dataset generate`` of
+        dataset's order: the controller's pointing error (3 axes), then its rate jitter
+        (:func:`skynav.datasets.sequence.pointing_controller`, the dataset's own), so that ``bench loop`` and ``dataset generate`` of
         one recipe see the same controller errors, frame by frame, and differ only where the
         command points. Those errors set the planet's pixel phase, and the centroid's pixel-phase
         error (0.07 px for Mars's disc on the preset) is most of the frame's centroid error: two
@@ -133,9 +134,7 @@ class Simulator:
         s = self.recipe["sequence"]
         key = [self.master_seed, k] + ([int(rendering)] if rendering else [])
         rng = np.random.default_rng(np.random.SeedSequence(key))
-        err = rng.normal(0.0, math.radians(s["pointing_error_deg"]), 3)
-        jitter = rng.normal(0.0, math.radians(s["jitter_rate_deg_s"]), 3)
-        R = frames.rotation_vector_to_dcm(-err) @ np.asarray(R_commanded)   # as the dataset's sequence frames
+        R, _, jitter = pointing_controller(rng, s, np.asarray(R_commanded))   # as the dataset's sequence frames
         w_deg = np.asarray(s["angular_velocity_deg_s"], dtype=float) + np.degrees(jitter)
         r, v = self.state(t)
         seed = int(np.random.SeedSequence(key).generate_state(1)[0])
