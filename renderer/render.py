@@ -335,8 +335,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     ExpectedImage
     """
     proj = _check_projection(scene, projection, own_size)
-    drawn = [] if support is None else support  # the pixels drawn, for ExpectedImage.support
-    support = drawn
+    support = [] if support is None else support  # the pixels drawn: ExpectedImage.support (and the caller's list)
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
@@ -417,13 +416,12 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     if background:
         electrons += options.background_e_per_px_s * T
         support.append(np.arange(electrons.size))
-    n_drawn = sum(a.size for a in drawn)
-    sparse = not background and n_drawn * 4 < electrons.size
+    sparse = not background and sum(a.size for a in support) * 4 < electrons.size
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
                          mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
                          body_centre_of_light=body_centre,
-                         support=(np.concatenate(drawn) if drawn else np.zeros(0, np.int64)) if sparse else None)
+                         support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
 
 
 def sensor_backend(requested: str) -> str:
@@ -470,11 +468,12 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
                          electrons=hits.pixel_electrons)
     hit, hit_e = charge.per_pixel()
     sensor = Sensor(cam.sensor, shape)
+    support = getattr(expected, "support", None)
     if options.noise:
         backend = sensor_backend(options.backend)
         # the LLVM sensor reads float32 electrons: converted once, and the same array, with the
         # pixels hit set below, is the frame's electrons image (no float64 copy goes through)
-        e_in = float32_image(electrons, getattr(expected, "support", None)) if backend == "llvm" else electrons
+        e_in = float32_image(electrons, support) if backend == "llvm" else electrons
         dn = sensor.expose(e_in, T, rng, backend=backend, extra_charge_e=charge)
     else:
         backend = "numpy"
@@ -482,7 +481,7 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         with_hits = electrons.copy()
         with_hits.reshape(-1)[hit] += hit_e
         dn = sensor.expected_dn(with_hits, T)
-    total = e_in if e_in.dtype == np.float32 else float32_image(electrons, getattr(expected, "support", None))
+    total = e_in if e_in.dtype == np.float32 else float32_image(electrons, support)
     total.reshape(-1)[hit] = electrons.reshape(-1)[hit] + hit_e  # summed in float64, rounded once
     return Detection(dn=dn, electrons=total, hits=hits, backend=backend)
 
