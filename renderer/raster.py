@@ -135,7 +135,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         Panel length of the streak quadrature, px (default ``psf.quadrature_step_px()`` or 0.05).
     support : list, optional
         Arrays of the flat indices of the pixels drawn are appended to it (every nonzero pixel is
-        among them), so a caller need not scan a large, mostly dark image.
+        among them, of ``also``'s image too), so a caller need not scan a large, mostly dark image.
     centre_of_light : ndarray, shape (N, 2), optional
         Filled with each source's centre of light, px: the first moment of its drawn stamps
         (pixel centres weighted by their charge, the parts off the image included), NaN for a
@@ -192,7 +192,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         drawn = np.isfinite(e) & (e != 0)
         if not np.array_equal(drawn, np.isfinite(e2) & (e2 != 0)):  # other sources drawn: two calls
             rasterize(shape, p, e2, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, out=out2,
-                      wavelength_nm=wavelength_nm, stamp_e=stamp_e)
+                      wavelength_nm=wavelength_nm, stamp_e=stamp_e, support=support)
             return rasterize(shape, p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, support=support,
                              centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm, stamp_e=stamp_e)
         image2 = out2.reshape(-1)

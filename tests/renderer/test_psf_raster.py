@@ -219,24 +219,31 @@ def test_sparse_accumulation_matches_the_full_bincount_and_reports_its_support()
 def test_also_draws_a_second_quantity_as_a_second_call(shape):
     """``also=(values, image)`` draws a second quantity with the stamps of the first: the same
     code on the same stamps, so each image is the one a call of its own gives, to the bit (the
-    render draws electrons and irradiance this way); support and centres of light are the first
-    quantity's. Sources drawn by one quantity and not the other (a zero or NaN in one) go through
-    two calls."""
+    render draws electrons and irradiance this way); centres of light are the first quantity's.
+    Sources drawn by one quantity and not the other (a zero or NaN in one) go through two calls,
+    and the support then holds the pixels of both (a source with irradiance and no electrons is
+    drawn in the irradiance image only: a pixel missed there would be lost from the frame's
+    float32 irradiance and left in the render's reused zero images)."""
     rng = np.random.default_rng(8)
     paths = np.concatenate([_random_paths(rng, 30, (64, 80), 0.0), _random_paths(rng, 10, (64, 80), 8.0)])
     paths[0] = [[-1.2, 10.0], [-1.2, 10.0]]  # partly off the left edge
+    paths[5] = [[shape[1] - 2.0, shape[0] + 0.3], [shape[1] - 2.0, shape[0] + 0.3]]  # alone, on the bottom edge
     e = rng.uniform(1, 1e3, 40)
     irr = e * 3.7e-15 * rng.uniform(0.5, 2.0, 40)
     psf = GaussianPSF(0.8)
-    for second in (irr, np.where(np.arange(40) == 3, 0.0, irr)):
+    for first, second in ((e, irr), (e, np.where(np.arange(40) == 3, 0.0, irr)), (np.where(np.arange(40) == 5, 0.0, e), irr)):
         s1, s2 = [], []
         c1, c2 = np.zeros((40, 2)), np.zeros((40, 2))
-        ref_e = rasterize(shape, paths, e, psf, support=s1, centre_of_light=c1)
+        ref_e = rasterize(shape, paths, first, psf, support=s1, centre_of_light=c1)
         ref_i = rasterize(shape, paths, second, psf)
         img_i = np.zeros(shape)
-        img_e = rasterize(shape, paths, e, psf, support=s2, centre_of_light=c2, also=(second, img_i))
+        img_e = rasterize(shape, paths, first, psf, support=s2, centre_of_light=c2, also=(second, img_i))
         assert np.array_equal(img_e, ref_e) and np.array_equal(img_i, ref_i)
-        assert np.array_equal(np.concatenate(s1), np.concatenate(s2)) and np.array_equal(c1, c2, equal_nan=True)
+        assert np.array_equal(c1, c2, equal_nan=True)
+        if second is irr and first is e:  # one call: the same support
+            assert np.array_equal(np.concatenate(s1), np.concatenate(s2))
+        for img in (img_e, img_i):
+            assert np.isin(np.flatnonzero(img), np.concatenate(s2)).all()
     with pytest.raises(ValueError, match="raster.also"):
         rasterize(shape, paths, e, psf, also=(irr[:5], np.zeros(shape)))
     with pytest.raises(ValueError, match="raster.also"):
