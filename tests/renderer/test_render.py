@@ -201,6 +201,32 @@ def test_support_holds_every_lit_pixel(scene, departure):
     assert expected_image(scene, rng=np.random.default_rng(2), options=RenderOptions(background_e_per_px_s=1.0)).support is None
 
 
+
+def test_a_frame_after_others_is_the_frame_alone(scene, departure):
+    """``render`` draws each frame into the float64 images of the frame before it, set back to
+    zero where that one drew (``_ZERO_IMAGES``): a pixel left over would add one frame's stars,
+    or the ray-traced Earth, to the next. Each frame of a run (stars; resolved bodies; a
+    background, which lights every pixel and is not reused; stars again) equals the same frame
+    rendered with no images kept from before."""
+    import importlib
+
+    render_module = importlib.import_module("skynav.renderer.render")
+    runs = [(departure, 3, RenderOptions()), (scene, 4, RenderOptions()), (departure, 5, RenderOptions(noise=False)),
+            (scene, 6, RenderOptions(background_e_per_px_s=2.0)), (scene, 7, RenderOptions()),
+            (scene, 8, RenderOptions(backend="numpy"))]
+    alone = []
+    for sc, seed, options in runs:
+        render_module._ZERO_IMAGES.clear()
+        alone.append(render(sc, seed=seed, options=options))
+    kept = 0
+    for (sc, seed, options), ref in zip(runs, alone):
+        kept += bool(render_module._ZERO_IMAGES)
+        got = render(sc, seed=seed, options=options)
+        for name in ("dn", "electrons", "irradiance_w_m2"):
+            assert np.array_equal(getattr(got, name), getattr(ref, name)), (seed, name)
+    assert kept >= 3  # the images were reused
+
+
 # ----------------------------------------------------------------------------- truth
 def _with_cosmic_rays(scene, options, rate):
     """The scene and options with ``rate`` cosmic rays per frame, wherever the rate lives."""
