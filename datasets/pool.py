@@ -63,10 +63,22 @@ class WarmHeap:
     Reference counting frees everything as before, so nothing else changes. The objects go back
     with :func:`gc.unfreeze` when the loop ends (a caller's process is left as it was); a process
     whose heap someone else froze is left alone.
+
+    The youngest generation is also collected less often: every :attr:`YOUNG` net new containers
+    instead of Python's 700. A frame's truth holds a few thousand containers, freed by reference
+    counting when the frame is written, so a collection every 700 found almost nothing and ran
+    ~5 times a frame (0.6 ms of a Monte Carlo frame; 467 objects freed in 1059 collections over
+    200 frames, measured with ``gc.callbacks``). The frames' own cycles (a sequence frame leaves
+    ~80 objects to the collector) are still collected, after at most :attr:`YOUNG` of them. The
+    thresholds go back on exit, as the freeze does.
     """
+
+    #: The youngest generation's threshold inside the loop (Python's default is 700).
+    YOUNG = 20_000
 
     def __init__(self):
         self.frozen = False
+        self.thresholds = None
 
     def __enter__(self):
         self.owner = gc.get_freeze_count() == 0
@@ -76,11 +88,14 @@ class WarmHeap:
         if self.owner and not self.frozen:
             gc.freeze()
             self.frozen = True
+            self.thresholds = gc.get_threshold()
+            gc.set_threshold(max(self.YOUNG, self.thresholds[0]), *self.thresholds[1:])
 
     def __exit__(self, *exc):
         if self.frozen:
             gc.unfreeze()
             self.frozen = False
+            gc.set_threshold(*self.thresholds)
         return False
 
 

@@ -217,17 +217,28 @@ def test_warm_heap_spares_the_warm_objects_and_still_collects_new_cycles():
         pass
 
     assert gc.get_freeze_count() == 0
+    thresholds = gc.get_threshold()
     warm = [[k] for k in range(1000)]
     with WarmHeap() as heap:
         heap.warm()
         assert gc.get_freeze_count() >= len(warm)  # the warm heap is out of the collector's walk
+        assert gc.get_threshold()[0] >= WarmHeap.YOUNG
         cycle = Node()
         cycle.me = cycle  # a frame's own reference cycle: freed only by the collector
         alive = weakref.ref(cycle)
         del cycle
         gc.collect()
         assert alive() is None
+        # ... and without an explicit collection, once YOUNG net new containers have been made
+        cycle = Node()
+        cycle.me = cycle
+        alive = weakref.ref(cycle)
+        del cycle
+        kept = [[k] for k in range(2 * WarmHeap.YOUNG)]
+        assert alive() is None
+        del kept
     assert gc.get_freeze_count() == 0  # the caller's process is as it was
+    assert gc.get_threshold() == thresholds
     gc.freeze()  # someone else froze this heap: WarmHeap leaves it alone
     try:
         fresh = [[0]]
