@@ -22,6 +22,7 @@ runner checkpoints the manifest from there, :mod:`skynav.datasets.finalise`).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import pickle
 import time
@@ -37,7 +38,7 @@ from skynav.scenes.scene import build_scene
 from . import layout
 from .atomic_files import atomic_write_many
 from .errors import DatasetMismatchError
-from .frame_files import encode_frame, sha256_file
+from .frame_files import encode_frame
 from .journal import write_record
 from .plan import frame_seed
 from .pool import THREAD_VARS, LargeArraysOnHeap, WarmHeap, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
@@ -182,7 +183,7 @@ def commit_frame(made: EncodedFrame) -> FrameResult:
     rel = layout.frame_relpaths(k, formats)
     paths = {fmt: made.out_dir / rel[fmt] for fmt in formats}
     atomic_write_many((paths[fmt], made.blobs[fmt]) for fmt in formats)  # on this (writer) thread, one folder fsync
-    files = {rel[fmt]: sha256_file(paths[fmt]) for fmt in formats}
+    files = {rel[fmt]: hashlib.sha256(made.blobs[fmt]).hexdigest() for fmt in formats}  # of the bytes written
     record = write_record(made.out_dir, k, files)  # the frame's commit point: written last, atomically
     t = made.timings_s
     return FrameResult(frame=k, files=files, index_row=layout.index_row(made.truth, k, files), draws=made.draws,
