@@ -1,0 +1,42 @@
+"""The speed figures of the README and the closing notes come from ``benchmarks/`` scripts: each
+named there runs here in its quickest form, so that a script that no longer runs is found by the
+suite, not by the next person who needs its numbers. Nothing is timed: the lines the figures are
+read from must be printed, with numbers in them."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, *args: str) -> str:
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), *args], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_dataset_bench_prints_the_file_system_and_each_preset_ratio(tmp_path):
+    out = _run("dataset_bench.py", "--small", "--no-scaling", "--split-frames", "2", "--warmup", "1", "--repeat", "1",
+               "--dir", str(tmp_path))
+    where = re.search(r"datasets written under (\S+), on (.+)", out)
+    assert where and Path(where.group(1)).parent == tmp_path, out
+    assert "mount options" in where.group(2) or "unknown" in where.group(2)
+    for preset in ("montecarlo", "sequence"):
+        line = re.search(rf"{preset} preset: dataset frame / its bare render, 1 thread, median of 1: ([0-9.]+) x", out)
+        assert line and float(line.group(1)) > 1.0, out  # a dataset frame is a render and more
+    assert not any(tmp_path.iterdir())  # its temporary folder is gone
+
+
+def test_render_bench_prints_both_paths_against_numpys_variates():
+    out = _run("render_bench.py", "--repeat", "2")
+    for path in ("llvm ", "numpy"):
+        line = re.search(rf"render, {path} sensor path: .* ratio to numpy variates +([0-9.]+)", out)
+        if path == "llvm " and line is None:
+            assert "llvm path: unavailable" in out, out  # no LLVM 19 here: the script says so instead
+            continue
+        assert line and float(line.group(1)) > 0, out
