@@ -258,3 +258,31 @@ def test_read_only_output_folder_is_one_line(small_tmpfs, capsys):
     assert main(["render", "-o", str(small_tmpfs / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not writable" in err[0], err
+
+
+def test_a_frame_that_fails_leaves_the_frames_before_it_written(small_reference, tmp_path, monkeypatch):
+    """The runner writes frame k on its writer thread while it makes frame k + 1: a failure while
+    frame k + 1 is made (here its scene build) must still leave frame k written with its record,
+    and the resume must end identical."""
+    from skynav.datasets import execute
+    from skynav.datasets.journal import read_record, record_relpath
+
+    real = execute.build_scene
+    calls = {"n": 0}
+
+    def fails_third(*a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise RuntimeError("scene build failed")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(execute, "build_scene", fails_third)
+    out = tmp_path / "ds"
+    with pytest.raises(RuntimeError, match="scene build failed"):
+        generate(recipe(), out, workers=1, progress=False)
+    for k in (0, 1):  # made before the failure: written, with their records
+        assert (out / record_relpath(k)).is_file() and read_record(out, k), k
+    assert not (out / record_relpath(2)).exists()
+    monkeypatch.setattr(execute, "build_scene", real)
+    generate(recipe(), out, workers=1, progress=False)
+    assert tree_sha256(out) == small_reference
