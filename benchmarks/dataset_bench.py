@@ -192,6 +192,25 @@ def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict,
     return r
 
 
+def _png_difference(a, b) -> str:
+    """How two PNGs of one frame differ, in words: their decoded DN, pixel by pixel."""
+    import numpy as np
+
+    from skynav.datasets.frame_files import read_png
+
+    try:
+        x, y = read_png(a).astype(int), read_png(b).astype(int)
+    except Exception as exc:  # noqa: BLE001 - a report line, not a check
+        return f"not decoded ({exc})"
+    if x.shape != y.shape:
+        return f"shapes {x.shape} and {y.shape}"
+    d = np.argwhere(x != y)
+    if not len(d):
+        return "the same DN, other bytes"
+    return (f"{len(d)} pixels differ, |dDN| up to {int(np.abs(x - y).max())}, rows {d[:, 0].min()}-{d[:, 0].max()}, "
+            f"columns {d[:, 1].min()}-{d[:, 1].max()}")
+
+
 def tree(root):
     root = Path(root)
     return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
@@ -353,8 +372,18 @@ def main(argv=None) -> int:
                       f"each {', '.join(f'{x:.2f}' for x in steady)}), {statistics.median(wall):.2f} x with start-up; "
                       f"{statistics.median(r['steady_fps'] for r in runs[two]):.2f} against "
                       f"{statistics.median(r['steady_fps'] for r in runs[one]):.2f} frames/s; load {min(loads):.1f}-{max(loads):.1f}")
-            trees = [tree(tmp / f"run{i}_{rep}") for i in range(len(setups)) for rep in range(a.repeat)]
-            print(f"folders byte-identical: {all(t == trees[0] for t in trees)}")
+            names = [f"run{i}_{rep}" for i in range(len(setups)) for rep in range(a.repeat)]
+            trees = {name: tree(tmp / name) for name in names}
+            first = trees[names[0]]
+            print(f"folders byte-identical: {all(t == first for t in trees.values())}")
+            for name, t in trees.items():
+                differ = sorted(k for k in set(t) | set(first) if t.get(k) != first.get(k))
+                if differ:
+                    label = setups[int(name[3:].split("_")[0])][0]
+                    print(f"  {label} #{int(name.split('_')[1]) + 1} differs from {setups[0][0]} #1 in {len(differ)} "
+                          f"file(s): {', '.join(differ[:6])}{' ...' if len(differ) > 6 else ''}")
+                    for rel in [r for r in differ if r.endswith(".png")][:3]:
+                        print(f"    {rel}: {_png_difference(tmp / names[0] / rel, tmp / name / rel)}")
     if a.plot:
         from skynav.datasets import preset_recipe as pr
         from skynav.datasets.plots import plot_leg_magnitudes
