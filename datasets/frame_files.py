@@ -50,7 +50,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from isal import isal_zlib
 from PIL import Image
 
 from skynav.scenes.camera import Camera
@@ -470,12 +469,12 @@ def unscale_png_to_dn(stored, bit_depth: int) -> np.ndarray:
     return ((2 * a.astype(np.int64) * m + top) // (2 * top)).astype(a.dtype)
 
 
-def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 1) -> None:
+def write_png(path, dn, *, bit_depth: int | None = None, compress_level: int = 6) -> None:
     """Write digital counts as a greyscale PNG, atomically: the bytes of :func:`png_bytes`."""
     atomic_write_bytes(path, png_bytes(dn, bit_depth=bit_depth, compress_level=compress_level))
 
 
-def png_bytes(dn, *, bit_depth: int | None = None, compress_level: int = 1) -> bytes:
+def png_bytes(dn, *, bit_depth: int | None = None, compress_level: int = 6) -> bytes:
     """Digital counts as the bytes of a greyscale PNG file (what :func:`write_png` writes).
 
     Parameters
@@ -491,8 +490,9 @@ def png_bytes(dn, *, bit_depth: int | None = None, compress_level: int = 1) -> b
         :data:`PNG_SCALING_KEY` = ``"sbit"``. Without it the values are stored as they are.
         :func:`read_png` gives the DN back either way.
     compress_level : int
-        Deflate level of ISA-L, 0..3 (the pixels are the same at every level; :func:`_png_bytes`
-        gives the measured sizes and times).
+        zlib level, 0..9 (the pixels are the same at every level). The rows are unfiltered and
+        compressed with zlib's run-length strategy (:func:`_png_bytes`), for which the level
+        changes little.
 
     Raises
     ------
@@ -520,8 +520,8 @@ def _png_file_bytes(dn, bit_depth, compress_level) -> bytes:
             raise OutputFormatError(f"PNG DN max {int(a.max())} exceeds {(1 << bit_depth) - 1} for bit depth {bit_depth}")
         a = scale_dn_to_png(a, int(bit_depth))
         sbit = int(bit_depth)
-    if not (isinstance(compress_level, (int, np.integer)) and 0 <= compress_level <= 3):
-        raise OutputFormatError(f"PNG compress_level = {compress_level!r}; expected an integer in 0..3 (ISA-L's deflate levels)")
+    if not (isinstance(compress_level, (int, np.integer)) and 0 <= compress_level <= 9):
+        raise OutputFormatError(f"PNG compress_level = {compress_level!r}; expected an integer in 0..9 (zlib's levels)")
     return _png_bytes(a, sbit, int(compress_level))
 
 
@@ -533,18 +533,19 @@ def _png_bytes(a: np.ndarray, sbit: int | None, level: int) -> bytes:
     """A greyscale PNG (PNG 2nd ed., ISO/IEC 15948): IHDR, ``sBIT`` and the ``tEXt`` marker when
     ``sbit`` is given, one IDAT, IEND. Filter type 0 (None) on every row (the frames are a dark,
     noisy, flat background with a few stars: a predictor finds nothing the entropy coder does
-    not), deflated by ISA-L (Intel's Intelligent Storage Acceleration Library, through ``isal``),
-    a standard zlib stream that every decoder reads; no time stamp. Measured on the default
-    frame (1024 x 1024, 8 bit; one thread, medians of 30; docs/conventions.md "What changed"):
-    ISA-L level 0: 0.12 ms, 22 kB; **1 (the default): 0.13 ms, 15 kB**; 2: 0.13 ms, 15 kB; 3: 1.2 ms,
-    15 kB; zlib's run-length strategy (skynav <= 0.3.x): 1.4 ms, 9 kB; Pillow's adaptive
-    filters with zlib: 13 ms, 16 kB."""
+    not), deflated by zlib with its run-length strategy ``Z_RLE`` (runs only, no string
+    matching); no time stamp. Measured on the default frame (1024 x 1024, 8 bit; one thread,
+    medians of 30; docs/conventions.md "What changed"): 1.3 ms, 9 kB; Pillow's adaptive filters
+    with zlib: 13 ms, 16 kB. ISA-L (``isal``, level 1) took 0.13 ms and 15 kB, but its bytes for
+    the same rows were not always the same from one process to the next (the DN were), so a
+    dataset's files were not reproducible; zlib's are."""
     h, w = a.shape
     if a.dtype == np.uint16:
         a = a.astype(">u2", copy=False)  # PNG samples are big-endian
     rows = np.zeros((h, 1 + w * a.dtype.itemsize), np.uint8)  # column 0: filter type 0 per row
     rows[:, 1:] = np.ascontiguousarray(a).view(np.uint8).reshape(h, -1)
-    idat = isal_zlib.compress(rows, level)
+    z = zlib.compressobj(level, zlib.DEFLATED, 15, 9, zlib.Z_RLE)
+    idat = z.compress(rows) + z.flush()
     ihdr = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8 * a.dtype.itemsize, 0, 0, 0, 0])
     out = [b"\x89PNG\r\n\x1a\n", _png_chunk(b"IHDR", ihdr)]
     if sbit is not None:

@@ -100,8 +100,8 @@ def screen_frame_bytes(facility, scene, *, source: dict, seed: int = 0, options=
     return png_bytes(sf.dn, bit_depth=sc.bit_depth, compress_level=SCREEN_PNG_LEVEL), rec
 
 
-#: Deflate level of the screen PNGs (datasets.frame_files.png_bytes, ISA-L's 0..3): screen frames
-#: hold ~2.5 times a camera frame's pixels, nearly all black; level 1 is ISA-L's fast one.
+#: zlib level of the screen PNGs (datasets.frame_files.write_png): screen frames hold ~2.5 times a
+#: camera frame's pixels, nearly all black; level 1 writes them in a third of level 6's time.
 SCREEN_PNG_LEVEL = 1
 
 EXPORT_MANIFEST = "export.json"
