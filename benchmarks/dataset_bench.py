@@ -192,6 +192,27 @@ def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict,
     return r
 
 
+def _png_chunk_difference(x: bytes, y: bytes) -> str:
+    """Which chunks of two PNG files differ (type, the two payload sizes, the first byte that differs)."""
+    def chunks(data):
+        out, p = [], 8
+        while p + 8 <= len(data):
+            n = int.from_bytes(data[p:p + 4], "big")
+            out.append((data[p + 4:p + 8].decode("latin-1"), data[p + 8:p + 8 + n]))
+            p += 12 + n
+        return out
+
+    cx, cy = chunks(x), chunks(y)
+    words = [f"sizes {len(x)} and {len(y)}"]
+    for (tx, px), (ty, py) in zip(cx, cy):
+        if tx != ty or px != py:
+            first = next((i for i, (u, v) in enumerate(zip(px, py)) if u != v), min(len(px), len(py)))
+            words.append(f"{tx}/{ty} {len(px)} and {len(py)} bytes, first difference at byte {first}")
+    if len(cx) != len(cy):
+        words.append(f"{len(cx)} and {len(cy)} chunks")
+    return "; ".join(words)
+
+
 def _png_difference(a, b) -> str:
     """How two PNGs of one frame differ, in words: their decoded DN, pixel by pixel."""
     import numpy as np
@@ -206,7 +227,7 @@ def _png_difference(a, b) -> str:
         return f"shapes {x.shape} and {y.shape}"
     d = np.argwhere(x != y)
     if not len(d):
-        return "the same DN, other bytes"
+        return f"the same DN, other bytes: {_png_chunk_difference(Path(a).read_bytes(), Path(b).read_bytes())}"
     return (f"{len(d)} pixels differ, |dDN| up to {int(np.abs(x - y).max())}, rows {d[:, 0].min()}-{d[:, 0].max()}, "
             f"columns {d[:, 1].min()}-{d[:, 1].max()}")
 
