@@ -7,7 +7,8 @@ order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ on
 :func:`produce_frame` runs:
 
 - :func:`run_in_process` (``workers=1``): in this process, in order; frame k's files are written on
-  a writer thread while frame k + 1 is made (:func:`make_frame`, :func:`commit_frame`).
+  a writer thread while frame k + 1 is rendered and encoded (:func:`make_frame`,
+  :func:`commit_frame`).
 - :func:`run_process_pool` (``workers=N``): skynav's one process pool,
   :func:`skynav.datasets.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
   module docstring says why), one job per run of up to :data:`POOL_CHUNK` consecutive frames,
@@ -137,9 +138,10 @@ class EncodedFrame:
 
 
 def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
-               render_options=None) -> EncodedFrame:
+               render_options=None, before_render=None) -> EncodedFrame:
     """The first half of :func:`produce_frame` (same parameters): sample, render and encode
-    frame ``k`` in memory."""
+    frame ``k`` in memory. ``before_render``: called with no argument once the scene is built,
+    right before the render (:func:`_made_and_written` starts writing the frame before there)."""
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
@@ -160,6 +162,8 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
     own = {k: getattr(req, k) for k in ("cosmic_rays_per_frame", "mitsuba_spp") if getattr(req, k) is not None}
     if own:  # a scene's own render keys (scenes recipes)
         options = dataclasses.replace(options, **own)
+    if before_render is not None:
+        before_render()
     t1 = time.perf_counter()
     frame = render(scene, seed=ss, rng=rng, options=options)
     t2 = time.perf_counter()
@@ -228,26 +232,46 @@ def _jobs(plan):
                   for k in plan.todo]
 
 
-def _make_job(job):
+def _make_job(job, before_render=None):
     blob, k, out_dir, master_seed, formats, mag, options = job
     return make_frame(blob, k, out_dir, master_seed=master_seed, formats=formats, catalog_limiting_v_mag=mag,
-                      render_options=options)
+                      render_options=options, before_render=before_render)
 
 
 def _made_and_written(jobs, accept) -> None:
     """Make the jobs' frames in order, frame k's files written (:func:`commit_frame`) on a writer
     thread while this thread makes frame k + 1; ``accept`` sees each frame in order, after its
     record is written. A failure in either half ends the loop once the frame being written is
-    complete. After the first frame the collector leaves the warm heap alone (:class:`WarmHeap`);
-    the frames' images come from glibc's heap even in a Dask worker (:class:`LargeArraysOnHeap`)."""
+    complete (a frame made before a failure is written). After the first frame the collector
+    leaves the warm heap alone (:class:`WarmHeap`); the frames' images come from glibc's heap even
+    in a Dask worker (:class:`LargeArraysOnHeap`).
+
+    Frame k is handed to the writer when frame k + 1's render begins, not when frame k is made:
+    the writer's own Python (paths, checksums, the record) then runs while the render's Dr.Jit
+    kernels hold no GIL, instead of taking turns with the sampler's Python. Measured on the
+    Monte Carlo preset, one thread, six alternating pairs of 300 frames: 0.3-2.4 ms less CPU a
+    frame (22.4-23.3 against 22.7-25.4 ms), and less wall-clock time, in every pair."""
     with LargeArraysOnHeap(), WarmHeap() as heap, ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
-        pending = None
-        for j in jobs:
-            made = _make_job(j)
-            heap.warm()
-            if pending is not None:
-                accept(pending.result())
-            pending = writer.submit(commit_frame, made)
+        pending = made = None
+
+        def start_writing():
+            nonlocal pending, made
+            if made is not None:
+                pending, made = writer.submit(commit_frame, made), None
+
+        try:
+            for j in jobs:
+                nxt = _make_job(j, before_render=start_writing)
+                heap.warm()
+                start_writing()
+                if pending is not None:
+                    done, pending = pending, None
+                    accept(done.result())
+                made = nxt
+        except BaseException:
+            start_writing()  # the frame made before the failure is still written (the writer finishes it)
+            raise
+        start_writing()
         if pending is not None:
             accept(pending.result())
 
@@ -274,9 +298,9 @@ def run_in_process(plan, accept) -> tuple:
     """Make the plan's frames here, in order. Returns ``(workers, executor name)``.
 
     Frame k's files are written (:func:`commit_frame`) on a writer thread while this thread
-    samples, renders and encodes frame k + 1: the writes wait on the disk (fsync) with the GIL
-    released, so the wait overlaps the next frame's work even on one core. ``accept`` still
-    sees every frame in order, after its record is written.
+    renders and encodes frame k + 1 (:func:`_made_and_written`): the writes wait on the disk
+    (fsync) with the GIL released, so the wait overlaps the next frame's work even on one core.
+    ``accept`` still sees every frame in order, after its record is written.
     """
     _, jobs = _jobs(plan)
     _made_and_written(jobs, accept)
