@@ -263,7 +263,7 @@ def _made_and_written(jobs, accept) -> None:
             for j in jobs:
                 nxt = _make_job(j, before_render=start_writing)
                 heap.warm()
-                start_writing()
+                start_writing()  # (make_frame called it before its render; a frame is never left unwritten)
                 if pending is not None:
                     done, pending = pending, None
                     accept(done.result())

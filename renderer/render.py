@@ -373,9 +373,10 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             paths[len(star_e) + j] += off
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
-    electrons, irradiance = zeros if zeros is not None else (np.zeros(shape), np.zeros(shape))
-    if not with_irradiance:
-        irradiance = None
+    if zeros is not None:
+        electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
+    else:
+        electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
     if not poly:
         rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre, out=electrons,
                   also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts)

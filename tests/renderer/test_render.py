@@ -201,7 +201,6 @@ def test_support_holds_every_lit_pixel(scene, departure):
     assert expected_image(scene, rng=np.random.default_rng(2), options=RenderOptions(background_e_per_px_s=1.0)).support is None
 
 
-
 def test_a_frame_after_others_is_the_frame_alone(scene, departure):
     """``render`` draws each frame into the float64 images of the frame before it, set back to
     zero where that one drew (``_ZERO_IMAGES``): a pixel left over would add one frame's stars,
