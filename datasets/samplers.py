@@ -32,7 +32,7 @@ from skynav.scenes.config import scene_spec_from_mapping
 from skynav.scenes.constants import AU_KM, GM_KM3_S2, OBLIQUITY_J2000_RAD
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import ObserverInsideBodyError
-from skynav.scenes.scene import SCENE_BODIES, resolve_spec, sky_bodies, sky_sun
+from skynav.scenes.scene import SCENE_BODIES, resolve_spec, sky_bodies, sky_bodies_and_sun
 from skynav.scenes.timescales import tdb_seconds
 
 from .errors import SceneSamplingError
@@ -196,13 +196,14 @@ class MonteCarloPlan:
                 sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
                 ok, facts = keep_filters_pass(s["keep"], sky, R, self.camera, self.visibility)
                 return ok, facts, sky
-            sun = sky_sun(t, r, v, ephemeris=self.ephemeris)  # once for both parts
-            part, sun_u = sky_bodies(t, r, v, ephemeris=self.ephemeris, names=candidates, sun=sun)
+            # the Sun with the candidates, once for both parts
+            part, sun = sky_bodies_and_sun(t, r, v, ephemeris=self.ephemeris, names=candidates)
+            sun_u = np.asarray(sun.u_icrs, dtype=float)
             ok, facts = keep_filters_pass(s["keep"], (part, sun_u), R, self.camera, self.visibility)
             if not ok:
                 return False, None, None
-            rest, _ = sky_bodies(t, r, v, ephemeris=self.ephemeris, sun=sun,
-                                 names=tuple(n for n in SCENE_BODIES if n not in candidates))
+            rest, _ = sky_bodies_and_sun(t, r, v, ephemeris=self.ephemeris, sun=sun,
+                                         names=tuple(n for n in SCENE_BODIES if n not in candidates))
         except ObserverInsideBodyError:
             return False, None, None
         by_name = {b.name: b for b in part + rest}

@@ -38,7 +38,8 @@ _LAZY = {
     "to_time": "timescales", "tdb_seconds": "timescales", "time_from_tdb_seconds": "timescales",
     "StarCatalog": "catalog_hipparcos", "load_catalog": "catalog_hipparcos",
     "planet_v_mag": "photometry", "phase_angle_rad": "photometry",
-    "BodyDirections": "apparent", "apparent_body": "apparent", "apparent_star_directions": "apparent",
+    "BodyDirections": "apparent", "apparent_body": "apparent", "apparent_bodies": "apparent",
+    "apparent_star_directions": "apparent",
     # frames (CONVENTIONS.md: passive R_cam_icrs, scalar-first quaternions)
     "radec_to_unit": "frames", "unit_to_radec": "frames", "radec_twist_to_dcm": "frames",
     "dcm_to_radec_twist": "frames", "quat_to_dcm": "frames", "dcm_to_quat": "frames", "point_boresight": "frames",

@@ -6,8 +6,9 @@ The renderer is the truth (CONVENTIONS.md, "Apparent directions"), so nothing he
 What is modelled
 ----------------
 1. Light-time, iterated (Newton's method on ``|r_b(t - tau) - r_o(t)| = c tau``) until the step
-   is below 1e-10 s; the emission epoch ``t - tau`` is kept as two parts so the ephemeris is read
-   at it to ~1e-11 s, not to the ~2e-7 s resolution of a float of seconds past J2000.
+   is below 1e-10 s (the position then moved by ``-v step``, exact to < 1e-24 km); the emission
+   epoch ``t - tau`` is kept as two parts so the ephemeris is read at it to ~1e-11 s, not to the
+   ~2e-7 s resolution of a float of seconds past J2000.
 2. Gravitational light deflection by the Sun, PPN gamma = 1, for a target at a finite distance
    (ERFA ``eraLd``; Kaplan et al. 2005, NOVAS ``grav_vec``; Klioner 2003 AJ 125, 1580). The Sun is
    taken where it was when the ray passed closest to it (as NOVAS and skyfield do). For stars the
@@ -232,36 +233,52 @@ def position_at(eph, body, t_tdb_s, offset_s=0.0):
         return _pv(eph, body, t_tdb_s, offset_s)[0]
 
 
-def _light_time(eph, body, r_obs, t_tdb_s):
-    """Newton iteration on f(tau) = |r_b(t - tau) - r_o| - c tau; returns (tau, r_b at t - tau,
-    r_b at t)."""
-    r_b, v_b = _pv(eph, body, t_tdb_s, 0.0)
-    r_geo = r_b
-    tau = np.linalg.norm(r_b - r_obs) / C_KM_S
+def _light_times(eph, bodies, r_obs, t_tdb_s):
+    """Newton's method on f(tau) = |r_b(t - tau) - r_o| - c tau, f'(tau) = -(rho_hat . v_b) - c,
+    for each body, the bodies as rows of arrays; each body stops at its own first step below
+    :data:`LIGHT_TIME_TOL_S`. Returns (tau (n,), r_b at t - tau (n, 3), r_b at t (n, 3)).
+
+    The first step is taken from tau = 0 with the state at t (read anyway for the geometric
+    direction). After the last step (< 1e-10 s) the position is moved by ``-v_b step``: its
+    neglected term, ``|a_b| step^2 / 2 < 1e-24 km``, is far below a float's resolution of a
+    position (~1e-8 km), so the ephemeris is not read again."""
+    states = [_pv(eph, b, t_tdb_s, 0.0) for b in bodies]
+    r_geo = np.array([s[0] for s in states], dtype=float).reshape(-1, 3)
+    r_b = r_geo.copy()
+    v_b = np.array([s[1] for s in states], dtype=float).reshape(-1, 3)
+    tau = np.zeros(len(bodies))
+    going = np.ones(len(bodies), bool)  # bodies still iterating
     for _ in range(20):
-        r_b, v_b = _pv(eph, body, t_tdb_s, -tau)
         rho = r_b - r_obs
-        d = np.linalg.norm(rho)
-        # f'(tau) = -(rho_hat . v_b) - c ; Newton step tau -= f / f'
-        step = (d - C_KM_S * tau) / (C_KM_S + np.dot(rho, v_b) / d)
+        d = np.linalg.norm(rho, axis=-1)
+        step = np.where(going, (d - C_KM_S * tau) / (C_KM_S + np.sum(rho * v_b, axis=-1) / d), 0.0)
         tau += step
-        if abs(step) < LIGHT_TIME_TOL_S:
-            return tau, position_at(eph, body, t_tdb_s, -tau), r_geo
-    raise RuntimeError(f"light-time to {body} did not converge (last step {step:.3g} s)")
+        last = going & (np.abs(step) < LIGHT_TIME_TOL_S)
+        if last.any():
+            r_b[last] -= v_b[last] * step[last, None]
+            going &= ~last
+        if not going.any():
+            return tau, r_b, r_geo
+        todo = np.flatnonzero(going).tolist()
+        states = [_pv(eph, bodies[i], t_tdb_s, -float(tau[i])) for i in todo]
+        r_b[todo] = np.array([s[0] for s in states], dtype=float).reshape(-1, 3)
+        v_b[todo] = np.array([s[1] for s in states], dtype=float).reshape(-1, 3)
+    i = int(np.flatnonzero(going)[0])
+    raise RuntimeError(f"light-time to {bodies[i]} did not converge (last step {step[i]:.3g} s)")
 
 
-def apparent_body(
-    eph, body, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True, sun_position_km=None
-) -> BodyDirections:
-    """Apparent direction of a solar-system body: light-time, Sun deflection, aberration.
+def apparent_bodies(
+    eph, bodies, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True, sun_position_km=None
+) -> tuple:
+    """Apparent directions of solar-system bodies: light-time, Sun deflection, aberration.
 
     Parameters
     ----------
     eph : Ephemeris
         Anything with ``position_velocity(body, t_tdb_s, offset_s=0.0)`` returning barycentric
         ICRS km and km/s (``skynav.scenes.ephemeris_jpl.Ephemeris``).
-    body : str
-        Body name, one of ``ephemeris_jpl.BODIES``.
+    bodies : sequence of str
+        Body names, each one of ``ephemeris_jpl.BODIES``.
     observer_position_km, observer_velocity_km_s : ndarray, shape (3,)
         Observer's barycentric ICRS state at reception, km and km/s.
     t_tdb_s : float
@@ -270,42 +287,66 @@ def apparent_body(
         Apply the Sun's light deflection (never applied to the Sun itself).
     sun_position_km : ndarray, shape (3,), optional
         The Sun's barycentric position at ``t_tdb_s`` as ``eph.position("sun", t_tdb_s)`` gives
-        it, from a caller that computes several bodies at one epoch (read here when not given).
+        it, from a caller that has it (read here when not given).
 
     Returns
     -------
-    BodyDirections
+    tuple of BodyDirections
+        One per body, in the order of ``bodies``. The bodies are computed together, as rows of
+        arrays (one formula for one body or ten; each body's numbers depend on that body alone).
     """
+    bodies = tuple(bodies)
     r_obs = np.asarray(observer_position_km, dtype=float).reshape(3)
     v_obs = np.asarray(observer_velocity_km_s, dtype=float).reshape(3)
     t_tdb_s = float(t_tdb_s)
-    tau, r_b, r_geo = _light_time(eph, body, r_obs, t_tdb_s)
-    sun_emit = position_at(eph, "sun", t_tdb_s, -tau)
+    tau, r_b, r_geo = _light_times(eph, bodies, r_obs, t_tdb_s)
+    taus = tau.tolist()
+    sun_emit = np.array([position_at(eph, "sun", t_tdb_s, -ti) for ti in taus], dtype=float).reshape(-1, 3)
     rho = r_b - r_obs
-    distance_km = float(np.linalg.norm(rho))
-    u_lt = rho / distance_km
+    distance_km = np.linalg.norm(rho, axis=-1)
+    u_lt = rho / distance_km[:, None]
     u = u_lt
-    if deflection and body != "sun":
+    bent = [i for i, b in enumerate(bodies) if deflection and b != "sun"]
+    if bent:
         # Sun where the ray passed closest to it (NOVAS/skyfield): time from the point of
         # closest approach to the observer, clipped to [0, tau].
-        sun_now = position_at(eph, "sun", t_tdb_s, 0.0) if sun_position_km is None else sun_position_km
-        dlt = np.clip(np.dot(sun_now - r_obs, u_lt) / C_KM_S, 0.0, tau)
-        sun_close = position_at(eph, "sun", t_tdb_s, -dlt)
-        u = deflect_by_sun(u_lt, r_b, r_obs, sun_close)
+        if sun_position_km is not None:
+            sun_now = sun_position_km
+        elif "sun" in bodies:  # its state at t, read for its geometric direction
+            sun_now = r_geo[bodies.index("sun")]
+        else:
+            sun_now = position_at(eph, "sun", t_tdb_s, 0.0)
+        dlt = np.clip(np.sum((np.asarray(sun_now, dtype=float) - r_obs) * u_lt[bent], axis=-1) / C_KM_S, 0.0, tau[bent])
+        sun_close = np.array([position_at(eph, "sun", t_tdb_s, -x) for x in dlt.tolist()], dtype=float).reshape(-1, 3)
+        u = u_lt.copy()
+        u[bent] = deflect_by_sun(u_lt[bent], r_b[bent], r_obs, sun_close)
     u_app = aberrate(u, v_obs)
     geo = r_geo - r_obs
-    geo_d = float(np.linalg.norm(geo))
-    return BodyDirections(
-        u_geometric=geo / geo_d,
-        u_light_time=u_lt,
-        u_icrs=u_app,
-        light_time_s=float(tau),
-        distance_km=distance_km,
-        geometric_distance_km=geo_d,
-        position_km=r_b,
-        sun_position_km=sun_emit,
-        observer_position_km=r_obs,
+    geo_d = np.linalg.norm(geo, axis=-1)
+    u_geo = geo / geo_d[:, None]
+    return tuple(
+        BodyDirections(
+            u_geometric=u_geo[i],
+            u_light_time=u_lt[i],
+            u_icrs=u_app[i],
+            light_time_s=taus[i],
+            distance_km=float(distance_km[i]),
+            geometric_distance_km=float(geo_d[i]),
+            position_km=r_b[i],
+            sun_position_km=sun_emit[i],
+            observer_position_km=r_obs,
+        )
+        for i in range(len(bodies))
     )
+
+
+def apparent_body(
+    eph, body, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True, sun_position_km=None
+) -> BodyDirections:
+    """Apparent direction of one solar-system body: :func:`apparent_bodies` of ``(body,)``
+    (same parameters, ``body`` one of ``ephemeris_jpl.BODIES``)."""
+    return apparent_bodies(eph, (body,), observer_position_km, observer_velocity_km_s, t_tdb_s, deflection=deflection,
+                           sun_position_km=sun_position_km)[0]
 
 
 def sun_apparent_direction(eph, observer_position_km, observer_velocity_km_s, t_tdb_s) -> BodyDirections:

@@ -178,29 +178,48 @@ def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, na
 
     Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun. ``sun``: the
     Sun's :class:`~skynav.scenes.apparent.BodyDirections` for this epoch and observer when the
-    caller has it (:func:`sky_sun`; a caller asking for the bodies in two parts), else computed.
+    caller has it (:func:`sky_bodies_and_sun`; a caller asking for the bodies in two parts), else
+    computed with the bodies.
 
     Raises
     ------
     ObserverInsideBodyError
         When the observer is inside one of the bodies (geometric distance <= radius).
     """
+    bodies, sun = sky_bodies_and_sun(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=names, sun=sun)
+    return bodies, np.asarray(sun.u_icrs, dtype=float)
+
+
+def sky_bodies_and_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES, sun=None):
+    """:func:`sky_bodies`, with the Sun's :class:`~skynav.scenes.apparent.BodyDirections` in
+    place of its unit vector: ``(tuple of SkyBody, sun)``. Without ``sun``, the Sun is computed
+    together with the bodies (one :func:`~skynav.scenes.apparent.apparent_bodies` call); with
+    it, only the bodies (the second part of a caller asking for the bodies in two parts).
+
+    Raises
+    ------
+    ObserverInsideBodyError
+        When the observer is inside the Sun or one of the bodies (geometric distance <= radius).
+    """
     eph = ephemeris or default_ephemeris()
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)
+    names = tuple(names)
     try:
         # at a body's centre the light-time step divides by zero before the error below names
         # the body: numpy's floating-point warnings are silenced here (a NaN still fails later)
         with np.errstate(divide="ignore", invalid="ignore"):
             if sun is None:
-                sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
+                sun, *dirs = apparent.apparent_bodies(eph, ("sun",) + names, r, v, t_tdb_s)
+            else:
+                dirs = apparent.apparent_bodies(eph, names, r, v, t_tdb_s) if names else ()
             if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
                 raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
-            return _sky_bodies(eph, t_tdb_s, r, v, sun, names)
+            return _sky_bodies(r, sun, names, dirs), sun
     except ObserverInsideBodyError:
         raise
     except Exception:
-        _name_the_body(eph, t_tdb_s, r, ("sun",) + tuple(names))
+        _name_the_body(eph, t_tdb_s, r, ("sun",) + names)
         raise
 
 
@@ -213,18 +232,7 @@ def sky_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None):
     ObserverInsideBodyError
         When the observer is inside the Sun.
     """
-    eph = ephemeris or default_ephemeris()
-    r = np.asarray(position_km, dtype=float)
-    v = np.asarray(velocity_km_s, dtype=float)
-    try:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sun = apparent.sun_apparent_direction(eph, r, v, t_tdb_s)
-    except Exception:
-        _name_the_body(eph, t_tdb_s, r, ("sun",))
-        raise
-    if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
-        raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
-    return sun
+    return sky_bodies_and_sun(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=())[1]
 
 
 def _name_the_body(eph, t_tdb_s, r, names) -> None:
@@ -239,23 +247,26 @@ def _name_the_body(eph, t_tdb_s, r, names) -> None:
             raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r) from None
 
 
-def _sky_bodies(eph, t_tdb_s, r, v, sun, names):
-    out = []
-    # the Sun at the epoch, read once for every body's deflection (apparent_body's own read)
-    sun_now = apparent.position_at(eph, "sun", t_tdb_s) if names else None
-    for name in names:
-        d = apparent.apparent_body(eph, name, r, v, t_tdb_s, sun_position_km=sun_now)
-        radius = BODY_RADII_KM[name]
+def _sky_bodies(r, sun, names, dirs):
+    """The :class:`SkyBody` of each body from its directions (its magnitude, phase, elongation
+    and size), the bodies as rows of arrays."""
+    if not names:
+        return ()
+    radii = np.array([BODY_RADII_KM[n] for n in names])
+    for name, d, radius in zip(names, dirs, radii.tolist()):
         if d.geometric_distance_km <= radius:
             raise ObserverInsideBodyError(name, d.geometric_distance_km, radius, r)
-        phase = float(photometry.phase_angle_rad(d.position_km, d.sun_position_km, r))
-        sun_dist = float(np.linalg.norm(d.position_km - d.sun_position_km))
-        vmag = float(photometry.planet_v_mag(name, sun_dist, d.distance_km, phase))
-        elong = float(np.arccos(np.clip(np.dot(d.u_icrs, sun.u_icrs), -1.0, 1.0)))
-        out.append(SkyBody(name=name, directions=d, radius_km=radius, v_mag=vmag, phase_angle_rad=phase,
-                           elongation_rad=elong,
-                           angular_diameter_rad=float(photometry.angular_diameter_rad(radius, d.distance_km))))
-    return tuple(out), np.asarray(sun.u_icrs, dtype=float)
+    pos = np.array([d.position_km for d in dirs])
+    sun_pos = np.array([d.sun_position_km for d in dirs])
+    dist = np.array([d.distance_km for d in dirs])
+    phase = photometry.phase_angle_rad(pos, sun_pos, r).tolist()
+    sun_dist = np.linalg.norm(pos - sun_pos, axis=-1).tolist()
+    u = np.array([d.u_icrs for d in dirs])
+    elong = np.arccos(np.clip(u @ np.asarray(sun.u_icrs, dtype=float), -1.0, 1.0)).tolist()
+    diam = photometry.angular_diameter_rad(radii, dist).tolist()
+    return tuple(SkyBody(name=name, directions=d, radius_km=float(radius), phase_angle_rad=ph, elongation_rad=el,
+                         v_mag=float(photometry.planet_v_mag(name, sd, d.distance_km, ph)), angular_diameter_rad=di)
+                 for name, d, radius, ph, sd, el, di in zip(names, dirs, radii.tolist(), phase, sun_dist, elong, diam))
 
 
 def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
