@@ -330,8 +330,9 @@ def build_scene(
     R = np.asarray(R_cam_icrs, dtype=float).reshape(3, 3)
     w = np.asarray(angular_velocity_rad_s, dtype=float).reshape(3)
     half = 0.5 * camera.exposure_s
-    R_start = frames.propagate_attitude(R, w, -half)
-    R_end = frames.propagate_attitude(R, w, half)
+    still = not w.any()  # no rate: the attitude at the exposure's start and end is R itself
+    R_start = R if still else frames.propagate_attitude(R, w, -half)
+    R_end = R if still else frames.propagate_attitude(R, w, half)
 
     # --- stars: cone around the boresight wide enough for the whole exposure's sweep
     sweep = float(np.linalg.norm(w)) * half
@@ -341,10 +342,14 @@ def build_scene(
     u_astro = cat.directions(idx, t, r)
     u_star = apparent.apparent_star_directions(u_astro, r, v, sun_pos)
     xy = camera.project(u_star @ R.T)
-    xy0 = camera.project(u_star @ R_start.T)
-    xy1 = camera.project(u_star @ R_end.T)
     pad = 8.0 + camera.psf.reach_px(camera)  # the PSF's reach (6 sigma for a Gaussian)
-    near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
+    if still:
+        xy0 = xy1 = xy
+        near = camera.in_image(xy, pad)
+    else:
+        xy0 = camera.project(u_star @ R_start.T)
+        xy1 = camera.project(u_star @ R_end.T)
+        near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
     keep = np.flatnonzero(near)
     stars = StarsInView(
         hip=np.asarray(cat.hip)[idx][keep], v_mag=np.asarray(cat.v_mag)[idx][keep],
