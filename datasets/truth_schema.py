@@ -186,6 +186,17 @@ def _line(value) -> bytes:
     return b
 
 
+def _flat_records_without_null(b: bytes, n: int) -> bool:
+    """Whether orjson's bytes ``b`` of a list of ``n`` mappings hold exactly ``n`` "{" (no record
+    holds a mapping) and no ``null`` (orjson's NaN and None): ``b.count(b"{") == n and b"null"
+    not in b``, by numpy over the bytes (a quarter of their time on a frame's 150 kB of stars)."""
+    a = np.frombuffer(b, np.uint8)
+    if np.count_nonzero(a == ord("{")) != n:
+        return False
+    i = np.flatnonzero(a[:-3] == ord("n"))
+    return not ((a[i + 1] == ord("u")) & (a[i + 2] == ord("l")) & (a[i + 3] == ord("l"))).any()
+
+
 def _emit(value, indent: bytes, out: list) -> None:
     """Canonical layout: a mapping has one key per line (2-space indent); lists of numbers,
     matrices and flat records (a star, a body) are written on one line each."""
@@ -216,7 +227,7 @@ def _emit(value, indent: bytes, out: list) -> None:
             b = orjson.dumps(value)
         except orjson.JSONEncodeError:
             b = None
-        if b is not None and b.count(b"{") == len(value) and b"null" not in b and b.isascii():
+        if b is not None and b.isascii() and _flat_records_without_null(b, len(value)):
             # (split and join: the bytes of replace(), in half its time on 150 kB)
             out.append(b"[\n" + inner + (b"},\n" + inner + b"{").join(b[1:-1].split(b"},{")) + b"\n" + indent + b"]")
             return
