@@ -33,6 +33,11 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
    * ``1 worker, 1 thread``: ``--workers 1`` with ``SKYNAV_THREADS=1``;
    * ``2 workers``: ``--workers 2`` (spawned processes, ``cores // 2`` threads each: one each
      on 2 cores);
+   * ``1 worker, 1 core``: as ``1 worker, 1 thread``, the process confined to one core
+     (``sched_setaffinity``). One worker alone runs its writer thread on the second core beside
+     its renders (about 1.1 cores' worth of CPU a frame), which two workers cannot do; against
+     this baseline, ``2 workers`` measures the parallel efficiency of two workers, each on one
+     core;
    * with ``--dask``: a ``distributed.LocalCluster`` of 1 and of 2 worker processes, one thread
      each.
 
@@ -44,7 +49,8 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
    where some workers have no frame left. Also printed: frames / wall clock of the whole command (start-up
    included), and the peak RSS of a worker (of the process itself for 1 worker, which renders
    in-process; else the largest worker process). Scaling = steady-state rate of 2 workers / that
-   of 1 worker, in each round, median over the rounds. The folders must be byte-identical
+   of 1 worker, in each round, median over the rounds, against ``1 worker, 1 thread`` (issue #25's
+   criterion) and against ``1 worker, 1 core``. The folders must be byte-identical
    (checked: the files that differ are named, a PNG's DN compared, and the script exits with 1).
 
 ``--dir``: where the datasets go (a temporary folder in it; default the system's temporary
@@ -75,10 +81,12 @@ from pathlib import Path
 _CHILD = r"""
 import json, os, resource, sys, time
 t0 = time.perf_counter()
+cfg = json.loads(sys.argv[1])
+if cfg.get("one_core"):  # this process and every thread it starts on one core
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 sys.path.insert(0, sys.argv[2])
 from dataset_bench import preset_for
 from skynav.datasets import generate
-cfg = json.loads(sys.argv[1])
 rec = preset_for(cfg["preset"], cfg["small"])
 limit = None
 if cfg["preset"] == "montecarlo":
@@ -182,10 +190,11 @@ def _child(code: str, cfg: dict, env_extra: dict) -> tuple:
 
 
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict, *, preset: str = "montecarlo",
-             dask: bool = False) -> dict:
-    """One fresh ``python`` running ``generate`` (what the CLI calls); wall clock of it all."""
+             dask: bool = False, one_core: bool = False) -> dict:
+    """One fresh ``python`` running ``generate`` (what the CLI calls); wall clock of it all.
+    ``one_core``: the process (its writer thread too) confined to one core."""
     r, wall = _child(_CHILD, {"preset": preset, "frames": frames, "out": str(out), "workers": workers,
-                              "small": small, "dask": dask}, env_extra)
+                              "small": small, "dask": dask, "one_core": one_core}, env_extra)
     r["wall_s"] = wall
     r["fps"] = r["frames"] / wall
     r["load"] = _load()
@@ -371,21 +380,24 @@ def main(argv=None) -> int:
 
         # 2. scaling
         if not a.no_scaling:
-            setups = [("1 worker, 1 thread", 1, _one_thread(), False), ("2 workers", 2, {}, False)]
+            setups = [("1 worker, 1 thread", 1, _one_thread(), False, False), ("2 workers", 2, {}, False, False)]
+            if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
+                setups.append(("1 worker, 1 core", 1, _one_thread(), False, True))
             if a.dask:
-                setups += [("dask 1 worker", 1, {}, True), ("dask 2 workers", 2, {}, True)]
+                setups += [("dask 1 worker", 1, {}, True, False), ("dask 2 workers", 2, {}, True, False)]
             runs = {label: [] for label, *_ in setups}
             for rep in range(a.repeat):
                 order = setups if rep % 2 == 0 else setups[::-1]
-                for label, workers, env, dask in order:
+                for label, workers, env, dask, one_core in order:
                     i = [s[0] for s in setups].index(label)
-                    r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask)
+                    r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask, one_core=one_core)
                     runs[label].append(r)
                     rss = r["rss_self_mb"] if r["executor"] == "in-process" else r["rss_children_mb"]
                     print(f"{label:18s} #{rep + 1}: steady state {r['steady_fps']:.2f} frames/s ({r['steady_frames']} frames); "
                           f"{r['frames']} frames in {r['wall_s']:.1f} s = {r['fps']:.2f} frames/s with start-up "
                           f"(imports {r['imports_s']:.1f} s); {r['executor']}; peak RSS of a worker {rss:.0f} MB; load {r['load']:.1f}")
-            pairs = [("2 workers", "1 worker, 1 thread")] + ([("dask 2 workers", "dask 1 worker")] if a.dask else [])
+            pairs = ([("2 workers", "1 worker, 1 thread")] + ([("2 workers", "1 worker, 1 core")] if "1 worker, 1 core" in runs else [])
+                     + ([("dask 2 workers", "dask 1 worker")] if a.dask else []))
             for two, one in pairs:
                 steady = [r2["steady_fps"] / r1["steady_fps"] for r1, r2 in zip(runs[one], runs[two])]
                 wall = [r2["fps"] / r1["fps"] for r1, r2 in zip(runs[one], runs[two])]
