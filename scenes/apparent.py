@@ -347,8 +347,3 @@ def apparent_body(
     (same parameters, ``body`` one of ``ephemeris_jpl.BODIES``)."""
     return apparent_bodies(eph, (body,), observer_position_km, observer_velocity_km_s, t_tdb_s, deflection=deflection,
                            sun_position_km=sun_position_km)[0]
-
-
-def sun_apparent_direction(eph, observer_position_km, observer_velocity_km_s, t_tdb_s) -> BodyDirections:
-    """Apparent direction of the Sun (light-time and aberration; no self-deflection)."""
-    return apparent_body(eph, "sun", observer_position_km, observer_velocity_km_s, t_tdb_s)

@@ -223,18 +223,6 @@ def sky_bodies_and_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=
         raise
 
 
-def sky_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None):
-    """The Sun's apparent :class:`~skynav.scenes.apparent.BodyDirections` as :func:`sky_bodies`
-    computes it (and its ``sun=``), with the same errors.
-
-    Raises
-    ------
-    ObserverInsideBodyError
-        When the observer is inside the Sun.
-    """
-    return sky_bodies_and_sun(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=())[1]
-
-
 def _name_the_body(eph, t_tdb_s, r, names) -> None:
     """Inside a body (at its centre, say) the light-time iteration has no solution and fails
     with a message that blames something else (the epoch): name the body instead (raises
