@@ -38,6 +38,13 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
      its renders (about 1.1 cores' worth of CPU a frame), which two workers cannot do; against
      this baseline, ``2 workers`` measures the parallel efficiency of two workers, each on one
      core;
+   * ``2 processes``: the machine's ceiling for two workers. Two fresh processes at once, each
+     running ``1 worker, 1 thread`` into a folder of its own, sharing nothing but the machine
+     (its cores, caches, memory bandwidth and disk); their steady-state frames/s are summed.
+     ``2 workers / 2 processes`` is then the pool's own cost, and ``2 processes / 1 worker, 1
+     thread`` what the machine gives two workers at best. Before the rounds, a pure-Python loop
+     (no memory traffic) runs on each core alone and on both at once: how fast each core is, and
+     what two processes get when they share nothing at all;
    * with ``--dask``: a ``distributed.LocalCluster`` of 1 and of 2 worker processes, one thread
      each.
 
@@ -50,7 +57,7 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
    included), and the peak RSS of a worker (of the process itself for 1 worker, which renders
    in-process; else the largest worker process). Scaling = steady-state rate of 2 workers / that
    of 1 worker, in each round, median over the rounds, against ``1 worker, 1 thread`` (issue #25's
-   criterion) and against ``1 worker, 1 core``. The folders must be byte-identical
+   criterion), against ``1 worker, 1 core`` and against ``2 processes``. The folders must be byte-identical
    (checked: the files that differ are named, a PNG's DN compared, and the script exits with 1).
 
 ``--dir``: where the datasets go (a temporary folder in it; default the system's temporary
@@ -118,6 +125,16 @@ print(json.dumps({"frames": n, "elapsed_s": s.elapsed_s, "imports_s": t_gen - t0
                   "rss_self_mb": kib[0] / 1024, "rss_children_mb": kib[1] / 1024}))
 """
 
+_SPIN = r"""
+import json, os, sys, time
+cfg = json.loads(sys.argv[1])
+os.sched_setaffinity(0, {cfg["core"]})
+c0, x = time.process_time(), 0
+for i in range(cfg["n"]):
+    x += i * i
+print(json.dumps({"cpu_s": time.process_time() - c0}))
+"""
+
 _SPLIT = r"""
 import json, sys
 sys.path.insert(0, sys.argv[2])
@@ -127,6 +144,10 @@ print(json.dumps(cost_split(preset_for(cfg["preset"], cfg["small"]), cfg["frames
 """
 
 STAGES = ("sample", "render", "encode", "write")
+
+#: The scaling set-up that is the machine's ceiling for two workers: two independent one-worker
+#: processes at once (:func:`run_cold_pair`).
+PAIR = "2 processes"
 
 
 def _one_thread() -> dict:
@@ -177,16 +198,24 @@ def preset_for(preset: str, small: bool) -> dict:
     return rec
 
 
-def _child(code: str, cfg: dict, env_extra: dict) -> tuple:
+def _start(code: str, cfg: dict, env_extra: dict) -> subprocess.Popen:
     env = {k: v for k, v in os.environ.items() if k not in _one_thread()}
     env.update(env_extra)
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", code, json.dumps(cfg), str(Path(__file__).parent)],
-                          capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - t0
+    return subprocess.Popen([sys.executable, "-c", code, json.dumps(cfg), str(Path(__file__).parent)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _finish(proc: subprocess.Popen, cfg: dict) -> dict:
+    out, err = proc.communicate()
     if proc.returncode != 0:
-        raise SystemExit(f"benchmark child {cfg} failed:\n{proc.stderr[-2000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1]), wall
+        raise SystemExit(f"benchmark child {cfg} failed:\n{err[-2000:]}")
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _child(code: str, cfg: dict, env_extra: dict) -> tuple:
+    t0 = time.perf_counter()
+    r = _finish(_start(code, cfg, env_extra), cfg)
+    return r, time.perf_counter() - t0
 
 
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict, *, preset: str = "montecarlo",
@@ -199,6 +228,39 @@ def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict,
     r["fps"] = r["frames"] / wall
     r["load"] = _load()
     return r
+
+
+def core_speeds(n: int = 10_000_000) -> dict:
+    """The CPU time of one pure-Python arithmetic loop (no memory traffic: nothing shared but the
+    cores) on each of the first two cores, alone and then both at once: how fast each core is,
+    and what the machine gives two processes that share nothing. ``{(core, "alone"|"both"): s}``."""
+    cores = sorted(os.sched_getaffinity(0))[:2]
+    out = {}
+    for c in cores:
+        cfg = {"core": c, "n": n}
+        out[(c, "alone")] = _finish(_start(_SPIN, cfg, {}), cfg)["cpu_s"]
+    cfgs = [{"core": c, "n": n} for c in cores]
+    procs = [_start(_SPIN, cfg, {}) for cfg in cfgs]
+    for c, proc, cfg in zip(cores, procs, cfgs):
+        out[(c, "both")] = _finish(proc, cfg)["cpu_s"]
+    return out
+
+
+def run_cold_pair(frames: int, outs: list, small: bool, env_extra: dict) -> dict:
+    """Two fresh ``python`` processes at once, each running ``generate(..., workers=1)`` of
+    ``frames`` frames into its own folder, one thread each: the machine's ceiling for two
+    workers (two independent processes share nothing but the machine: its two cores' speeds,
+    caches, memory bandwidth and disk). Frames/s are the sum of the two."""
+    cfgs = [{"preset": "montecarlo", "frames": frames, "out": str(o), "workers": 1, "small": small,
+             "dask": False, "one_core": False} for o in outs]
+    t0 = time.perf_counter()
+    procs = [_start(_CHILD, cfg, env_extra) for cfg in cfgs]
+    rs = [_finish(p, cfg) for p, cfg in zip(procs, cfgs)]
+    wall = time.perf_counter() - t0
+    return {"frames": sum(r["frames"] for r in rs), "steady_fps": sum(r["steady_fps"] for r in rs),
+            "steady_frames": sum(r["steady_frames"] for r in rs), "imports_s": max(r["imports_s"] for r in rs),
+            "executor": "2 processes", "rss_self_mb": max(r["rss_self_mb"] for r in rs), "rss_children_mb": 0.0,
+            "wall_s": wall, "fps": sum(r["frames"] for r in rs) / wall, "load": _load()}
 
 
 def _png_chunk_difference(x: bytes, y: bytes) -> str:
@@ -383,21 +445,33 @@ def main(argv=None) -> int:
             setups = [("1 worker, 1 thread", 1, _one_thread(), False, False), ("2 workers", 2, {}, False, False)]
             if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
                 setups.append(("1 worker, 1 core", 1, _one_thread(), False, True))
+            setups.append((PAIR, 2, _one_thread(), False, False))
             if a.dask:
                 setups += [("dask 1 worker", 1, {}, True, False), ("dask 2 workers", 2, {}, True, False)]
             runs = {label: [] for label, *_ in setups}
+            if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
+                sp = core_speeds()
+                cores = sorted({c for c, _ in sp})
+                fast = min(sp[(c, "alone")] for c in cores)
+                print("cores, pure-Python loop (no memory traffic), CPU s: "
+                      + "; ".join(f"core {c} {sp[(c, 'alone')]:.2f} alone, {sp[(c, 'both')]:.2f} with the other busy" for c in cores)
+                      + f"; two such processes = {sum(fast / sp[(c, 'both')] for c in cores):.2f} x one on the faster core")
             for rep in range(a.repeat):
                 order = setups if rep % 2 == 0 else setups[::-1]
                 for label, workers, env, dask, one_core in order:
                     i = [s[0] for s in setups].index(label)
-                    r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask, one_core=one_core)
+                    if label == PAIR:
+                        r = run_cold_pair(a.frames, [tmp / f"run{i}_{rep}", tmp / f"run{i}_{rep}b"], a.small, env)
+                    else:
+                        r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask, one_core=one_core)
                     runs[label].append(r)
-                    rss = r["rss_self_mb"] if r["executor"] == "in-process" else r["rss_children_mb"]
+                    rss = r["rss_self_mb"] if r["executor"] in ("in-process", "2 processes") else r["rss_children_mb"]
                     print(f"{label:18s} #{rep + 1}: steady state {r['steady_fps']:.2f} frames/s ({r['steady_frames']} frames); "
                           f"{r['frames']} frames in {r['wall_s']:.1f} s = {r['fps']:.2f} frames/s with start-up "
                           f"(imports {r['imports_s']:.1f} s); {r['executor']}; peak RSS of a worker {rss:.0f} MB; load {r['load']:.1f}")
             pairs = ([("2 workers", "1 worker, 1 thread")] + ([("2 workers", "1 worker, 1 core")] if "1 worker, 1 core" in runs else [])
-                     + ([("dask 2 workers", "dask 1 worker")] if a.dask else []))
+                     + [(PAIR, "1 worker, 1 thread"), ("2 workers", PAIR)]
+                     + ([("dask 2 workers", "dask 1 worker"), ("dask 2 workers", PAIR)] if a.dask else []))
             for two, one in pairs:
                 steady = [r2["steady_fps"] / r1["steady_fps"] for r1, r2 in zip(runs[one], runs[two])]
                 wall = [r2["fps"] / r1["fps"] for r1, r2 in zip(runs[one], runs[two])]
@@ -406,7 +480,8 @@ def main(argv=None) -> int:
                       f"each {', '.join(f'{x:.2f}' for x in steady)}), {statistics.median(wall):.2f} x with start-up; "
                       f"{statistics.median(r['steady_fps'] for r in runs[two]):.2f} against "
                       f"{statistics.median(r['steady_fps'] for r in runs[one]):.2f} frames/s; load {min(loads):.1f}-{max(loads):.1f}")
-            names = [f"run{i}_{rep}" for i in range(len(setups)) for rep in range(a.repeat)]
+            names = [f"run{i}_{rep}{b}" for i in range(len(setups)) for rep in range(a.repeat)
+                     for b in (("", "b") if setups[i][0] == PAIR else ("",))]
             trees = {name: tree(tmp / name) for name in names}
             first = trees[names[0]]
             identical = all(t == first for t in trees.values())
@@ -415,7 +490,7 @@ def main(argv=None) -> int:
                 differ = sorted(k for k in set(t) | set(first) if t.get(k) != first.get(k))
                 if differ:
                     label = setups[int(name[3:].split("_")[0])][0]
-                    print(f"  {label} #{int(name.split('_')[1]) + 1} differs from {setups[0][0]} #1 in {len(differ)} "
+                    print(f"  {label} #{int(name.split('_')[1].rstrip('b')) + 1} differs from {setups[0][0]} #1 in {len(differ)} "
                           f"file(s): {', '.join(differ[:6])}{' ...' if len(differ) > 6 else ''}")
                     for rel in [r for r in differ if r.endswith(".png")][:3]:
                         print(f"    {rel}: {_png_difference(tmp / names[0] / rel, tmp / name / rel)}")

@@ -32,6 +32,20 @@ def test_dataset_bench_prints_the_file_system_and_each_preset_ratio(tmp_path):
     assert not any(tmp_path.iterdir())  # its temporary folder is gone
 
 
+def test_dataset_bench_scaling_prints_each_ratio_with_the_machines_ceiling(tmp_path):
+    out = _run("dataset_bench.py", "--small", "--frames", "48", "--split-frames", "2", "--warmup", "1", "--repeat", "1",
+               "--dir", str(tmp_path))
+    cores = re.search(r"cores, pure-Python loop .*; two such processes = ([0-9.]+) x one on the faster core", out)
+    assert cores and 0.5 < float(cores.group(1)) < 2.5, out  # two processes give at most about twice one
+    for two, one in (("2 workers", "1 worker, 1 thread"), ("2 workers", "1 worker, 1 core"),
+                     ("2 processes", "1 worker, 1 thread"), ("2 workers", "2 processes")):
+        line = re.search(rf"scaling {two} / {one}: ([0-9.]+) x steady state", out)
+        assert line and float(line.group(1)) > 0, out
+    pair = re.search(r"2 processes +#1: steady state [0-9.]+ frames/s \((\d+) frames\); (\d+) frames in", out)
+    assert pair and int(pair.group(2)) == 96, out  # two processes of 48 frames each, their frames summed
+    assert "folders byte-identical: True" in out, out  # the second process's folder is compared too
+
+
 def test_render_bench_prints_both_paths_against_numpys_variates():
     out = _run("render_bench.py", "--repeat", "2")
     for path in ("llvm ", "numpy"):
