@@ -11,11 +11,13 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
 1. **A frame against its bare render** (Monte Carlo and sequence presets, one thread:
    ``SKYNAV_THREADS=1``, OpenBLAS/OpenMP at 1). Each repeat is a fresh ``python`` that
 
-   a. makes ``W + N`` frames of the preset with ``generate(..., workers=1)`` (what
+   a. makes ``W + N + 1`` frames of the preset with ``generate(..., workers=1)`` (what
       ``skynav dataset generate --workers 1`` runs: sample, render, encode, write, checksums,
-      journal, manifest checkpoints, index) and takes each frame's cost from the progress
+      journal, manifest checkpoints, index) and takes N frames' costs from the progress
       callback, as CPU time of the process (``time.process_time``: every thread's work on one
-      core's worth of budget; the waits for the disk are not in it) and as wall-clock time;
+      core's worth of budget; the waits for the disk are not in it) and as wall-clock time (an
+      interval between two marks holds one frame's making and the previous frame's writing; the
+      run's last interval, the last write alone, is left out);
    b. then, in the same process, makes the same N frames again stage by stage: **sample**
       (the sampler's frame request and ``build_scene``), **render** (``render``: the bare
       render), **encode** (the PNG, EXR and JSON bytes in memory), **write** (the three files
@@ -341,15 +343,19 @@ def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
     total = warmup + n
     rec = dict(recipe)
     limit = None
+    # (a) makes one frame more than it measures: the interval between two progress marks holds
+    # the making of one frame and the writing of the one before (the writer thread's, meanwhile);
+    # after the last frame is made only its write is left, so the last interval would be a write
+    # alone, not a frame
     if rec["kind"] == "montecarlo":
-        rec["frames"] = total
+        rec["frames"] = total + 1
     else:
-        limit = total
+        limit = total + 1
     # (a) the dataset frame, as the runner makes it
     marks = []
     generate(rec, disk_dir / "dataset", workers=1, max_frames=limit,
              progress=lambda done, _total: marks.append((done, time.process_time(), time.perf_counter())))
-    marks = [m for m in marks if m[0] >= warmup]  # frame k is done at the mark k + 1
+    marks = [m for m in marks if warmup <= m[0] <= total]  # frame k is done at the mark k + 1
     frame_cpu = [b[1] - a[1] for a, b in zip(marks, marks[1:])]
     frame_wall = [b[2] - a[2] for a, b in zip(marks, marks[1:])]
     # (b) the same frames again, stage by stage
