@@ -220,12 +220,18 @@ def _child(code: str, cfg: dict, env_extra: dict) -> tuple:
     return r, time.perf_counter() - t0
 
 
+def _cold_cfg(frames: int, out: Path, workers: int, small: bool, *, preset: str = "montecarlo", dask: bool = False,
+              one_core: bool = False) -> dict:
+    """The configuration :data:`_CHILD` reads: one ``generate`` run."""
+    return {"preset": preset, "frames": frames, "out": str(out), "workers": workers, "small": small, "dask": dask,
+            "one_core": one_core}
+
+
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict, *, preset: str = "montecarlo",
              dask: bool = False, one_core: bool = False) -> dict:
     """One fresh ``python`` running ``generate`` (what the CLI calls); wall clock of it all.
     ``one_core``: the process (its writer thread too) confined to one core."""
-    r, wall = _child(_CHILD, {"preset": preset, "frames": frames, "out": str(out), "workers": workers,
-                              "small": small, "dask": dask, "one_core": one_core}, env_extra)
+    r, wall = _child(_CHILD, _cold_cfg(frames, out, workers, small, preset=preset, dask=dask, one_core=one_core), env_extra)
     r["wall_s"] = wall
     r["fps"] = r["frames"] / wall
     r["load"] = _load()
@@ -236,15 +242,11 @@ def core_speeds(n: int = 10_000_000) -> dict:
     """The CPU time of one pure-Python arithmetic loop (no memory traffic: nothing shared but the
     cores) on each of the first two cores, alone and then both at once: how fast each core is,
     and what the machine gives two processes that share nothing. ``{(core, "alone"|"both"): s}``."""
-    cores = sorted(os.sched_getaffinity(0))[:2]
-    out = {}
-    for c in cores:
-        cfg = {"core": c, "n": n}
-        out[(c, "alone")] = _finish(_start(_SPIN, cfg, {}), cfg)["cpu_s"]
-    cfgs = [{"core": c, "n": n} for c in cores]
+    cfgs = [{"core": c, "n": n} for c in sorted(os.sched_getaffinity(0))[:2]]
+    out = {(cfg["core"], "alone"): _finish(_start(_SPIN, cfg, {}), cfg)["cpu_s"] for cfg in cfgs}
     procs = [_start(_SPIN, cfg, {}) for cfg in cfgs]
-    for c, proc, cfg in zip(cores, procs, cfgs):
-        out[(c, "both")] = _finish(proc, cfg)["cpu_s"]
+    for proc, cfg in zip(procs, cfgs):
+        out[(cfg["core"], "both")] = _finish(proc, cfg)["cpu_s"]
     return out
 
 
@@ -253,15 +255,14 @@ def run_cold_pair(frames: int, outs: list, small: bool, env_extra: dict) -> dict
     ``frames`` frames into its own folder, one thread each: the machine's ceiling for two
     workers (two independent processes share nothing but the machine: its two cores' speeds,
     caches, memory bandwidth and disk). Frames/s are the sum of the two."""
-    cfgs = [{"preset": "montecarlo", "frames": frames, "out": str(o), "workers": 1, "small": small,
-             "dask": False, "one_core": False} for o in outs]
+    cfgs = [_cold_cfg(frames, o, 1, small) for o in outs]
     t0 = time.perf_counter()
     procs = [_start(_CHILD, cfg, env_extra) for cfg in cfgs]
     rs = [_finish(p, cfg) for p, cfg in zip(procs, cfgs)]
     wall = time.perf_counter() - t0
     return {"frames": sum(r["frames"] for r in rs), "steady_fps": sum(r["steady_fps"] for r in rs),
             "steady_frames": sum(r["steady_frames"] for r in rs), "imports_s": max(r["imports_s"] for r in rs),
-            "executor": "2 processes", "rss_self_mb": max(r["rss_self_mb"] for r in rs), "rss_children_mb": 0.0,
+            "executor": PAIR, "rss_self_mb": max(r["rss_self_mb"] for r in rs), "rss_children_mb": 0.0,
             "wall_s": wall, "fps": sum(r["frames"] for r in rs) / wall, "load": _load()}
 
 
@@ -449,13 +450,14 @@ def main(argv=None) -> int:
         # 2. scaling
         if not a.no_scaling:
             setups = [("1 worker, 1 thread", 1, _one_thread(), False, False), ("2 workers", 2, {}, False, False)]
-            if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
+            can_pin = hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1  # two cores to pin to
+            if can_pin:
                 setups.append(("1 worker, 1 core", 1, _one_thread(), False, True))
             setups.append((PAIR, 2, _one_thread(), False, False))
             if a.dask:
                 setups += [("dask 1 worker", 1, {}, True, False), ("dask 2 workers", 2, {}, True, False)]
             runs = {label: [] for label, *_ in setups}
-            if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
+            if can_pin:
                 sp = core_speeds()
                 cores = sorted({c for c, _ in sp})
                 fast = min(sp[(c, "alone")] for c in cores)
@@ -471,7 +473,7 @@ def main(argv=None) -> int:
                     else:
                         r = run_cold(a.frames, tmp / f"run{i}_{rep}", workers, a.small, env, dask=dask, one_core=one_core)
                     runs[label].append(r)
-                    rss = r["rss_self_mb"] if r["executor"] in ("in-process", "2 processes") else r["rss_children_mb"]
+                    rss = r["rss_self_mb"] if r["executor"] in ("in-process", PAIR) else r["rss_children_mb"]
                     print(f"{label:18s} #{rep + 1}: steady state {r['steady_fps']:.2f} frames/s ({r['steady_frames']} frames); "
                           f"{r['frames']} frames in {r['wall_s']:.1f} s = {r['fps']:.2f} frames/s with start-up "
                           f"(imports {r['imports_s']:.1f} s); {r['executor']}; peak RSS of a worker {rss:.0f} MB; load {r['load']:.1f}")
