@@ -64,7 +64,7 @@ class FrameResult:
     timings_s : dict
         ``sample``, ``render``, ``write``, s.
     backends : dict
-        What ran: ``sensor`` (``"llvm"`` or ``"numpy"``) and ``mitsuba_variant`` (None when no
+        What ran: ``sensor`` (``"llvm"``, ``"cuda"`` or ``"numpy"``) and ``mitsuba_variant`` (None when no
         body was ray-traced in this frame).
     record : dict
         ``{"frames/NNNNNN.sha256": sha256}``: the frame's checksum record

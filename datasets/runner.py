@@ -107,7 +107,7 @@ def _existing_row(root: Path, k: int, files: dict, backends: dict):
     """
     truth = read_truth_json(root / layout.frame_relpaths(k, ["json"])["json"])
     sensor = (truth.get("render") or {}).get("backend_used")
-    if sensor in ("llvm", "numpy") and backends.get("sensor") not in (None, sensor):
+    if sensor in ("llvm", "cuda", "numpy") and backends.get("sensor") not in (None, sensor):
         return None
     variants = {b.get("mitsuba_variant") for b in truth.get("bodies") or [] if b.get("mitsuba_variant")}
     if variants and variants != {backends.get("mitsuba_variant")}:
@@ -128,7 +128,7 @@ def resolve_backends(render_options) -> dict:
     """The sensor backend and the Mitsuba variant that ``render_options`` run with on this machine.
 
     ``"auto"`` is resolved as the renderer resolves it (:mod:`skynav.renderer.jit_backend`):
-    sensor ``"llvm"`` or ``"numpy"``; Mitsuba ``"cuda_ad_spectral"``, ``"llvm_ad_spectral"`` or
+    sensor ``"llvm"``, ``"cuda"`` or ``"numpy"``; Mitsuba ``"cuda_ad_spectral"``, ``"llvm_ad_spectral"`` or
     ``"scalar_spectral"`` (None when ``render_options.resolved`` is False: nothing is ray-traced).
     """
     variant = jit_backend.select_mitsuba_variant()[0] if render_options.resolved else None

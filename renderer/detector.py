@@ -32,7 +32,8 @@ Two interchangeable implementations with identical statistics (not identical bit
 
 - ``backend="numpy"``: ``Generator.poisson`` (exact; PTRS above mean 10) and
   ``Generator.normal``; float64.
-- ``backend="llvm"``: one fused Dr.Jit LLVM kernel (float32), Poisson exact too: sequential
+- ``backend="llvm"`` or ``"cuda"``: one fused Dr.Jit kernel (float32), traced from the same
+  Python code for Dr.Jit's LLVM (CPU) or CUDA (GPU) backend. Poisson exact too: sequential
   inversion for means < 10 and Hoermann's PTRS transformed rejection (Hoermann 1993, "The
   transformed rejection method for generating Poisson random variables", Insurance: Mathematics
   and Economics 12, 39-45) above -- the same split numpy uses -- with the log-pmf of the
@@ -42,7 +43,8 @@ Two interchangeable implementations with identical statistics (not identical bit
   (:func:`pixel_stream_seeds`, as Mitsuba seeds its samplers): the frame key is 128 bits drawn
   from the caller's ``numpy.random.Generator`` (:func:`frame_key`), the hash is the TEA block
   cipher keyed with it, computed inside the kernel. The same Generator state gives
-  bit-identical frames on the same backend, and the pixels' streams are unrelated. (Up to
+  bit-identical frames on the same backend (LLVM and CUDA draw the same PCG32 integers, but
+  their transcendental functions may round differently), and the pixels' streams are unrelated. (Up to
   package version 0.2, pixel ``i`` had state ``s + i`` and sequence ``q + i``, Dr.Jit's
   ``PCG32(size, s, q)``: those streams are correlated, and the difference of two flat fields
   had an autocorrelation of +0.24 at lag 11 rows + 89 columns of a 512-px-wide image.) Every
@@ -69,7 +71,10 @@ from . import jit_backend
 from .errors import SensorInputError  # noqa: F401  (re-exported: the sensor raises it)
 
 POISSON_INVERSION_MAX_MEAN = 10.0
-"""Below this mean the llvm path samples Poisson by sequential inversion, above by PTRS."""
+"""Below this mean the Dr.Jit path samples Poisson by sequential inversion, above by PTRS."""
+
+JIT_BACKENDS = ("llvm", "cuda")
+"""The sensor backends that run the fused Dr.Jit kernel (CPU and GPU)."""
 
 _INVERSION_MAX_K = 200  # cap of the inversion loop: P(K > 200 | mean < 10) ~ 1e-200
 #: pmf terms per trip of the inversion loop (see _jit_charge); 200 is 25 trips of 8. The terms,
@@ -92,7 +97,7 @@ class ExposureDetails:
     charge_e : ndarray, shape (H, W), float
         Collected charge after shot noise, extra charge and full-well clipping / blooming, e-.
     backend : str
-        ``"numpy"`` or ``"llvm"``.
+        ``"numpy"``, ``"llvm"`` or ``"cuda"``.
     """
 
     dn: np.ndarray
@@ -255,7 +260,7 @@ class Sensor:
             raise SensorInputError(f"shape must be (H, W) with H, W >= 1, got {shape}")
         self.params = params
         self.shape: tuple[int, int] = shape
-        self._jit_patterns = None
+        self._jit_patterns = {}   # per Dr.Jit backend: the PRNU and dark-current images
 
     def __repr__(self) -> str:
         return f"Sensor({self.params!r}, {self.shape!r})"
@@ -304,9 +309,9 @@ class Sensor:
             Exposure time (scales the dark current), s.
         rng : numpy.random.Generator
             Source of all randomness; the same state gives the same frame on one backend.
-        backend : {"auto", "llvm", "numpy"}
-            ``auto``: the Dr.Jit LLVM kernel if :func:`jit_backend.configure_llvm` says the
-            backend works here, else numpy.
+        backend : {"auto", "llvm", "cuda", "numpy"}
+            ``auto``: :func:`jit_backend.auto_sensor_backend` (the Dr.Jit LLVM kernel where
+            that backend works here, else the CUDA one where a GPU works, else numpy).
         extra_charge_e : array_like, shape (H, W), or PixelCharge, optional
             Charge added after the shot noise (cosmic rays), e-: an image, or the charge of a
             few pixels (:class:`PixelCharge`; the same frame as its image, bit for bit).
@@ -381,15 +386,13 @@ class Sensor:
             raise SensorInputError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
         if backend == "auto":
-            backend = "llvm" if jit_backend.llvm_available() else "numpy"
+            backend = jit_backend.auto_sensor_backend()
         if backend == "numpy":
             return self._expose_numpy(e, t, rng, x)
-        if backend == "llvm":
-            status = jit_backend.configure_llvm()
-            if not status.available:
-                raise jit_backend.BackendUnavailableError(f"backend='llvm' requested but Dr.Jit's LLVM backend is unavailable: {status.reason}; use backend='numpy' or 'auto'")
-            return self._expose_llvm(e, t, rng, x, details=details)
-        raise SensorInputError(f"backend = {backend!r}; expected one of 'auto', 'llvm', 'numpy'")
+        if backend in JIT_BACKENDS:
+            jit_backend.require(backend)
+            return self._expose_jit(e, t, rng, x, backend, details=details)
+        raise SensorInputError(f"backend = {backend!r}; expected one of 'auto', 'llvm', 'cuda', 'numpy'")
 
     def _quantise_numpy(self, v_e: np.ndarray) -> np.ndarray:
         p = self.params
@@ -418,23 +421,22 @@ class Sensor:
             v = n
         return ExposureDetails(dn=self._quantise_numpy(v), mean_e=mean, charge_e=n, backend="numpy")
 
-    # ----------------------------------------------------------------- Dr.Jit LLVM path
-    def _patterns_llvm(self):
-        if self._jit_patterns is None:
-            # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
-            from drjit.llvm import Float
-
+    # ----------------------------------------------------------------- Dr.Jit path (LLVM or CUDA)
+    def _patterns_jit(self, backend: str):
+        if backend not in self._jit_patterns:
+            Float = _jit_module(backend).Float
             gain, dark = fixed_patterns(self.params, self.shape)
-            self._jit_patterns = (Float(gain.ravel()), Float(dark.ravel()))
-        return self._jit_patterns
+            self._jit_patterns[backend] = (Float(gain.ravel()), Float(dark.ravel()))
+        return self._jit_patterns[backend]
 
-    def _expose_llvm(self, e, t, rng, x, *, details) -> ExposureDetails:
-        # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    def _expose_jit(self, e, t, rng, x, backend: str, *, details) -> ExposureDetails:
+        # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
         import drjit as dr
-        from drjit.llvm import Float, UInt32
 
+        jt = _jit_module(backend)
+        Float, UInt32 = jt.Float, jt.UInt32
         p = self.params
-        gain, dark = self._patterns_llvm()
+        gain, dark = self._patterns_jit(backend)
         key = tuple(dr.opaque(UInt32, k) for k in frame_key(rng))
         sig32 = np.ascontiguousarray(e, dtype=np.float32).ravel()
         sig = Float(sig32)
@@ -446,7 +448,7 @@ class Sensor:
             extra = None if x is None or hit is not None else Float(np.ascontiguousarray(x, dtype=np.float32).ravel())
             args = (op(t), key, op(p.full_well_e), readout)
             with _frozen_lock:
-                dn = _frozen_exposure(small_dn)(sig, gain, dark, extra, *args, None)
+                dn = _frozen_exposure(small_dn, backend)(sig, gain, dark, extra, *args, None)
                 dr.eval(dn)
                 out = dn.numpy()
                 if hit is not None and hit[0].size:
@@ -464,12 +466,12 @@ class Sensor:
                     g32, d32 = fixed_patterns(p, self.shape)
                     sub_in = (Float(sig32[idx]), Float(g32.ravel()[idx]), Float(d32.ravel()[idx]),
                               Float(charge.astype(np.float32)), *args, UInt32(idx.astype(np.uint32)))
-                    sub = _frozen_exposure(small_dn, True)(*sub_in) if lanes else _jit_exposure(*sub_in, small_dn)
+                    sub = _frozen_exposure(small_dn, backend, True)(*sub_in) if lanes else _jit_exposure(*sub_in, small_dn)
                     dr.eval(sub)
                     out = out.copy() if not out.flags.writeable else out
                     out[hit[0]] = sub.numpy()[:hit[0].size]
             return ExposureDetails(dn=out.reshape(self.shape).astype(self.dtype, copy=False), mean_e=None,
-                                   charge_e=None, backend="llvm")
+                                   charge_e=None, backend=backend)
         if isinstance(x, PixelCharge):
             x = x.dense(self.shape)
         extra = Float(np.ascontiguousarray(x, dtype=np.float32).ravel()) if x is not None else None
@@ -489,14 +491,14 @@ class Sensor:
             dr.eval(dn)
             mean_np = n_np = None
         out = dn.numpy().reshape(self.shape).astype(self.dtype, copy=False)
-        return ExposureDetails(dn=out, mean_e=mean_np, charge_e=n_np, backend="llvm")
+        return ExposureDetails(dn=out, mean_e=mean_np, charge_e=n_np, backend=backend)
 
 
 def _jit_exposure(sig, gain, dark, extra, t, key, full_well, readout, index, small_dn):
     """The sensor chain without blooming, lazy: PRNU and dark current, Poisson, extra charge,
     full well, read noise, gain, ADC (:func:`_jit_charge`, :func:`_jit_readout`); ``index``:
     the pixels' flat indices (None: all the image's, in order)."""
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     mean = dr.fma(sig, gain, dark * t)
@@ -520,8 +522,8 @@ def _hit_lanes(n: int) -> int:
     return lanes if lanes <= _HIT_LANES_MAX else 0
 
 
-@functools.lru_cache(maxsize=4)
-def _frozen_exposure(small_dn: bool, hit_pixels: bool = False):
+@functools.lru_cache(maxsize=8)
+def _frozen_exposure(small_dn: bool, backend: str = "llvm", hit_pixels: bool = False):
     """:func:`_jit_exposure` as a Dr.Jit frozen function (``drjit.freeze``).
 
     The first call of each input layout (image size, extra charge or none) traces the chain and
@@ -530,10 +532,11 @@ def _frozen_exposure(small_dn: bool, hit_pixels: bool = False):
     kernel a plain call compiles, so the two give the same bits (``tests/renderer/
     test_detector_emva1288.py``). Every per-frame number is an input (an opaque variable), never a
     constant of the recording. Calls are serialised by ``_frozen_lock`` (a recording is state).
-    ``hit_pixels``: the instance for the pixels cosmic rays hit (one recording per lane count,
+    One instance per Dr.Jit backend (``"llvm"``, ``"cuda"``): a recording holds its backend's
+    kernel. ``hit_pixels``: the instance for the pixels cosmic rays hit (one recording per lane count,
     :func:`_hit_lanes`), apart from the image's so that its recordings do not count against it.
     """
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     def exposure(sig, gain, dark, extra, t, key, full_well, readout, index):
@@ -633,7 +636,7 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     ----------
     key : sequence of 4 Dr.Jit UInt32 (opaque) or int
         The frame key, :func:`frame_key`.
-    index : drjit.llvm.UInt32, shape (N,)
+    index : drjit.llvm.UInt32 or drjit.cuda.UInt32, shape (N,)
         Flat pixel indices (row-major), < 2^32.
     rounds : int
         TEA cycles (:data:`PIXEL_SEED_TEA_ROUNDS`, Mitsuba's choice; each cycle costs about
@@ -641,7 +644,7 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
 
     Returns
     -------
-    initstate, initseq : drjit.llvm.UInt64, shape (N,), each < 2^32
+    initstate, initseq : UInt64 of ``index``'s backend, shape (N,), each < 2^32
         Arguments of ``PCG32.seed`` (which runs two LCG steps, so the 64-bit state depends on
         both).
 
@@ -651,14 +654,33 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     Algorithms for Random Number Generation", Harvey Mudd College HMC-CS-2014-0905.
     Mitsuba 3, ``PCG32Sampler::seed`` (``src/render/sampler.cpp``).
     """
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
-    from drjit.llvm import UInt64
-
+    UInt64 = _module_of(index).UInt64
     v0, v1 = tea_encrypt(index, 0, key, rounds=rounds)
     return UInt64(v0), UInt64(v1)
 
 
 # --------------------------------------------------------------------------- Dr.Jit kernels
+def _jit_module(backend: str):
+    """Dr.Jit's array module of a sensor backend: ``drjit.llvm`` or ``drjit.cuda``."""
+    if backend == "cuda":
+        # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+        import drjit.cuda as jt
+    else:
+        # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+        import drjit.llvm as jt
+    return jt
+
+
+def _module_of(x):
+    """The array module of a Dr.Jit array's backend: the kernels below build their other arrays
+    (random streams, masks, results) on the backend of their input, so that one Python body
+    traces the LLVM and the CUDA kernel alike."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    return _jit_module("cuda" if dr.backend_v(x) == dr.JitBackend.CUDA else "llvm")
+
+
 def _jit_charge(mean, extra, key, index=None):
     """Poisson(mean) (+ extra) as a lazy Dr.Jit Float, and the advanced PCG32 streams.
 
@@ -666,10 +688,11 @@ def _jit_charge(mean, extra, key, index=None):
     the kernel does not depend on their values); lane ``j`` of ``mean`` gets the PCG32 stream
     seeded by :func:`pixel_stream_seeds` for the pixel ``index[j]`` (default: ``j``).
     """
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
-    from drjit.llvm import PCG32, Bool, Float, Float64, UInt32
 
+    jt = _module_of(mean)
+    PCG32, Bool, Float, Float64, UInt32 = jt.PCG32, jt.Bool, jt.Float, jt.Float64, jt.UInt32
     if index is None:
         index = dr.arange(UInt32, dr.width(mean))
     initstate, initseq = pixel_stream_seeds(key, index)
@@ -759,7 +782,7 @@ def _jit_estrin(x, coeffs):
     """Estrin's scheme for ``sum coeffs[i] x^i`` on Dr.Jit arrays (pairs by fused multiply-add,
     then the same on x^2, as Dr.Jit's ``estrin``); Python-float coefficients are rounded to
     float32 first, as a Float kernel's constants are."""
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     c = [float(np.float32(v)) if isinstance(v, float) else v for v in coeffs]
@@ -777,10 +800,10 @@ def _jit_erfinv(x):
     (|x| > 0.9966, 0.3 % of the read-noise draws) is evaluated only in the packets of lanes that
     hold one: a loop that runs at most once, so ~95 % of the packets skip it (0.14 ms of a 4 ms
     sensor kernel). Checked against ``math.erf`` (tests/renderer/test_detector_emva1288.py)."""
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
-    from drjit.llvm import Bool
 
+    Bool = _module_of(x).Bool
     w = -dr.log((1.0 - x) * (1.0 + x))
     central = _jit_estrin(w - 2.5, _ERFINV_CENTRAL)
 
@@ -797,10 +820,11 @@ def _jit_erfinv(x):
 def _jit_readout(n, pcg, sigma_e, gain, offset_plus_half, max_dn, *, small_dn=False):
     """Read + reset noise, gain, offset, ADC (round half up), saturation -> DN (lazy): UInt8
     when ``small_dn`` (``max_dn`` < 256), else UInt32."""
-    # Dr.Jit only for the LLVM backend: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
-    from drjit.llvm import UInt8, UInt32
 
+    jt = _module_of(n)
+    UInt8, UInt32 = jt.UInt8, jt.UInt32
     u = pcg.next_float32() + 2.0**-25  # in (0, 1): erfinv(+-1) would be infinite
     z = math.sqrt(2.0) * _jit_erfinv(2.0 * u - 1.0)
     y = dr.floor(dr.fma(gain, dr.fma(sigma_e, z, n), offset_plus_half))

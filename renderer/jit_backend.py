@@ -370,6 +370,30 @@ def llvm_available() -> bool:
     return configure_llvm().available
 
 
+def auto_sensor_backend() -> str:
+    """The sensor backend ``"auto"`` stands for here: ``"llvm"`` where Dr.Jit's LLVM backend
+    works, else ``"cuda"`` where its CUDA backend works, else ``"numpy"``.
+
+    LLVM comes first: the sensor's kernel is bound by memory bandwidth (~4 ms a megapixel on one
+    core), and a GPU adds the copies of the image to it and back; a machine with both keeps the
+    bits it had. A GPU machine without libLLVM >= 19 gets the GPU kernel rather than numpy.
+    """
+    if llvm_available():
+        return "llvm"
+    return "cuda" if probe_cuda().available else "numpy"
+
+
+def require(backend: str) -> BackendStatus:
+    """Make sure the Dr.Jit backend ``"llvm"`` or ``"cuda"`` works here (configured, for LLVM);
+    :class:`BackendUnavailableError` naming it and why not otherwise."""
+    status = configure_llvm() if backend == "llvm" else probe_cuda()
+    if not status.available:
+        name = {"llvm": "LLVM", "cuda": "CUDA"}[backend]
+        raise BackendUnavailableError(f"backend={backend!r} requested but Dr.Jit's {name} backend is unavailable: "
+                                      f"{status.reason}; use backend='numpy' or 'auto'")
+    return status
+
+
 def select_mitsuba_variant() -> tuple[str, str]:
     """The Mitsuba variant to use: ``cuda_ad_spectral`` if CUDA works, else ``llvm_ad_spectral``
     if LLVM works, else ``scalar_spectral``; with the reason, logged once per process

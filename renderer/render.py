@@ -43,7 +43,7 @@ from skynav.scenes.scene import Scene
 from . import cosmic_rays as cr
 from . import jit_backend
 from .brdf import photocentre_offset_xy
-from .detector import PixelCharge, Sensor
+from .detector import JIT_BACKENDS, PixelCharge, Sensor
 from .mitsuba_backend import render_resolved_body
 from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
 from .radiometry import Radiometry
@@ -78,7 +78,7 @@ class RenderOptions:
     noise : bool
         Apply the sensor noise chain (False: DN of the expected signal, no randomness).
     backend : str
-        ``"auto"``, ``"llvm"`` or ``"numpy"`` for the sensor.
+        ``"auto"``, ``"llvm"``, ``"cuda"`` or ``"numpy"`` for the sensor.
     """
 
     flux_fraction_lost: float = 1e-6
@@ -106,8 +106,8 @@ class RenderOptions:
             raise ConfigValueError("render.cosmic_ray_mode", self.cosmic_ray_mode, "poisson or fixed")
         if not 0.0 <= self.cosmic_ray_track_prob <= 1.0:
             raise ConfigValueError("render.cosmic_ray_track_prob", self.cosmic_ray_track_prob, "in [0, 1]")
-        if self.backend not in ("auto", "llvm", "numpy"):
-            raise ConfigValueError("render.backend", self.backend, "auto, llvm or numpy")
+        if self.backend not in ("auto", "llvm", "cuda", "numpy"):
+            raise ConfigValueError("render.backend", self.backend, "auto, llvm, cuda or numpy")
         if self.mitsuba_spp < 1 or self.mitsuba_time_samples < 1:
             raise ConfigValueError("render.mitsuba_spp", self.mitsuba_spp, ">= 1")
 
@@ -211,7 +211,7 @@ class Detection:
     hits : CosmicRayHits
         The cosmic-ray hits of the frame.
     backend : str
-        The sensor backend that ran: ``"llvm"`` or ``"numpy"`` (the noise-free chain,
+        The sensor backend that ran: ``"llvm"``, ``"cuda"`` or ``"numpy"`` (the noise-free chain,
         ``RenderOptions(noise=False)``, is numpy).
     """
 
@@ -431,10 +431,11 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
 
 
 def sensor_backend(requested: str) -> str:
-    """The sensor backend a request resolves to here: ``"auto"`` is ``"llvm"`` where
-    :func:`~skynav.renderer.jit_backend.llvm_available`, else ``"numpy"``."""
+    """The sensor backend a request resolves to here: ``"auto"`` is
+    :func:`~skynav.renderer.jit_backend.auto_sensor_backend` (``"llvm"``, else ``"cuda"``, else
+    ``"numpy"``)."""
     if requested == "auto":
-        return "llvm" if jit_backend.llvm_available() else "numpy"
+        return jit_backend.auto_sensor_backend()
     return requested
 
 
@@ -477,9 +478,9 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     support = getattr(expected, "support", None)
     if options.noise:
         backend = sensor_backend(options.backend)
-        # the LLVM sensor reads float32 electrons: converted once, and the same array, with the
+        # the Dr.Jit sensor reads float32 electrons: converted once, and the same array, with the
         # pixels hit set below, is the frame's electrons image (no float64 copy goes through)
-        e_in = float32_image(electrons, support) if backend == "llvm" else electrons
+        e_in = float32_image(electrons, support) if backend in JIT_BACKENDS else electrons
         dn = sensor.expose(e_in, T, rng, backend=backend, extra_charge_e=charge)
     else:
         backend = "numpy"

@@ -132,7 +132,7 @@ def add_parser(sub) -> None:
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
     add_quiet(r)
-    r.add_argument("--backend", choices=("auto", "llvm", "numpy"), default="auto", help="sensor noise backend")
+    r.add_argument("--backend", choices=("auto", "llvm", "cuda", "numpy"), default="auto", help="sensor noise backend")
     r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
     add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
     r.set_defaults(func=cmd_render)

@@ -286,7 +286,7 @@ def _flag_cases(tmp, good_scene, ds):
     return [(f"flags:{' '.join(a)}"[:80], a, e, 2) for a, e in [
         (["render", good_scene, "--seed", "-1", "-o", out], "--seed"),
         (["render", good_scene, "--seed", "abc", "-o", out], "--seed"),
-        (["render", good_scene, "--backend", "cuda", "-o", out], "--backend"),
+        (["render", good_scene, "--backend", "opencl", "-o", out], "--backend"),
         (["render", good_scene, "--bogus"], "--bogus"),
         (["render", good_scene, "--name", "../../../x", "-o", out], "--name"),
         (["render", good_scene, "--name", "", "-o", out], "--name"),

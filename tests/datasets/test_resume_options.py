@@ -39,7 +39,7 @@ def test_manifest_records_render_options_and_resolved_backends(reference_dataset
     m = json.loads((out / "manifest.json").read_text())
     assert m["render_options"] == dataclasses.asdict(RenderOptions())
     # "auto" resolved as the renderer resolves it, independently asked here
-    assert m["backends"]["sensor"] == ("llvm" if jit_backend.llvm_available() else "numpy")
+    assert m["backends"]["sensor"] == jit_backend.auto_sensor_backend()
     assert m["backends"]["mitsuba_variant"] == jit_backend.select_mitsuba_variant()[0]
     assert m["backends"]["mitsuba_variant"] in ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral")
 

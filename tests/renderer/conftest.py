@@ -23,11 +23,30 @@ def llvm_or_skip():
         pytest.skip(f"Dr.Jit LLVM backend unavailable: {status.reason}")
 
 
-@pytest.fixture(params=["numpy", "llvm"])
+def cuda_or_skip():
+    """Skip the calling test, with the probe's reason, when Dr.Jit's CUDA backend does not work."""
+    from skynav.renderer import jit_backend
+
+    status = jit_backend.probe_cuda()
+    if not status.available:
+        pytest.skip(f"Dr.Jit CUDA backend unavailable: {status.reason}")
+
+
+@pytest.fixture(params=["numpy", "llvm", pytest.param("cuda", marks=pytest.mark.gpu)])
 def backend(request):
-    """Each sensor backend in turn (``"llvm"`` skips with a reason where it does not work)."""
+    """Each sensor backend in turn (``"llvm"`` and ``"cuda"`` skip with a reason where they do
+    not work; ``"cuda"`` runs only with ``-m gpu``)."""
     if request.param == "llvm":
         llvm_or_skip()
+    elif request.param == "cuda":
+        cuda_or_skip()
+    return request.param
+
+
+@pytest.fixture(params=["llvm", pytest.param("cuda", marks=pytest.mark.gpu)])
+def jit_backend_name(request):
+    """Each Dr.Jit sensor backend in turn (skipped with a reason where it does not work)."""
+    (llvm_or_skip if request.param == "llvm" else cuda_or_skip)()
     return request.param
 
 

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tests.renderer.conftest import llvm_or_skip
 from skynav.renderer.detector import Sensor, SensorInputError, bloom_columns, fixed_patterns
 from skynav.scenes.camera import SensorParams
 
@@ -154,17 +153,17 @@ def test_shot_noise_against_scipy_poisson_pmf(backend, lam):
     assert p > 1e-4, (lam, chi2, len(obs))
 
 
-def test_llvm_read_noise_erfinv_against_math_erf():
+def test_jit_read_noise_erfinv_against_math_erf(jit_backend_name):
     """The read noise's inverse error function (Giles 2010, its tail polynomial only in the packets
     that need it) inverts ``math.erf``: over 200,000 points of (-1, 1) and 4,000 in the tails down
     to 1 - x = 6e-8, erf(erfinv(x)) is within 2e-7 of x, and z within 4e-7 (relative) of the exact
     inverse, the single-precision accuracy the paper states (a wrong tail branch or coefficient
-    is off by 1e-3 or more)."""
-    llvm_or_skip()
+    is off by 1e-3 or more). On each Dr.Jit backend: the CUDA kernel takes the GPU's log."""
     import drjit as dr
-    from drjit.llvm import Float
 
-    from skynav.renderer.detector import _jit_erfinv
+    from skynav.renderer.detector import _jit_erfinv, _jit_module
+
+    Float = _jit_module(jit_backend_name).Float
 
     tails = 1.0 - np.logspace(-7.2, -1.0, 2000)
     x = np.concatenate([np.linspace(-0.999999, 0.999999, 200001), tails, -tails]).astype(np.float32)
@@ -177,14 +176,13 @@ def test_llvm_read_noise_erfinv_against_math_erf():
     assert np.max(dz / np.maximum(np.abs(z), 1e-12)) < 4e-7
 
 
-def test_numpy_and_llvm_statistics_agree():
-    llvm_or_skip()
+def test_numpy_and_jit_statistics_agree(jit_backend_name):
     # two-sample chi-square homogeneity test on DN histograms of the full chain at several levels
     params = dataclasses.replace(PTC, gain_dn_per_e=0.25, read_noise_e=2.0, reset_noise_e=1.0)
     s = Sensor(params, (128, 128))
     for i, level in enumerate((0.0, 4.0, 60.0, 3000.0)):
         a = s.expose(np.full(s.shape, level), 0.2, np.random.default_rng(10 + i), backend="numpy").ravel()
-        b = s.expose(np.full(s.shape, level), 0.2, np.random.default_rng(20 + i), backend="llvm").ravel()
+        b = s.expose(np.full(s.shape, level), 0.2, np.random.default_rng(20 + i), backend=jit_backend_name).ravel()
         edges = np.unique(np.quantile(np.concatenate([a, b]), np.linspace(0, 1, 41)))
         edges[-1] += 1
         ca, _ = np.histogram(a, edges)
@@ -264,12 +262,12 @@ def test_same_seed_same_bits(backend):
     assert np.array_equal(d.dn, a) and d.backend == backend
 
 
-def test_replayed_kernel_gives_the_traced_bits():
+def test_replayed_kernel_gives_the_traced_bits(jit_backend_name):
     """Without blooming the LLVM chain is one Dr.Jit frozen function: its first call of an input
     layout records the kernel, the later ones replay it with new inputs. Each must give the bits
     of the same chain traced afresh (``expose_details`` traces it every call; same code, same
-    seed), across bit depths (UInt8 or UInt32 out), sizes, exposures, gains and extra charge."""
-    llvm_or_skip()
+    seed), across bit depths (UInt8 or UInt32 out), sizes, exposures, gains and extra charge,
+    on each Dr.Jit backend."""
     rng = np.random.default_rng(4)
     for bits, shape in ((8, (64, 48)), (12, (64, 48)), (8, (30, 70)), (12, (30, 70))):
         for k in range(3):  # the first call records, the next ones replay
@@ -278,8 +276,8 @@ def test_replayed_kernel_gives_the_traced_bits():
             e = rng.uniform(0, 300 * (k + 1), shape)
             extra = None if k == 1 else np.where(rng.random(shape) < 0.01, 5000.0, 0.0)
             t = float(rng.uniform(0.05, 1.0))
-            a = s.expose(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
-            d = s.expose_details(e, t, np.random.default_rng(100 + k), backend="llvm", extra_charge_e=extra)
+            a = s.expose(e, t, np.random.default_rng(100 + k), backend=jit_backend_name, extra_charge_e=extra)
+            d = s.expose_details(e, t, np.random.default_rng(100 + k), backend=jit_backend_name, extra_charge_e=extra)
             assert a.dtype == s.dtype and np.array_equal(a, d.dn), (bits, shape, k)
 
 
@@ -291,8 +289,6 @@ def test_pixel_charge_is_its_image(backend, bits):
     seed). ``expose_details`` (the traced path) agrees too."""
     from skynav.renderer.detector import PixelCharge
 
-    if backend == "llvm":
-        llvm_or_skip()
     s = Sensor(dataclasses.replace(PTC, bit_depth=bits, gain_dn_per_e=0.05 if bits == 8 else 0.8, offset_dn=10.0), (40, 56))
     e = np.random.default_rng(1).uniform(0, 400, s.shape)
     index = np.array([0, 57, 57, 2239, 1000, 1000, 1000, 56 * 20 + 7])
@@ -333,7 +329,7 @@ def test_bad_inputs():
         with pytest.raises(SensorInputError, match="^extra_charge_e must be finite and >= 0"):
             s.expose(np.ones((4, 4)), 0.1, rng, extra_charge_e=img)
     with pytest.raises(SensorInputError, match="backend"):
-        s.expose(np.zeros((4, 4)), 0.1, rng, backend="cuda")
+        s.expose(np.zeros((4, 4)), 0.1, rng, backend="opencl")
     with pytest.raises(SensorInputError, match="Generator"):
         s.expose(np.zeros((4, 4)), 0.1, 42)
 

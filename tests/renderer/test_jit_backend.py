@@ -61,6 +61,22 @@ def test_disable_switch(fresh_probe, monkeypatch):
     assert jb.llvm_available() is False
 
 
+def test_auto_sensor_backend_prefers_llvm_then_cuda_then_numpy(fresh_probe, monkeypatch):
+    """``backend="auto"`` is LLVM where it works, else CUDA where it works, else numpy; a backend
+    asked for by name that does not work here is one line naming it and why."""
+    monkeypatch.setenv("SKYNAV_DISABLE_LLVM", "1")
+    monkeypatch.setenv("SKYNAV_DISABLE_CUDA", "1")
+    assert jb.auto_sensor_backend() == "numpy"
+    for name, switch in (("llvm", "SKYNAV_DISABLE_LLVM"), ("cuda", "SKYNAV_DISABLE_CUDA")):
+        with pytest.raises(jb.BackendUnavailableError, match=f"^backend='{name}' requested but .*{switch}"):
+            jb.require(name)
+    monkeypatch.delenv("SKYNAV_DISABLE_CUDA")
+    cuda = jb.probe_cuda().available
+    assert jb.auto_sensor_backend() == ("cuda" if cuda else "numpy")
+    monkeypatch.delenv("SKYNAV_DISABLE_LLVM")
+    assert jb.auto_sensor_backend() == ("llvm" if jb.probe_llvm().available else "cuda" if cuda else "numpy")
+
+
 def test_cache_file_is_reused(fresh_probe, monkeypatch):
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", jb.find_libllvm() or LLVM15)
     calls = []
@@ -107,6 +123,7 @@ def test_disable_switch_sends_sensor_to_numpy(fresh_probe, monkeypatch):
     from skynav.scenes.camera import SensorParams
 
     monkeypatch.setenv("SKYNAV_DISABLE_LLVM", "1")
+    monkeypatch.setenv("SKYNAV_DISABLE_CUDA", "1")   # else "auto" is the GPU's kernel on a GPU machine
     s = Sensor(SensorParams(), (8, 8))
     d = s.expose_details(np.full((8, 8), 100.0), 0.1, np.random.default_rng(0))
     assert d.backend == "numpy"
