@@ -106,6 +106,9 @@ marks = []
 def progress(done, total):
     marks.append((done, time.perf_counter()))
 kw = {"workers": cfg["workers"]}
+if cfg.get("backend"):  # the sensor backend (gpu_bench.py); else the renderer's "auto"
+    from skynav.renderer.render import RenderOptions
+    kw["render_options"] = RenderOptions(backend=cfg["backend"])
 if cfg["dask"]:
     from distributed import Client, LocalCluster
     cluster = LocalCluster(n_workers=cfg["workers"], threads_per_worker=1, processes=True, dashboard_address=None)
@@ -221,17 +224,19 @@ def _child(code: str, cfg: dict, env_extra: dict) -> tuple:
 
 
 def _cold_cfg(frames: int, out: Path, workers: int, small: bool, *, preset: str = "montecarlo", dask: bool = False,
-              one_core: bool = False) -> dict:
+              one_core: bool = False, backend: str | None = None) -> dict:
     """The configuration :data:`_CHILD` reads: one ``generate`` run."""
     return {"preset": preset, "frames": frames, "out": str(out), "workers": workers, "small": small, "dask": dask,
-            "one_core": one_core}
+            "one_core": one_core, "backend": backend}
 
 
 def run_cold(frames: int, out: Path, workers: int, small: bool, env_extra: dict, *, preset: str = "montecarlo",
-             dask: bool = False, one_core: bool = False) -> dict:
+             dask: bool = False, one_core: bool = False, backend: str | None = None) -> dict:
     """One fresh ``python`` running ``generate`` (what the CLI calls); wall clock of it all.
-    ``one_core``: the process (its writer thread too) confined to one core."""
-    r, wall = _child(_CHILD, _cold_cfg(frames, out, workers, small, preset=preset, dask=dask, one_core=one_core), env_extra)
+    ``one_core``: the process (its writer thread too) confined to one core. ``backend``: the
+    sensor backend (default: the renderer's ``"auto"``)."""
+    r, wall = _child(_CHILD, _cold_cfg(frames, out, workers, small, preset=preset, dask=dask, one_core=one_core,
+                                       backend=backend), env_extra)
     r["wall_s"] = wall
     r["fps"] = r["frames"] / wall
     r["load"] = _load()

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -55,3 +57,28 @@ def test_render_bench_prints_both_paths_against_numpys_variates():
             assert "llvm path: unavailable" in out, out  # no LLVM 19 here: the script says so instead
             continue
         assert line and float(line.group(1)) > 0, out
+
+
+def test_gpu_bench_runs_without_a_gpu_on_the_cpu_backends_and_says_why_not_on_cuda():
+    """Without a GPU the script refuses ``cuda`` in one line (exit 2) and gives the CPU's figures
+    with ``--backends llvm numpy``; on a GPU machine ``test_gpu_bench_prints_cuda_figures`` runs it."""
+    from skynav.renderer import jit_backend
+
+    if not jit_backend.probe_cuda().available:
+        proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu_bench.py"), "--no-monte-carlo"],
+                              capture_output=True, text=True, cwd=ROOT, timeout=600)
+        assert proc.returncode == 2 and proc.stdout == "", proc
+        assert re.fullmatch(r"gpu_bench: Dr\.Jit's CUDA backend does not work here \(.+\); run with --backends "
+                            r"llvm numpy for the CPU's figures\n", proc.stderr), proc.stderr
+    out = _run("gpu_bench.py", "--backends", "llvm", "numpy", "--repeat", "2", "--workers", "1", "--frames-per-worker", "4",
+               "--small")
+    assert re.search(r"sensor numpy: frame +[0-9.]+ ms = +[0-9.]+ frames/s .* the sensor alone +[0-9.]+ ms", out), out
+    assert re.search(r" 1 worker , sensor numpy: +[0-9.]+ frames/s steady \(64 frames", out), out
+
+
+@pytest.mark.gpu
+def test_gpu_bench_prints_cuda_figures():
+    out = _run("gpu_bench.py", "--backends", "cuda", "numpy", "--repeat", "2", "--workers", "1", "--frames-per-worker", "4",
+               "--small")
+    assert re.search(r"sensor cuda : frame +[0-9.]+ ms = +[0-9.]+ frames/s \( *[0-9.]+x the numpy frame\)", out), out
+    assert re.search(r"1 worker: cuda / numpy [0-9.]+x", out), out
