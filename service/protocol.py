@@ -5,6 +5,7 @@ Shared by the server and the client; imports nothing of skynav (the client must 
 
 from __future__ import annotations
 
+import re
 import secrets
 
 #: URL prefix of this protocol version.
@@ -68,3 +69,32 @@ def answer_chunks(parts: dict) -> tuple[list, str]:
         chunks.append(b"\r\n")
     chunks.append(f"--{boundary}--\r\n".encode("ascii"))
     return chunks, f'{MULTIPART}; boundary="{boundary}"'
+
+
+#: What uvicorn refuses in a header value (``uvicorn.protocols.http.httptools_impl.HEADER_VALUE_RE``).
+_BAD_HEADER_VALUE = re.compile(b"[\x00-\x08\x0a-\x1f\x7f]")
+
+
+def answer_headers(ctype: str, seconds: float, lines: list) -> list:
+    """The headers of a 200 answer, as (name, value) pairs, after the server's defaults (``date``,
+    ``server``) and before ``content-length``: its media type, the worker's time, the warnings."""
+    headers = [(b"content-type", ctype.encode("latin-1")), (b"skynav-render-seconds", b"%.6f" % seconds)]
+    if lines:
+        headers.append((b"skynav-warnings", " | ".join(lines).encode("ascii", "replace")[:4000]))
+    return headers
+
+
+def uvicorn_takes(headers: list) -> bool:
+    """Whether uvicorn writes these header values as they are (it answers 500 for one with a
+    control character: such an answer must go through it)."""
+    return not any(_BAD_HEADER_VALUE.search(value) for _, value in headers)
+
+
+def answer_head(defaults: bytes, headers: list, length: int, keep_alive: bool) -> bytes:
+    """The status line and header block that uvicorn writes for a 200 answer with ``headers`` and
+    a body of ``length`` bytes (``RequestResponseCycle.send`` of ``http.response.start``):
+    ``defaults``, its ``date`` and ``server`` lines, first; ``connection: close`` when the
+    connection is not kept alive. ``tests/service/test_direct_answer.py`` checks it against
+    uvicorn's own."""
+    return b"".join([b"HTTP/1.1 200 OK\r\n", defaults, *(b"%s: %s\r\n" % h for h in headers),
+                     b"content-length: %d\r\n" % length, b"" if keep_alive else b"connection: close\r\n", b"\r\n"])

@@ -4,13 +4,16 @@ The server process checks a request's envelope (token, media type, size, JSON ob
 and hands it to an idle worker process (:mod:`skynav.service.worker`), which validates the scene
 once, with the scene-file validator (:func:`skynav.scenes.config.scene_spec_from_mapping`, so
 errors use the scene-file words: a ``bad`` answer becomes the 400's line), and renders it; the
-server renders nothing itself and writes no file. ``POST /v1/render`` is a plain ASGI endpoint
-(:class:`RenderEndpoint`) in front of the Starlette application that serves the rest. Concurrency is bounded: ``workers`` frames render at once, ``max_queue`` more
-wait, the next gets 503. Every error is a 4xx/5xx with a one-line JSON body ``{"error": "..."}``.
+server renders nothing itself and writes no file. A 200 answer the worker writes to the client's
+socket itself, which the server hands it with the request (:class:`_Direct`). ``POST
+/v1/render`` is a plain ASGI endpoint (:class:`RenderEndpoint`) in front of the Starlette
+application that serves the rest. Concurrency is bounded: ``workers`` frames render at once,
+``max_queue`` more wait, the next gets 503. Every error is a 4xx/5xx with a one-line JSON body ``{"error": "..."}``.
 """
 
 from __future__ import annotations
 
+import array
 import asyncio
 import contextlib
 import hmac
@@ -47,6 +50,7 @@ from .protocol import (
     MAX_REQUEST_BYTES,
     OUTPUTS,
     SCENE_KEYS,
+    answer_headers,
 )
 from .worker import frame_head, worker_main
 
@@ -69,12 +73,14 @@ class _Answers(asyncio.BufferedProtocol):
 
     The worker frames each message as :class:`multiprocessing.connection.Connection` does (a
     4-byte big-endian signed length, -1 then an 8-byte length from 2 GiB, then the bytes). An
-    answer is one pickled message ``(kind, one line)``, or for ``ok`` two in one write
-    (:class:`skynav.service.worker._AnswerPipe`): the pickled ``("ok", content type, warnings,
-    seconds)`` and the body's raw bytes. The event loop reads into the buffer :meth:`get_buffer`
-    hands it, sized to what comes next (the length, the pickle, the body), so the body lands in a
-    buffer of its own size at once: no stream buffer in between, no copy of its ~250 KB, no
-    Python for each chunk.
+    answer is one pickled message ``(kind, one line)``, or for ``ok`` and ``sent`` two in one
+    write (:class:`skynav.service.worker._Pipe`): the pickled ``("ok", content type, warnings,
+    seconds)`` and the body's raw bytes, or ``("sent", ok)`` and what the client's socket did not
+    take of the answer the worker wrote to it (:class:`_Direct`; nothing, unless the answer is
+    larger than the socket's send buffer or the client reads slowly). The event loop reads into
+    the buffer :meth:`get_buffer` hands it, sized to what comes next (the length, the pickle, the
+    body), so a body lands in a buffer of its own size at once: no stream buffer in between, no
+    copy, no Python for each chunk.
     """
 
     def __init__(self):
@@ -115,7 +121,7 @@ class _Answers(asyncio.BufferedProtocol):
             elif self._what == "message":
                 answer = pickle.loads(self._buf)
                 self._read_length()
-                if answer[0] == "ok":
+                if answer[0] in ("ok", "sent"):
                     self._head = answer
                 else:
                     self._deliver(answer)
@@ -148,7 +154,11 @@ class _Answers(asyncio.BufferedProtocol):
 class _Worker:
     def __init__(self, ctx, facility, threads):
         self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=worker_main, args=(child, facility, threads), daemon=True)
+        # the serial of the last answer the worker began to write to a client itself (shared memory:
+        # read when the worker died, to know whether part of that answer may be with the client)
+        self.writing = ctx.RawValue("q", 0)
+        self.serial = 0
+        self.process = ctx.Process(target=worker_main, args=(child, facility, threads, self.writing), daemon=True)
         # the spawned worker reads its thread budget from the environment it starts with: Dr.Jit
         # and OpenEXR (SKYNAV_THREADS) and OpenBLAS/OpenMP/MKL alike, so that N workers on N cores
         # do not each start a pool as wide as the machine
@@ -179,10 +189,17 @@ class _Worker:
         sock = socket.socket(fileno=os.dup(self.conn.fileno()))
         loop = asyncio.get_running_loop()
         self.transport, self.answers = await loop.create_unix_connection(_Answers, sock=sock)
+        self.sock = socket.socket(fileno=os.dup(self.conn.fileno()))   # for the requests that carry a socket
+        self.sock.setblocking(False)
 
-    def request(self, msg, done) -> asyncio.Future:
-        """Send one request; the future of the worker's answer (EOFError when the worker died).
+    def request(self, scene, outputs, max_pixels, done, direct=None) -> tuple:
+        """Send one request; ``(future of the worker's answer, serial)`` (the future's exception
+        EOFError when the worker died).
 
+        ``direct``: the :class:`_Direct` of the request's connection, or None. With it the
+        client's socket goes along (``SCM_RIGHTS``), and the worker writes a 200 answer to the
+        client itself; its answer here is then ``("sent", ok, the bytes the socket did not
+        take)``, and ``serial`` the number the worker puts in :attr:`writing` before it writes.
         ``done(died)`` is called once the answer has been read or the worker is gone (at once,
         with True, when it was gone already). An ``ok`` answer is ``("ok", content type,
         warnings, seconds, body)``, the body the raw bytes of the HTTP answer's body (a
@@ -192,15 +209,28 @@ class _Worker:
         if self.transport is None or self.transport.is_closing() or self.answers.lost:
             done(True)
             raise EOFError("the render worker is gone")
-        data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
+        fd = head = None
+        if direct is not None and self.transport.get_write_buffer_size() == 0:
+            fd = direct.fileno()
+            if fd is not None:
+                self.serial += 1
+                head = (*direct.head_info(), self.serial)
+        data = pickle.dumps((scene, outputs, max_pixels, head), protocol=pickle.HIGHEST_PROTOCOL)
+        data = frame_head(len(data)) + data
         future = self.answers.expect(done)
-        self.transport.write(frame_head(len(data)) + data)
-        return future
+        sent = 0
+        if fd is not None:   # the pipe is empty (one request at a time): this small write goes whole
+            with contextlib.suppress(BlockingIOError, InterruptedError):
+                sent = self.sock.sendmsg([data], [(socket.SOL_SOCKET, socket.SCM_RIGHTS, array.array("i", [fd]))])
+        if sent < len(data):   # without the socket (when none of it went), the worker answers here
+            self.transport.write(data[sent:])
+        return future, (self.serial if sent else None)
 
     def detach(self) -> None:
         if self.transport is not None:
             self.transport.close()
-            self.transport = self.answers = None
+            self.sock.close()
+            self.transport = self.answers = self.sock = None
 
     def stop(self, timeout_s: float = 30.0) -> None:
         try:
@@ -251,7 +281,9 @@ class WorkerPool:
         for w in self.workers:
             w.detach()
 
-    async def render(self, mapping: dict, outputs: tuple):
+    async def render(self, mapping: dict, outputs: tuple, direct=None):
+        """The worker's answer to one request (:meth:`_Worker.request`); ``direct``: the
+        request's :class:`_Direct`, or None (the answer comes back here)."""
         if self.busy >= self.n and self.waiting >= self.limits.max_queue:
             raise _HTTPError(503, f"the server is busy ({self.busy} frames rendering, {self.waiting} waiting; "
                                   f"the queue holds {self.limits.max_queue}); try again")
@@ -264,10 +296,15 @@ class WorkerPool:
         # the worker goes back to the idle queue when its answer has been read (_Answers calls
         # done), even if this request is cancelled before (its client went away): the next
         # request never reads this one's frame
+        serial = None
         try:
-            return await worker.request((mapping, outputs, self.limits.max_camera_pixels),
-                                        lambda died: self._answered(worker, died))
+            future, serial = worker.request(mapping, outputs, self.limits.max_camera_pixels,
+                                            lambda died: self._answered(worker, died),
+                                            direct if direct is not None and direct.usable() else None)
+            return await future
         except EOFError:
+            if serial is not None and worker.writing.value == serial:
+                raise _AnswerCut from None
             raise _HTTPError(503, "the render worker died while rendering this frame (out of memory?); "
                                   "ask for a smaller camera or try again") from None
 
@@ -304,6 +341,10 @@ class WorkerPool:
         for w in self.workers:
             w.stop()
         self._executor.shutdown(wait=False)
+
+
+class _AnswerCut(Exception):
+    """The worker died while it wrote an answer to the client: part of it may be there."""
 
 
 class _HTTPError(Exception):
@@ -399,6 +440,12 @@ class RenderEndpoint:
     async def __call__(self, scope, receive, send) -> None:
         try:
             status, headers, body = await self._answer(scope, receive)
+            if status == 0:   # the worker wrote the answer to the client: body is what the socket did not take
+                scope["extensions"]["skynav.direct"].finish(headers, body)
+                return
+        except _AnswerCut:   # the client has a part of an answer: only closing the connection tells it
+            scope["extensions"]["skynav.direct"].finish(False, b"")
+            return
         except _ClientGone:
             status, headers, body = 400, [], b""   # no one reads it (uvicorn drops it)
         except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
@@ -433,16 +480,16 @@ class RenderEndpoint:
                 raise _HTTPError(415, f"Content-Type {kind!r}: send the scene mapping as application/json")
             body = await self._body(receive, declared)
             mapping, outputs = parse_request(body, has_facility=self.has_facility, limits=self.limits)
-            answer = await self.pool.render(mapping, outputs)
+            extensions = scope.get("extensions")
+            answer = await self.pool.render(mapping, outputs, extensions and extensions.get("skynav.direct"))
         except _HTTPError as exc:
             return exc.status, [], _error_body(exc.message)
+        if answer[0] == "sent":
+            return 0, answer[1], answer[2]
         if answer[0] != "ok":
             return (400 if answer[0] == "bad" else 500), [], _error_body(answer[1])
         _, ctype, lines, seconds, body = answer
-        headers = [(b"content-type", ctype.encode("latin-1")), (b"skynav-render-seconds", b"%.6f" % seconds)]
-        if lines:
-            headers.append((b"skynav-warnings", " | ".join(lines).encode("ascii", "replace")[:4000]))
-        return 200, headers, body
+        return 200, answer_headers(ctype, seconds, lines), body
 
     async def _body(self, receive, declared) -> bytes:
         bound = self.limits.max_request_bytes
@@ -510,6 +557,74 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
             await app(scope, receive, send)
 
     return front
+
+
+class _Direct:
+    """What a ``POST /v1/render`` scope carries as its extension ``skynav.direct``
+    (:func:`_http_protocol`): the request's uvicorn request-response cycle and transport.
+
+    With it a 200 answer takes one hand-over less: the client's socket goes to the worker with
+    the request, the worker writes the answer's head and body to it (``skynav.service.worker``,
+    the head the bytes uvicorn writes: :func:`skynav.service.protocol.answer_head`), then tells
+    the server, and :meth:`finish` ends the cycle as uvicorn's ``send`` does after a body, without
+    writing. The client has its frame while the server reads the worker's word, instead of after
+    the server has read the frame from the worker and written it out again. Only when the
+    connection is idle (nothing of an earlier answer left in uvicorn's write buffer); errors and
+    every other path go through uvicorn as before.
+    """
+
+    __slots__ = ("cycle", "transport")
+
+    def __init__(self, cycle, transport):
+        self.cycle, self.transport = cycle, transport
+
+    def usable(self) -> bool:
+        cycle, transport = self.cycle, self.transport
+        return (not cycle.disconnected and not cycle.response_started and not transport.is_closing()
+                and transport.get_write_buffer_size() == 0)
+
+    def fileno(self) -> int | None:
+        sock = self.transport.get_extra_info("socket")
+        return None if sock is None else sock.fileno()
+
+    def head_info(self) -> tuple:
+        """``(uvicorn's default header lines, keep-alive)``: what the worker needs for the head."""
+        cycle = self.cycle
+        return b"".join(b"%s: %s\r\n" % h for h in cycle.default_headers), cycle.keep_alive
+
+    def finish(self, ok: bool, rest) -> None:
+        """The worker wrote the answer (``ok``; ``rest``: what the socket did not take, written
+        here), or the client is gone or has part of an answer (not ``ok``: the connection closes)."""
+        cycle, transport = self.cycle, self.transport
+        cycle.response_started = True
+        if not ok:
+            transport.close()
+        elif rest and not transport.is_closing():
+            transport.write(rest)
+        cycle.response_complete = True
+        cycle.message_event.set()
+        if not cycle.keep_alive:
+            transport.close()
+        cycle.on_response()
+
+
+def _http_protocol():
+    """uvicorn's httptools protocol with the ``skynav.direct`` extension in the scope of ``POST
+    /v1/render``; None where httptools is missing (uvicorn's own choice then)."""
+    try:
+        from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+    except ImportError:
+        return None
+
+    class _Protocol(HttpToolsProtocol):
+        def on_headers_complete(self) -> None:
+            super().on_headers_complete()
+            scope = self.scope
+            if scope.get("path") == RENDER_PATH and scope.get("method") == "POST" and self.cycle is not None \
+                    and self.cycle.scope is scope:
+                scope["extensions"] = {"skynav.direct": _Direct(self.cycle, self.transport)}
+
+    return _Protocol
 
 
 def is_loopback(host: str) -> bool:
@@ -583,8 +698,10 @@ def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facili
         # h11 and asyncio's loop otherwise; together they take ~0.3 ms of the server's CPU per frame
         # proxy_headers off: the server is not behind a proxy (a client's X-Forwarded-For means
         # nothing here), and uvicorn's middleware for it is one more layer on every request
-        config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="on", proxy_headers=False,
-                                timeout_graceful_shutdown=600, limit_concurrency=limits.max_queue * 4 + workers + 64)
+        # http: httptools' protocol with the skynav.direct extension (_http_protocol)
+        config = uvicorn.Config(app, http=_http_protocol() or "auto", log_level="warning", access_log=False,
+                                lifespan="on", proxy_headers=False, timeout_graceful_shutdown=600,
+                                limit_concurrency=limits.max_queue * 4 + workers + 64)
         server = _Server(config)
 
         async def main():

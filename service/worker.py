@@ -14,6 +14,7 @@ PNG, EXR and truth bytes are those of its files.
 
 from __future__ import annotations
 
+import array
 import contextlib
 import os
 import pickle
@@ -36,7 +37,7 @@ from skynav.scenes.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
-from .protocol import OUTPUTS, answer_chunks
+from .protocol import OUTPUTS, answer_chunks, answer_head, answer_headers, uvicorn_takes
 
 
 def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
@@ -94,20 +95,46 @@ def frame_head(n: int) -> bytes:
     return struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!iQ", -1, n)
 
 
-class _AnswerPipe:
-    """The worker's end of the pipe as a socket, for the answers with a body.
+class _Pipe:
+    """The worker's end of the pipe as a socket: requests (with the client's connection, when
+    the server hands it over) in, answers out.
 
-    Its send buffer is widened to hold a whole answer (the default 1024^2 frame's PNG and truth
-    are ~250 KB; Linux's default buffer is 208 KiB, its ceiling ``net.core.wmem_max``; best effort),
-    and :meth:`send_ok` writes the answer's two messages, ``("ok", content type, warnings,
-    seconds)`` and the body, in one gathered write: the server wakes once and reads it all, and the
-    worker goes back to waiting without a round trip.
+    A request is one message (:func:`frame_head` and a pickle), ``(mapping, outputs, max pixels,
+    direct)``; with ``direct`` (the server's default header lines and whether the connection is
+    kept alive) comes the client's socket, passed as ``SCM_RIGHTS``: the worker writes the HTTP
+    answer to the client itself (:meth:`send_direct`), then tells the server. The send buffer is
+    widened to hold a whole answer (the default 1024^2 frame's PNG and truth are ~250 KB; Linux's
+    default buffer is 208 KiB, its ceiling ``net.core.wmem_max``; best effort), and
+    :meth:`send_ok` writes an answer's two messages, ``("ok", content type, warnings, seconds)``
+    and the body, in one gathered write: the server wakes once and reads it all.
     """
 
     def __init__(self, conn, sndbuf: int = 4 * 1024 * 1024):
         self.sock = socket.socket(fileno=os.dup(conn.fileno()))
         with contextlib.suppress(OSError):
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, sndbuf)
+        self._fd_space = socket.CMSG_SPACE(4 * struct.calcsize("i"))
+
+    def recv(self):
+        """``(message, [file descriptors])``; EOFError when the server is gone."""
+        fds = []
+        (n,) = struct.unpack("!i", self._recv_exact(4, fds))
+        if n == -1:
+            (n,) = struct.unpack("!Q", self._recv_exact(8, fds))
+        return pickle.loads(self._recv_exact(n, fds)), fds
+
+    def _recv_exact(self, n: int, fds: list) -> bytearray:
+        buf = bytearray(n)
+        view, got = memoryview(buf), 0
+        while got < n:
+            k, ancillary, _, _ = self.sock.recvmsg_into([view[got:]], self._fd_space)
+            for level, kind, data in ancillary:
+                if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
+                    fds.extend(array.array("i", data[:len(data) - len(data) % 4]))
+            if not k:
+                raise EOFError
+            got += k
+        return buf
 
     def send_ok(self, header: tuple, chunks: list) -> None:
         head = pickle.dumps(header, protocol=pickle.HIGHEST_PROTOCOL)
@@ -120,8 +147,28 @@ class _AnswerPipe:
             if views and sent:
                 views[0] = views[0][sent:]
 
+    def send_direct(self, client: socket.socket, head: bytes, chunks: list) -> None:
+        """Write an answer's HTTP head and body to the client's socket, at once and without
+        waiting (the socket is the server's, non-blocking), then tell the server: ``("sent",
+        True)`` and what the socket did not take (nothing, unless the client reads slowly), which
+        the server writes after it; ``("sent", False)`` when the client is gone."""
+        views = [memoryview(b) for b in (head, *chunks) if len(b)]
+        ok = True
+        try:
+            sent = client.sendmsg(views, (), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL)
+        except BlockingIOError:
+            sent = 0
+        except OSError:
+            sent, ok = 0, False
+        client.close()
+        while views and sent >= len(views[0]):
+            sent -= len(views.pop(0))
+        if views and sent:
+            views[0] = views[0][sent:]
+        self.send_ok(("sent", ok), views if ok else [])
 
-def worker_main(conn, facility_arg, threads) -> None:
+
+def worker_main(conn, facility_arg, threads, writing=None) -> None:
     """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -141,24 +188,36 @@ def worker_main(conn, facility_arg, threads) -> None:
         traceback.print_exc(file=sys.stderr)
         conn.send(("failed", f"the render worker could not start: {exc.__class__.__name__}: {exc}"))
         return
-    pipe = _AnswerPipe(conn)
+    pipe = _Pipe(conn)
     conn.send(("ready", {"warm_s": seconds, "facility": None if facility is None else facility.name}))
     with WarmHeap() as heap:
         heap.warm()  # warm_up made a frame: the collector leaves the warm heap alone from here
         while True:
             try:
-                msg = conn.recv()
+                msg, fds = pipe.recv()
             except (EOFError, OSError):
                 return
+            client = socket.socket(fileno=fds.pop(0)) if fds else None
+            for fd in fds:
+                os.close(fd)
             if msg is None:
                 return
-            mapping, outputs, max_pixels = msg
+            mapping, outputs, max_pixels, direct = msg
             t0 = time.perf_counter()
             try:
                 parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
                                               max_camera_pixels=max_pixels)
                 chunks, ctype = answer_chunks(parts)
-                pipe.send_ok(("ok", ctype, lines, time.perf_counter() - t0), chunks)
+                seconds = time.perf_counter() - t0
+                headers = None if client is None or direct is None else answer_headers(ctype, seconds, lines)
+                if headers is None or not uvicorn_takes(headers):
+                    pipe.send_ok(("ok", ctype, lines, seconds), chunks)
+                else:
+                    defaults, keep_alive, serial = direct
+                    head = answer_head(defaults, headers, sum(len(c) for c in chunks), keep_alive)
+                    if writing is not None:
+                        writing.value = serial   # from here a part of this answer may be with the client
+                    pipe.send_direct(client, head, chunks)
             except SkynavError as exc:
                 conn.send(("bad", " ".join(str(exc).split())))
             except MemoryError:
@@ -166,3 +225,6 @@ def worker_main(conn, facility_arg, threads) -> None:
             except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
                 traceback.print_exc(file=sys.stderr)
                 conn.send(("error", f"internal error while rendering ({exc.__class__.__name__}); see the server's log"))
+            finally:
+                if client is not None:
+                    client.close()
