@@ -5,8 +5,11 @@ Shared by the server and the client; imports nothing of skynav (the client must 
 
 from __future__ import annotations
 
+import json
 import re
 import secrets
+
+import orjson
 
 #: URL prefix of this protocol version.
 API_PREFIX = "/v1"
@@ -69,6 +72,34 @@ def answer_chunks(parts: dict) -> tuple[list, str]:
         chunks.append(b"\r\n")
     chunks.append(f"--{boundary}--\r\n".encode("ascii"))
     return chunks, f'{MULTIPART}; boundary="{boundary}"'
+
+
+#: A run of 19 digits: an integer that may not fit in 64 bits, which orjson reads as a float.
+_LONG_DIGITS = re.compile(rb"[0-9]{19}")
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def read_json(body: bytes):
+    """The JSON value of a request body, as the standard library reads it (with NaN and the
+    infinities refused); ValueError, UnicodeDecodeError or RecursionError where it cannot. The
+    server reads a request with it to check its envelope, the worker reads the same bytes again
+    for the scene (a request goes to the worker as its body, not as a pickled mapping).
+
+    orjson reads it where the two agree (~8 us against the standard library's ~40 us with the
+    caches cold, as they are after a frame's render): not a body orjson refuses (the errors then
+    come in the standard library's words; orjson refuses all it does, NaN included, and a lone
+    surrogate too), nor one with a run of 19 digits (an integer past 64 bits: the standard
+    library's is an int, orjson's a float). Else the two read the same values (the same ints,
+    correctly rounded floats, the last of duplicate keys)."""
+    if not _LONG_DIGITS.search(body):
+        try:
+            return orjson.loads(body)
+        except orjson.JSONDecodeError:
+            pass
+    return json.loads(body.decode("utf-8"), parse_constant=_no_constant)
 
 
 #: What uvicorn refuses in a header value (``uvicorn.protocols.http.httptools_impl.HEADER_VALUE_RE``).

@@ -22,7 +22,6 @@ import json
 import multiprocessing
 import os
 import pickle
-import re
 import socket
 import struct
 import sys
@@ -32,7 +31,6 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
-import orjson
 import uvicorn
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
@@ -51,6 +49,7 @@ from .protocol import (
     OUTPUTS,
     SCENE_KEYS,
     answer_headers,
+    read_json,
 )
 from .worker import frame_head, worker_main
 
@@ -192,9 +191,10 @@ class _Worker:
         self.sock = socket.socket(fileno=os.dup(self.conn.fileno()))   # for the requests that carry a socket
         self.sock.setblocking(False)
 
-    def request(self, scene, outputs, max_pixels, done, direct=None) -> tuple:
-        """Send one request; ``(future of the worker's answer, serial)`` (the future's exception
-        EOFError when the worker died).
+    def request(self, body, outputs, max_pixels, done, direct=None) -> tuple:
+        """Send one request (``body``: its JSON, which the worker reads again for the scene);
+        ``(future of the worker's answer, serial)`` (the future's exception EOFError when the
+        worker died).
 
         ``direct``: the :class:`_Direct` of the request's connection, or None. With it the
         client's socket goes along (``SCM_RIGHTS``), and the worker writes a 200 answer to the
@@ -215,7 +215,7 @@ class _Worker:
             if fd is not None:
                 self.serial += 1
                 head = (*direct.head_info(), self.serial)
-        data = pickle.dumps((scene, outputs, max_pixels, head), protocol=pickle.HIGHEST_PROTOCOL)
+        data = pickle.dumps((bytes(body), outputs, max_pixels, head), protocol=pickle.HIGHEST_PROTOCOL)
         data = frame_head(len(data)) + data
         future = self.answers.expect(done)
         sent = 0
@@ -281,9 +281,10 @@ class WorkerPool:
         for w in self.workers:
             w.detach()
 
-    async def render(self, mapping: dict, outputs: tuple, direct=None):
-        """The worker's answer to one request (:meth:`_Worker.request`); ``direct``: the
-        request's :class:`_Direct`, or None (the answer comes back here)."""
+    async def render(self, body: bytes, outputs: tuple, direct=None):
+        """The worker's answer to one request (:meth:`_Worker.request`): ``body`` the request's
+        JSON (whose envelope :func:`parse_request` has checked); ``direct``: the request's
+        :class:`_Direct`, or None (the answer comes back here)."""
         if self.busy >= self.n and self.waiting >= self.limits.max_queue:
             raise _HTTPError(503, f"the server is busy ({self.busy} frames rendering, {self.waiting} waiting; "
                                   f"the queue holds {self.limits.max_queue}); try again")
@@ -298,7 +299,7 @@ class WorkerPool:
         # request never reads this one's frame
         serial = None
         try:
-            future, serial = worker.request(mapping, outputs, self.limits.max_camera_pixels,
+            future, serial = worker.request(body, outputs, self.limits.max_camera_pixels,
                                             lambda died: self._answered(worker, died),
                                             direct if direct is not None and direct.usable() else None)
             return await future
@@ -357,22 +358,21 @@ def _error(status: int, message: str):
     return JSONResponse({"error": " ".join(str(message).split())}, status_code=status)
 
 
-def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[dict, tuple]:
-    """Parse a request body: ``(scene mapping, outputs)``; raises :class:`_HTTPError` (400) with one line."""
-    def no_constant(name):
-        raise ValueError(f"{name} is not a JSON number")
+def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple:
+    """Check a request body's envelope (a JSON object; its outputs): the outputs asked for;
+    raises :class:`_HTTPError` (400) with one line.
 
+    The scene itself is validated by the worker (the same validator as scene files; doing it here
+    as well cost ~1 ms of the ~9 ms a request then added to a frame), which reads it from the same
+    bytes with the same reader (:func:`skynav.service.protocol.read_json`)."""
     try:
-        doc = _fast_json(body)
-        if doc is None:
-            doc = json.loads(body.decode("utf-8"), parse_constant=no_constant)
+        doc = read_json(body)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise _HTTPError(400, f"request body: not a JSON object ({str(exc).splitlines()[0][:120]})") from None
     if not isinstance(doc, dict):
         raise _HTTPError(400, "request body: expected a JSON object with the keys of a scene file ("
                               + ", ".join(SCENE_KEYS) + ") and outputs")
-    mapping = dict(doc)
-    outputs = mapping.pop("outputs", ["png", "truth"])
+    outputs = doc.get("outputs", ["png", "truth"])
     allowed = [o for o in OUTPUTS if o != "screen_png" or has_facility]
     if isinstance(outputs, str):
         outputs = [outputs]
@@ -383,28 +383,7 @@ def parse_request(body: bytes, *, has_facility: bool, limits: Limits) -> tuple[d
         if o not in allowed:
             why = " (this server has no facility: start it with --facility)" if o == "screen_png" else ""
             raise _HTTPError(400, f"outputs: unknown output {_short(o)}; allowed: {', '.join(allowed)}{why}")
-    # the scene itself is validated by the worker (the same validator as scene files): doing it
-    # here as well cost ~1 ms of the ~9 ms a request adds to a frame
-    return mapping, tuple(outputs)
-
-
-#: A run of 19 digits: an integer that may not fit in 64 bits, which orjson reads as a float.
-_LONG_DIGITS = re.compile(rb"[0-9]{19}")
-
-
-def _fast_json(body: bytes):
-    """The request's JSON value by orjson (~8 us against the standard library's ~40 us with the
-    caches cold, as they are after a frame's render), or None where the standard library must read
-    it: a body orjson refuses (the errors then come in the standard library's words; orjson refuses
-    all it does, NaN included, and a lone surrogate too), and a body with a run of 19 digits (an
-    integer past 64 bits: the standard library's is an int, orjson's a float). Else the two read
-    the same values (the same ints, correctly rounded floats, the last of duplicate keys)."""
-    if _LONG_DIGITS.search(body):
-        return None
-    try:
-        return orjson.loads(body)
-    except orjson.JSONDecodeError:
-        return None
+    return tuple(outputs)
 
 
 def _short(value) -> str:
@@ -479,9 +458,9 @@ class RenderEndpoint:
             if kind not in ("application/json", "application/x-www-form-urlencoded", ""):
                 raise _HTTPError(415, f"Content-Type {kind!r}: send the scene mapping as application/json")
             body = await self._body(receive, declared)
-            mapping, outputs = parse_request(body, has_facility=self.has_facility, limits=self.limits)
+            outputs = parse_request(body, has_facility=self.has_facility, limits=self.limits)
             extensions = scope.get("extensions")
-            answer = await self.pool.render(mapping, outputs, extensions and extensions.get("skynav.direct"))
+            answer = await self.pool.render(body, outputs, extensions and extensions.get("skynav.direct"))
         except _HTTPError as exc:
             return exc.status, [], _error_body(exc.message)
         if answer[0] == "sent":

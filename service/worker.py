@@ -37,7 +37,7 @@ from skynav.scenes.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
-from .protocol import OUTPUTS, answer_chunks, answer_head, answer_headers, uvicorn_takes
+from .protocol import OUTPUTS, answer_chunks, answer_head, answer_headers, read_json, uvicorn_takes
 
 
 def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
@@ -202,9 +202,11 @@ def worker_main(conn, facility_arg, threads, writing=None) -> None:
                 os.close(fd)
             if msg is None:
                 return
-            mapping, outputs, max_pixels, direct = msg
-            t0 = time.perf_counter()
+            body, outputs, max_pixels, direct = msg
             try:
+                mapping = read_json(body)   # as the server read it (it checked the envelope)
+                mapping.pop("outputs", None)
+                t0 = time.perf_counter()
                 parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
                                               max_camera_pixels=max_pixels)
                 chunks, ctype = answer_chunks(parts)
