@@ -154,10 +154,16 @@ def test_the_workers_keep_no_client_socket(server, client):
                 found.add(target)
         return found
 
+    def idle():   # a worker tells the server it is done after it has closed the client's socket
+        t_end = time.monotonic() + 120
+        while client.health()["busy"] and time.monotonic() < t_end:
+            time.sleep(0.05)
+
     workers = _worker_pids(server.proc.pid)
     assert workers
+    idle()   # frames of earlier tests' clients that hung up may still be rendering
     before = {p: sockets(p) for p in workers}
     for k in range(6):
         client.render(small_scene(size=64, render={"seed": 300 + k}), outputs=("png",))
-    time.sleep(0.2)
+    idle()
     assert {p: sockets(p) for p in workers} == before
