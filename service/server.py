@@ -37,6 +37,11 @@ from starlette.exceptions import HTTPException
 from starlette.responses import JSONResponse
 from starlette.routing import Route
 
+try:  # uvicorn's httptools protocol (httptools is a dependency), for the direct answer (_http_protocol)
+    from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+except ImportError:
+    HttpToolsProtocol = None
+
 from skynav.datasets.pool import WorkerThreads
 
 from .openapi import openapi_document
@@ -558,9 +563,17 @@ class _Direct:
         self.cycle, self.transport = cycle, transport
 
     def usable(self) -> bool:
+        """Whether the worker may write this answer. False too where uvicorn's cycle lacks what
+        :meth:`head_info` and :meth:`finish` use (another uvicorn than the tested ones): the
+        answer then goes through uvicorn, a hand-over slower, never wrong."""
         cycle, transport = self.cycle, self.transport
-        return (not cycle.disconnected and not cycle.response_started and not transport.is_closing()
-                and transport.get_write_buffer_size() == 0)
+        try:
+            ready = not (cycle.disconnected or cycle.response_started or cycle.response_complete)
+            known = cycle.default_headers is not None and cycle.keep_alive in (True, False) \
+                and callable(cycle.on_response) and callable(cycle.message_event.set)
+        except AttributeError:
+            return False
+        return ready and known and not transport.is_closing() and transport.get_write_buffer_size() == 0
 
     def fileno(self) -> int | None:
         sock = self.transport.get_extra_info("socket")
@@ -590,9 +603,7 @@ class _Direct:
 def _http_protocol():
     """uvicorn's httptools protocol with the ``skynav.direct`` extension in the scope of ``POST
     /v1/render``; None where httptools is missing (uvicorn's own choice then)."""
-    try:
-        from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
-    except ImportError:
+    if HttpToolsProtocol is None:
         return None
 
     class _Protocol(HttpToolsProtocol):

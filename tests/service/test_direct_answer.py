@@ -167,3 +167,34 @@ def test_the_workers_keep_no_client_socket(server, client):
         client.render(small_scene(size=64, render={"seed": 300 + k}), outputs=("png",))
     idle()
     assert {p: sockets(p) for p in workers} == before
+
+
+def test_a_uvicorn_cycle_without_what_the_direct_answer_uses_sends_it_through_uvicorn():
+    """Another uvicorn whose request-response cycle lacks an attribute the direct answer reads or
+    sets gets the ordinary path (a hand-over slower), never an error; a cycle with them all, idle,
+    gets the direct one."""
+    from skynav.service.server import _Direct
+
+    class Transport:
+        def is_closing(self):
+            return False
+
+        def get_write_buffer_size(self):
+            return 0
+
+    class Cycle:
+        disconnected = response_started = response_complete = False
+        default_headers = [(b"server", b"uvicorn")]
+        keep_alive = True
+        message_event = asyncio.Event()
+
+        def on_response(self):
+            pass
+
+    assert _Direct(Cycle(), Transport()).usable() is True
+    for missing in ("default_headers", "keep_alive", "on_response", "message_event", "response_complete"):
+        partial = type("Partial", (), {k: v for k, v in vars(Cycle).items() if k != missing and not k.startswith("__")})
+        assert _Direct(partial(), Transport()).usable() is False, missing
+    busy = Cycle()
+    busy.response_started = True
+    assert _Direct(busy, Transport()).usable() is False
