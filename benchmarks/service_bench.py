@@ -12,8 +12,9 @@ both alike, and medians are taken):
   ``skynav serve --workers 1`` (one kept-alive connection), which returns the same bytes. Both sides
   use every core for the render (``--workers 1`` gives its worker ``cores`` threads, as this
   process has). The two alternate, which goes first switching every pair, with ``--pause-ms``
-  between calls (the render's thread pool spins a few ms after a frame: the pause keeps that off
-  the next measurement, of either side). Printed: medians, p99 (of 60 pairs by default: close to
+  between calls (the render's thread pool spins 17-20 ms after a frame, measured from its
+  ``schedstat``: the pause, 30 ms by default, keeps that off the next measurement, of either side;
+  with 20 ms a tenth of the frames after an in-process render had their own time raised to 3-5 ms). Printed: medians, p99 (of 60 pairs by default: close to
   the largest), the paired median difference, the service's own time (its client's wall time less
   the worker's render time: HTTP, the hand-off to the worker and back, the client's parsing; it
   does not carry the render's own noise, so on a loaded machine it is the steadier measure of the
@@ -374,7 +375,7 @@ def main():
     ap.add_argument("--frames", type=int, default=20, help="frames per client and part (default 20)")
     ap.add_argument("--repeats", type=int, default=3,
                     help="throughput: interleaved repeats of one and two clients; overhead: frames x repeats pairs")
-    ap.add_argument("--pause-ms", type=float, default=20.0, help="overhead: pause before each call (default 20)")
+    ap.add_argument("--pause-ms", type=float, default=30.0, help="overhead: pause before each call (default 30)")
     ap.add_argument("--recipe", default="sequence")
     ap.add_argument("--loop-repeats", type=int, default=1, help="loop: alternations of loop and nav (medians)")
     ap.add_argument("--sigma-px", type=float, default=None, help="loop: a constant R for both (default: calibrated)")
