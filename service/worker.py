@@ -3,9 +3,12 @@
 Each worker is a process of its own (``spawn``: nothing of the server's memory is shared), so two
 requests never touch the same frame buffers or random streams: frames of concurrent clients cannot
 mix. A worker loads the catalogue, ephemeris, radiometry tables and Mitsuba/Dr.Jit kernels once,
-by rendering the built-in scenes at start, then answers ``(mapping, outputs, max pixels)`` messages
-on its pipe with the answer's HTTP body (:func:`skynav.service.protocol.answer_chunks`: one
-output's bytes, or the multipart body of several), so that the server only frames it.
+by rendering the built-in scenes at start, then answers the requests on its pipe (a request's
+JSON body, its outputs, the pixel bound) with the answer's HTTP body
+(:func:`skynav.service.protocol.answer_chunks`: one output's bytes, or the multipart body of
+several). A 200 answer it writes, head and body, to the client's socket itself when the server
+hands that over with the request (``SCM_RIGHTS``; the worker holds it only for that answer, and
+writes nothing else to it), else to the server, which frames it.
 
 The frame is rendered exactly as ``skynav render`` renders a scene file (same validator, same
 options, same seed, same encoders: :func:`skynav.datasets.frame_files.frame_file_bytes`), so the
@@ -125,14 +128,15 @@ class _Pipe:
     """The worker's end of the pipe as a socket: requests (with the client's connection, when
     the server hands it over) in, answers out.
 
-    A request is one message (:func:`frame_head` and a pickle), ``(mapping, outputs, max pixels,
-    direct)``; with ``direct`` (the server's default header lines and whether the connection is
-    kept alive) comes the client's socket, passed as ``SCM_RIGHTS``: the worker writes the HTTP
-    answer to the client itself (:meth:`send_direct`), then tells the server. The send buffer is
-    widened to hold a whole answer (the default 1024^2 frame's PNG and truth are ~250 KB; Linux's
-    default buffer is 208 KiB, its ceiling ``net.core.wmem_max``; best effort), and
-    :meth:`send_ok` writes an answer's two messages, ``("ok", content type, warnings, seconds)``
-    and the body, in one gathered write: the server wakes once and reads it all.
+    A request is one message (:func:`frame_head` and a pickle), ``(JSON body, outputs, max
+    pixels, direct)``; with ``direct`` (uvicorn's default header lines, whether the connection is
+    kept alive, the request's serial) comes the client's socket, passed as ``SCM_RIGHTS``: the
+    worker writes a 200 answer to the client itself (:meth:`send_direct`), then tells the server.
+    The send buffer is widened to hold a whole answer (the default 1024^2 frame's PNG and truth
+    are ~250 KB; Linux's default buffer is 208 KiB, its ceiling ``net.core.wmem_max``; best
+    effort), and :meth:`send_ok` writes an answer's two messages, ``("ok", content type,
+    warnings, seconds)`` and the body, in one gathered write: the server wakes once and reads it
+    all.
     """
 
     def __init__(self, conn, sndbuf: int = 4 * 1024 * 1024):
@@ -194,6 +198,33 @@ class _Pipe:
         self.send_ok(("sent", ok), views if ok else [])
 
 
+def idle_pool_threads() -> int:
+    """Put Dr.Jit's pool threads (nanothread's, named ``nt [i]``) of this process under
+    ``SCHED_IDLE``; how many. Linux only (elsewhere, or where refused, nothing changes).
+
+    After each kernel a pool thread spins for ~20 ms before it sleeps. In a worker that is just
+    when the frame's answer is on its way: on two cores the spinning thread holds one, the
+    worker's main thread, the server and the client share the other, and a waking client or
+    server waited behind it up to a scheduler slice (own times of 2.4-4.7 ms in ~10 % of the
+    frames). Under ``SCHED_IDLE`` the thread runs only where no other thread wants the core, and
+    gives way at once to one that wakes: the render itself, with nothing else to run, keeps both
+    cores. It is never set back (an unprivileged process may not raise a thread's priority).
+    """
+    if not hasattr(os, "sched_setscheduler") or not os.path.isdir("/proc/self/task"):
+        return 0
+    done = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/comm") as f:
+                if not f.read().startswith("nt ["):
+                    continue
+            os.sched_setscheduler(int(tid), os.SCHED_IDLE, os.sched_param(0))
+            done += 1
+        except (OSError, ValueError):
+            continue
+    return done
+
+
 def worker_main(conn, facility_arg, threads, writing=None) -> None:
     """Entry point of one worker process: warm up, say ready, then answer requests until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
@@ -215,6 +246,7 @@ def worker_main(conn, facility_arg, threads, writing=None) -> None:
         conn.send(("failed", f"the render worker could not start: {exc.__class__.__name__}: {exc}"))
         return
     pipe = _Pipe(conn)
+    idle_pool_threads()   # warm_up started the pool
     with WarmHeap() as heap:
         heap.warm()  # warm_up made a frame: the collector leaves the warm heap alone from here
         t0 = time.perf_counter()
