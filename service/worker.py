@@ -124,6 +124,14 @@ def frame_head(n: int) -> bytes:
     return struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!iQ", -1, n)
 
 
+def _advance(views: list, sent: int) -> None:
+    """Drop from the gathered write ``views`` the ``sent`` bytes a ``sendmsg`` took (in place)."""
+    while views and sent >= len(views[0]):
+        sent -= len(views.pop(0))
+    if views and sent:
+        views[0] = views[0][sent:]
+
+
 class _Pipe:
     """The worker's end of the pipe as a socket: requests (with the client's connection, when
     the server hands it over) in, answers out.
@@ -171,11 +179,7 @@ class _Pipe:
         views = [memoryview(b) for b in
                  (frame_head(len(head)), head, frame_head(sum(len(c) for c in chunks)), *chunks) if len(b)]
         while views:
-            sent = self.sock.sendmsg(views)
-            while views and sent >= len(views[0]):
-                sent -= len(views.pop(0))
-            if views and sent:
-                views[0] = views[0][sent:]
+            _advance(views, self.sock.sendmsg(views))
 
     def send_direct(self, client: socket.socket, head: bytes, chunks: list) -> None:
         """Write an answer's HTTP head and body to the client's socket, at once and without
@@ -191,10 +195,7 @@ class _Pipe:
         except OSError:
             sent, ok = 0, False
         client.close()
-        while views and sent >= len(views[0]):
-            sent -= len(views.pop(0))
-        if views and sent:
-            views[0] = views[0][sent:]
+        _advance(views, sent)
         self.send_ok(("sent", ok), views if ok else [])
 
 
