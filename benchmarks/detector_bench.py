@@ -28,7 +28,7 @@ from skynav.scenes.camera import paper_camera  # noqa: E402
 
 def realistic_frame(shape=(1024, 1024), n_stars=3000, seed=0, exposure_s=0.4):
     """Expected electrons: zodiacal/sky background ~5 e-/s/px, n_stars pixel-integrated Gaussian
-    PSFs (sigma 0.5 px, paper 002 defocus) with a steep brightness law (most faint, a few
+    PSFs (sigma 0.5 px, Andreis et al. (2024) defocus) with a steep brightness law (most faint, a few
     saturating)."""
     rng = np.random.default_rng(seed)
     H, W = shape

@@ -11,7 +11,7 @@ skynav is used only for the geometry: which Hipparcos stars and planets are in t
 (:func:`skynav.scenes.build_scene` at the truth attitude: proper motion, parallax, aberration, the
 pinhole camera), never for pixels.
 
-Pixel centres. skynav (CONVENTIONS.md): the centre of the top-left pixel is (0, 0), x = column,
+Pixel centres. skynav (docs/conventions.md): the centre of the top-left pixel is (0, 0), x = column,
 y = row, pixel [i, j] covers x in [j - 0.5, j + 0.5]. GalSim: an image's pixel (x, y) is centred
 on the integer position (x, y) and covers [x - 0.5, x + 0.5]; the array row is y - ymin, the column
 x - xmin. The image is made with ``xmin = ymin = 0`` and every profile is drawn with

@@ -1,6 +1,6 @@
-"""Monte Carlo visibility campaign of paper 000 sec. V.A: how many scenes show a planet?
+"""Monte Carlo visibility campaign of Andreis et al. (2023a), Sec. V.A: how many scenes show a planet?
 
-Paper 000 draws 3000 scenes (position N(0, diag(3, 3, 0.07) AU) about the barycentre, attitude
+Andreis et al. (2023a) draws 3000 scenes (position N(0, diag(3, 3, 0.07) AU) about the barycentre, attitude
 ra ~ U[0, 2 pi), dec with 3-sigma 0.6 rad, twist ~ U[0, 2 pi)) and finds "at least one planet
 present" in 1031 of them (34.4 %). This script draws the same distribution with the dataset
 sampler (scenes only, no images: frame k from SeedSequence([seed, k])) and prints the fractions
@@ -80,14 +80,14 @@ def main(argv=None) -> int:
         "planet_in_fov_no_moon": "a planet in the FOV (any brightness)",
         "visible_v7": "a visible body: in FOV, V <= 7, > 20 deg from the Sun",
         "visible_v7_and_boresight_sun_ok": "  ... and the boresight > 20 deg from the Sun",
-        "visible_v6": "a visible body with V <= 6 (miniaturised sensor, paper 001)",
+        "visible_v6": "a visible body with V <= 6 (miniaturised sensor, Andreis et al. (2023b))",
     }
     for key, label in labels.items():
         k = res["counts"][key]
         lo, hi = wilson(k, n)
         print(f"{label:58s} {k:6d} {k / n:9.3f}   [{lo:.3f}, {hi:.3f}]")
     lo, hi = wilson(1031, 3000)
-    print(f"{'paper 000: at least one planet present':58s} {1031:6d} {1031 / 3000:9.3f}   [{lo:.3f}, {hi:.3f}]")
+    print(f"{'Andreis et al. (2023a): at least one planet present':58s} {1031:6d} {1031 / 3000:9.3f}   [{lo:.3f}, {hi:.3f}]")
     print("visible bodies: " + ", ".join(f"{b} {c}" for b, c in sorted(res["per_body_visible"].items(), key=lambda x: -x[1])))
     print("Why the fractions differ from the paper: its scenes were rendered by the DART sky simulator with its own")
     print("visibility rule (not stated: any planet in the image, possibly down to the detection threshold of its")

@@ -5,7 +5,7 @@ Usage::
     python benchmarks/nav_bench.py DATASET [--runs 50] [--workers 1] [--case 1 3]
 
 Prints the time split (setup: reading the plan and the R calibration; image processing; filter)
-and the summary numbers next to paper 002 and the issue's targets. Generate the dataset with
+and the summary numbers next to Andreis et al. (2024) and the issue's targets. Generate the dataset with
 ``skynav dataset generate sequence -o DATASET`` (720 frames, about 6 min on one core).
 """
 
@@ -35,8 +35,8 @@ def main():
     f = s["final"]
     print(f"wall {wall:.1f} s (process), command {s['time_s']:.1f} s: setup {r['setup_time_s']:.1f} s, image processing "
           f"{r['ip_time_s']:.1f} s, filter {r['filter_time_s']:.1f} s; target <= 180 s for 50 runs x 720 frames")
-    print(f"final 3-sigma: position {f['position_3sigma_km']:.0f} km (target <= 1500, paper 002 1953), velocity "
-          f"{f['velocity_3sigma_m_s']:.3f} m/s (target <= 0.35, paper 002 0.41)")
+    print(f"final 3-sigma: position {f['position_3sigma_km']:.0f} km (target <= 1500, Andreis et al. (2024) 1953), velocity "
+          f"{f['velocity_3sigma_m_s']:.3f} m/s (target <= 0.35, Andreis et al. (2024) 0.41)")
     print(f"NEES mean {s['nees']['mean']:.2f} in [{s['nees']['band_low']:.2f}, {s['nees']['band_high']:.2f}]? "
           f"{s['nees']['band_low'] <= s['nees']['mean'] <= s['nees']['band_high']}")
     for c, v in s["cases"].items():

@@ -20,7 +20,7 @@ Core module (NumPy only). For each source, from a predicted position:
    Gaussian PSF of sigma 0.65 px, so a slightly different PSF shape on the bench does not change
    the sum.
 
-Pixel convention (CONVENTIONS.md): x along columns, y along rows, the centre of the top-left pixel
+Pixel convention (docs/conventions.md): x along columns, y along rows, the centre of the top-left pixel
 at (0, 0).
 """
 

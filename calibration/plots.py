@@ -1,5 +1,5 @@
 """Calibration figures (matplotlib Figures on an Agg canvas, no pyplot): the line-of-sight residual
-CDF and PDF (as in Andreis et al. 2023b, Fig. 2; paper 001), DN <-> irradiance and DN <-> magnitude
+CDF and PDF (as in Andreis et al. (2023b), Fig. 2), DN <-> irradiance and DN <-> magnitude
 (their Fig. 3).
 
 The functions return Figures; ``skynav calibrate`` writes them as PNG through

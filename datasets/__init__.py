@@ -13,7 +13,7 @@ Public API (each ``skynav dataset`` sub-command calls one of these):
 
 Only the reading path is imported with the package; the makers (runner, recipes, samplers,
 previews) load on first use (module ``__getattr__``), so that reading a dataset loads no
-renderer, Mitsuba or Dr.Jit code (ARCHITECTURE.md "Never").
+renderer, Mitsuba or Dr.Jit code (docs/architecture.md "Never").
 """
 
 import importlib as _importlib

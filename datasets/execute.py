@@ -3,7 +3,7 @@
 Driver module (the *execute* step of :func:`skynav.datasets.generate`). Frame k is made by
 :func:`produce_frame` from the sampler plan and frame k's seed ``SeedSequence([master_seed, k])``
 alone, so a frame's files are the same bytes whatever the executor, the number of workers, or the
-order in which frames ran (CONVENTIONS.md "Randomness"). The executors differ only in where
+order in which frames ran (docs/conventions.md "Randomness"). The executors differ only in where
 :func:`produce_frame` runs:
 
 - :func:`run_in_process` (``workers=1``): in this process, in order; frame k's files are written on

@@ -1,10 +1,10 @@
 """Frame files: OpenEXR, PNG, FITS with a TAN WCS; atomic writes and SHA-256.
 
-Adapter module (STYLE.md section 1): the one place that talks to OpenEXR, Pillow and
+Adapter module: the one place that talks to OpenEXR, Pillow and
 ``astropy.io.fits`` for frames. The renderer returns frames in memory
 (:class:`skynav.renderer.render.Frame`) and does no file I/O; :func:`write_frame` turns one into
 files, for ``skynav render`` and for the dataset runner alike. Nothing here imports the
-renderer. File contracts are those of CONVENTIONS.md "Files":
+renderer. File contracts are those of docs/conventions.md "Files":
 
 - **EXR**: float32 named channels (``electrons``, ``irradiance_w_m2``, ...), optional uint32
   ``source_id``. Compression is RLE (run-length on bytes, EXR 1.0): lossless for float32 and
@@ -35,7 +35,7 @@ temp file behind. :func:`atomic_path` offers the same guarantee to writers that 
 Determinism: identical inputs give identical bytes (same library versions): no writer embeds
 a date, a host name or a random value. Tests pin this by SHA-256.
 
-Readers accept a path or a binary file object (STYLE.md section 2).
+Readers accept a path or a binary file object, so a caller may read from memory as well as from disk.
 """
 
 from __future__ import annotations
@@ -702,7 +702,7 @@ def tan_wcs_header(camera_K, width: int, height: int, R_cam_icrs) -> dict:
     """FITS TAN (gnomonic) WCS of the apparent sky for an undistorted pinhole camera.
 
     With the camera at ``R_cam_icrs`` (passive, ``v_cam = R_cam_icrs @ u_icrs``) a direction ``u``
-    lands at ``[x, y, 1] ~ K v_cam`` (CONVENTIONS.md pixels, top-left pixel centre at (0, 0)).
+    lands at ``[x, y, 1] ~ K v_cam`` (docs/conventions.md pixels, top-left pixel centre at (0, 0)).
     Writing the tangent-plane (standard) coordinates at the boresight as
     ``xi = u.e / u.b``, ``eta = u.n / u.b`` (``b`` boresight, ``e`` east, ``n`` north unit
     vectors), the rows ``r0, r1`` of ``R_cam_icrs`` lie in that plane, so
@@ -853,7 +853,7 @@ def write_fits(path, image, *, wcs_header: Mapping | None = None, header: Mappin
     image : ndarray, shape (H, W)
         uint8, uint16 (stored as int16 with ``BZERO = 32768``, read back as uint16 by astropy),
         int16/int32, float32 or float64. Row 0 of the array is FITS row 1 (no flip), so pixel
-        ``(x, y)`` of CONVENTIONS.md is FITS ``(x + 1, y + 1)``.
+        ``(x, y)`` of docs/conventions.md is FITS ``(x + 1, y + 1)``.
     wcs_header : mapping, optional
         Output of :func:`tan_wcs_header`; ``NAXIS1/2`` in it must match the image.
     header : mapping, optional

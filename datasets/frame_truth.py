@@ -2,8 +2,8 @@
 
 Core module (no files: :func:`read_frame_truth` is the one reader). The JSON dict stays the
 exchange format (``ds[k].truth``); this is the same content as read-only numpy arrays with the
-units of the code (STYLE.md section 3): angles in rad (the file's ``*_deg`` become ``*_rad``),
-epochs as TDB seconds past J2000. Keys beyond the fixed ones of CONVENTIONS.md stay reachable in
+units of the code: angles in rad (the file's ``*_deg`` become ``*_rad``),
+epochs as TDB seconds past J2000. Keys beyond the fixed ones of docs/conventions.md stay reachable in
 :attr:`FrameTruth.raw`.
 
 Only scoring code opens the truth; the navigation pipeline reads frames through
@@ -110,7 +110,7 @@ class StarsTruth:
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class BodyTruth:
-    """One solar-system body of the frame (CONVENTIONS.md ``bodies`` record).
+    """One solar-system body of the frame (docs/conventions.md ``bodies`` record).
 
     Attributes
     ----------
@@ -197,7 +197,7 @@ class FrameTruth:
     R_cam_icrs : ndarray, shape (3, 3)
         Attitude, passive: ``v_cam = R_cam_icrs @ v_icrs``.
     q_cam_icrs : ndarray, shape (4,)
-        The same attitude as a scalar-first quaternion (paper 000 Eq. 14).
+        The same attitude as a scalar-first quaternion (Andreis et al. (2023a), Eq. 14).
     angular_velocity_rad_s : ndarray, shape (3,)
         Camera frame, rad/s.
     camera : dict

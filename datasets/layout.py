@@ -1,4 +1,4 @@
-"""Dataset folder layout (CONVENTIONS.md "Files"): paths, manifest, index.
+"""Dataset folder layout (docs/conventions.md "Files"): paths, manifest, index.
 
 Adapter module: the one place that knows the folder layout::
 

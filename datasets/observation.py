@@ -1,6 +1,6 @@
 """What the navigation pipeline may see of a frame: :class:`Observation`, and no ground truth.
 
-Core module. ARCHITECTURE.md: the pipeline sees only what a spacecraft would: the image, the time
+Core module. docs/architecture.md: the pipeline sees only what a spacecraft would: the image, the time
 tag, the exposure and the camera *as calibrated*. An :class:`Observation` holds exactly these;
 no attribute leads to the truth (no truth dict, no file path, no reader object), and scoring code
 opens the truth separately (:meth:`skynav.datasets.reader.Dataset.truth`).

@@ -4,7 +4,7 @@ Core module (imports the scene model only). A recipe kind's *sampler plan* (``Mo
 ``ScenesPlan`` in :mod:`skynav.datasets.samplers`, ``SequencePlan`` in
 :mod:`skynav.datasets.sequence`) follows :class:`SamplerPlan`: it is computed once from a
 validated recipe and answers ``frame_request(k, rng)`` with a :class:`FrameRequest`. Frame k's
-random stream is :func:`frame_rng` (``SeedSequence([master_seed, k])``, CONVENTIONS.md
+random stream is :func:`frame_rng` (``SeedSequence([master_seed, k])``, docs/conventions.md
 "Randomness"). :class:`RunPlan` is what a ``generate`` run resolved before it renders anything
 (the recipe, the options, the backends, the frames to make, the files already there); the
 executors (:mod:`skynav.datasets.execute`) and the finalising step
@@ -30,7 +30,7 @@ SEED_SCHEME = "frame k: numpy.random.default_rng(SeedSequence([master_seed, k]))
 
 
 def frame_seed(master_seed: int, k: int) -> np.random.SeedSequence:
-    """The seed sequence of frame k: ``SeedSequence([master_seed, k])`` (CONVENTIONS.md).
+    """The seed sequence of frame k: ``SeedSequence([master_seed, k])`` (docs/conventions.md).
 
     Examples
     --------

@@ -65,7 +65,7 @@ FILTERS = ("visible_planet", "sun_outside_exclusion", "body_in_fov")
 PLANETS = ("mercury", "venus", "earth", "mars", "jupiter", "saturn", "uranus", "neptune")
 
 _MONTECARLO_DEFAULTS = {
-    # paper 000 sec. V.A: Gaussian position about the barycentre, ecliptic J2000 axes (N frame)
+    # Andreis et al. (2023a), Sec. V.A: Gaussian position about the barycentre, ecliptic J2000 axes (N frame)
     "epoch_start_tdb": "2026-01-01T00:00:00",
     "epoch_end_tdb": "2031-01-01T00:00:00",
     "position_sigma_au": [3.0, 3.0, 0.07],
@@ -78,7 +78,7 @@ _MONTECARLO_DEFAULTS = {
 }
 
 _SEQUENCE_DEFAULTS = {
-    # Earth-Mars ballistic transfer, late-2026 window; legs of papers 001 sec. IV / 002 sec. 4
+    # Earth-Mars ballistic transfer, late-2026 window; legs of Andreis et al. (2023b), Sec. IV, and Andreis et al. (2024), Sec. 4
     "departure_window_tdb": ["2026-10-01T00:00:00", "2027-01-15T00:00:00"],
     "tof_days": [180.0, 360.0],
     "grid_days": 5.0,
@@ -410,7 +410,7 @@ KEY_COMMENTS = {
     "name": "free text naming the dataset (optional)",
     "frames": "number of frames, an integer >= 1 (sequence: optional, the first N of the plan; scenes: the list length)",
     "seed": "master seed, a non-negative integer: frame k draws from SeedSequence([seed, k])",
-    "camera": "the camera, as in scene files: preset: paper (paper 002 table 4), then any key to change, "
+    "camera": "the camera, as in scene files: preset: paper (Andreis et al. (2024), Table 4), then any key to change, "
               "e.g. exposure_s: 0.2, width: 256, height: 256, fov_deg: 20, f_number: 2.2, sensor: {read_noise_e: 8}",
     "camera.preset": "starting camera: paper (20 deg, 1024 x 1024 px, f/2.2, 0.4 s, 8-bit)",
     "visibility": "the detection rule that sets each body's visible flag (and the keep-filters)",
@@ -420,7 +420,7 @@ KEY_COMMENTS = {
                               "render.catalog_limiting_v_mag, the scene file's spelling)",
     "render": "render options, the scene file's render: keys (a key left out keeps the default shown)",
     "formats": "files per frame, from: png (counts), exr (electrons, irradiance), json (ground truth, required), fits",
-    "montecarlo": "scene distribution of paper 000 sec. V.A (draws in docs/datasets.md)",
+    "montecarlo": "scene distribution of Andreis et al. (2023a), Sec. V.A (draws in docs/datasets.md)",
     "montecarlo.epoch_start_tdb": "first epoch, ISO date in TDB, inside DE421 (1900..2053)",
     "montecarlo.epoch_end_tdb": "last epoch (uniform in between), ISO date in TDB, >= epoch_start_tdb",
     "montecarlo.position_sigma_au": "sigma of the Gaussian position about the barycentre, ecliptic x y z, AU, each in [0, 100]",
@@ -430,7 +430,7 @@ KEY_COMMENTS = {
     "montecarlo.min_sun_distance_au": "positions closer to the Sun are redrawn, AU, in [0, 100]",
     "montecarlo.keep": "keep-filters a scene must pass, a list from: " + ", ".join(FILTERS),
     "montecarlo.max_draws_per_frame": "give up on a frame after this many rejected draws, an integer >= 1",
-    "sequence": "an Earth-Mars cruise (Lambert transfer) cut into tracking legs (papers 001 sec. IV, 002 sec. 4)",
+    "sequence": "an Earth-Mars cruise (Lambert transfer) cut into tracking legs (Andreis et al. (2023b), Sec. IV; Andreis et al. (2024), Sec. 4)",
     "sequence.departure_window_tdb": "departure dates searched, [start, end], ISO dates in TDB",
     "sequence.tof_days": "times of flight searched, [min, max], days, in [10, 2000]",
     "sequence.grid_days": "grid step of the departure and time-of-flight search, days, in [0.1, 100]",

@@ -10,7 +10,7 @@ sub-command calls it). It runs three steps:
 2. **execute** (:mod:`skynav.datasets.execute`): the same per-frame function
    (:func:`~skynav.datasets.execute.produce_frame`) in this process, in a local spawned process
    pool, or as Dask tasks. Frame k depends on the plan and ``SeedSequence([master_seed, k])``
-   alone, so the bytes are the same whatever the executor (CONVENTIONS.md "Randomness").
+   alone, so the bytes are the same whatever the executor (docs/conventions.md "Randomness").
 3. **finalise** (:mod:`skynav.datasets.finalise`): ``index.csv``, checksums, and the manifest
    marked complete.
 

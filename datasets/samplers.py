@@ -10,7 +10,7 @@ this documented order:
 1. the sampler's draws (below, per kind), then
 2. everything the renderer draws (``render(scene, rng=...)``: cosmic rays, then sensor noise).
 
-Monte Carlo draws per attempt, in this order (paper 000 sec. V.A):
+Monte Carlo draws per attempt, in this order (Andreis et al. (2023a), Sec. V.A):
 ``epoch ~ U[start, end)`` (TDB s); ``position_ecl ~ N(0, diag(sigma)^2)`` AU (3 normals, x y z);
 ``ra ~ U[0, 2 pi)``; ``dec ~ N(0, (dec_3sigma/3)^2)``; ``twist ~ U[0, 2 pi)``; attempts repeat
 until the keep-filters pass (the number of attempts is recorded as ``draws``).
@@ -99,7 +99,7 @@ def keep_filters_pass(filters, sky, R_cam_icrs, camera, visibility) -> tuple[boo
 
 
 class MonteCarloPlan:
-    """Paper 000 sec. V.A scene distribution (see the module docstring for the draw order).
+    """Andreis et al. (2023a), Sec. V.A scene distribution (see the module docstring for the draw order).
 
     Position: Gaussian about the solar-system barycentre with ``sigma = (3, 3, 0.07) AU`` in
     ecliptic J2000 axes (the paper's N frame: "the spacecraft is supposed to lie close to the

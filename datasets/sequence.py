@@ -1,4 +1,4 @@
-"""Navigation sequences: an Earth-Mars ballistic cruise and the navigation legs of papers 001/002.
+"""Navigation sequences: an Earth-Mars ballistic cruise and the navigation legs of Andreis et al. (2023b, 2024).
 
 Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``):
 
@@ -10,14 +10,14 @@ Driver-side core: builds a deterministic plan from a recipe (``kind: sequence``)
    high-fidelity model of :mod:`skynav.scenes.dynamics` (Sun + 9 bodies from DE421, SRP,
    1PN Sun; DOP853 at ``rtol``) over the whole timeline. The high-fidelity arc is a ballistic
    cruise initialised on the Lambert solution, not a targeted arrival at Mars.
-3. **Legs** (paper 002 sec. 4.2, paper 001 sec. IV, Fig. 5): track planet A for ``track_s``
+3. **Legs** (Andreis et al. (2024), Sec. 4.2; Andreis et al. (2023b), Sec. IV, Fig. 5): track planet A for ``track_s``
    (1 h) at ``1 / cadence_s`` (0.01 Hz), slew for ``slew_s`` (30 min, no frames), track planet B
    for ``track_s``, propagate for ``propagate_s`` (10 days); ``legs`` times (10).
 4. **Pair.** At the start of each leg, among the planets with ``V < pair_limiting_v_mag`` (7) and an
    elongation (angle from the Sun) larger than ``pair_elongation_min_deg`` (20 deg), the pair maximising the
    smallest eigenvalue of the line-of-sight information matrix
    ``J = sum_i (I - u_i u_i^T) / d_i^2`` (two directions u at distances d; a stand-in for the
-   optimal-pair strategy of Franzese & Topputo that papers 001/002 cite). A is the brighter.
+   optimal-pair strategy of Franzese & Topputo that Andreis et al. (2023b, 2024) cite). A is the brighter.
    With one eligible planet, A = B.
 
 Per frame (drawn from frame k's stream, see :mod:`skynav.datasets.samplers`): the boresight
@@ -118,7 +118,7 @@ def search_transfer(ephemeris, window_tdb_s, tof_range_s, step_s: float) -> Tran
 
 def leg_timeline(t_start_tdb_s: float, *, legs: int, track_s: float, slew_s: float, propagate_s: float,
                  targets=None) -> list:
-    """The windows of ``legs`` navigation legs from ``t_start_tdb_s`` (papers 001/002 CONOPS).
+    """The windows of ``legs`` navigation legs from ``t_start_tdb_s`` (Andreis et al. (2023b, 2024) CONOPS).
 
     ``targets``: a list of ``(A, B)`` per leg (None for a timeline without targets).
     """

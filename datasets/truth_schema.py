@@ -4,7 +4,7 @@ Adapter module. The contracts are published as JSON Schema (draft 2020-12) files
 package, ``skynav/datasets/schemas/frame.schema.json`` (``skynav.frame/2``, one frame's truth)
 and ``manifest.schema.json`` (``skynav.dataset/1``, a dataset's ``manifest.json``); outside
 tools can validate against them without skynav. Their required keys are the fixed names of
-CONVENTIONS.md "Files"; every object allows more keys, so new fields never break a reader.
+docs/conventions.md "Files"; every object allows more keys, so new fields never break a reader.
 
 - :func:`truth_json_bytes` / :func:`write_truth_json`: canonical bytes (insertion order, ASCII,
   shortest round-trip floats, NaN as ``null``, one star or body per line), written atomically;

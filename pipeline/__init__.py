@@ -1,4 +1,4 @@
-"""skynav.pipeline: the on-board image processing (paper 000): centroids, star ID, attitude, beacons.
+"""skynav.pipeline: the on-board image processing (Andreis et al. (2023a)): centroids, star ID, attitude, beacons.
 
 Public API: :func:`process_frame` (one frame in, a :class:`FrameResult` out, never raising for a
 bad image), :class:`OnboardCatalog` (built once, cached on disk), :class:`PredictedState`,

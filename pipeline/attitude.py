@@ -1,4 +1,4 @@
-"""Wahba's problem by SVD (paper 000 Eq. 10-12) and its covariance.
+"""Wahba's problem by SVD (Andreis et al. (2023a), Eq. 10-12) and its covariance.
 
 Core module. With body (camera) unit vectors ``b_i``, reference (ICRS) unit vectors ``r_i`` and
 weights ``w_i``: ``B = sum w_i b_i r_i^T`` (Eq. 10), ``B = U S V^T`` (Eq. 11) and

@@ -1,4 +1,4 @@
-"""Beacon identification (paper 000 section III.B, Eq. 23-24): which spot is each predicted beacon.
+"""Beacon identification (Andreis et al. (2023a), Sec. III.B, Eq. 23-24): which spot is each predicted beacon.
 
 Beside beacon prediction (:mod:`skynav.pipeline.beacons`). The paper takes, beacon by beacon, the
 closest spot inside the 3-sigma ellipse ``d^T P^-1 d <= 11.8292`` (:func:`identify_closest`); the

@@ -1,4 +1,4 @@
-"""Beacon (planet) prediction and identification (paper 000 section III.B, Eq. 13-24).
+"""Beacon (planet) prediction and identification (Andreis et al. (2023a), Sec. III.B, Eq. 13-24).
 
 Core functions plus the ephemeris call. The predicted line of sight uses first-order light-time
 (``r_p(t - tau) ~ r_p(t) - v_p tau`` with ``tau = |r_p(t) - r| / c``) and first-order aberration

@@ -1,4 +1,4 @@
-"""The on-board star catalog and its inter-star-angle k-vector (paper 000 section III.A.2).
+"""The on-board star catalog and its inter-star-angle k-vector (Andreis et al. (2023a), Sec. III.A.2).
 
 Adapter: built once from Hipparcos (:mod:`skynav.scenes.catalog_hipparcos`), stars with
 ``V < limiting_v_mag`` (5.5 by default) and every pair closer than ``max_angle_rad`` (the field's

@@ -1,10 +1,10 @@
-"""Spot detection and centroids (paper 000 section III.A.1, Eq. 6-8).
+"""Spot detection and centroids (Andreis et al. (2023a), Sec. III.A.1, Eq. 6-8).
 
 Core module. Threshold ``I_thr = mean + T * std`` over the image (Eq. 6), connected regions of
 the pixels above it (8-connectivity), the ROI of each region with a one-pixel margin, and the centre of brightness with the weight
 ``w = I / I_max`` inside the ROI (Eq. 7-8), i.e. a sum of ``I^2`` moments.
 
-Pixel convention (CONVENTIONS.md): x along columns, y along rows, the centre of the top-left pixel
+Pixel convention (docs/conventions.md): x along columns, y along rows, the centre of the top-left pixel
 is (0, 0), so the ROI pixel ``[i, j]`` has ``X = j``, ``Y = i``.
 
 Saturated spots: the plateau of clipped pixels has equal weights, so the centroid is the centre of

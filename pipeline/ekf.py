@@ -1,4 +1,4 @@
-"""Extended Kalman filter on planet centroids (paper 001 Table 1; paper 002 Sec. 4), batched over
+"""Extended Kalman filter on planet centroids (Andreis et al. (2023b), Table 1; Andreis et al. (2024), Sec. 4), batched over
 Monte Carlo runs.
 
 Core module. :class:`NavFilter` holds N filters (one per run) on the 12-state model of
@@ -32,7 +32,7 @@ __all__ = ["UpdateResult", "NavFilter", "initial_covariance"]
 
 def initial_covariance(*, sigma_position_km: float = 1e4, sigma_velocity_km_s: float = 0.1,
                        sigma_residual_km_s2: float = 5e-10, sigma_srp_km_s2: float = 5e-10) -> np.ndarray:
-    """P0 of paper 001 Table 2 (defaults: 1e4 km, 0.1 km/s, 5e-10 km/s^2 twice), shape (12, 12)."""
+    """P0 of Andreis et al. (2023b), Table 2 (defaults: 1e4 km, 0.1 km/s, 5e-10 km/s^2 twice), shape (12, 12)."""
     return np.diag([sigma_position_km**2] * 3 + [sigma_velocity_km_s**2] * 3
                    + [sigma_residual_km_s2**2] * 3 + [sigma_srp_km_s2**2] * 3)
 

@@ -1,4 +1,4 @@
-"""Dynamics of the navigation filter (paper 001 Eq. 1-7), batched over Monte Carlo runs.
+"""Dynamics of the navigation filter (Andreis et al. (2023b), Eq. 1-7), batched over Monte Carlo runs.
 
 Core module. State (12): ``x = (r, v, eta_R, eta_SRP)``, barycentric ICRS, km, km/s, km/s^2, with
 
@@ -7,19 +7,19 @@ Core module. State (12): ``x = (r, v, eta_R, eta_SRP)``, barycentric ICRS, km, k
     d eta_R / dt = -xi eta_R + w_R,   d eta_SRP / dt = -xi eta_SRP + w_SRP
 
 - point masses: the Sun, the planets (system barycentres), the Earth and the Moon at their DE421
-  positions, all that the on-board ephemeris carries (paper 001 keeps the Earth-Moon barycentre,
+  positions, all that the on-board ephemeris carries (Andreis et al. (2023b) keeps the Earth-Moon barycentre,
   Mars and Jupiter: leaving Venus, Mercury and Saturn out is a 2e-11 km/s^2 model error, 6.6e-11
   at most, on the reference Earth-Mars cruise; with them the model differs from the truth's by
   the 1PN term only, 1.6e-13 km/s^2); barycentric frame, so no indirect terms;
 - SRP: cannonball, inverse square from the Sun (``skynav.scenes.dynamics.SpacecraftSRP``);
 - no 1PN term: the filter's model is lower-fidelity than the truth's (scenes.dynamics has it on);
-  the Gauss-Markov (GM) accelerations absorb the difference, as in paper 002.
+  the Gauss-Markov (GM) accelerations absorb the difference, as in Andreis et al. (2024).
 
-Process noise (paper 001 Eq. 7), sized to the model error: the GM processes' steady-state sigma is
+Process noise (Andreis et al. (2023b), Eq. 7), sized to the model error: the GM processes' steady-state sigma is
 1e-11 km/s^2 per axis each (1.4e-11 for the two together), 16 % of the SRP acceleration at 1 au
 (6.2e-11 km/s^2 for the sequence preset's 24 kg, 0.25 m^2, C_R 1.3 spacecraft: the SRP model
 trusted to ~10-20 %) and 60 times the 1PN term the filter leaves out (the measured gap to the
-truth's force model; paper 001 Table 2's 5e-10 km/s^2 stays the GM states' INITIAL sigma,
+truth's force model; the 5e-10 km/s^2 of Andreis et al. (2023b), Table 2, stays the GM states' INITIAL sigma,
 :func:`skynav.pipeline.ekf.initial_covariance`). Checked by the consistency Monte Carlo over
 independent renderings of the cruise held out of R's calibration (docs/navigation.md): with R
 measured on six renderings and its track biases, 27 runs on 21 renderings give a mean NEES of 6.66
@@ -34,7 +34,7 @@ standard deviation of each GM process), and the velocity gets ``q_a = (q_R + q_S
 (km^2/s^3 read as a PSD). Covariance: ``dP/dt = F P + P F^T + Q`` (001 Table 1) integrated with
 the state by :func:`scipy.integrate.solve_ivp`.
 
-Non-dimensional units (paper 002 Sec. 4.3, after Andreis et al.): the integration runs in
+Non-dimensional units (Andreis et al. (2024), Sec. 4.3, after Andreis et al.): the integration runs in
 ``LU = 1 au``, ``TU = sqrt(au^3 / GM_sun)`` (58.13 days), ``VU = LU / TU`` (29.78 km/s),
 ``ACU = LU / TU^2`` so that every state component and the covariance are O(1)-scaled and the
 integrator's tolerances mean the same for all of them. Inputs and outputs stay dimensional.
@@ -78,10 +78,10 @@ class FilterDynamics:
         Point masses (ephemeris names).
     srp : SpacecraftSRP or None
     correlation_time_s : float
-        ``1 / xi`` of the GM processes (paper 001 does not list it; 10 days).
+        ``1 / xi`` of the GM processes (Andreis et al. (2023b) does not list it; 10 days).
     sigma_residual_km_s2, sigma_srp_km_s2 : float
         Steady-state sigmas of the GM processes (1e-11 km/s^2 each: the model error, module notes;
-        paper 001 Table 2's 5e-10 km/s^2 is their initial sigma).
+        the 5e-10 km/s^2 of Andreis et al. (2023b), Table 2, is their initial sigma).
     rtol, atol : float
         Integrator tolerances (non-dimensional).
     """
@@ -105,7 +105,7 @@ class FilterDynamics:
         return 1.0 / self.correlation_time_s
 
     def process_noise_psd(self) -> np.ndarray:
-        """Q of paper 001 Eq. 7, shape (12, 12), dimensional PSDs."""
+        """Q of Andreis et al. (2023b), Eq. 7, shape (12, 12), dimensional PSDs."""
         xi = self.xi_per_s
         q_r = 2.0 * xi * self.sigma_residual_km_s2**2
         q_s = 2.0 * xi * self.sigma_srp_km_s2**2

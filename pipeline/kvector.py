@@ -1,4 +1,4 @@
-"""Mortari's k-vector range search (Mortari 1997; Mortari & Neta 2000; paper 000 section III.A.2).
+"""Mortari's k-vector range search (Mortari 1997; Mortari & Neta 2000; Andreis et al. (2023a), Sec. III.A.2).
 
 Core module. For a sorted array ``S`` of n values, the straight line ``z(k) = a1 k + a0`` joins
 ``(0, S[0] - d)`` and ``(n - 1, S[n-1] + d)``; ``K[k]`` is the number of elements of ``S`` that are

@@ -1,9 +1,9 @@
-"""Planet-centroid measurement model of the navigation filter (paper 002 Sec. 4.2).
+"""Planet-centroid measurement model of the navigation filter (Andreis et al. (2024), Sec. 4.2).
 
 Core module: NumPy only. The measurement is the pixel position of a planet's centroid. The
 model maps the spacecraft state ``x = (r, v)`` (barycentric ICRS, km and km/s) to it through
 
-1. first-order light-time (paper 002 Eq. 26-31): with the planet moving on a straight line over
+1. first-order light-time (Andreis et al. (2024), Eq. 26-31): with the planet moving on a straight line over
    the light time, ``|rho - v_p tau| = c tau`` with ``rho = r_p(t) - r`` is a quadratic in tau,
    ``(c^2 - v_p^2) tau^2 + 2 (rho . v_p) tau - rho^2 = 0``, whose positive root is
    ``tau = (-(rho . v_p) + sqrt((rho . v_p)^2 + (c^2 - v_p^2) rho^2)) / (c^2 - v_p^2)``;
@@ -19,7 +19,7 @@ The analytic Jacobian (Eq. 36-42, written here for the filter's state only):
 quadratic), ``dl/dd = (I - l l^T) / |d|``, ``dw/dl = (1 - l . beta) I - l beta^T`` and ``P``
 the 2 x 3 derivative of the pinhole-plus-distortion projection.
 
-Cases of paper 002 Sec. 5.2 (:data:`CASES`): 1 both effects in the model; 2 light-time in the
+Cases of Andreis et al. (2024), Sec. 5.2 (:data:`CASES`): 1 both effects in the model; 2 light-time in the
 model, aberration removed from the measured centroid in image processing
 (:func:`deaberrate_pixel`, with the filter's velocity); 3 no correction; 4 aberration only;
 5 light-time only.
@@ -27,7 +27,7 @@ model, aberration removed from the measured centroid in image processing
 How good is first order: the renderer's exact light-time (iterated) and relativistic aberration
 differ from this model by less than 0.01 arcsec at 1 AU and 30 km/s
 (tests/pipeline/test_measurement_against_apparent.py), three orders of magnitude below the
-15 arcsec that paper 002 (after Eq. 33) gives as the image-processing floor.
+15 arcsec that Andreis et al. (2024) (after Eq. 33) gives as the image-processing floor.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def lambert_photocentre_offset(phase_angle_rad):
     ``(3 pi / 16) sin a (1 + cos a) / (sin a + (pi - a) cos a)``: 0 at full phase; towards new
     phase it tends to 9 pi / 32 (e.g. Lindegren 1977, A&A 57, 55; Gaia's solar-system photocentre
     correction). At 120 deg it is 0.75 radius: 1.5 px for the Earth at 0.05 au with the paper camera, which the
-    renderer's discs show and paper 002's point-planet model would take as a position error.
+    renderer's discs show and the point-planet model of Andreis et al. (2024) would take as a position error.
     """
     a = np.asarray(phase_angle_rad, dtype=float)
     den = np.sin(a) + (np.pi - a) * np.cos(a)
@@ -95,7 +95,7 @@ def spot_saturated(dn, xy_px, radius_px: float, max_dn: float) -> bool:
 
 @dataclass(frozen=True, kw_only=True)
 class LightCorrections:
-    """Which light effects the measurement model carries (paper 002 cases 1-5).
+    """Which light effects the measurement model carries (Andreis et al. (2024), cases 1-5).
 
     Attributes
     ----------
@@ -116,7 +116,7 @@ class LightCorrections:
             raise ValueError("aberration is either in the model or removed from the measurement, not both")
 
 
-#: Paper 002 Sec. 5.2 cases.
+#: Andreis et al. (2024), Sec. 5.2 cases.
 CASES = {
     1: LightCorrections(light_time=True, aberration=True),
     2: LightCorrections(light_time=True, aberration=False, deaberrate_measurement=True),
@@ -183,7 +183,7 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
     sun_position_km : ndarray, shape (3,), optional
         With ``planet_radius_km > 0``: the model aims at the planet's Lambert centre of light
         (:func:`lambert_photocentre_offset`, towards the Sun across the line of sight) instead of
-        its centre (an addition to paper 002). The Jacobian treats the offset as constant (its
+        its centre (an addition to Andreis et al. (2024)). The Jacobian treats the offset as constant (its
         derivative is ~ offset / distance, < 1e-3 of ``H``).
     planet_radius_km : float
     photocentre : str
@@ -196,7 +196,7 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
 
     References
     ----------
-    Andreis et al. (paper 002), Eq. 26-42.
+    Andreis et al. (2024), Eq. 26-42.
     """
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)

@@ -2,7 +2,7 @@
 
 Both have one interface; the driver asks the mode at each step that differs:
 
-- :class:`PaperMode` (paper 000 as published): Eq. 6 threshold with the image mean and standard
+- :class:`PaperMode` (Andreis et al. (2023a) as published): Eq. 6 threshold with the image mean and standard
   deviation, the iterative increase of T when the ID fails, reference-star votes, RANSAC over
   random 3-star Wahba solutions, the attitude from the RANSAC inliers, catalog directions at the
   catalog epoch without aberration, beacons by the closest spike in the Eq. 23 ellipse with ``S``
@@ -10,7 +10,7 @@ Both have one interface; the driver asks the mode at each step that differs:
 - :class:`ImprovedMode`: a robust threshold (:mod:`~skynav.pipeline.levels`), star-like spots
   first, deterministic vote-ordered triples, every catalog star predicted in the field
   re-associated and the attitude re-solved from all of them with stellar aberration removed
-  (paper 002 section 3.2: catalog directions aberrated with the predicted velocity), an acceptance
+  (Andreis et al. (2024), Sec. 3.2: catalog directions aberrated with the predicted velocity), an acceptance
   test (>= ``min_matches`` stars), windowed tracking (:mod:`~skynav.pipeline.tracking`), beacons
   assigned jointly by Mahalanobis distance plus predicted brightness
   (:func:`~skynav.pipeline.beacon_id.identify_joint`).
@@ -80,7 +80,7 @@ class Mode(abc.ABC):
 
 
 class PaperMode(Mode):
-    """Paper 000 as published (module docstring)."""
+    """Andreis et al. (2023a) as published (module docstring)."""
 
     name = "paper"
     histogram_levels = False

@@ -1,4 +1,4 @@
-"""Optimal planet pair for a navigation leg (Franzese & Topputo; paper 002 Sec. 2.2, Eq. 1-2).
+"""Optimal planet pair for a navigation leg (Franzese & Topputo; Andreis et al. (2024), Sec. 2.2, Eq. 1-2).
 
 Core module. Two planets seen along unit lines of sight ``l_i`` at distances ``d_i`` with an
 angular error ``sigma`` (rad, 1 sigma per axis) constrain the spacecraft position across each
@@ -7,7 +7,7 @@ line of sight with variance ``(sigma d_i)^2``; triangulating the two gives the p
     P = sigma^2 (A_i + A_j)^-1,   A_i = (I - l_i l_i^T) / rho_i^2,   rho_i = d_i / 1 au   (Eq. 2)
 
 and the figure of merit is ``J = tr(P)`` (Eq. 1), non-dimensional with the distances in au. The
-pair minimising ``J`` among the eligible planets (``V < 7``, Sun elongation ``> 20 deg``, paper 002
+pair minimising ``J`` among the eligible planets (``V < 7``, Sun elongation ``> 20 deg``, Andreis et al. (2024)
 Sec. 5.2) is the optimal pair; the brighter planet is tracked first. With one eligible planet the
 pair is that planet twice (``J`` infinite); with none, :func:`optimal_pair` returns None.
 
@@ -52,7 +52,7 @@ class PairChoice:
 
 
 def figure_of_merit(l_i, d_i_km, l_j, d_j_km, sigma_rad: float = 1.0) -> float:
-    """``J = sigma^2 tr((A_i + A_j)^-1)`` of paper 002 Eq. 1-2 (au^2 x sigma^2; inf if parallel).
+    """``J = sigma^2 tr((A_i + A_j)^-1)`` of Andreis et al. (2024), Eq. 1-2 (au^2 x sigma^2; inf if parallel).
 
     Examples
     --------

@@ -4,7 +4,7 @@
 the saturated fraction and background levels (:mod:`~skynav.pipeline.levels`); tracking from
 ``previous_attitude`` in windows (:mod:`~skynav.pipeline.tracking`), else spots over the whole
 frame (:mod:`~skynav.pipeline.centroids`), association from the previous attitude and, failing
-that, lost in space (:mod:`~skynav.pipeline.star_id`; paper 001 Fig. 4); the attitude and its
+that, lost in space (:mod:`~skynav.pipeline.star_id`; Andreis et al. (2023b), Fig. 4); the attitude and its
 covariance (:mod:`~skynav.pipeline.attitude`); the beacons predicted (:mod:`~skynav.pipeline.beacons`)
 and identified (:mod:`~skynav.pipeline.beacon_id`). Where the paper's method and the improved
 one differ, the mode object decides (:mod:`~skynav.pipeline.modes`: ``"paper"`` and

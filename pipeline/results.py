@@ -91,7 +91,7 @@ class BeaconResult:
     predicted_xy_px : ndarray, shape (2,)
         Predicted projection (first-order light-time and aberration), px.
     predicted_cov_px2 : ndarray, shape (2, 2)
-        Covariance of the predicted projection (paper 000 Eq. 13-22), px^2.
+        Covariance of the predicted projection (Andreis et al. (2023a), Eq. 13-22), px^2.
     status : str
         One of :data:`BEACON_STATUSES`.
     """

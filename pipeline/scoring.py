@@ -7,7 +7,7 @@ the folder), read by the datasets reader (:func:`skynav.datasets.reader.read_fra
 camera, pixel pitch included, and the epoch from the JSON) and scored from the JSON's
 ``observer.*``, ``attitude.R_cam_icrs`` and ``bodies[]`` (``name``, ``xy``, ``in_fov``,
 ``visible``). The pipeline gets only the observation and a
-predicted state drawn here from the truth with the given sigma per axis (paper 000 section V).
+predicted state drawn here from the truth with the given sigma per axis (Andreis et al. (2023a), Sec. V).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ __all__ = ["FrameTruthLite", "BeaconScore", "FrameScore", "PeerScore", "open_fra
            "run_benchmark", "summarise", "summarise_peers", "WRONG_ATTITUDE_ARCSEC", "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
 
 WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
-BEACON_WRONG_PX = 5.0            # paper 000 section V: a beacon error > 5 px is a failure
+BEACON_WRONG_PX = 5.0            # Andreis et al. (2023a), Sec. V: a beacon error > 5 px is a failure
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
 
@@ -202,7 +202,7 @@ def open_frames(path):
 
 def predicted_state(truth, sigma_km, rng):
     """The benchmark's predicted state: the true position plus N(0, sigma_km^2) per axis, the true
-    velocity plus N(0, 0.1^2) km/s per axis (paper 000 section V), drawn from ``rng``."""
+    velocity plus N(0, 0.1^2) km/s per axis (Andreis et al. (2023a), Sec. V), drawn from ``rng``."""
     pos = truth.position_km + rng.normal(0.0, sigma_km, 3)
     vel = truth.velocity_km_s + rng.normal(0.0, VELOCITY_SIGMA_KM_S, 3)
     return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
@@ -360,7 +360,7 @@ def summarise(rows, *, frames, sigmas_km):
             "error_px_mean": float(np.mean(e)) if e else float("nan"),
             "beacons": nb,
             "frames_with_beacon": len(frames_with),
-            # paper 000 Table 3 columns 5 and 6: failures (wrong or none) among beacons of frames
+            # Andreis et al. (2023a), Table 3 columns 5 and 6: failures (wrong or none) among beacons of frames
             # with an attitude, and of frames with the right attitude
             "failure_rate_with_attitude": _rate(sum(bb.outcome != "correct" for bb in with_att), len(with_att)),
             "failure_rate_with_right_attitude": _rate(sum(bb.outcome != "correct" for bb in with_right), len(with_right)),

@@ -8,11 +8,11 @@ do that). What each part sees:
   :func:`skynav.pipeline.process_frame` (attitude and planet centroid), the calibrated camera, the
   on-board DE421 and the commanded pointing plan (which planet each frame was pointed at: the
   dataset's leg plan, ``legs.csv`` / the frame's ``dataset.target``), never the truth;
-- the truth is read here for: the Monte Carlo initial states (paper 002 Eq. 45-46: nominal state
+- the truth is read here for: the Monte Carlo initial states (Andreis et al. (2024), Eq. 45-46: nominal state
   plus ``sqrt(P0)`` times a standard normal draw), the measurement-noise calibration (below), and
   the scores (errors, NEES, measured centroid errors).
 
-Measurement noise ``R = sigma_px^2 I``: measured, not guessed (paper 002 Sec. 5.1 did the same
+Measurement noise ``R = sigma_px^2 I``: measured, not guessed (Andreis et al. (2024), Sec. 5.1 did the same
 with its image-processing Monte Carlo): before the filter runs, the image processing is run on
 every ``calibration_stride``-th frame (default: every frame; with every 4th the per-class sigmas
 came out 10-15 % low on the reference campaign, e.g. Mars 0.061 against 0.070 px from all frames,
@@ -33,7 +33,7 @@ default the measurement model aims at the photocentre: the Lambert one
 (:func:`skynav.pipeline.measurement.lambert_photocentre_offset`), or for a resolved disc whose
 spot is saturated the lit area's centroid
 (:func:`skynav.pipeline.measurement.saturated_photocentre_offset`; :func:`centroid_usable`
-decides from the image); ``phase_offset=False`` keeps paper 002's centre-of-planet model. A
+decides from the image); ``phase_offset=False`` keeps the centre-of-planet model of Andreis et al. (2024). A
 centroid with another body predicted within :data:`BLEND_PX` is not used (the Earth and the Moon
 in one spot).
 

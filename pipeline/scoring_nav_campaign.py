@@ -3,7 +3,7 @@
 Scoring module. The filter (:mod:`skynav.pipeline.ekf`) sees the images through
 :func:`skynav.pipeline.process_frame` (attitude and planet centroid), the calibrated camera, the
 on-board DE421 and the commanded pointing plan, never the truth; the truth gives the initial
-states (paper 002 Eq. 45-46) and the scores. The image processing runs once per frame for all the
+states (Andreis et al. (2024), Eq. 45-46) and the scores. The image processing runs once per frame for all the
 runs of a worker (the predicted state it gets is the runs' mean, with the runs' mean covariance
 plus their spread); with ``workers > 1`` the runs are split into chunks over the house's process
 pool (:func:`skynav.datasets.pool.process_pool_map`) and every worker processes the frames once
@@ -166,7 +166,7 @@ def _chunk_worker(args):
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
                  progress=None, synthetic_seed: int | None = None) -> CampaignResult:
-    """Monte Carlo EKF runs along the plan (paper 002 Eq. 45-46 initial errors, 001 Table 2 sigmas).
+    """Monte Carlo EKF runs along the plan (Andreis et al. (2024), Eq. 45-46 initial errors; Andreis et al. (2023b), Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
     ``synthetic_seed``: reference mode; every centroid the filter would use is replaced by the
@@ -178,10 +178,10 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     if runs < 1:
         raise NavInputError(f"--runs {runs}: give at least 1 run")
     dynamics = dynamics or FilterDynamics()
-    P0 = initial_covariance()   # paper 001 Table 2
+    P0 = initial_covariance()   # Andreis et al. (2023b), Table 2
     rng = np.random.default_rng(np.random.SeedSequence([seed, 45]))
     nominal = np.concatenate([plan.position_km[0], plan.velocity_km_s[0], np.zeros(6)])
-    x0 = nominal + rng.standard_normal((runs, 12)) * np.sqrt(np.diag(P0))   # paper 002 Eq. 45
+    x0 = nominal + rng.standard_normal((runs, 12)) * np.sqrt(np.diag(P0))   # Andreis et al. (2024), Eq. 45
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:

@@ -1,6 +1,6 @@
 """Measurement-noise calibration of the navigation campaign: the planet-centroid error, measured.
 
-Scoring module. ``R = sigma_px^2 I`` is measured, not guessed (paper 002 Sec. 5.1 did the same
+Scoring module. ``R = sigma_px^2 I`` is measured, not guessed (Andreis et al. (2024), Sec. 5.1 did the same
 with its image-processing Monte Carlo): the image processing runs on calibration frames with a
 predicted state drawn about the truth, and the target's centroid minus the measurement model at
 the true state gives the errors; per class of measurement (target and photocentre law) with at

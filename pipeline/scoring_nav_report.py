@@ -1,8 +1,8 @@
 """``skynav bench nav`` outputs: ``runs.csv``, ``frames.csv``, ``summary.json``, ``report.md`` and a
 self-contained ``report.html`` (matplotlib PNGs embedded as base64; no script, no external file).
 
-Scoring module. Definitions used in the summary (Andreis et al. 2024, paper 002, Sec. 5.2; the
-figures follow Figs. 7-8 of Andreis et al. 2023b, paper 001):
+Scoring module. Definitions used in the summary (Andreis et al. (2024), Sec. 5.2; the
+figures follow Andreis et al. (2023b), Figs. 7-8):
 
 - ``final.position_3sigma_km``: the sample 3-sigma at the last frame, ``3 sqrt(mean_runs |e_r|^2)``
   (3 x RMS of the error norm over the runs); ``final.position_error_rms_km`` is the RMS error norm
@@ -34,7 +34,7 @@ from .scoring_nav_plan import icrs_to_ecliptic
 
 __all__ = ["summarise", "write_report", "report_figures", "PAPER_002", "TARGETS"]
 
-#: Andreis et al. (2024) (paper 002; software images, case 1, 50 runs, 100-day Earth-Mars leg):
+#: Andreis et al. (2024) (software images, case 1, 50 runs, 100-day Earth-Mars leg):
 #: final 3-sigma. The text available to us ranks the cases' RMSE 4 > 3 > 5 > 1 ~ 2 without values.
 PAPER_002 = {"position_3sigma_km": 1953.0, "velocity_3sigma_m_s": 0.41}
 #: The documented accuracy targets of ``skynav bench nav`` (docs/pipeline.md, navigation table).

@@ -2,7 +2,7 @@
 
 Driver-side scoring module: the HTML is self-contained (matplotlib PNGs embedded as base64, no
 script, no external resource), and puts our numbers next to Tables 3 and 4 of Andreis et al.
-(2023a) (paper 000), cited in the report's references section.
+(2023a), cited in the report's references section.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_fi
 
 __all__ = ["write_report", "report_figures", "time_histogram_figure", "PAPER_TABLE3"]
 
-# Andreis et al. (2023a) (paper 000), Table 3 (1031 scenes with a planet; 962 with an attitude): sigma_r km ->
+# Andreis et al. (2023a), Table 3 (1031 scenes with a planet; 962 with an attitude): sigma_r km ->
 # (sigma_ErrRot arcsec, % wrong attitude, % no attitude, % wrong beacon (of 962),
 #  % wrong beacon with right attitude (of 962))
 PAPER_TABLE3 = {

@@ -1,6 +1,6 @@
 """Star identification: lost-in-space (k-vector + reference-star votes + RANSAC over 3-star Wahba)
-and tracking (catalog stars predicted from a previous attitude). Paper 000 section III.A.2-3,
-paper 001 Fig. 4.
+and tracking (catalog stars predicted from a previous attitude). Andreis et al. (2023a), Sec. III.A.2-3,
+Andreis et al. (2023b), Fig. 4.
 
 Core module. Inputs are camera-frame unit vectors of the spots (``camera.line_of_sight``) in a
 priority order (brightest, most star-like first), outputs the attitude and the spot <-> star

@@ -1,7 +1,7 @@
 """Tracking: the stars and beacons of a frame measured in windows around their predictions.
 
 From the previous frame's attitude, the catalog stars (and the beacons) are predicted on the
-sensor and measured only in small windows around them (paper 001 Fig. 4: tracking, falling back
+sensor and measured only in small windows around them (Andreis et al. (2023b), Fig. 4: tracking, falling back
 to lost in space), with residual clipping of the association (:func:`clip_residuals`).
 """
 

@@ -1,4 +1,4 @@
-"""Centroids measured in windows around predicted positions (tracking; paper 000 Eq. 7-8).
+"""Centroids measured in windows around predicted positions (tracking; Andreis et al. (2023a), Eq. 7-8).
 
 Beside the full-frame detection (:mod:`~skynav.pipeline.centroids`): the same weights (``w = I /
 I_max`` over the pixels above the threshold and their 8-neighbours, i.e. ``I^2`` moments) and the

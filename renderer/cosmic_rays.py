@@ -3,10 +3,10 @@
 Model
 -----
 - **Count per frame**: ``mode="poisson"``: ``N ~ Poisson(rate_per_frame)`` (independent arrivals);
-  ``mode="fixed"``: exactly ``rate_per_frame`` hits (paper 002, table 4: "1" single pixel turned
+  ``mode="fixed"``: exactly ``rate_per_frame`` hits (Andreis et al. (2024), Table 4: "1" single pixel turned
   on per image).
-- **Where**: uniform over the sensor area (pixel edges at -0.5 and W - 0.5, CONVENTIONS.md).
-- **Shape**: by default a single pixel (paper 002 and paper 000 Sect. on spikes: "cosmic rays ...
+- **Where**: uniform over the sensor area (pixel edges at -0.5 and W - 0.5, docs/conventions.md).
+- **Shape**: by default a single pixel (Andreis et al. (2024), and Andreis et al. (2023a), section on spikes: "cosmic rays ...
   hit only single pixels" in under-sampled images). With probability ``track_prob`` a hit is a
   short straight track (an oblique particle): uniform direction, projected length uniform in
   ``[1, max_track_length_px]``; its charge is spread over the pixels the segment crosses, in
@@ -122,7 +122,7 @@ class CosmicRayHits:
         return hash((tuple(self.shape),) + tuple(np.ascontiguousarray(a).tobytes() for a in self._fields()))
 
     def to_ground_truth(self) -> list[dict]:
-        """The ``cosmic_rays`` list of the frame ground truth (CONVENTIONS.md), one record per hit.
+        """The ``cosmic_rays`` list of the frame ground truth (docs/conventions.md), one record per hit.
 
         Each record holds ``xy`` and ``electrons`` (the fixed names) and the whole track:
         ``track`` (bool), ``track_start_xy``, ``track_end_xy``, ``length_px`` (projected track

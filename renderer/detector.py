@@ -294,7 +294,7 @@ class Sensor:
 
     @property
     def dtype(self):
-        """uint8 for bit depth <= 8, else uint16 (CONVENTIONS.md PNG rule)."""
+        """uint8 for bit depth <= 8, else uint16 (docs/conventions.md PNG rule)."""
         return np.uint8 if self.params.bit_depth <= 8 else np.uint16
 
     # ----------------------------------------------------------------- public entry points

@@ -1,6 +1,6 @@
 """Point-spread functions, integrated exactly over pixels.
 
-Pixel convention (CONVENTIONS.md): pixel ``[i, j]`` covers ``x in [j-0.5, j+0.5]``,
+Pixel convention (docs/conventions.md): pixel ``[i, j]`` covers ``x in [j-0.5, j+0.5]``,
 ``y in [i-0.5, i+0.5]``. A stamp for a point at ``(x, y)`` is centred on the pixel that
 contains it, ``(floor(x + 0.5), floor(y + 0.5))``, and spans ``2 h + 1`` pixels per axis.
 

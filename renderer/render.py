@@ -64,7 +64,7 @@ class RenderOptions:
     background_e_per_px_s : float
         Uniform sky background (zodiacal + galactic), e-/px/s.
     cosmic_rays_per_frame : float
-        Mean number of cosmic-ray hits per frame (paper 002: 1).
+        Mean number of cosmic-ray hits per frame (Andreis et al. (2024): 1).
     cosmic_ray_mode : str
         ``"poisson"``: Poisson count with mean ``cosmic_rays_per_frame``; ``"fixed"``.
     cosmic_ray_track_prob : float
@@ -125,7 +125,7 @@ class Frame:
     irradiance_w_m2 : ndarray, shape (H, W), float32
         In-band irradiance at the pupil per pixel from the sources, W/m^2.
     truth : dict
-        Ground truth, schema ``skynav.frame/2`` (CONVENTIONS.md).
+        Ground truth, schema ``skynav.frame/2`` (docs/conventions.md).
     """
 
     dn: np.ndarray

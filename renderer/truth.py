@@ -1,4 +1,4 @@
-"""Ground truth of a rendered frame, schema ``skynav.frame/2`` (CONVENTIONS.md "Files").
+"""Ground truth of a rendered frame, schema ``skynav.frame/2`` (docs/conventions.md "Files").
 
 Version 2 (PSF models, issue #26) adds ``camera.psf`` and, for each star and drawn body,
 ``centre_of_light_xy``: the first moment of its drawn (PSF-blurred, streaked) image, beside its

@@ -40,7 +40,7 @@ _LAZY = {
     "planet_v_mag": "photometry", "phase_angle_rad": "photometry",
     "BodyDirections": "apparent", "apparent_body": "apparent", "apparent_bodies": "apparent",
     "apparent_star_directions": "apparent",
-    # frames (CONVENTIONS.md: passive R_cam_icrs, scalar-first quaternions)
+    # frames (docs/conventions.md: passive R_cam_icrs, scalar-first quaternions)
     "radec_to_unit": "frames", "unit_to_radec": "frames", "radec_twist_to_dcm": "frames",
     "dcm_to_radec_twist": "frames", "quat_to_dcm": "frames", "dcm_to_quat": "frames", "point_boresight": "frames",
     # dynamics

@@ -1,7 +1,7 @@
 """Apparent directions of solar-system bodies and stars as seen by a moving spacecraft.
 
 Pure NumPy core: positions km, velocities km/s, times s (TDB past J2000), barycentric ICRS.
-The renderer is the truth (CONVENTIONS.md, "Apparent directions"), so nothing here is first order.
+The renderer is the truth (docs/conventions.md, "Apparent directions"), so nothing here is first order.
 
 What is modelled
 ----------------

@@ -8,7 +8,7 @@ render option (``RenderOptions.cosmic_rays_per_frame``). Pixels may be rectangul
 This module imports no reader: :meth:`Camera.from_dict` inverts :meth:`Camera.to_dict`, and the
 YAML reader (:mod:`skynav.scenes.config`) builds on it, not the reverse.
 
-Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns and y along rows; the
+Pixel convention (docs/conventions.md): ``(x, y)`` with x along columns and y along rows; the
 CENTRE of the top-left pixel is ``(0.0, 0.0)``; a centred principal point is
 ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. Projection ``[x, y, 1]^T ~ K v_cam``, with the lens
 distortion applied to the normalised coordinates between the pinhole and ``K``.
@@ -102,7 +102,7 @@ def default_response_curve():
     """A plausible CMOS QE x lens-transmission curve, 350-1050 nm every 10 nm.
 
     A front-illuminated CMOS shape (rise from the UV, peak near 550-600 nm, NIR tail) scaled so
-    that its average over 400-900 nm equals paper 002 table 4's ``Qe x Tlens = 0.49``.
+    that its average over 400-900 nm equals the ``Qe x Tlens = 0.49`` of Andreis et al. (2024), Table 4.
     Returns (wavelengths_nm, qe_t) as tuples.
     """
     wl = np.arange(350.0, 1051.0, 10.0)
@@ -173,7 +173,7 @@ class Camera:
     exposure_s : float
         Exposure time, s.
     defocus_sigma_px : float
-        Gaussian defocus PSF standard deviation, px (paper 002 table 4: 0.5 px): the shorthand
+        Gaussian defocus PSF standard deviation, px (Andreis et al. (2024), Table 4: 0.5 px): the shorthand
         of ``psf=GaussianPSFModel(defocus_sigma_px)``, kept equal to ``psf.sigma_px`` while the
         PSF is a Gaussian.
     psf : PSF model or mapping, optional
@@ -345,7 +345,7 @@ class Camera:
     def to_dict(self) -> dict:
         """Plain dict for JSON/YAML (ground truth ``camera``); :meth:`from_dict` inverts it.
 
-        ``K`` and ``bit_depth`` are derived copies (CONVENTIONS.md fixed truth keys);
+        ``K`` and ``bit_depth`` are derived copies (docs/conventions.md fixed truth keys);
         ``pixel_pitch_y_um`` appears only for rectangular pixels.
         """
         d = {
@@ -435,10 +435,10 @@ def _sub_mapping(value, key: str, allowed) -> dict:
 
 
 def paper_camera(**overrides) -> Camera:
-    """The camera of paper 002 table 4 (and paper 000 table 1).
+    """The camera of Andreis et al. (2024), Table 4 (and Andreis et al. (2023a), Table 1).
 
     20 deg FOV, f/2.2, 400 ms, 1024 x 1024 px, f = 40 mm (so 13.78 um pixels), QE x T 0.49,
-    defocus 0.5 px, 8-bit output (paper 000 thresholds at "120 out of 255"). The paper's
+    defocus 0.5 px, 8-bit output (Andreis et al. (2023a) thresholds at "120 out of 255"). The paper's
     1 cosmic ray per frame is ``RenderOptions.cosmic_rays_per_frame`` and its 20 deg solar
     exclusion and V < 7 limit are :class:`~skynav.scenes.visibility.VisibilityCriteria`.
     """

@@ -267,7 +267,7 @@ _SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render"
 
 #: The ``render:`` keys of a scene file and of a dataset recipe (one table for both): key ->
 #: (default, meaning with unit and allowed values). The defaults are the scene model's and the
-#: renderer's (``RenderOptions``: 1 cosmic ray per frame as in paper 002, 16 Mitsuba samples).
+#: renderer's (``RenderOptions``: 1 cosmic ray per frame as in Andreis et al. (2024), 16 Mitsuba samples).
 RENDER_KEYS = {
     "catalog_limiting_v_mag": (9.0, "faintest catalogue star rendered, V mag, in [-2, 14] (Hipparcos is "
                                     "complete to about V = 8)"),

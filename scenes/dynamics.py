@@ -10,7 +10,7 @@ and km/s, time in TDB seconds past J2000, ``dx/dt = f(x, t) = (v, a(r, v, t))``:
 - Newtonian point masses: the Sun, Mercury, Venus, Earth, Moon, Mars (system), Jupiter, Saturn,
   Uranus and Neptune (system barycentres) at their DE421 positions, with the DE421 mass
   parameters (:data:`skynav.scenes.constants.GM_KM3_S2`);
-- solar radiation pressure, cannonball model (papers 001 Eq. 5, 002 Eq. 3):
+- solar radiation pressure, cannonball model (Andreis et al. (2023b), Eq. 5; Andreis et al. (2024), Eq. 3):
   ``a = C_R P_1AU (1 AU / r)^2 (A / m) r_hat``, ``P_1AU = 1361 W m^-2 / c``, ``r`` from the Sun;
 - the post-Newtonian (1PN) correction of a Schwarzschild Sun (PPN beta = gamma = 1; Moyer 2003,
   JPL DESCANSO monograph 2, Eq. 4-61, reduced to one central mass):
@@ -29,7 +29,7 @@ Filter support: :func:`acceleration_jacobian` and :meth:`ForceField.jacobian` gi
 ``A(x, t) = df/dx`` (6 x 6); :func:`propagate_stm` integrates the variational equations
 ``dPhi/dt = A(x(t), t) Phi``, ``Phi(t0, t0) = I``, alongside the state.
 
-Differences from the filter dynamics of paper 001 (Eq. 1-7):
+Differences from the filter dynamics of Andreis et al. (2023b), Eq. 1-7:
 
 - frame: the paper integrates heliocentric ``r`` with the Sun as central body (Eq. 4) and the
   planets' third-body terms with their indirect part (Eq. 6); here the origin is the solar-system
@@ -78,7 +78,7 @@ class SpacecraftSRP:
     """Cannonball solar-radiation-pressure parameters.
 
     Defaults: a 12U CubeSat with deployed panels, ``m = 24 kg``, ``A = 0.25 m^2``, ``C_R = 1.3``
-    (papers 001/002 do not list their values).
+    (Andreis et al. (2023b) and Andreis et al. (2024) do not list their values).
     """
 
     mass_kg: float = 24.0

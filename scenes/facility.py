@@ -1,6 +1,6 @@
 """A hardware-in-the-loop bench (a *facility*): a screen seen by the camera through a collimator.
 
-Paper 001 section 3 (RETINA): a microdisplay sits in the focal plane of a collimator; the flight
+Andreis et al. (2023b), Sec. 3 (RETINA): a microdisplay sits in the focal plane of a collimator; the flight
 camera looks into the collimator, so every screen pixel becomes a direction in the camera frame.
 This module is the model of such a bench, pure computation:
 

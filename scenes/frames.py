@@ -1,6 +1,6 @@
 """Frames, rotations and attitude: the glossary and the converters.
 
-Glossary (CONVENTIONS.md)
+Glossary (docs/conventions.md)
 -------------------------
 ICRS
     Inertial frame, origin at the solar-system barycentre. ``position_km`` and ``velocity_km_s``
@@ -10,7 +10,7 @@ camera frame
 ``R_cam_icrs``
     Passive attitude matrix, ``v_cam = R_cam_icrs @ v_icrs``; shape (3, 3) or (N, 3, 3).
 quaternion
-    Scalar first ``(q0, q1, q2, q3)``, attitude matrix of paper 000 Eq. 14:
+    Scalar first ``(q0, q1, q2, q3)``, attitude matrix of Andreis et al. (2023a), Eq. 14:
     ``A = (q0^2 - qv.qv) I + 2 qv qv^T - 2 q0 [qv x]``. ``q`` and ``-q`` are the same attitude;
     :func:`dcm_to_quat` returns ``q0 >= 0``.
 RA / Dec / twist
@@ -115,7 +115,7 @@ def dcm_to_radec_twist(R_cam_icrs):
 
 
 def quat_to_dcm(q):
-    """Attitude matrix of a scalar-first quaternion (paper 000 Eq. 14); q shape (..., 4).
+    """Attitude matrix of a scalar-first quaternion (Andreis et al. (2023a), Eq. 14); q shape (..., 4).
 
     ``A = (q0^2 - qv.qv) I + 2 qv qv^T - 2 q0 [qv x]``; the quaternion is normalised first.
     """
@@ -134,7 +134,7 @@ def quat_to_dcm(q):
 def dcm_to_quat(R):
     """Scalar-first quaternion (q0 >= 0) of an attitude matrix, Shepperd's method.
 
-    Inverse of :func:`quat_to_dcm` (paper 000 Eq. 14 convention); R shape (..., 3, 3).
+    Inverse of :func:`quat_to_dcm` (Andreis et al. (2023a), Eq. 14 convention); R shape (..., 3, 3).
     """
     R = np.asarray(R, dtype=float)
     flat = R.reshape(-1, 3, 3)

@@ -1,6 +1,6 @@
 """Built-in scenes. Each has a YAML twin in ``docs/examples/`` (tested to give the same scene).
 
-``default``: the paper camera (paper 002 table 4) on an Earth-Mars cruise, 2027-02-01 TDB,
+``default``: the paper camera (Andreis et al. (2024), Table 4) on an Earth-Mars cruise, 2027-02-01 TDB,
 1.2 AU from the Sun between the Earth and Mars (Mars is near opposition, 2027-02-19), moving at
 1.05 x the local circular speed in the ecliptic; the camera points at Mars (V about -1.7 from
 there, 157 deg from the Sun). ``point_at: auto`` would pick the brightest planet outside the Sun

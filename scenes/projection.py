@@ -6,7 +6,7 @@ line-of-sight table (a hardware-in-the-loop bench screen seen through its collim
 renderer places point sources with :meth:`Projection.project` and takes the rays of resolved
 bodies from :meth:`Projection.line_of_sight`, so it never assumes a pinhole.
 
-Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns and y along rows, the CENTRE of
+Pixel convention (docs/conventions.md): ``(x, y)`` with x along columns and y along rows, the CENTRE of
 the top-left pixel at ``(0.0, 0.0)``. Camera frame: +z boresight, +x right, +y down.
 """
 

@@ -20,7 +20,7 @@ read back by :func:`psf_from_dict`:
   a sum of 1 on load); ``field: [{x_px, y_px, file}, ...]`` instead of ``file``: one image per
   point of a rectangular grid across the field, interpolated bilinearly between grid points.
 
-Pixel convention (CONVENTIONS.md): ``(x, y)`` with x along columns, the centre of the top-left
+Pixel convention (docs/conventions.md): ``(x, y)`` with x along columns, the centre of the top-left
 pixel at ``(0, 0)``. Tables are indexed ``[row, column]`` = ``[y, x]``.
 """
 

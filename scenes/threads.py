@@ -2,7 +2,7 @@
 
 Both the renderer (the size of Dr.Jit's CPU pool) and the datasets side (OpenEXR's pool) size
 their pools from it; it lives in ``scenes`` because both rooms may import ``scenes`` and neither
-may make the other load (ARCHITECTURE.md "Never": reading a dataset loads no renderer code). The
+may make the other load (docs/architecture.md "Never": reading a dataset loads no renderer code). The
 dataset runner sets it to ``cores // workers`` in its worker processes.
 """
 

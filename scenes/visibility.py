@@ -31,10 +31,10 @@ class VisibilityCriteria:
     Parameters
     ----------
     limiting_v_mag : float
-        Faintest V magnitude detected; paper 002: V < 7.
+        Faintest V magnitude detected; Andreis et al. (2024): V < 7.
     sun_exclusion_rad : float
         Smallest angle from the Sun at which a body (its elongation) or the boresight is usable,
-        rad; paper 002: 20 deg.
+        rad; Andreis et al. (2024): 20 deg.
 
     Examples
     --------

@@ -122,7 +122,7 @@ class Simulator:
         """The scene mapping of frame ``k``: the true state, the commanded attitude with the controller's error.
 
         Frame ``k`` of rendering 0 draws from the dataset's stream of that frame,
-        ``default_rng(SeedSequence([seed, k]))`` (the recipe's ``seed``; CONVENTIONS.md), in the
+        ``default_rng(SeedSequence([seed, k]))`` (the recipe's ``seed``; docs/conventions.md), in the
         dataset's order: the controller's pointing error (3 axes), then its rate jitter
         (:func:`skynav.datasets.sequence.pointing_controller`, the dataset's own), so that ``bench loop`` and ``dataset generate`` of
         one recipe see the same controller errors, frame by frame, and differ only where the

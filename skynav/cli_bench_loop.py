@@ -68,7 +68,7 @@ def cmd_loop(args) -> int:
     if warning:
         warn(warning)
     P0 = initial_covariance()
-    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (paper 002 Eq. 45)
+    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (Andreis et al. (2024), Eq. 45)
     r0, v0 = sim.state(sim.schedule()[0][0])
     nominal = np.concatenate([r0, v0, np.zeros(6)])
     x0s = nominal + rng.standard_normal((args.runs, 12)) * np.sqrt(np.diag(P0))

@@ -203,7 +203,7 @@ def test_datasets_never_import_calibration_and_calibration_never_imports_pipelin
 
 # What of skynav.datasets the pipeline may import: the reader and its observation view, and the
 # house's one process pool (bench nav's workers); the typed truth only from scoring modules
-# (ARCHITECTURE.md: ground truth enters only in scoring).
+# (docs/architecture.md: ground truth enters only in scoring).
 PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors",
                              "skynav.datasets.pool")
 PIPELINE_PACKAGE_MEMBERS = {"open", "open_dataset", "Dataset", "Observation", "CalibrationErrorModel", "DatasetError",
@@ -246,7 +246,7 @@ def test_nothing_imports_the_command_line_package(graph):
 
 
 def test_nothing_but_the_command_line_imports_the_service(graph):
-    """ARCHITECTURE.md: nothing imports ``service`` except the command line (programs outside
+    """docs/architecture.md: nothing imports ``service`` except the command line (programs outside
     skynav reach it through its client)."""
     bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) not in (None, "service")
            for n in names if _room_of(n) == "service"]

@@ -1,4 +1,4 @@
-"""Imports at the top (STYLE.md; issue 23): a module's dependencies are read in its first lines.
+"""Imports at the top: a module's dependencies are read in its first lines.
 
 Every ``import`` inside a function of the package (every room and the command line) is listed with
 ``ast``. None may import one of skynav's own modules or any other module except a heavy or optional

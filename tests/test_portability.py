@@ -4,7 +4,7 @@ numpy's SIMD loops (``log10``, ``arctan2``, ``exp`` ...) differ from libm's in t
 some CPUs, BLAS kernels differ by CPU, and Dr.Jit compiles for the machine it runs on: a test
 that asks a scalar twin, a second library or a compiled kernel for numpy's exact bits passes on
 one machine and fails on another. Two implementations are compared within a tolerance in ulps
-or physical units, with the reason (STYLE.md section 13). Identical bits remain a fair demand of
+or physical units, with the reason. Identical bits remain a fair demand of
 *determinism*: the same code run twice with the same seed, a file written and read back.
 
 The rule, applied to every ``tests/**/*.py`` (this file excepted):

@@ -123,7 +123,7 @@ def check_truth(truth: dict) -> None:
     q0, qv = q[0], q[1:]
     A = (q0**2 - qv @ qv) * np.eye(3) + 2 * np.outer(qv, qv) - 2 * q0 * np.array(
         [[0, -qv[2], qv[1]], [qv[2], 0, -qv[0]], [-qv[1], qv[0], 0]])
-    assert np.allclose(A, R, atol=1e-8)  # CONVENTIONS.md: paper 000 Eq. 14
+    assert np.allclose(A, R, atol=1e-8)  # docs/conventions.md: Andreis et al. (2023a), Eq. 14
     cam = truth["camera"]
     K = np.asarray(cam["K"], dtype=float)
     w, h = cam["width"], cam["height"]

@@ -132,7 +132,7 @@ def test_exr_round_trip_exact(tmp_path, rng):
     np.testing.assert_array_equal(got["electrons"], electrons)  # NaN == NaN here
     np.testing.assert_array_equal(got["irradiance_w_m2"], irr.astype(np.float32))
     np.testing.assert_array_equal(got["source_id"], ids)
-    with open(p, "rb") as f:  # file objects too (STYLE.md section 2)
+    with open(p, "rb") as f:  # file objects too, not only paths
         np.testing.assert_array_equal(read_exr(f)["source_id"], ids)
 
 
@@ -370,7 +370,7 @@ def test_validate_truth_catches_missing_keys_and_shapes():
     assert "$.observer.position_km: missing" in err.value.problems
 
 
-# CONVENTIONS.md "Per-frame ground truth", copied by hand: the independent reference the published
+# docs/conventions.md "Per-frame ground truth", copied by hand: the independent reference the published
 # schema must require (section -> keys; the lists' keys are per item).
 CONVENTIONS_FIXED_KEYS = {
     "epoch": ["tdb_iso", "jd_tdb"],
@@ -385,7 +385,7 @@ CONVENTIONS_FIXED_KEYS = {
 
 
 def test_every_required_key_of_conventions_is_checked():
-    """Removing any one fixed key of CONVENTIONS.md is reported, with its JSON path (the schema
+    """Removing any one fixed key of docs/conventions.md is reported, with its JSON path (the schema
     cannot be vacuous), and an extra key anywhere is welcome."""
     base = _truth()
     for section, keys in CONVENTIONS_FIXED_KEYS.items():

@@ -1,4 +1,4 @@
-"""Monte Carlo visibility campaign (paper 000 sec. V.A, 3000 scenes) against an independent estimate.
+"""Monte Carlo visibility campaign (Andreis et al. (2023a), Sec. V.A, 3000 scenes) against an independent estimate.
 
 The dataset sampler (light-time, aberration, apparent directions through ``sky_bodies``) and a
 separate, plain-geometry re-implementation of the paper's distribution (own draws from a

@@ -1,4 +1,4 @@
-"""Recipes (validation, presets, YAML) and the Monte Carlo sampler's distributions (paper 000 V.A)."""
+"""Recipes (validation, presets, YAML) and the Monte Carlo sampler's distributions (Andreis et al. (2023a), Sec. V.A)."""
 
 from __future__ import annotations
 

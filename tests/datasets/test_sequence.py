@@ -1,4 +1,4 @@
-"""Earth-Mars navigation sequence: transfer, cruise, leg timeline (papers 001/002 CONOPS), frames."""
+"""Earth-Mars navigation sequence: transfer, cruise, leg timeline (Andreis et al. (2023b, 2024) CONOPS), frames."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def plan():
 
 
 def test_leg_timeline_matches_the_conops(plan):
-    # paper 002 sec. 4.2: "Each planet is tracked for an hour with a frequency of 0.01 Hz, the slew
+    # Andreis et al. (2024), Sec. 4.2: "Each planet is tracked for an hour with a frequency of 0.01 Hz, the slew
     # maneuver lasts 30 minutes, and the window in which the state is only propagated is ten days
     # ... 10 navigation legs of 10 days 2 hours, and 30 minutes each are repeated."
     w = plan.windows

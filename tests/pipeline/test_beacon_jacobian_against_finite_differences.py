@@ -1,4 +1,4 @@
-"""The beacon projection Jacobian (paper 000 Eq. 16-20) against central finite differences, and
+"""The beacon projection Jacobian (Andreis et al. (2023a), Eq. 16-20) against central finite differences, and
 the Eq. 14 quaternion <-> DCM pair against scipy and skynav.scenes.frames."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Truth: one cruise arc propagated with the filter's own dynamics; measurements: the renderer's
 EXACT apparent directions (``skynav.scenes.apparent``: iterated light-time, relativistic
 aberration, Sun deflection) of Mars and Jupiter projected through the camera, plus Gaussian
-noise. Each Monte Carlo run starts from its own draw of P0 (paper 001 Table 2) and its own noise.
+noise. Each Monte Carlo run starts from its own draw of P0 (Andreis et al. (2023b), Table 2) and its own noise.
 """
 
 import numpy as np

@@ -23,7 +23,7 @@ def _look_at(u):
 
 
 def test_iterated_update_reaches_the_map_estimate_where_the_ekf_does_not():
-    """A close planet (Earth at 3e6 km) and a prior 1.5e5 km off (after 10 days on paper 001's
+    """A close planet (Earth at 3e6 km) and a prior 1.5e5 km off (after 10 days on Andreis et al. (2023b)'s
     0.1 km/s velocity sigma): the measurement is nonlinear over the prior's spread. The iterated
     update lands on the MAP estimate (10 iterations: 0.04 km, asserted < 1 km; 3, the campaign's
     setting, within 1 % of the EKF's miss); the one-step EKF misses it by 7100 km (asserted > 1000)."""

@@ -42,7 +42,7 @@ ff = _generator()
 @pytest.mark.parametrize("psf", ["airy", "moffat"])
 @pytest.mark.parametrize("x, y", [(60.3, 55.7), (62.0, 63.5), (70.62, 58.11)])
 def test_a_galsim_star_lands_where_skynav_puts_it(psf, x, y):
-    """A half-pixel slip between GalSim's pixel centres and skynav's (CONVENTIONS.md: the
+    """A half-pixel slip between GalSim's pixel centres and skynav's (docs/conventions.md: the
     top-left pixel's centre is (0, 0)) would move every star by 0.5 px (~35" on the paper
     camera) and solvers would still "solve". A bright, noiseless star drawn as the generator
     draws it (the fine sensor's PSFs, FWHM 3 and 4 px) at skynav's (x, y): its first moment over

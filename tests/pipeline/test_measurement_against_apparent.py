@@ -1,7 +1,7 @@
-"""First-order light-time (paper 002 Eq. 26-31) and aberration (Eq. 33) against the renderer's exact
+"""First-order light-time (Andreis et al. (2024), Eq. 26-31) and aberration (Eq. 33) against the renderer's exact
 ones (``skynav.scenes.apparent``: iterated light-time, relativistic aberration), at 1 AU and 30 km/s.
 
-Paper 002 (after Eq. 33) says the neglected higher orders are "orders of magnitude below 15 arcsec",
+Andreis et al. (2024) (after Eq. 33) says the neglected higher orders are "orders of magnitude below 15 arcsec",
 the attitude-determination floor. Measured here: < 0.01 arcsec for Venus, Mars, Jupiter, Saturn
 (the light-time residual is the planet's acceleration over tau, ~1e-3 arcsec; the aberration one
 is beta^2 ~ 1e-8 rad ~ 2 mas), i.e. more than three orders of magnitude below 15 arcsec, while the

@@ -1,4 +1,4 @@
-"""Optimal planet pair (paper 002 Eq. 1-2)."""
+"""Optimal planet pair (Andreis et al. (2024), Eq. 1-2)."""
 
 import math
 

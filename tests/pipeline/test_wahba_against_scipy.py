@@ -1,4 +1,4 @@
-"""Wahba's problem by SVD (paper 000 Eq. 10-12) against a closed-form case and against scipy's
+"""Wahba's problem by SVD (Andreis et al. (2023a), Eq. 10-12) against a closed-form case and against scipy's
 ``Rotation.align_vectors`` (an independent solver: Markley's SVD in scipy's own code)."""
 
 from __future__ import annotations

@@ -86,7 +86,7 @@ def test_cruise_propagation_against_tighter_tolerance_100_days():
     t = np.linspace(T0, t1, 201)
     err_km = np.linalg.norm(nominal.state(t)[0] - tight.state(t)[0], axis=1).max()
     assert err_km < 1.0  # the requirement: < 1 km over 100 days
-    # the force model matters at the level a navigation filter sees (paper 002: ~2000 km 3-sigma)
+    # the force model matters at the level a navigation filter sees (Andreis et al. (2024): ~2000 km 3-sigma)
     newton = propagate(eph, r0, v0, T0, t1, model=ForceModel(srp=None, relativity=False))
     drift_km = np.linalg.norm(nominal.state(t1)[0] - newton.state(t1)[0])
     assert 10.0 < drift_km < 1e4  # SRP of a 24 kg, 0.25 m^2 CubeSat: ~ 3000 km in 100 days

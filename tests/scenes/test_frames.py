@@ -1,4 +1,4 @@
-"""Frames and attitude: round trips and the documented signs (CONVENTIONS.md).
+"""Frames and attitude: round trips and the documented signs (docs/conventions.md).
 
 Oracles: orthonormality identities, the definition of the passive elementary rotations, and a
 central finite difference of the attitude kinematics.
@@ -43,7 +43,7 @@ def test_quaternion_round_trip(qs):
 
 
 def test_quaternion_matches_paper000_eq14_small_rotation():
-    # Paper 000 Eq. 14 (passive): for q = (cos(a/2), 0, 0, sin(a/2)), A = R3(a).
+    # Andreis et al. (2023a), Eq. 14 (passive): for q = (cos(a/2), 0, 0, sin(a/2)), A = R3(a).
     a = 0.3
     q = np.array([np.cos(a / 2), 0.0, 0.0, np.sin(a / 2)])
     assert np.allclose(frames.quat_to_dcm(q), frames.rot3(a), atol=1e-15)
