@@ -53,12 +53,12 @@ import numpy as np
 
 def _recipe(sets, seed):
     from skynav import datasets
-    from skynav.cli_common import apply_overrides, parse_set
     from skynav.datasets.recipes import read_recipe_mapping
+    from skynav.scenes.overrides import apply_overrides, parse_override
 
     r = read_recipe_mapping("sequence")
     if sets:
-        r = apply_overrides(r, [parse_set(s) for s in sets])
+        r = apply_overrides(r, [parse_override(s) for s in sets])
     r = datasets.validate_recipe(r)
     r["seed"] = int(seed)
     return r

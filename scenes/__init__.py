@@ -25,6 +25,8 @@ _LAZY = {
     "Scene": "scene", "SkyBody": "scene", "StarsInView": "scene", "BodyInView": "scene",
     "build_scene": "scene", "build_from_spec": "scene", "resolve_spec": "scene", "sky_bodies": "scene",
     "SceneSpec": "config", "AttitudeSpec": "config", "load_scene_file": "config", "read_scene_file": "config",
+    "OverrideError": "overrides", "parse_override": "overrides", "apply_overrides": "overrides",
+    "dataclass_from_overrides": "overrides",
     "default_scene_spec": "presets",
     # camera and bench
     "Camera": "camera", "SensorParams": "camera", "BrownConrady": "camera", "paper_camera": "camera",

@@ -13,13 +13,13 @@ from skynav.pipeline.errors import BenchInputError
 from skynav.pipeline.process import ProcessOptions
 from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
 from skynav.pipeline.scoring_report import write_report
+from skynav.scenes.overrides import dataclass_from_overrides
 
 from .cli_common import (
     COMMAND_HELP,
     add_quiet,
     add_set_argument,
     check_output,
-    dataclass_from_overrides,
     float_in,
     positive_int,
     say,

@@ -29,10 +29,10 @@ from skynav.pipeline.scoring_nav import (
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
 from skynav.pipeline.star_id import star_id_camera_check
 from skynav.scenes.count_cap import cap_count
+from skynav.scenes.overrides import OverrideError
 
 from .cli_common import (
     MAX_WORKERS,
-    OverrideError,
     add_quiet,
     add_set_argument,
     check_output,

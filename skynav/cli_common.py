@@ -12,10 +12,7 @@ system refuses, a frame too large for memory); a traceback only for a bug.
 from __future__ import annotations
 
 import argparse
-import copy
-import dataclasses
 import errno
-import io
 import logging
 import math
 import os
@@ -39,8 +36,8 @@ COMMAND_HELP = {
 }
 
 __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
-           "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set", "apply_overrides",
-           "dataclass_from_overrides", "OverrideError", "add_quiet", "say", "ProgressBar"]
+           "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set",
+           "add_quiet", "say", "ProgressBar"]
 
 #: most local worker processes a command starts (bench nav's runs, hil export's frames)
 MAX_WORKERS = 256
@@ -272,43 +269,20 @@ def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -
 
 
 # ----------------------------------------------------------------------------- --set KEY.SUB=VALUE
-class OverrideError(SkynavError, ValueError):
-    """A ``--set`` override that cannot be applied (one line, exit 2)."""
-
-
 def parse_set(text: str):
-    """argparse ``type=`` of ``--set KEY.SUB=VALUE``: ``(text, path, value)``.
+    """argparse ``type=`` of ``--set KEY.SUB=VALUE``: ``(text, path, value)`` of
+    :func:`skynav.scenes.overrides.parse_override`, whose refusal becomes a one-line usage error.
 
-    KEY.SUB is a dotted path into the command's mapping (``camera.exposure_s``; a list item by
-    its index, ``scenes.0.epoch`` or ``scenes[0].epoch``); VALUE is parsed as YAML with the scene
-    files' loader (``0.2``, ``2e-1``, ``[png, json]``, ``{k: 1}``, ``true``; an empty VALUE is null).
-
-    Examples
-    --------
     >>> parse_set("camera.exposure_s=0.2")[1:]
     (('camera', 'exposure_s'), 0.2)
-    >>> parse_set("scenes[1].epoch=2027-03-15T00:00:00")[1]
-    ('scenes', 1, 'epoch')
     """
-    key, eq, raw = text.partition("=")
-    key = key.strip()
-    why = "expected KEY.SUB=VALUE, e.g. camera.exposure_s=0.2"
-    if not eq or not key:
-        raise argparse.ArgumentTypeError(f"{text!r}: {why}")
-    parts = re.sub(r"\[(\d+)\]", r".\1", key).split(".")
-    if any(not re.fullmatch(r"[A-Za-z0-9_-]+", p) for p in parts):
-        raise argparse.ArgumentTypeError(f"{text!r}: {why} (KEY: names and list indices joined by dots)")
-    # lazy: every command loads this module, skynav --help too; the scene reader loads with --set
-    import yaml
-
-    from skynav.scenes.config import load_yaml  # lazy, as yaml above: skynav --help loads no room
+    # lazy: every command loads this module, skynav --help too; the config reader loads with --set
+    from skynav.scenes.overrides import OverrideError, parse_override
 
     try:
-        value = load_yaml(io.StringIO(raw)) if raw.strip() else None
-    except yaml.YAMLError as exc:
-        raise argparse.ArgumentTypeError(f"{text!r}: the VALUE is not valid YAML "
-                                         f"({getattr(exc, 'problem', None) or exc.__class__.__name__})") from None
-    return text, tuple(int(p) if p.isdigit() else p for p in parts), value
+        return parse_override(text)
+    except OverrideError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_set_argument(parser, target: str) -> None:
@@ -317,91 +291,6 @@ def add_set_argument(parser, target: str) -> None:
                         metavar="KEY.SUB=VALUE",
                         help=f"override a key of {target} (repeatable, applied in order; VALUE is YAML: 0.2, "
                              f"[png, json], true); an unknown key is refused as in the file")
-
-
-def apply_overrides(mapping, overrides, *, known_keys_only: bool = False, what: str = "the file") -> dict:
-    """A deep copy of ``mapping`` with each ``(text, path, value)`` of :func:`parse_set` set in it.
-
-    A missing mapping key on the way is created, so a misspelt key reaches the mapping's own
-    validation, which refuses it naming the allowed keys (as for the same key in a file). With
-    ``known_keys_only`` (a mapping written out in full, whose reader ignores unknown keys: a
-    facility) a key that is not already there is refused here, naming the keys at that level.
-
-    Raises
-    ------
-    OverrideError
-        The path goes through a value that is not a mapping or list, or past a list's end.
-    """
-    out = copy.deepcopy(mapping) if mapping is not None else {}
-    if not isinstance(out, dict):
-        raise OverrideError(f"--set: the file is not a mapping ({type(out).__name__}); fix the file first")
-    for text, path, value in overrides:
-        node = out
-        for i, part in enumerate(path):
-            last = i == len(path) - 1
-            where = ".".join(str(p) for p in path[:i]) or "the top level"
-            if isinstance(node, list):
-                if not isinstance(part, int) or not 0 <= part < len(node):
-                    raise OverrideError(f"--set {text}: {where} is a list of {len(node)}; give an index 0..{len(node) - 1}")
-            elif isinstance(node, dict):
-                if isinstance(part, int) and part not in node:
-                    part = str(part)
-                if known_keys_only and part not in node:
-                    name = ".".join(str(p) for p in path[:i + 1])
-                    raise OverrideError(f"--set {text}: {what} has no key {name}; allowed keys"
-                                        f"{'' if i == 0 else ' in ' + where}: " + ", ".join(sorted(map(str, node))))
-                if not last and (part not in node or node[part] is None):
-                    node[part] = {}
-            else:
-                raise OverrideError(f"--set {text}: {where} is {_kind(node)}, not a mapping")
-            if last:
-                node[part] = value
-            else:
-                node = node[part]
-    return out
-
-
-def _kind(value) -> str:
-    if isinstance(value, bool):
-        return "true/false"
-    if isinstance(value, (int, float)):
-        return f"a number ({value!r})"
-    if isinstance(value, str):
-        return f"a string ({value!r})"
-    return type(value).__name__
-
-
-def dataclass_from_overrides(cls, overrides, *, what: str):
-    """An instance of the frozen options dataclass ``cls`` with ``--set FIELD=VALUE`` applied.
-
-    Each KEY must be a field; each VALUE must have the default's type (an integer for int
-    fields, a finite number for float fields, true/false for bool fields).
-
-    Raises
-    ------
-    OverrideError
-    """
-    defaults = cls()
-    fields = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(cls)}
-    kw = {}
-    for text, path, value in overrides:
-        name = ".".join(str(p) for p in path)
-        if len(path) != 1 or path[0] not in fields:
-            raise OverrideError(f"--set {text}: {what} has no key {name}; allowed keys: " + ", ".join(sorted(fields)))
-        default = fields[path[0]]
-        if isinstance(default, bool):
-            ok, allowed = isinstance(value, bool), "true or false"
-        elif isinstance(default, int):
-            ok, allowed = isinstance(value, int) and not isinstance(value, bool), "an integer"
-        elif isinstance(default, float):
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-            allowed = "a finite number"
-        else:
-            ok, allowed = isinstance(value, type(default)), f"a {type(default).__name__}"
-        if not ok:
-            raise OverrideError(f"--set {text}: {what}.{name} = {value!r} is not allowed; expected {allowed}")
-        kw[path[0]] = float(value) if isinstance(default, float) else value
-    return dataclasses.replace(defaults, **kw)
 
 
 def user_path(path) -> str:

@@ -9,6 +9,7 @@ from skynav.datasets.atomic_files import atomic_write_bytes
 from skynav.datasets.errors import OutputPathError, RecipeError
 from skynav.datasets.frame_files import check_output_dir, check_stem
 from skynav.datasets.recipes import PRESETS, read_recipe_mapping, recipe_yaml
+from skynav.scenes.overrides import apply_overrides
 
 from .cli_common import (
     COMMAND_HELP,
@@ -16,7 +17,6 @@ from .cli_common import (
     EXIT_OK,
     add_quiet,
     add_set_argument,
-    apply_overrides,
     non_negative_int,
     positive_int,
     say,

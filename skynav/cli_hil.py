@@ -8,6 +8,7 @@ from skynav.calibration.errors import CalibrationInputError
 from skynav.calibration.facility_io import load_facility, write_facility
 from skynav.datasets.hil_export import export_dataset, write_screen_frame
 from skynav.scenes.facility import facility_from_mapping
+from skynav.scenes.overrides import apply_overrides
 from skynav.scenes.scene import build_from_spec
 
 from .cli_common import (
@@ -16,7 +17,6 @@ from .cli_common import (
     ProgressBar,
     add_quiet,
     add_set_argument,
-    apply_overrides,
     check_output,
     int_in,
     say,

@@ -14,9 +14,10 @@ from skynav.scenes import config, presets
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.errors import SceneFileError
 from skynav.scenes.frames import unit_to_radec
+from skynav.scenes.overrides import apply_overrides
 from skynav.scenes.scene import build_from_spec
 
-from .cli_common import COMMAND_HELP, add_quiet, add_set_argument, apply_overrides, fail, say
+from .cli_common import COMMAND_HELP, add_quiet, add_set_argument, fail, say
 from .cli_hil import render_hil
 
 

@@ -245,6 +245,18 @@ def test_nothing_imports_the_command_line_package(graph):
     assert bad == []
 
 
+def test_no_script_imports_the_command_line():
+    """The benchmarks and examples call the rooms (override parsing is
+    :mod:`skynav.scenes.overrides`), never ``skynav.cli*``: the command line is a leaf."""
+    bad = []
+    for folder in ("benchmarks", "docs"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            rel = path.relative_to(REPO).as_posix()
+            names = imports_of(path.read_text(encoding="utf-8"), f"{folder}.{path.stem}")
+            bad += [(rel, n) for n in names if _is_cli(n) and n != CLI_PACKAGE]
+    assert bad == []
+
+
 def test_nothing_but_the_command_line_imports_the_service(graph):
     """docs/architecture.md: nothing imports ``service`` except the command line (programs outside
     skynav reach it through its client)."""

@@ -1,0 +1,150 @@
+"""Overrides of a configuration mapping: ``KEY.SUB=VALUE`` (what ``--set`` takes), parsed and applied.
+
+Part of the configuration layer beside :mod:`skynav.scenes.config` (kept apart from it for the
+house's module size): a scene file, a dataset recipe, a facility file or an options dataclass is
+read as a mapping, the overrides are set in a copy of it, and the copy goes through the same
+validation as the file, so a misspelt key is refused naming the allowed keys. The command line
+(``--set``), scripts (``benchmarks/loop_vs_nav.py``) and the Python API share it.
+
+>>> apply_overrides({"camera": {"width": 1024}}, [parse_override("camera.width=256")])
+{'camera': {'width': 256}}
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import io
+import math
+import re
+
+import yaml
+
+from .config import load_yaml
+from .errors import SkynavError
+
+__all__ = ["OverrideError", "parse_override", "apply_overrides", "dataclass_from_overrides"]
+
+
+class OverrideError(SkynavError, ValueError):
+    """An override that cannot be parsed or applied (one line, exit 2 on the command line)."""
+
+
+def parse_override(text: str):
+    """``(text, path, value)`` of an override ``KEY.SUB=VALUE``.
+
+    KEY.SUB is a dotted path into the mapping (``camera.exposure_s``; a list item by its index,
+    ``scenes.0.epoch`` or ``scenes[0].epoch``); VALUE is parsed as YAML with the scene files'
+    loader (``0.2``, ``2e-1``, ``[png, json]``, ``{k: 1}``, ``true``; an empty VALUE is null).
+
+    Raises
+    ------
+    OverrideError
+        No ``=``, an empty or malformed KEY, or a VALUE that is not YAML.
+
+    Examples
+    --------
+    >>> parse_override("camera.exposure_s=0.2")[1:]
+    (('camera', 'exposure_s'), 0.2)
+    >>> parse_override("scenes[1].epoch=2027-03-15T00:00:00")[1]
+    ('scenes', 1, 'epoch')
+    """
+    key, eq, raw = text.partition("=")
+    key = key.strip()
+    why = "expected KEY.SUB=VALUE, e.g. camera.exposure_s=0.2"
+    if not eq or not key:
+        raise OverrideError(f"{text!r}: {why}")
+    parts = re.sub(r"\[(\d+)\]", r".\1", key).split(".")
+    if any(not re.fullmatch(r"[A-Za-z0-9_-]+", p) for p in parts):
+        raise OverrideError(f"{text!r}: {why} (KEY: names and list indices joined by dots)")
+    try:
+        value = load_yaml(io.StringIO(raw)) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        raise OverrideError(f"{text!r}: the VALUE is not valid YAML "
+                            f"({getattr(exc, 'problem', None) or exc.__class__.__name__})") from None
+    return text, tuple(int(p) if p.isdigit() else p for p in parts), value
+
+
+def apply_overrides(mapping, overrides, *, known_keys_only: bool = False, what: str = "the file") -> dict:
+    """A deep copy of ``mapping`` with each ``(text, path, value)`` of :func:`parse_override` set in it.
+
+    A missing mapping key on the way is created, so a misspelt key reaches the mapping's own
+    validation, which refuses it naming the allowed keys (as for the same key in a file). With
+    ``known_keys_only`` (a mapping written out in full, whose reader ignores unknown keys: a
+    facility) a key that is not already there is refused here, naming the keys at that level.
+
+    Raises
+    ------
+    OverrideError
+        The path goes through a value that is not a mapping or list, or past a list's end.
+    """
+    out = copy.deepcopy(mapping) if mapping is not None else {}
+    if not isinstance(out, dict):
+        raise OverrideError(f"--set: the file is not a mapping ({type(out).__name__}); fix the file first")
+    for text, path, value in overrides:
+        node = out
+        for i, part in enumerate(path):
+            last = i == len(path) - 1
+            where = ".".join(str(p) for p in path[:i]) or "the top level"
+            if isinstance(node, list):
+                if not isinstance(part, int) or not 0 <= part < len(node):
+                    raise OverrideError(f"--set {text}: {where} is a list of {len(node)}; give an index 0..{len(node) - 1}")
+            elif isinstance(node, dict):
+                if isinstance(part, int) and part not in node:
+                    part = str(part)
+                if known_keys_only and part not in node:
+                    name = ".".join(str(p) for p in path[:i + 1])
+                    raise OverrideError(f"--set {text}: {what} has no key {name}; allowed keys"
+                                        f"{'' if i == 0 else ' in ' + where}: " + ", ".join(sorted(map(str, node))))
+                if not last and (part not in node or node[part] is None):
+                    node[part] = {}
+            else:
+                raise OverrideError(f"--set {text}: {where} is {_kind(node)}, not a mapping")
+            if last:
+                node[part] = value
+            else:
+                node = node[part]
+    return out
+
+
+def _kind(value) -> str:
+    if isinstance(value, bool):
+        return "true/false"
+    if isinstance(value, (int, float)):
+        return f"a number ({value!r})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    return type(value).__name__
+
+
+def dataclass_from_overrides(cls, overrides, *, what: str):
+    """An instance of the frozen options dataclass ``cls`` with ``FIELD=VALUE`` overrides applied.
+
+    Each KEY must be a field; each VALUE must have the default's type (an integer for int
+    fields, a finite number for float fields, true/false for bool fields).
+
+    Raises
+    ------
+    OverrideError
+    """
+    defaults = cls()
+    fields = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(cls)}
+    kw = {}
+    for text, path, value in overrides:
+        name = ".".join(str(p) for p in path)
+        if len(path) != 1 or path[0] not in fields:
+            raise OverrideError(f"--set {text}: {what} has no key {name}; allowed keys: " + ", ".join(sorted(fields)))
+        default = fields[path[0]]
+        if isinstance(default, bool):
+            ok, allowed = isinstance(value, bool), "true or false"
+        elif isinstance(default, int):
+            ok, allowed = isinstance(value, int) and not isinstance(value, bool), "an integer"
+        elif isinstance(default, float):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            allowed = "a finite number"
+        else:
+            ok, allowed = isinstance(value, type(default)), f"a {type(default).__name__}"
+        if not ok:
+            raise OverrideError(f"--set {text}: {what}.{name} = {value!r} is not allowed; expected {allowed}")
+        kw[path[0]] = float(value) if isinstance(default, float) else value
+    return dataclasses.replace(defaults, **kw)
