@@ -34,7 +34,28 @@ __all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
 
 
 class ServiceError(SkynavError):
-    """The service refused a request (``status`` 4xx: bad input) or could not be reached (``status`` 0)."""
+    """The service refused a request (``status`` 4xx: bad input) or could not be reached (``status`` 0).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the bad input and what is allowed (the server's ``error``, prefixed
+        ``service:``), or why the service could not be reached.
+    status : int
+        The HTTP status of the refusal (4xx for bad input, 5xx for a failed render), or 0 when
+        no answer came (connection refused, closed or timed out).
+
+    Examples
+    --------
+    A URL that is not ``http://HOST:PORT`` is refused before any connection is made:
+
+    >>> from skynav.service import Client, ServiceError
+    >>> try:
+    ...     Client("ftp://127.0.0.1:8765")
+    ... except ServiceError as exc:
+    ...     print(exc, exc.status)
+    ftp://127.0.0.1:8765: expected http://HOST:PORT (the URL skynav serve prints) 0
+    """
 
     def __init__(self, message: str, status: int = 0):
         super().__init__(message)
@@ -43,7 +64,36 @@ class ServiceError(SkynavError):
 
 @dataclass
 class RenderResult:
-    """The outputs of one ``render`` call. Absent outputs are None."""
+    """The outputs of one :meth:`Client.render` call, as the server sent them; absent outputs are None.
+
+    The files' bytes are kept as received; :attr:`dn`, :attr:`electrons`, :attr:`irradiance_w_m2`
+    and :attr:`truth` decode them on each access.
+
+    Attributes
+    ----------
+    png : bytes or None
+        The frame's digital counts as a PNG (greyscale, sBIT-scaled; docs/conventions.md "Files").
+    exr : bytes or None
+        The float images as OpenEXR: channels ``electrons`` (e-) and ``irradiance_w_m2``
+        (W/m^2 at the pupil, per pixel).
+    truth_json : bytes or None
+        The ground truth, a ``skynav.frame/2`` JSON document (UTF-8).
+    screen_png : bytes or None
+        The bench screen's frame (DN of the display) as a PNG, when the server has a facility.
+    render_seconds : float
+        The server's time to render the frame, s (``Skynav-Render-Seconds``); NaN if not sent.
+    warnings : list of str
+        The server's warnings for this request, one line each.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skynav.datasets.frame_files import png_bytes
+    >>> from skynav.service import RenderResult
+    >>> res = RenderResult(png=png_bytes(np.array([[0, 4095]], dtype=np.uint16), bit_depth=12))
+    >>> res.dn.tolist(), res.truth is None
+    ([[0, 4095]], True)
+    """
 
     png: bytes | None = None
     exr: bytes | None = None
@@ -54,12 +104,12 @@ class RenderResult:
 
     @property
     def truth(self) -> dict | None:
-        """The ground truth (``skynav.frame/2``), parsed."""
+        """The ground truth (``skynav.frame/2``, docs/conventions.md "Files") as a dict, or None."""
         return None if self.truth_json is None else json.loads(self.truth_json.decode("utf-8"))
 
     @property
     def dn(self):
-        """Digital counts, (H, W) uint8/uint16 (the PNG decoded, sBIT scaling undone)."""
+        """Digital counts, DN, (H, W) uint8 or uint16 (the PNG decoded, sBIT scaling undone), or None."""
         if self.png is None:
             return None
 
@@ -67,11 +117,12 @@ class RenderResult:
 
     @property
     def electrons(self):
-        """Noise-free expected signal per pixel, e-, (H, W) float32 (the EXR's ``electrons`` channel)."""
+        """Noise-free expected signal per pixel, e-, (H, W) float32 (the EXR's ``electrons`` channel), or None."""
         return None if self.exr is None else self._exr()["electrons"]
 
     @property
     def irradiance_w_m2(self):
+        """Irradiance at the pupil per pixel, W/m^2, (H, W) float32 (the EXR's channel), or None."""
         return None if self.exr is None else self._exr()["irradiance_w_m2"]
 
     def _exr(self) -> dict:
@@ -178,6 +229,9 @@ class _Connection:
 class Client:
     """A connection to ``skynav serve`` at ``url``; thread-safe (one keep-alive connection per thread).
 
+    Making a client connects to nothing; the first request opens the connection, and a
+    connection the server closed while idle is opened again once.
+
     Parameters
     ----------
     url : str
@@ -185,7 +239,24 @@ class Client:
     token : str, optional
         The server's ``--token`` (sent as ``Authorization: Bearer TOKEN``).
     timeout_s : float
-        Socket timeout of one request.
+        Socket timeout of one request, s.
+
+    Raises
+    ------
+    ServiceError
+        ``url`` is not an ``http://HOST:PORT`` URL.
+
+    Examples
+    --------
+    >>> from skynav.service import Client
+    >>> client = Client("http://127.0.0.1:8765/", timeout_s=30)
+    >>> client.url, client.timeout_s
+    ('http://127.0.0.1:8765', 30.0)
+
+    With a server running (``skynav serve``, or :class:`LocalServer`), one frame::
+
+        frame = client.render(scene_mapping, outputs=("png", "truth"))
+        frame.dn.shape, frame.truth["bodies"][0]["xy"]
     """
 
     def __init__(self, url: str, token: str | None = None, *, timeout_s: float = 600.0):
@@ -239,13 +310,41 @@ class Client:
 
     # ------------------------------------------------------------------ API
     def health(self) -> dict:
+        """The server's ``GET /v1/health`` answer.
+
+        Returns
+        -------
+        dict
+            The parsed JSON (``status``, the workers, the package version; docs/service.md).
+
+        Raises
+        ------
+        ServiceError
+            The server cannot be reached (``status`` 0) or refused the request.
+        """
         status, _, data = self._request("GET", "/health")
         if status != 200:
             self._raise_for(status, data)
         return json.loads(bytes(data))
 
     def wait_ready(self, timeout_s: float = 120.0) -> dict:
-        """Poll ``/v1/health`` until it answers (a server still warming up does not listen yet)."""
+        """Poll ``/v1/health`` until it answers (a server still warming up does not listen yet).
+
+        Parameters
+        ----------
+        timeout_s : float
+            How long to keep polling (every 0.2 s), s.
+
+        Returns
+        -------
+        dict
+            The first health answer (:meth:`health`).
+
+        Raises
+        ------
+        ServiceError
+            No answer within ``timeout_s``: the last error.
+        """
         t_end = time.monotonic() + timeout_s
         while True:
             try:
@@ -258,8 +357,24 @@ class Client:
     def render(self, scene: dict, outputs=("png", "truth")) -> RenderResult:
         """Render one frame of ``scene`` (a mapping with the keys of a scene file).
 
-        ``outputs``: any of ``png``, ``exr``, ``truth``, ``screen_png`` (the latter when the server
-        has a facility). Raises :class:`ServiceError` for a refused request (its one-line message).
+        Parameters
+        ----------
+        scene : dict
+            A scene mapping, with the keys and units of a scene file (degrees, ISO epochs in TDB,
+            km; docs/conventions.md "Choices made in the code"), plus optional ``seed``.
+        outputs : str or sequence of str
+            Any of ``png``, ``exr``, ``truth``, ``screen_png`` (the latter when the server has a
+            facility).
+
+        Returns
+        -------
+        RenderResult
+            The requested outputs, the server's render time and warnings.
+
+        Raises
+        ------
+        ServiceError
+            A refused request (its one-line message, ``status`` 4xx) or an unreachable server.
         """
         if isinstance(outputs, str):
             outputs = (outputs,)
@@ -283,6 +398,7 @@ class Client:
         return res
 
     def close(self) -> None:
+        """Close this thread's connection (the next request opens a new one)."""
         c = getattr(self._local, "conn", None)
         if c is not None:
             c.close()
@@ -362,8 +478,37 @@ def parse_multipart(data, content_type: str) -> dict:
 class LocalServer:
     """``skynav serve --port 0`` as a child process, for a program that wants its own server.
 
-    >>> with LocalServer(workers=1) as url:       # doctest: +SKIP
-    ...     frame = Client(url).render(scene)
+    Used as a context manager: entering starts the server and returns its URL once it is ready;
+    leaving stops it (SIGTERM, then a kill after 120 s).
+
+    Parameters
+    ----------
+    *args : str
+        More command-line arguments of ``skynav serve`` (e.g. ``"--facility", "bench.yaml"``).
+    workers : int
+        Number of worker processes (``--workers``).
+    timeout_s : float
+        How long to wait for the server's ready line, s.
+
+    Raises
+    ------
+    ServiceError
+        On entering, when the server did not print its ready line in time (its error is printed).
+
+    Examples
+    --------
+    Nothing starts until the ``with`` block:
+
+    >>> from skynav.service import LocalServer
+    >>> server = LocalServer("--token", "secret", workers=2)
+    >>> server.args, server.workers, server.url
+    (('--token', 'secret'), 2, None)
+
+    A server and one frame (starting it takes seconds: the workers load the catalogue and the
+    kernels)::
+
+        with LocalServer(workers=1) as url:
+            frame = Client(url).render(scene_mapping)
     """
 
     def __init__(self, *args: str, workers: int = 1, timeout_s: float = 600.0):

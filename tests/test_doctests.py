@@ -14,7 +14,8 @@ import pkgutil
 import numpy as np
 import pytest
 
-ROOMS = ("skynav.scenes", "skynav.renderer", "skynav.datasets", "skynav.pipeline", "skynav.calibration")
+ROOMS = ("skynav.scenes", "skynav.renderer", "skynav.datasets", "skynav.pipeline", "skynav.calibration",
+         "skynav.service")
 
 
 def _modules():
