@@ -74,7 +74,26 @@ def skew(v):
 
 
 def radec_to_unit(ra_rad, dec_rad):
-    """Unit vectors, shape (..., 3), of right ascension/declination (rad)."""
+    """Unit vectors of right ascension and declination.
+
+    Parameters
+    ----------
+    ra_rad, dec_rad : float or array_like, shape (...)
+        Right ascension and declination, rad (broadcast together).
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        Unit vectors in the frame of the angles (ICRS for ICRS coordinates).
+
+    Examples
+    --------
+    >>> from skynav.scenes import radec_to_unit
+    >>> radec_to_unit(np.pi / 2, 0.0).round(12) + 0.0
+    array([0., 1., 0.])
+    >>> radec_to_unit([0.0, 0.1], [0.0, 0.2]).shape
+    (2, 3)
+    """
     ra_rad = np.asarray(ra_rad, dtype=float)
     dec_rad = np.asarray(dec_rad, dtype=float)
     cd = np.cos(dec_rad)
@@ -82,7 +101,27 @@ def radec_to_unit(ra_rad, dec_rad):
 
 
 def unit_to_radec(u):
-    """(ra_rad in [0, 2 pi), dec_rad) of vectors of shape (..., 3) (need not be unit)."""
+    """Right ascension and declination of direction vectors (inverse of :func:`radec_to_unit`).
+
+    Parameters
+    ----------
+    u : array_like, shape (..., 3)
+        Direction vectors, any length (not normalised first: only their direction counts).
+
+    Returns
+    -------
+    ra_rad : numpy.ndarray or float, shape (...)
+        Right ascension in [0, 2 pi), rad.
+    dec_rad : numpy.ndarray or float, shape (...)
+        Declination in [-pi/2, pi/2], rad.
+
+    Examples
+    --------
+    >>> from skynav.scenes import unit_to_radec
+    >>> ra, dec = unit_to_radec([0.0, -2.0, 2.0])
+    >>> float(np.degrees(ra)), float(np.degrees(dec))
+    (270.0, 45.0)
+    """
     u = np.asarray(u, dtype=float)
     ra = np.arctan2(u[..., 1], u[..., 0]) % (2.0 * np.pi)
     dec = np.arctan2(u[..., 2], np.hypot(u[..., 0], u[..., 1]))
@@ -96,14 +135,58 @@ def normalize(v):
 
 
 def radec_twist_to_dcm(ra_rad, dec_rad, twist_rad):
-    """``R_cam_icrs = R3(twist) R2(pi/2 - dec) R3(ra)``; the boresight points at (ra, dec)."""
+    """Attitude matrix of a boresight direction and a twist: ``R3(twist) R2(pi/2 - dec) R3(ra)``.
+
+    Passive elementary rotations, so the camera's +z (the boresight) points at (ra, dec); the sign
+    of twist is in the module's glossary and docs/conventions.md "Choices made in the code".
+
+    Parameters
+    ----------
+    ra_rad, dec_rad : float
+        Right ascension and declination of the boresight, ICRS, rad.
+    twist_rad : float
+        Rotation of the camera about its boresight, rad.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``R_cam_icrs``, with ``v_cam = R_cam_icrs @ v_icrs``; its third row is the boresight.
+
+    Examples
+    --------
+    >>> from skynav.scenes import radec_to_unit, radec_twist_to_dcm
+    >>> R = radec_twist_to_dcm(0.3, -0.2, 1.0)
+    >>> bool(np.allclose(R[2], radec_to_unit(0.3, -0.2)))
+    True
+    """
     return rot3(twist_rad) @ rot2(0.5 * np.pi - dec_rad) @ rot3(ra_rad)
 
 
 def dcm_to_radec_twist(R_cam_icrs):
-    """Inverse of :func:`radec_twist_to_dcm`: (ra_rad, dec_rad, twist_rad).
+    """Boresight right ascension, declination and twist of an attitude matrix.
 
-    At the poles (dec = +-pi/2) ra and twist are degenerate; ra is then returned as 0.
+    Inverse of :func:`radec_twist_to_dcm`. At the poles (dec = +-pi/2) ra and twist are
+    degenerate; ra is then returned as 0.
+
+    Parameters
+    ----------
+    R_cam_icrs : array_like, shape (3, 3)
+        Passive attitude matrix, ``v_cam = R_cam_icrs @ v_icrs``.
+
+    Returns
+    -------
+    ra_rad : float
+        Right ascension of the boresight in [0, 2 pi), rad.
+    dec_rad : float
+        Declination of the boresight, rad.
+    twist_rad : float
+        Twist in [0, 2 pi), rad.
+
+    Examples
+    --------
+    >>> from skynav.scenes import dcm_to_radec_twist, radec_twist_to_dcm
+    >>> np.round(dcm_to_radec_twist(radec_twist_to_dcm(0.3, -0.2, 1.0)), 12)
+    array([ 0.3, -0.2,  1. ])
     """
     R = np.asarray(R_cam_icrs, dtype=float)
     boresight = R[2]  # third row = camera +z in ICRS
@@ -115,9 +198,34 @@ def dcm_to_radec_twist(R_cam_icrs):
 
 
 def quat_to_dcm(q):
-    """Attitude matrix of a scalar-first quaternion (Andreis et al. (2023a), Eq. 14); q shape (..., 4).
+    """Attitude matrix of a scalar-first quaternion.
 
     ``A = (q0^2 - qv.qv) I + 2 qv qv^T - 2 q0 [qv x]``; the quaternion is normalised first.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        Scalar-first quaternions ``(q0, q1, q2, q3)``, any non-zero length.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3, 3)
+        Passive attitude matrices (``R_cam_icrs`` for a camera attitude).
+
+    References
+    ----------
+    Andreis et al. (2023a), Eq. 14 (the attitude matrix of a quaternion).
+
+    Examples
+    --------
+    A rotation of the frame by 90 deg about z:
+
+    >>> from skynav.scenes import quat_to_dcm
+    >>> s = np.sqrt(0.5)
+    >>> quat_to_dcm([s, 0.0, 0.0, s]).round(12) + 0.0
+    array([[ 0.,  1.,  0.],
+           [-1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
     """
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
@@ -132,9 +240,32 @@ def quat_to_dcm(q):
 
 
 def dcm_to_quat(R):
-    """Scalar-first quaternion (q0 >= 0) of an attitude matrix, Shepperd's method.
+    """Scalar-first quaternion (q0 >= 0) of an attitude matrix, by Shepperd's method.
 
-    Inverse of :func:`quat_to_dcm` (Andreis et al. (2023a), Eq. 14 convention); R shape (..., 3, 3).
+    Inverse of :func:`quat_to_dcm`; ``q`` and ``-q`` are the same attitude, the one with
+    ``q0 >= 0`` is returned.
+
+    Parameters
+    ----------
+    R : array_like, shape (..., 3, 3)
+        Passive attitude matrices (rotation matrices).
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 4)
+        Unit quaternions ``(q0, q1, q2, q3)``, ``q0 >= 0``.
+
+    References
+    ----------
+    Andreis et al. (2023a), Eq. 14 (the quaternion convention). Shepperd, S. W. (1978),
+    "Quaternion from rotation matrix", Journal of Guidance and Control 1(3), 223-224.
+
+    Examples
+    --------
+    >>> from skynav.scenes import dcm_to_quat, quat_to_dcm
+    >>> q = np.array([0.5, -0.5, 0.5, 0.5])
+    >>> bool(np.allclose(dcm_to_quat(quat_to_dcm(q)), q))
+    True
     """
     R = np.asarray(R, dtype=float)
     flat = R.reshape(-1, 3, 3)
@@ -185,6 +316,26 @@ def propagate_attitude(R_cam_icrs, angular_velocity_rad_s, dt_s):
 
 
 def point_boresight(target_u_icrs, twist_rad=0.0):
-    """``R_cam_icrs`` that puts the boresight on a direction (3,) with the given twist."""
+    """Attitude matrix that puts the boresight on a direction, with a given twist.
+
+    Parameters
+    ----------
+    target_u_icrs : array_like, shape (3,)
+        Direction to look at, ICRS (any length).
+    twist_rad : float
+        Twist about the boresight, rad (:func:`radec_twist_to_dcm`).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``R_cam_icrs``; ``R_cam_icrs @ target`` points along the camera's +z.
+
+    Examples
+    --------
+    >>> from skynav.scenes import point_boresight
+    >>> R = point_boresight([1.0, 1.0, 0.0])
+    >>> (R @ [1.0, 1.0, 0.0] / np.sqrt(2)).round(12) + 0.0
+    array([0., 0., 1.])
+    """
     ra, dec = unit_to_radec(normalize(target_u_icrs))
     return radec_twist_to_dcm(float(ra), float(dec), twist_rad)

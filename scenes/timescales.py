@@ -41,11 +41,31 @@ def _is_float_epoch(epoch) -> bool:
 
 
 def to_time(epoch) -> Time:
-    """Coerce an epoch to ``Time``: a ``Time``, an ISO string in TDB, or a float.
+    """Coerce an epoch to an astropy ``Time``: a ``Time``, an ISO string in TDB, or a float.
 
     A float epoch (scalar or array) is always TDB seconds past J2000 (JD 2451545.0 TDB), the one
     meaning of a float epoch in skynav (names end in ``_tdb_s``); a Julian date goes through
     ``Time(jd, format="jd", scale="tdb")`` explicitly.
+
+    Parameters
+    ----------
+    epoch : astropy.time.Time, str, float or array_like of float
+        A ``Time`` (returned as it is), an ISO date read in the TDB scale, or TDB seconds past
+        J2000, s.
+
+    Returns
+    -------
+    astropy.time.Time
+        The epoch (scale TDB unless a ``Time`` of another scale was given); an array of epochs
+        for an array of seconds.
+
+    Examples
+    --------
+    >>> from skynav.scenes import to_time
+    >>> to_time("2030-01-01T00:00:00").isot
+    '2030-01-01T00:00:00.000'
+    >>> to_time(0.0).jd
+    2451545.0
     """
     if _is_time(epoch):
         _astropy_time()  # a Time made elsewhere: its conversions must not download IERS tables either
@@ -56,8 +76,25 @@ def to_time(epoch) -> Time:
 
 
 def tdb_seconds(epoch) -> np.ndarray | float:
-    """TDB seconds past J2000 (JD 2451545.0 TDB) of an epoch, as float64 (a float is returned
-    as it is: it already is TDB seconds past J2000)."""
+    """TDB seconds past J2000 (JD 2451545.0 TDB) of an epoch, as float64.
+
+    Parameters
+    ----------
+    epoch : astropy.time.Time, str, float or array_like of float
+        As for :func:`to_time`; a float (or array of floats) is returned as it is: it already is
+        TDB seconds past J2000.
+
+    Returns
+    -------
+    float or numpy.ndarray
+        TDB seconds past J2000, s (an array for an array epoch).
+
+    Examples
+    --------
+    >>> from skynav.scenes import tdb_seconds
+    >>> tdb_seconds("2000-01-02T12:00:00")
+    86400.0
+    """
     if _is_float_epoch(epoch):
         s = np.asarray(epoch, dtype=float)
         return float(s) if np.ndim(s) == 0 else s
@@ -73,6 +110,24 @@ def tdb_jd(epoch) -> tuple:
 
 
 def time_from_tdb_seconds(t_tdb_s) -> Time:
-    """Inverse of :func:`tdb_seconds`: ``Time`` of TDB seconds past J2000."""
+    """Epoch of TDB seconds past J2000 (inverse of :func:`tdb_seconds`).
+
+    Parameters
+    ----------
+    t_tdb_s : float or array_like of float
+        TDB seconds past J2000 (JD 2451545.0 TDB), s.
+
+    Returns
+    -------
+    astropy.time.Time
+        The epoch in the TDB scale, as a two-part Julian date (J2000 and the days after it, so
+        no precision is lost).
+
+    Examples
+    --------
+    >>> from skynav.scenes import time_from_tdb_seconds
+    >>> time_from_tdb_seconds(86400.0).isot
+    '2000-01-02T12:00:00.000'
+    """
     t_tdb_s = np.asarray(t_tdb_s, dtype=float)
     return _astropy_time()(J2000_JD, t_tdb_s / SECONDS_PER_DAY, format="jd", scale="tdb")
