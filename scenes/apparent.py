@@ -163,6 +163,22 @@ def apparent_star_directions(
     -------
     ndarray, same shape as ``u_astrometric``
         Apparent unit vectors (ICRS axes, observer's proper frame).
+
+    References
+    ----------
+    Kaplan, G. H. et al. (2005), USNO Circular 179 (NOVAS ``grav_vec`` and ``aberration``);
+    Klioner, S. A. (2003), AJ 125, 1580, Eq. 15 (aberration) and Eq. 70 (deflection); ERFA
+    ``eraLdsun`` and ``eraAb``.
+
+    Examples
+    --------
+    A star 90 deg from the direction of motion, seen at 30 km/s, moves by about v/c:
+
+    >>> from skynav.scenes import apparent_star_directions
+    >>> u = apparent_star_directions([1.0, 0.0, 0.0], [1.496e8, 0.0, 0.0], [0.0, 30.0, 0.0],
+    ...                              [0.0, 0.0, 0.0], deflection=False)
+    >>> round(float(np.degrees(np.arcsin(u[1])) * 3600), 2)   # arcsec
+    20.64
     """
     u = _unit(u_astrometric)
     if deflection:
@@ -173,6 +189,8 @@ def apparent_star_directions(
 @dataclass(frozen=True, kw_only=True)
 class BodyDirections:
     """Directions of one body seen from the observer at one epoch (all ICRS, barycentric).
+
+    Made by :func:`apparent_bodies` and :func:`apparent_body`.
 
     Attributes
     ----------
@@ -197,6 +215,17 @@ class BodyDirections:
         Sun's barycentric position at the body's emission epoch, km (for the phase angle).
     observer_position_km : ndarray, shape (3,)
         Observer's barycentric position, km.
+
+    Examples
+    --------
+    >>> from skynav.scenes import apparent_body, default_ephemeris
+    >>> eph = default_ephemeris()
+    >>> r_earth, v_earth = eph.position_velocity("earth", 0.0)
+    >>> mars = apparent_body(eph, "mars", r_earth, v_earth, 0.0)
+    >>> bool(np.isclose(mars.distance_km, 299792.458 * mars.light_time_s))
+    True
+    >>> mars.u_icrs is mars.u_apparent
+    True
     """
 
     u_geometric: np.ndarray
@@ -294,6 +323,28 @@ def apparent_bodies(
     tuple of BodyDirections
         One per body, in the order of ``bodies``. The bodies are computed together, as rows of
         arrays (one formula for one body or ten; each body's numbers depend on that body alone).
+
+    Raises
+    ------
+    RuntimeError
+        The light-time iteration did not converge in 20 steps.
+
+    References
+    ----------
+    Kaplan, G. H. et al. (2005), USNO Circular 179 (NOVAS ``grav_vec``, ``aberration``);
+    Klioner, S. A. (2003), AJ 125, 1580, Eq. 15 and Eq. 70; ERFA ``eraLd`` and ``eraAb``. The
+    model and what it neglects are in the module's docstring.
+
+    Examples
+    --------
+    Jupiter and Saturn from the Earth at J2000 (the Earth's state from the same ephemeris):
+
+    >>> from skynav.scenes import apparent_bodies, default_ephemeris
+    >>> eph = default_ephemeris()
+    >>> r_earth, v_earth = eph.position_velocity("earth", 0.0)
+    >>> jup, sat = apparent_bodies(eph, ("jupiter", "saturn"), r_earth, v_earth, 0.0)
+    >>> 1800.0 < jup.light_time_s < 3000.0 < sat.light_time_s
+    True
     """
     bodies = tuple(bodies)
     r_obs = np.asarray(observer_position_km, dtype=float).reshape(3)
@@ -343,7 +394,46 @@ def apparent_bodies(
 def apparent_body(
     eph, body, observer_position_km, observer_velocity_km_s, t_tdb_s, *, deflection=True, sun_position_km=None
 ) -> BodyDirections:
-    """Apparent direction of one solar-system body: :func:`apparent_bodies` of ``(body,)``
-    (same parameters, ``body`` one of ``ephemeris_jpl.BODIES``)."""
+    """Apparent direction of one solar-system body: :func:`apparent_bodies` of ``(body,)``.
+
+    Parameters
+    ----------
+    eph : Ephemeris
+        Anything with ``position_velocity(body, t_tdb_s, offset_s=0.0)`` returning barycentric
+        ICRS km and km/s (``skynav.scenes.ephemeris_jpl.Ephemeris``).
+    body : str
+        Body name, one of ``ephemeris_jpl.BODIES``.
+    observer_position_km, observer_velocity_km_s : ndarray, shape (3,)
+        Observer's barycentric ICRS state at reception, km and km/s.
+    t_tdb_s : float
+        Reception epoch, TDB seconds past J2000.
+    deflection : bool
+        Apply the Sun's light deflection (never applied to the Sun itself).
+    sun_position_km : ndarray, shape (3,), optional
+        The Sun's barycentric position at ``t_tdb_s``, km, when the caller has it.
+
+    Returns
+    -------
+    BodyDirections
+        The body's geometric, light-time and apparent directions and distances.
+
+    References
+    ----------
+    As :func:`apparent_bodies`.
+
+    Examples
+    --------
+    Mars from 1e6 km beside the Earth at J2000: light-time, then about 14 arcsec of
+    deflection and aberration:
+
+    >>> from skynav.scenes import apparent_body, default_ephemeris
+    >>> eph = default_ephemeris()
+    >>> r, v = eph.position_velocity("earth", 0.0)
+    >>> mars = apparent_body(eph, "mars", r + [1e6, 0.0, 0.0], v, 0.0)
+    >>> round(mars.light_time_s, 1)
+    920.2
+    >>> round(float(np.degrees(np.arccos(mars.u_icrs @ mars.u_light_time)) * 3600), 1)   # arcsec
+    14.1
+    """
     return apparent_bodies(eph, (body,), observer_position_km, observer_velocity_km_s, t_tdb_s, deflection=deflection,
                            sun_position_km=sun_position_km)[0]
