@@ -42,6 +42,28 @@ class BrownConrady:
     (OpenCV's ordering and signs):
     ``xd = x radial + 2 p1 x y + p2 (r2 + 2 x^2)``,
     ``yd = y radial + p1 (r2 + 2 y^2) + 2 p2 x y``.
+
+    Parameters
+    ----------
+    k1, k2, k3 : float
+        Radial coefficients (of ``r2``, ``r2^2``, ``r2^3``; normalised coordinates, no unit).
+    p1, p2 : float
+        Tangential (decentring) coefficients, no unit.
+
+    References
+    ----------
+    Brown, D. C. (1966), "Decentering distortion of lenses", Photogrammetric Engineering 32(3),
+    444-462; Conrady, A. E. (1919), MNRAS 79, 384. The ordering is OpenCV's
+    (``cv2.projectPoints``), docs/conventions.md "Choices made in the code".
+
+    Examples
+    --------
+    >>> from skynav.scenes import BrownConrady
+    >>> d = BrownConrady(k1=-0.05, p1=1e-4)
+    >>> xd, yd = d.distort(np.array([0.1]), np.array([0.05]))
+    >>> x, y = d.undistort(xd, yd)
+    >>> bool(np.allclose([x[0], y[0]], [0.1, 0.05], atol=1e-14))
+    True
     """
 
     k1: float = 0.0
@@ -124,6 +146,42 @@ class SensorParams:
     pixel-to-pixel standard deviation of the dark current; ``prnu_fraction`` the relative
     standard deviation of pixel response; ``reset_noise_e`` the kTC noise; the fixed patterns
     are drawn from ``pattern_seed`` so that one sensor keeps its pattern across frames.
+
+    Parameters
+    ----------
+    bit_depth : int
+        Bits of a digital count, 1..16 (the largest DN is ``2**bit_depth - 1``).
+    gain_dn_per_e : float
+        System gain K, DN/e-.
+    offset_dn : float
+        Dark offset, DN.
+    full_well_e : float
+        Full-well capacity, e-.
+    read_noise_e : float
+        Read noise (standard deviation), e-.
+    reset_noise_e : float
+        Reset (kTC) noise (standard deviation), e-.
+    dark_current_e_per_s : float
+        Mean dark current, e-/s.
+    dsnu_e_per_s : float
+        Dark signal non-uniformity: pixel-to-pixel standard deviation of the dark current, e-/s.
+    prnu_fraction : float
+        Photo-response non-uniformity: relative standard deviation of the pixels' response.
+    blooming : bool
+        Spill the charge above the full well into neighbouring pixels.
+    pattern_seed : int
+        Seed of the fixed patterns (DSNU, PRNU), the same for every frame of this sensor.
+
+    References
+    ----------
+    EMVA Standard 1288 (release 4.0, 2021), the linear camera model.
+
+    Examples
+    --------
+    >>> from skynav.scenes import SensorParams
+    >>> s = SensorParams(bit_depth=12, gain_dn_per_e=4095 / 20000)
+    >>> s.max_dn
+    4095
     """
 
     bit_depth: int = 8
@@ -148,6 +206,7 @@ class SensorParams:
 
     @property
     def max_dn(self) -> int:
+        """Largest digital count, DN: ``2**bit_depth - 1``."""
         return (1 << self.bit_depth) - 1
 
 
@@ -182,8 +241,26 @@ class Camera:
     distortion : BrownConrady
         Lens distortion.
     response_wavelengths_nm, response_qe_t : tuple of float
-        Quantum efficiency x lens transmission, tabulated.
+        Quantum efficiency x lens transmission (no unit), tabulated at wavelengths in nm.
     sensor : SensorParams
+        The detector (EMVA 1288 parameters).
+
+    Raises
+    ------
+    ConfigValueError
+        A parameter out of its range (one line naming the key and what is allowed).
+
+    Examples
+    --------
+    >>> from skynav.scenes import Camera
+    >>> cam = Camera(width=64, height=48, focal_length_mm=40.0, pixel_pitch_um=10.0)
+    >>> cam.fx_px, cam.cx, cam.cy
+    (4000.0, 31.5, 23.5)
+    >>> cam.project(np.array([[0.0, 0.0, 1.0], [0.001, 0.0, 1.0]]))
+    array([[31.5, 23.5],
+           [35.5, 23.5]])
+    >>> round(float(np.degrees(cam.fov_x_rad)), 4)
+    0.9167
     """
 
     width: int
@@ -441,6 +518,32 @@ def paper_camera(**overrides) -> Camera:
     defocus 0.5 px, 8-bit output (Andreis et al. (2023a) thresholds at "120 out of 255"). The paper's
     1 cosmic ray per frame is ``RenderOptions.cosmic_rays_per_frame`` and its 20 deg solar
     exclusion and V < 7 limit are :class:`~skynav.scenes.visibility.VisibilityCriteria`.
+
+    Parameters
+    ----------
+    **overrides
+        Fields of :class:`Camera` to change (:meth:`Camera.replace`: a changed size recentres
+        the principal point and keeps the pixel pitch, so the field of view shrinks).
+
+    Returns
+    -------
+    Camera
+        The paper's camera, with the overrides applied.
+
+    References
+    ----------
+    Andreis et al. (2024), Table 4; Andreis et al. (2023a), Table 1.
+
+    Examples
+    --------
+    >>> from skynav.scenes import paper_camera
+    >>> cam = paper_camera()
+    >>> cam.width, cam.f_number, cam.exposure_s, round(cam.pixel_pitch_um, 2)
+    (1024, 2.2, 0.4, 13.78)
+    >>> round(float(np.degrees(cam.fov_x_rad)), 6)
+    20.0
+    >>> paper_camera(exposure_s=0.1).exposure_s
+    0.1
     """
     width = height = 1024
     focal_mm = 40.0
