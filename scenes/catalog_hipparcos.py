@@ -179,6 +179,24 @@ class StarCatalog:
         Unit vectors at the catalog epoch (ICRS, barycentric).
     epoch_tdb_s : float
         Catalog epoch J1991.25, TDB seconds past J2000.
+
+    References
+    ----------
+    van Leeuwen, F. (2007), A&A 474, 653 (Hipparcos, the new reduction; CDS I/311);
+    Bessell, M. S. (2000), PASP 112, 961, Table 2 (V from Hp and B-V); Ballesteros, F. J.
+    (2012), EPL 97, 34008, Eq. 14 (temperature from B-V).
+
+    Examples
+    --------
+    Sirius (HIP 32349), then the stars brighter than V = 6 within 5 deg of it:
+
+    >>> from skynav.scenes import load_catalog
+    >>> cat = load_catalog()
+    >>> i = cat.index_of_hip([32349])
+    >>> round(float(cat.v_mag[i[0]]), 2), round(float(np.degrees(cat.dec_rad[i[0]])), 2)
+    (-1.1, -16.71)
+    >>> len(cat.cone(cat.u_icrs[i[0]], np.radians(5.0), limiting_v_mag=6.0))
+    18
     """
 
     hip: np.ndarray
@@ -471,12 +489,27 @@ def load_catalog(*, use_cache=True, source_path=None) -> StarCatalog:
     Returns
     -------
     StarCatalog
+        All the catalogue's stars (117955 in ``hip2.dat``), sorted by declination; the same
+        object on every call with the cache.
 
     Notes
     -----
     The cache file name carries the source's size and modification time (ns) and
     :data:`CACHE_FORMAT_VERSION`, so a changed source or format makes a new cache. It is written
     atomically (temporary file + rename). A corrupt cache is rebuilt.
+
+    References
+    ----------
+    van Leeuwen, F. (2007), A&A 474, 653 (CDS I/311, ``hip2.dat``).
+
+    Examples
+    --------
+    >>> from skynav.scenes import load_catalog
+    >>> cat = load_catalog()
+    >>> len(cat), cat.u_icrs.shape
+    (117955, (117955, 3))
+    >>> load_catalog() is cat
+    True
     """
     path = Path(source_path) if source_path is not None else hip2_path()
     if not use_cache:

@@ -168,10 +168,27 @@ def planet_v_mag(
         V magnitude; NaN where the phase angle is outside the law's range (see
         ``PHASE_RANGE_DEG``) or the law is undefined (Saturn rings, Neptune before 2000).
 
+    Raises
+    ------
+    UnknownBodyError
+        ``body`` has no phase law here.
+
+    References
+    ----------
+    Mallama, A. & Hilton, J. L. (2018), Astronomy and Computing 25, 10-24, Eqs. 1-17 (the
+    planets); Krisciunas, K. & Schaefer, B. E. (1991), PASP 103, 1033, Eq. 9 (the Moon, after
+    Allen 1973).
+
     Examples
     --------
+    Jupiter at opposition, 5.2 au from the Sun and 4.2 au from the observer:
+
+    >>> from skynav.scenes import planet_v_mag
+    >>> from skynav.scenes.constants import AU_KM
     >>> round(planet_v_mag("jupiter", 5.2 * AU_KM, 4.2 * AU_KM, 0.0), 3)
     -2.699
+    >>> planet_v_mag("mercury", AU_KM, AU_KM, 0.0)   # outside its law's 2..170 deg
+    nan
     """
     key = body.lower() if isinstance(body, str) else body
     if key not in PHASE_RANGE_DEG:
@@ -216,6 +233,16 @@ def phase_angle_rad(body_position_km, sun_position_km, observer_position_km):
     Returns
     -------
     float or ndarray, shape (N,)
+        The phase angle, rad, in [0, pi] (0: the observer sees the lit side full).
+
+    Examples
+    --------
+    A body at 1 au on the x axis, the observer beside it on the y axis: quarter phase.
+
+    >>> from skynav.scenes import phase_angle_rad
+    >>> a = phase_angle_rad([1.496e8, 0.0, 0.0], [0.0, 0.0, 0.0], [1.496e8, 1e6, 0.0])
+    >>> round(float(np.degrees(a)), 6)
+    90.0
     """
     body = np.asarray(body_position_km, dtype=float)
     return _angle(np.asarray(sun_position_km, dtype=float) - body, np.asarray(observer_position_km, dtype=float) - body)

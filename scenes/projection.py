@@ -25,6 +25,18 @@ class Projection(Protocol):
     ----------
     width, height : int
         Image size, px.
+
+    Examples
+    --------
+    The pinhole camera is one; so is any object with these two methods and the size:
+
+    >>> from skynav.scenes import Camera, Projection
+    >>> cam = Camera(width=64, height=48, focal_length_mm=40.0, pixel_pitch_um=10.0)
+    >>> isinstance(cam, Projection)
+    True
+    >>> xy = cam.project(np.array([0.001, -0.002, 1.0]))
+    >>> xy, cam.line_of_sight(xy) * np.sqrt(1 + 0.001**2 + 0.002**2)
+    (array([35.5, 15.5]), array([ 0.001, -0.002,  1.   ]))
     """
 
     width: int
@@ -50,7 +62,8 @@ class Projection(Protocol):
 
         Parameters
         ----------
-        xy_px : ndarray, shape (..., 2), px
+        xy_px : ndarray, shape (..., 2)
+            Pixel coordinates ``(x, y)``, px.
 
         Returns
         -------

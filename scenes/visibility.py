@@ -38,6 +38,8 @@ class VisibilityCriteria:
 
     Examples
     --------
+    >>> import math
+    >>> from skynav.scenes import VisibilityCriteria
     >>> rule = VisibilityCriteria()
     >>> bool(rule.body_visible(v_mag=-1.7, elongation_rad=math.radians(157.0)))
     True
@@ -66,6 +68,7 @@ class VisibilityCriteria:
         Returns
         -------
         bool or ndarray of bool, shape (N,)
+            True outside the exclusion cone.
         """
         return np.asarray(sun_angle_rad) > self.sun_exclusion_rad
 
@@ -83,6 +86,7 @@ class VisibilityCriteria:
         Returns
         -------
         bool or ndarray of bool, shape (N,)
+            True where the body counts as visible.
         """
         v = np.asarray(v_mag, dtype=float)
         return np.isfinite(v) & (v <= self.limiting_v_mag) & self.outside_sun_exclusion(elongation_rad)
