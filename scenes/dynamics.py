@@ -94,7 +94,32 @@ class SpacecraftSRP:
 
 @dataclass(frozen=True, kw_only=True)
 class ForceModel:
-    """Which accelerations act. ``bodies`` must include ``"sun"`` when SRP or 1PN is on."""
+    """Which accelerations act on the spacecraft (the module's docstring has the equations).
+
+    Parameters
+    ----------
+    bodies : tuple of str
+        Point masses, names of :data:`skynav.scenes.constants.GM_KM3_S2` (all ten by default);
+        must include ``"sun"`` when SRP or 1PN is on.
+    srp : SpacecraftSRP or None
+        Solar radiation pressure (cannonball), None for none.
+    relativity : bool
+        The Sun's 1PN (Schwarzschild) term.
+
+    References
+    ----------
+    Andreis et al. (2023b), Eqs. 1-7 and Andreis et al. (2024), Eq. 3 (the filter's dynamics,
+    and how this model differs from them: module docstring); Moyer, T. D. (2003), JPL
+    DESCANSO monograph 2, Eq. 4-61 (1PN).
+
+    Examples
+    --------
+    Sun-only two-body motion:
+
+    >>> from skynav.scenes import ForceModel
+    >>> ForceModel(bodies=("sun",), srp=None, relativity=False)
+    ForceModel(bodies=('sun',), srp=None, relativity=False)
+    """
 
     bodies: tuple = tuple(GM_KM3_S2)
     srp: SpacecraftSRP | None = field(default_factory=SpacecraftSRP)
@@ -294,7 +319,7 @@ class ForceField:
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Trajectory:
-    """A propagated arc with dense output.
+    """A propagated arc with dense output (made by :func:`propagate`).
 
     Attributes
     ----------
@@ -302,6 +327,16 @@ class Trajectory:
         Span, TDB s past J2000.
     nfev : int
         Right-hand-side evaluations used.
+
+    Examples
+    --------
+    >>> from skynav.scenes import default_ephemeris, propagate
+    >>> eph = default_ephemeris()
+    >>> r0, v0 = eph.position_velocity("earth", 0.0)
+    >>> arc = propagate(eph, r0 + 5e6, v0 + 1.0, 0.0, 86400.0)
+    >>> r, v = arc.state([0.0, 3600.0, 86400.0])
+    >>> r.shape, v.shape, bool(np.allclose(r[0], r0 + 5e6))
+    ((3, 3), (3, 3), True)
     """
 
     t0_tdb_s: float
@@ -310,7 +345,25 @@ class Trajectory:
     _sol: object = field(repr=False)
 
     def state(self, t_tdb_s):
-        """Barycentric ICRS ``(position_km, velocity_km_s)`` at epochs; shapes (3,) or (N, 3)."""
+        """Barycentric ICRS state at epochs of the arc.
+
+        Parameters
+        ----------
+        t_tdb_s : float or array_like, shape (N,)
+            Epochs within ``[t0_tdb_s, t1_tdb_s]``, TDB s past J2000.
+
+        Returns
+        -------
+        position_km : numpy.ndarray, shape (3,) or (N, 3)
+            Position, km.
+        velocity_km_s : numpy.ndarray, shape (3,) or (N, 3)
+            Velocity, km/s.
+
+        Raises
+        ------
+        ValueError
+            An epoch outside the propagated span.
+        """
         t = np.asarray(t_tdb_s, dtype=float)
         self._check_span(t)
         y = self._sol(t)
@@ -334,18 +387,47 @@ def propagate(ephemeris, r0_km, v0_km_s, t0_tdb_s: float, t1_tdb_s: float, *, mo
     ephemeris : object
         ``position_velocity(body, t_tdb_s)`` (DE421 adapter).
     r0_km, v0_km_s : array_like, shape (3,)
-        Initial barycentric ICRS state.
+        Initial barycentric ICRS state, km and km/s.
     t0_tdb_s, t1_tdb_s : float
-        Initial and final epochs, TDB s past J2000.
+        Initial and final epochs, TDB s past J2000 (``t1 < t0`` propagates backwards).
     model : ForceModel
+        The accelerations.
     rtol, atol_km, atol_km_s : float
-        Integrator tolerances.
+        Integrator tolerances: relative, and absolute on position (km) and velocity (km/s).
     table_step_s : float
-        Step of the body-state interpolation table.
+        Step of the body-state interpolation table, s.
+    max_step_s : float
+        Largest integrator step, s.
 
     Returns
     -------
     Trajectory
+        The arc, with the state at any epoch of the span.
+
+    Raises
+    ------
+    RuntimeError
+        The integrator failed (its message).
+
+    References
+    ----------
+    Dormand-Prince DOP853 as in :func:`scipy.integrate.solve_ivp` (Hairer, Norsett & Wanner
+    1993, Solving Ordinary Differential Equations I, Sec. II.10).
+
+    Examples
+    --------
+    A day from 5e6 km beside the Earth: the full model (planets, SRP and 1PN added to the Sun)
+    ends about 19 km from the Sun-only arc:
+
+    >>> from skynav.scenes import ForceModel, default_ephemeris, propagate
+    >>> eph = default_ephemeris()
+    >>> r0, v0 = eph.position_velocity("earth", 0.0)
+    >>> arc = propagate(eph, r0 + 5e6, v0 + 1.0, 0.0, 86400.0)
+    >>> sun_only = propagate(eph, r0 + 5e6, v0 + 1.0, 0.0, 86400.0,
+    ...                      model=ForceModel(bodies=("sun",), srp=None, relativity=False))
+    >>> r1, r2 = arc.state(86400.0)[0], sun_only.state(86400.0)[0]
+    >>> round(float(np.linalg.norm(r1 - r2)))   # km
+    19
     """
     rhs = ForceField(ephemeris, t0_tdb_s, t1_tdb_s, model=model, table_step_s=table_step_s).derivative
     atol = np.array([atol_km] * 3 + [atol_km_s] * 3)
@@ -411,7 +493,7 @@ def propagate_stm(ephemeris, r0_km, v0_km_s, t0_tdb_s: float, t1_tdb_s: float, *
 
     Examples
     --------
-    >>> from skynav.scenes.ephemeris_jpl import default_ephemeris
+    >>> from skynav.scenes import default_ephemeris, propagate_stm
     >>> eph = default_ephemeris()
     >>> r0, v0 = eph.position_velocity("earth", 0.0)
     >>> arc = propagate_stm(eph, r0 + 5e6, v0 + 1.0, 0.0, 86400.0)
