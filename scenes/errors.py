@@ -9,7 +9,20 @@ from __future__ import annotations
 
 
 class SkynavError(Exception):
-    """Base class of every error skynav raises for a user's bad input."""
+    """Base class of every error skynav raises for a user's bad input.
+
+    Its message is one line naming the bad input and what is allowed; the command line prints
+    it and exits with code 2.
+
+    Examples
+    --------
+    >>> from skynav.scenes import Camera, SkynavError
+    >>> try:
+    ...     Camera(width=0, height=64, focal_length_mm=40.0, pixel_pitch_um=10.0)
+    ... except SkynavError as exc:
+    ...     print(exc)
+    camera.width = 0 is not allowed; expected a positive integer
+    """
 
 
 class ConfigValueError(SkynavError, ValueError):
@@ -23,6 +36,15 @@ class ConfigValueError(SkynavError, ValueError):
         The value given.
     allowed : str
         What is allowed, in words, e.g. ``"> 0"`` or ``"one of: a, b"``.
+
+    Examples
+    --------
+    >>> from skynav.scenes import Camera, ConfigValueError
+    >>> try:
+    ...     Camera(width=64, height=64, focal_length_mm=40.0, pixel_pitch_um=10.0, exposure_s=0.0)
+    ... except ConfigValueError as exc:
+    ...     print(exc.key, "|", exc)
+    camera.exposure_s | camera.exposure_s = 0.0 is not allowed; expected > 0 (seconds)
     """
 
     def __init__(self, key: str, value, allowed: str):
@@ -33,7 +55,18 @@ class ConfigValueError(SkynavError, ValueError):
 
 
 class SceneFileError(SkynavError, ValueError):
-    """A scene/recipe file cannot be read or is malformed."""
+    """A scene/recipe file cannot be read or is malformed.
+
+    Examples
+    --------
+    >>> import io
+    >>> from skynav.scenes import SceneFileError, read_scene_file
+    >>> try:
+    ...     read_scene_file(io.StringIO("camera: [1, 2"), "bad.yaml")
+    ... except SceneFileError as exc:
+    ...     print(exc)
+    bad.yaml: malformed YAML at line 1, column 14: expected ',' or ']', but got '<stream end>'
+    """
 
 
 class EphemerisRangeError(SkynavError, ValueError):
@@ -43,6 +76,17 @@ class EphemerisRangeError(SkynavError, ValueError):
     ----------
     time_mask : ndarray of bool
         True where the epoch is outside the kernel.
+    start_jd, end_jd : float or None
+        The kernel's span, Julian dates (TDB).
+
+    Examples
+    --------
+    >>> from skynav.scenes import EphemerisRangeError, default_ephemeris
+    >>> try:
+    ...     default_ephemeris().position_velocity("earth", 4e9)   # TDB s past J2000: year 2126
+    ... except EphemerisRangeError as exc:
+    ...     print(exc)
+    de421.bsp covers 1899-07-29..2053-10-09 TDB; 1 of 1 epochs outside (see .time_mask)
     """
 
     def __init__(self, message: str, time_mask=None, start_jd=None, end_jd=None):
@@ -53,7 +97,24 @@ class EphemerisRangeError(SkynavError, ValueError):
 
 
 class UnknownBodyError(SkynavError, KeyError):
-    """A body name that skynav does not know."""
+    """A body name that skynav does not know.
+
+    Attributes
+    ----------
+    name : str
+        The name given.
+    allowed : tuple of str
+        The names known where it was given.
+
+    Examples
+    --------
+    >>> from skynav.scenes import UnknownBodyError, planet_v_mag
+    >>> try:
+    ...     planet_v_mag("pluto", 5.9e9, 5.8e9, 0.01)
+    ... except UnknownBodyError as exc:
+    ...     print(exc)
+    unknown body 'pluto'; known bodies: mercury, venus, earth, moon, mars, jupiter, saturn, uranus, neptune
+    """
 
     def __init__(self, name: str, allowed):
         self.name = name
@@ -65,11 +126,33 @@ class UnknownBodyError(SkynavError, KeyError):
 
 
 class DataFileError(SkynavError, OSError):
-    """An installed data file (ephemeris, catalog) is missing or unreadable."""
+    """An installed data file (ephemeris, catalog) is missing or unreadable.
+
+    Examples
+    --------
+    >>> import io
+    >>> from skynav.scenes import DataFileError
+    >>> from skynav.scenes.catalog_hipparcos import read_hipparcos
+    >>> try:
+    ...     read_hipparcos(io.BytesIO(b""))
+    ... except DataFileError as exc:
+    ...     print(exc)
+    Hipparcos catalog file is empty
+    """
 
 
 class LambertError(SkynavError, ValueError):
-    """A Lambert problem with no solution for the inputs (or a solver failure)."""
+    """A Lambert problem with no solution for the inputs (or a solver failure).
+
+    Examples
+    --------
+    >>> from skynav.scenes import LambertError, solve_lambert
+    >>> try:
+    ...     solve_lambert([1.0, 0.0, 0.0], [2.0, 0.0, 0.0], 1.0, 1.0)
+    ... except LambertError as exc:
+    ...     print(exc)
+    r1 and r2 are collinear: the transfer plane is undefined
+    """
 
 
 class MovedKeyError(ConfigValueError):
@@ -83,6 +166,16 @@ class MovedKeyError(ConfigValueError):
         The value given.
     new_key : str
         Where it lives now, e.g. ``visibility.limiting_v_mag``.
+
+    Examples
+    --------
+    >>> from skynav.scenes import Camera, MovedKeyError
+    >>> try:
+    ...     Camera.from_dict({"width": 64, "height": 64, "focal_length_mm": 40.0,
+    ...                       "pixel_pitch_um": 10.0, "limiting_v_mag": 7.0})
+    ... except MovedKeyError as exc:
+    ...     print(exc)
+    camera.limiting_v_mag has moved: write it as visibility.limiting_v_mag (value given: 7.0)
     """
 
     def __init__(self, key: str, value, new_key: str):
@@ -105,6 +198,16 @@ class ObserverInsideBodyError(SkynavError, ValueError):
         Observer-to-centre distance and the body's mean radius, km.
     position_km : tuple of float, shape (3,)
         The observer's barycentric ICRS position, km.
+
+    Examples
+    --------
+    >>> from skynav.scenes import ObserverInsideBodyError, default_ephemeris, sky_bodies
+    >>> r, v = default_ephemeris().position_velocity("earth", 0.0)
+    >>> try:
+    ...     sky_bodies(0.0, r + [100.0, 0.0, 0.0], v)
+    ... except ObserverInsideBodyError as exc:
+    ...     print(exc.body, round(exc.distance_km, 3), exc.radius_km)
+    earth 100.0 6371.0084
     """
 
     def __init__(self, body: str, distance_km: float, radius_km: float, position_km=()):
@@ -117,5 +220,22 @@ class ObserverInsideBodyError(SkynavError, ValueError):
 
 
 class SkynavWarning(UserWarning):
-    """An absurd but possible input (a 173 deg field, ``k1: 1000``, 1e6 deg/s): the work goes on
-    and the command line prints one ``skynav: warning:`` line."""
+    r"""An absurd but possible input (a 173 deg field, ``k1: 1000``, 1e6 deg/s).
+
+    The work goes on and the command line prints one ``skynav: warning:`` line.
+
+    Examples
+    --------
+    >>> import io, warnings
+    >>> from skynav.scenes import SkynavWarning, read_scene_file
+    >>> text = ("epoch: 2030-01-01T00:00:00\n"
+    ...         "observer: {position_km: [1.5e8, 0, 0], velocity_km_s: [0, 30, 0]}\n"
+    ...         "attitude: {ra_deg: 10, dec_deg: 0, angular_velocity_deg_s: [0, 0, 1000]}\n")
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     spec = read_scene_file(io.StringIO(text), "spin.yaml")
+    >>> caught[0].category is SkynavWarning
+    True
+    >>> print(caught[0].message)
+    attitude.angular_velocity_deg_s: 1000 deg/s is more than one turn per second; the stars are long streaks
+    """
