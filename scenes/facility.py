@@ -49,7 +49,28 @@ def _check(cond: bool, key: str, value, allowed: str) -> None:
 # ----------------------------------------------------------------------------- screen
 @dataclass(frozen=True, kw_only=True)
 class Screen:
-    """The display: size, pixel pitch and bit depth (PNG: uint8 for 8 bits, uint16 above)."""
+    """The display: size, pixel pitch and bit depth (PNG: uint8 for 8 bits, uint16 above).
+
+    Parameters
+    ----------
+    width_px, height_px : int
+        Screen size, screen pixels (>= 16).
+    pixel_pitch_um : float
+        Screen pixel pitch, um.
+    bit_depth : int
+        Bits of a screen digital count, 1..16.
+
+    Raises
+    ------
+    ConfigValueError
+        A value out of its range.
+
+    Examples
+    --------
+    >>> from skynav.scenes import Screen
+    >>> Screen(width_px=640, height_px=640, pixel_pitch_um=32.0).max_dn
+    1023
+    """
 
     width_px: int
     height_px: int
@@ -64,6 +85,7 @@ class Screen:
 
     @property
     def max_dn(self) -> int:
+        """Largest screen digital count, DN: ``2**bit_depth - 1``."""
         return (1 << self.bit_depth) - 1
 
 
@@ -355,7 +377,45 @@ FLAT_RESPONSIVITY = ((300.0, 1200.0), (1.0, 1.0))
 # ----------------------------------------------------------------------------- the facility
 @dataclass(frozen=True, kw_only=True)
 class Facility:
-    """A bench: screen, collimator, camera, geometric and radiometric models."""
+    """A bench: screen, collimator, camera, geometric and radiometric models.
+
+    Parameters
+    ----------
+    name : str
+        The bench's name (file key ``name``).
+    screen : Screen
+        The display.
+    camera : Camera
+        The flight camera looking into the collimator.
+    geometric : GeometricModel
+        Screen pixel <-> camera line of sight (angles rad, lengths mm).
+    radiometric : RadiometricModel
+        Screen DN -> irradiance at the camera pupil per lit pixel, W/m^2.
+    flat_field : FlatField or None
+        Relative transmission across the screen (None: uniform).
+    screen_spectrum : tuple
+        ``(wavelengths_nm, relative)``: the screen's relative emission spectrum.
+    meter_responsivity : tuple
+        ``(wavelengths_nm, relative)``: the power meter's relative spectral responsivity.
+    calibrated_geometric, calibrated_radiometric : dict or None
+        Fit reports and provenance kept from the file (not used to compute).
+
+    References
+    ----------
+    Andreis et al. (2023b), Sec. 3 (the RETINA bench); the file form is ``skynav.facility/1``
+    (docs/bench.md).
+
+    Examples
+    --------
+    >>> from skynav.scenes import bench_small_preset, facility_from_mapping
+    >>> bench = bench_small_preset()
+    >>> bench.screen.width_px, bench.camera.width
+    (640, 256)
+    >>> bench.projection.project(np.array([0.0, 0.0, 1.0]))   # the boresight, screen px
+    array([319.5, 319.5])
+    >>> facility_from_mapping(bench.to_mapping()) == bench
+    True
+    """
 
     name: str = "bench"
     screen: Screen
@@ -382,9 +442,11 @@ class Facility:
 
     @property
     def projection(self) -> ScreenProjection:
+        """Camera line of sight <-> screen pixel (a :class:`~skynav.scenes.projection.Projection`)."""
         return ScreenProjection(screen=self.screen, model=self.geometric)
 
     def flat(self, xy_px) -> np.ndarray:
+        """Relative transmission at screen pixels ``xy_px`` (shape (..., 2)), shape (...)."""
         if self.flat_field is None:
             return np.ones(np.shape(xy_px)[:-1])
         return self.flat_field(xy_px)
@@ -495,10 +557,34 @@ def facility_from_mapping(d) -> Facility:
     range, unknown keys refused naming the closest valid one), then the camera (the scene files'
     camera keys) and the spectra's overlap with the camera's band.
 
+    Parameters
+    ----------
+    d : dict
+        The parsed YAML of a facility file (``schema: skynav.facility/1``; keys in docs/bench.md):
+        angles in degrees or arcsec, lengths in mm and um, irradiance in W/m^2.
+
+    Returns
+    -------
+    Facility
+        The bench, angles converted to radians.
+
     Raises
     ------
     ConfigValueError
         One line naming the dotted key, the value and what is allowed.
+
+    Examples
+    --------
+    >>> from skynav.scenes import ConfigValueError, bench_small_preset, facility_from_mapping
+    >>> mapping = bench_small_preset().to_mapping()
+    >>> facility_from_mapping(mapping).name
+    'bench_small'
+    >>> mapping["screen"]["pixel_pitch_um"] = -1
+    >>> try:
+    ...     facility_from_mapping(mapping)
+    ... except ConfigValueError as exc:
+    ...     print(exc)   # doctest: +ELLIPSIS
+    screen.pixel_pitch_um = -1 ...
     """
     validate_facility_mapping(d)
     s = d["screen"]
@@ -564,16 +650,49 @@ def _bench(camera: Camera, screen_px: int, pitch_um: float, focal_mm: float, nam
 
 
 def bench_preset() -> Facility:
-    """``bench``: the paper camera (20 deg, 1024 px) behind a 50 mm collimator looking at a square
-    2560 x 2560 px, 8 um, 10-bit microdisplay: the screen spans +/-11.6 deg (a 1.6 deg margin for
-    misalignment) at 2.15 screen px per camera px."""
+    """The ``bench`` preset: the paper camera behind a 50 mm collimator and a 2560 px microdisplay.
+
+    The paper camera (20 deg, 1024 px) looks at a square 2560 x 2560 px, 8 um, 10-bit
+    microdisplay: the screen spans +/-11.6 deg (a 1.6 deg margin for misalignment) at 2.15
+    screen px per camera px. Its radiometric curve is nominal (uncalibrated).
+
+    Returns
+    -------
+    Facility
+        A new bench, perfectly aligned (no residual field, no flat field).
+
+    References
+    ----------
+    Andreis et al. (2023b), Sec. 3 (RETINA); the camera of Andreis et al. (2024), Table 4.
+
+    Examples
+    --------
+    >>> from skynav.scenes import bench_preset
+    >>> bench = bench_preset()
+    >>> bench.screen.width_px, bench.screen.pixel_pitch_um, bench.geometric.focal_length_mm
+    (2560, 8.0, 50.0)
+    """
     return _bench(paper_camera(), 2560, 8.0, 50.0, "bench")
 
 
 def bench_small_preset() -> Facility:
-    """``bench_small``: the same optics scaled down for quick rehearsals and tests: a 256 x 256 px
-    camera with the paper camera's 20 deg field, a 640 x 640 px, 32 um screen (2.15 screen px per
-    camera px)."""
+    """The ``bench_small`` preset: the ``bench`` optics scaled down for quick rehearsals and tests.
+
+    A 256 x 256 px camera with the paper camera's 20 deg field, a 640 x 640 px, 32 um screen
+    (2.15 screen px per camera px), the 50 mm collimator.
+
+    Returns
+    -------
+    Facility
+        A new bench, perfectly aligned, with a nominal radiometric curve.
+
+    Examples
+    --------
+    >>> from skynav.scenes import bench_small_preset
+    >>> bench = bench_small_preset()
+    >>> bench.camera.width, round(float(np.degrees(bench.camera.fov_x_rad)), 6)
+    (256, 20.0)
+    """
     cam = paper_camera()
     cam = cam.replace(width=256, height=256, pixel_pitch_um=cam.pixel_pitch_um * 4)
     return _bench(cam, 640, 32.0, 50.0, "bench_small")

@@ -51,4 +51,22 @@ def preset_mapping(name: str = "default") -> dict:
 
 
 def default_scene_spec():
+    """The ``default`` built-in scene: the paper camera on an Earth-Mars cruise, pointing at Mars.
+
+    2027-02-01 TDB, 1.2 AU from the Sun (module docstring); the same scene as
+    ``docs/examples/default_scene.yaml``.
+
+    Returns
+    -------
+    SceneSpec
+        A new spec (the camera of Andreis et al. (2024), Table 4), ready for
+        :func:`~skynav.scenes.scene.build_from_spec`.
+
+    Examples
+    --------
+    >>> from skynav.scenes import default_scene_spec
+    >>> spec = default_scene_spec()
+    >>> spec.epoch_tdb_iso, spec.attitude.point_at, spec.camera.width
+    ('2027-02-01T00:00:00.000', 'mars', 1024)
+    """
     return scene_spec_from_mapping(preset_mapping("default"))

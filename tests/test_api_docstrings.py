@@ -96,6 +96,8 @@ def problems(qualname: str, obj) -> list[str]:
         return found
     params = signature_names(obj)
     if isinstance(obj, type):
+        if getattr(obj, "_is_protocol", False):   # a Protocol is not constructed
+            return found
         documented = documented_names(secs.get("Parameters", "")) | documented_names(secs.get("Attributes", ""))
         if params and not params <= documented:
             found.append(f"{qualname}: constructor parameters not documented: {sorted(params - documented)}")
