@@ -450,9 +450,6 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
         Sensor parameters (``camera.sensor``), exposure (dark current) and cosmic-ray rate.
     rng : numpy.random.Generator
         The frame's stream: cosmic rays draw first, then the sensor.
-    own_size : bool
-        True: the image has the projection's size (a bench screen seen through its collimator),
-        not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
     options : RenderOptions
         ``cosmic_ray_mode``, ``cosmic_ray_track_prob``, ``noise`` and ``backend``.
 

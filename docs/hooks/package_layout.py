@@ -1,0 +1,44 @@
+"""MkDocs hook: lay out the package as it installs, so mkdocstrings reads it from source.
+
+The checkout keeps each import package ``skynav.<room>`` in a top-level folder (``scenes/``,
+``renderer/``, ...; pyproject's ``package-dir``), which Python finds through the installed
+package's import hook but a static reader (griffe, behind mkdocstrings) does not. This hook makes
+a temporary folder holding ``skynav/`` with links to the command line's files and to each room
+folder, and puts it first on ``sys.path`` (at the ``startup`` event, before mkdocstrings reads it:
+MkDocs restores ``sys.path`` after importing a hook), where griffe looks for ``skynav``. The documented code
+is read from the checkout itself (links, not copies), so the API pages always show its docstrings.
+"""
+
+from __future__ import annotations
+
+import atexit
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+#: the folders pyproject's ``[tool.setuptools] package-dir`` maps to ``skynav.<folder>``
+ROOMS = ("scenes", "renderer", "datasets", "pipeline", "calibration", "service")
+
+
+def _layout() -> Path:
+    tmp = Path(tempfile.mkdtemp(prefix="skynav-docs-"))
+    atexit.register(shutil.rmtree, tmp, ignore_errors=True)
+    pkg = tmp / "skynav"
+    pkg.mkdir()
+    for path in (ROOT / "skynav").glob("*.py"):
+        (pkg / path.name).symlink_to(path)
+    for room in ROOMS:
+        (pkg / room).symlink_to(ROOT / room, target_is_directory=True)
+    return tmp
+
+
+_SOURCE: list = []
+
+
+def on_startup(command, dirty):
+    if not _SOURCE:
+        _SOURCE.append(str(_layout()))
+    if _SOURCE[0] not in sys.path:
+        sys.path.insert(0, _SOURCE[0])
