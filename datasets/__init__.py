@@ -47,6 +47,14 @@ _LAZY = {
 }
 
 
+# The public API (what the README and docs/ use): the reading path above, the makers below.
+__all__ = sorted({
+    "open", "open_dataset", "Dataset", "FrameRecord", "Observation", "CalibrationErrorModel", "FrameTruth",
+    "BodyTruth", "DatasetError", "DatasetMismatchError", "FrameIndexError", "IncompleteDatasetError",
+    "OutputFormatError", "RecipeError", "SceneSamplingError", "TruthSchemaError", *_LAZY,
+})
+
+
 def __getattr__(name):
     module = _LAZY.get(name)
     if module is None:
