@@ -46,10 +46,12 @@ def test_citations_name_authors_and_year_and_files_in_the_repository():
                       "number, and only files in the repository:\n" + "\n".join(hits))
 
 
-@pytest.mark.parametrize("line", ["paper 002 table 4", "see CONVENTIONS.md", "(STYLE.md section 2)",
-                                  "papers 001/002", "../shared/papers"])
-def test_the_check_catches_each_form(line):
-    assert FORBIDDEN.search(line)
+# the forbidden forms, spelled in two parts so that this file passes its own check
+@pytest.mark.parametrize("head, tail", [("paper", " 002 table 4"), ("see CONVENTIONS", ".md"),
+                                        ("(STYLE", ".md section 2)"), ("papers", " 001/002"),
+                                        ("../sha", "red/papers")])
+def test_the_check_catches_each_form(head, tail):
+    assert FORBIDDEN.search(head + tail)
 
 
 @pytest.mark.parametrize("line", ["Andreis et al. (2024), Table 4", "docs/conventions.md \"Files\"",
