@@ -115,18 +115,44 @@ class BodyTruth:
     Attributes
     ----------
     name : str
-    xy, xy_geometric : ndarray, shape (2,), px
-        Apparent (light-time + aberration) and geometric pixel positions at mid-exposure;
+        Body name (``mars``, ``moon``, ...).
+    xy, xy_geometric : ndarray, shape (2,)
+        Apparent (light-time + aberration) and geometric pixel positions at mid-exposure, px;
         NaN where undefined.
     u_icrs : ndarray, shape (3,)
         Apparent unit vector, ICRS (alias ``u_apparent``).
-    light_time_s, distance_km, v_mag : float
+    light_time_s : float
+        Light travel time from the body, s.
+    distance_km : float
+        Observer (at reception) to body (at emission), km.
+    v_mag : float
+        Apparent V magnitude (NaN outside the phase law's range).
     phase_angle_rad : float
         Sun-body-observer angle, rad (the file's ``phase_angle_deg``).
     angular_diameter_px : float
+        Apparent diameter, px.
     in_fov, visible, resolved : bool
+        In the image; visible by the mission's rule (``VisibilityCriteria``); drawn as a
+        resolved disc (ray-traced) rather than a point.
     electrons : float
         Expected charge over the exposure, e-.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import open
+    >>> truth = open(tmp.name + "/ds").truth(0)
+    >>> mars = truth.body("mars")
+    >>> mars.name, mars.xy.shape, bool(mars.distance_km > 0), mars.u_apparent is mars.u_icrs
+    ('mars', (2,), True, True)
+    >>> tmp.cleanup()
     """
 
     name: str
@@ -209,6 +235,24 @@ class FrameTruth:
         Every seed used.
     raw : dict
         The whole JSON dict (keys beyond the fixed ones: ``render``, ``sun``, ``dataset``...).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import open
+    >>> truth = open(tmp.name + "/ds").truth(0)
+    >>> truth.R_cam_icrs.shape, truth.q_cam_icrs.shape, truth.stars.xy.shape[1]
+    ((3, 3), (4,), 2)
+    >>> bool(np.allclose(truth.R_cam_icrs @ truth.R_cam_icrs.T, np.eye(3)))
+    True
+    >>> tmp.cleanup()
     """
 
     epoch_tdb_s: float

@@ -69,8 +69,14 @@ class CalibrationErrorModel:
 
     Examples
     --------
-    >>> m = CalibrationErrorModel(focal_length_rel_sigma=1e-4, seed=7)
+    >>> from skynav.datasets import CalibrationErrorModel
+    >>> from skynav.scenes import paper_camera
+    >>> m = CalibrationErrorModel(focal_length_rel_sigma=1e-4, principal_point_sigma_px=0.5, seed=7)
     >>> m.draw() == m.draw()
+    True
+    >>> cam = paper_camera()
+    >>> calibrated = m.apply(cam)
+    >>> bool(abs(calibrated.focal_length_mm / cam.focal_length_mm - 1) < 5e-4)
     True
     """
 
@@ -142,6 +148,25 @@ class Observation:
         ``calibration_error.apply(true camera)``.
     calibration_error : CalibrationErrorModel or None
         The error model the camera was perturbed with (None: exact calibration).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import CalibrationErrorModel, open
+    >>> ds = open(tmp.name + "/ds")
+    >>> obs = ds.observation(0, calibration_error=CalibrationErrorModel(principal_point_sigma_px=0.5))
+    >>> obs.dn.shape, obs.exposure_s, obs.epoch.scale
+    ((64, 64), 0.4, 'tdb')
+    >>> obs.camera.cx != ds.camera.cx
+    True
+    >>> tmp.cleanup()
     """
 
     index: int

@@ -100,14 +100,43 @@ def read_frame_pair(png_path, json_path, *, index: int):
 class FrameRecord:
     """One frame of a dataset (immutable): ``dn``, ``truth``, lazy ``electrons``.
 
-    Attributes
+    Made by indexing a :class:`Dataset` (``ds[k]``); unpacks as ``dn, truth = ds[k]``.
+
+    Parameters
     ----------
     index : int
+        Frame number in the dataset.
     dn : ndarray, shape (H, W), uint8 or uint16
+        Digital counts, DN (read-only; the PNG's sBIT scaling undone).
     truth : dict
-        Ground truth, schema ``skynav.frame/2``.
-    electrons, irradiance_w_m2 : ndarray, shape (H, W), float32
-        Read from the frame's EXR on first access (None if the dataset has no EXR).
+        Ground truth, schema ``skynav.frame/2`` (docs/conventions.md "Files").
+    exr_path : path-like, optional
+        The frame's EXR, read on first access to the float images (None: no EXR).
+
+    Attributes
+    ----------
+    electrons : ndarray, shape (H, W), float32
+        Noise-free expected signal per pixel, e- (None if the dataset has no EXR).
+    irradiance_w_m2 : ndarray, shape (H, W), float32
+        Irradiance at the pupil per pixel, W/m^2 (None if the dataset has no EXR).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import open
+    >>> dn, truth = open(tmp.name + "/ds")[1]
+    >>> dn.shape, dn.dtype.name, truth["schema"]
+    ((64, 64), 'uint8', 'skynav.frame/2')
+    >>> open(tmp.name + "/ds")[1].electrons.dtype.name
+    'float32'
+    >>> tmp.cleanup()
     """
 
     __slots__ = ("index", "dn", "truth", "_exr_path", "_exr")
@@ -135,11 +164,13 @@ class FrameRecord:
 
     @property
     def electrons(self):
+        """Noise-free expected signal per pixel, e-, (H, W) float32, or None without an EXR."""
         ch = self._channels()
         return None if ch is None else ch["electrons"]
 
     @property
     def irradiance_w_m2(self):
+        """Irradiance at the pupil per pixel, W/m^2, (H, W) float32, or None without an EXR."""
         ch = self._channels()
         return None if ch is None else ch.get("irradiance_w_m2")
 
@@ -151,7 +182,51 @@ class FrameRecord:
 
 
 class Dataset:
-    """A complete dataset folder, read lazily (see :func:`open_dataset`)."""
+    """A complete dataset folder, read lazily (made by :func:`open_dataset`).
+
+    ``len(ds)`` frames; ``ds[k]`` (negative indices and slices allowed) and iteration give
+    :class:`FrameRecord` objects; :meth:`observation` gives what the navigation pipeline may
+    see, :meth:`truth` the typed ground truth.
+
+    Parameters
+    ----------
+    root : path-like
+        The dataset folder.
+    manifest : dict
+        Its ``manifest.json`` (schema ``skynav.dataset/1``).
+
+    Attributes
+    ----------
+    root : pathlib.Path
+        The dataset folder.
+    manifest : dict
+        The manifest.
+    recipe : dict
+        The normalised recipe the dataset was made from.
+    formats : tuple of str
+        The file formats of each frame (``png``, ``exr``, ``json``, ``fits``).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import open
+    >>> ds = open(tmp.name + "/ds")
+    >>> len(ds), ds.formats, ds.camera.width
+    (2, ('png', 'exr', 'json'), 64)
+    >>> obs = ds.observation(-1)
+    >>> obs.dn.shape, obs.exposure_s
+    ((64, 64), 0.4)
+    >>> ds.truth(0).camera["width"]
+    64
+    >>> tmp.cleanup()
+    """
 
     def __init__(self, root, manifest: dict):
         self.root = Path(root)
@@ -251,13 +326,14 @@ class Dataset:
 
     @property
     def index(self) -> list:
-        """Rows of ``index.csv`` (dicts of strings)."""
+        """Rows of ``index.csv`` (one dict of strings per frame)."""
         if self._index is None:
             self._index = layout.read_index(self.root)
         return self._index
 
     @property
     def camera(self):
+        """The dataset's camera (:class:`~skynav.scenes.camera.Camera`, from the manifest)."""
         return Camera.from_dict(self.manifest["camera"])
 
     def __repr__(self) -> str:
@@ -265,7 +341,19 @@ class Dataset:
 
 
 def open_dataset(path) -> Dataset:
-    """Open a complete dataset folder.
+    """Open a complete dataset folder (``skynav.datasets.open`` is the same function).
+
+    Nothing but the manifest is read here; frames are read when indexed.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The dataset folder (the one holding ``manifest.json``).
+
+    Returns
+    -------
+    Dataset
+        The dataset, read lazily.
 
     Raises
     ------
@@ -273,6 +361,22 @@ def open_dataset(path) -> Dataset:
         Not a dataset folder, unreadable manifest.
     IncompleteDatasetError
         The manifest does not say ``"complete": true``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import open
+    >>> ds = open(tmp.name + "/ds")
+    >>> len(ds), ds[0].dn.shape
+    (2, (64, 64))
+    >>> tmp.cleanup()
     """
     root = Path(path)
     m = layout.read_manifest(root)
