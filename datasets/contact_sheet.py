@@ -103,8 +103,36 @@ def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, ti
         Output PNG.
     frames : sequence of int, optional
         Frames to show (default: ``count`` frames evenly spread over the dataset).
+    count : int
+        Number of frames shown when ``frames`` is not given.
+    columns : int
+        Tiles per row.
+    tile_px : int
+        Size of a tile, px (each frame scaled to fit).
     star_v_max : float
         Circle the stars brighter than this V magnitude.
+
+    Returns
+    -------
+    pathlib.Path
+        The PNG written (atomically).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from PIL import Image
+    >>> from skynav.datasets import preview
+    >>> out = preview(tmp.name + "/ds", tmp.name + "/sheet.png", columns=2, tile_px=64)
+    >>> Image.open(out).mode in ("RGB", "RGBA")
+    True
+    >>> tmp.cleanup()
     """
     ds = open_dataset(path)
     n = len(ds)
@@ -121,12 +149,46 @@ def preview(path, out_png, *, frames=None, count: int = 16, columns: int = 4, ti
 def leg_plot(path, out_png, *, step_s: float = 6 * 3600.0) -> Path:
     """Write the planets' apparent V along the cruise of a ``sequence`` dataset (legs shaded).
 
-    The plan is rebuilt from the manifest's recipe (the trajectory is recomputed, about 1 s).
+    The plan is rebuilt from the manifest's recipe (the trajectory is recomputed).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``sequence`` dataset (complete or not: only the manifest is read).
+    out_png : str or os.PathLike
+        Output PNG.
+    step_s : float
+        Sampling step of the magnitudes along the cruise, s.
+
+    Returns
+    -------
+    pathlib.Path
+        The PNG written.
 
     Raises
     ------
     DatasetError
         The dataset is not a ``sequence``.
+
+    Examples
+    --------
+    A ``montecarlo`` dataset has no legs:
+
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import DatasetError, leg_plot
+    >>> try:
+    ...     leg_plot(tmp.name + "/ds", tmp.name + "/legs.png")
+    ... except DatasetError as exc:
+    ...     print(str(exc).split(": ", 1)[1])
+    a 'montecarlo' dataset has no navigation legs to plot; only 'sequence' has
+    >>> tmp.cleanup()
     """
     recipe = layout.read_manifest(path)["recipe"]
     if recipe.get("kind") != "sequence":

@@ -35,12 +35,32 @@ class VerifyReport:
 
     Attributes
     ----------
+    path : str
+        The dataset folder.
     ok : bool
         No problem found.
     problems : list of str
         One line each, e.g. ``frames/000003.png: SHA-256 mismatch (file altered or corrupt)``.
     files_checked : int
+        Files whose checksum (and decoding) was checked.
     frames : int
+        Frames the manifest lists.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import verify
+    >>> report = verify(tmp.name + "/ds")
+    >>> report.ok, report.frames, report.problems
+    (True, 2, [])
+    >>> tmp.cleanup()
     """
 
     path: str
@@ -50,6 +70,7 @@ class VerifyReport:
     frames: int = 0
 
     def lines(self) -> list:
+        """The report as printable lines: a head line (OK or FAILED, counts), then the problems."""
         head = f"{self.path}: {'OK' if self.ok else 'FAILED'} ({self.frames} frames, {self.files_checked} files checked"
         head += ")" if self.ok else f", {len(self.problems)} problem(s))"
         return [head] + self.problems
@@ -58,14 +79,43 @@ class VerifyReport:
 def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     """Check a dataset folder against its manifest; never raises for a damaged dataset.
 
+    Every file's SHA-256 against the manifest's, every file decoded (PNG, EXR, JSON, FITS),
+    ``index.csv`` against the frames, and (``check_schema``) the JSON Schemas.
+
     Parameters
     ----------
     path : str or os.PathLike
+        The dataset folder.
     check_schema : bool
         Validate the manifest and every ground-truth JSON against their published JSON Schema
         (slower; on by default).
     progress : bool
         Show a tqdm bar over the files.
+
+    Returns
+    -------
+    VerifyReport
+        ``ok`` and one line per problem (a damaged dataset is reported, not raised).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from pathlib import Path
+    >>> from skynav.datasets import verify
+    >>> png = Path(tmp.name) / "ds" / "frames" / "000001.png"
+    >>> png.write_bytes(png.read_bytes()[:100])   # truncate a frame
+    100
+    >>> report = verify(tmp.name + "/ds")
+    >>> report.ok, report.problems[0].split(":")[0]
+    (False, 'frames/000001.png')
+    >>> tmp.cleanup()
     """
     root = Path(path)
     problems: list = []
@@ -167,11 +217,38 @@ def info(path) -> dict:
 
     Works on incomplete datasets too (it says so). Values are strings ready to print.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The dataset folder.
+
+    Returns
+    -------
+    dict
+        ``rows``: (field, value) pairs of strings (kind, frames, seed, camera, formats, ...,
+        with units in the values), and further keys for the command line's table.
+
     Raises
     ------
     DatasetError
         No dataset there, or a manifest or ``index.csv`` too damaged to summarise (one line
         naming the file; ``verify`` says more).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from skynav.datasets import info
+    >>> rows = dict(info(tmp.name + "/ds")["rows"])
+    >>> isinstance(rows, dict) and all(isinstance(v, str) for v in rows.values())
+    True
+    >>> tmp.cleanup()
     """
     root = Path(path)
     m = layout.read_manifest(root)
