@@ -912,10 +912,10 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
 
     Parameters
     ----------
-    frame : skynav.renderer.render.Frame or any object with ``dn``, ``electrons``,
-            ``irradiance_w_m2`` and ``truth``
-        ``dn`` (H, W) uint8/uint16 DN; ``electrons`` and ``irradiance_w_m2`` (H, W) float32
-        (e-, W/m^2); ``truth`` the ``skynav.frame/2`` dict.
+    frame : skynav.renderer.render.Frame
+        Or any object with ``dn`` (H, W) uint8/uint16 DN, ``electrons`` and
+        ``irradiance_w_m2`` (H, W) float32 (e-, W/m^2) and ``truth`` (the ``skynav.frame/2``
+        dict).
     directory : str or os.PathLike
         Created if missing.
     stem : str
@@ -938,6 +938,24 @@ def write_frame(frame, directory, stem: str, *, formats=("png", "exr", "json"), 
         An unknown format.
     OutputFormatError, TruthSchemaError
         Data the format cannot hold.
+
+    Examples
+    --------
+    Any object with the four fields will do (here a 12-bit image; the PNG's bit depth comes
+    from the truth's camera):
+
+    >>> import tempfile
+    >>> from types import SimpleNamespace
+    >>> from skynav.datasets import write_frame
+    >>> from skynav.datasets.frame_files import read_png
+    >>> frame = SimpleNamespace(dn=np.array([[0, 4095]], dtype=np.uint16),
+    ...                         electrons=np.zeros((1, 2), np.float32),
+    ...                         irradiance_w_m2=np.zeros((1, 2), np.float32),
+    ...                         truth={"camera": {"bit_depth": 12}})
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     paths = write_frame(frame, tmp, "frame", formats=("png", "exr"))
+    ...     print(sorted(paths), read_png(paths["png"]).tolist())
+    ['exr', 'png'] [[0, 4095]]
     """
     check_stem(stem)
     directory = Path(directory)

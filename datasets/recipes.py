@@ -137,7 +137,32 @@ PRESETS = {
 
 
 def preset_recipe(kind: str) -> dict:
-    """A fresh copy of the built-in recipe of a kind (``montecarlo``, ``sequence``, ``scenes``)."""
+    """A fresh copy of the built-in recipe of a kind (``montecarlo``, ``sequence``, ``scenes``).
+
+    Parameters
+    ----------
+    kind : str
+        ``montecarlo`` (random scenes), ``sequence`` (a cruise's navigation legs) or ``scenes``
+        (a list of scenes).
+
+    Returns
+    -------
+    dict
+        The recipe mapping (units in the key names, angles in degrees), to edit and pass to
+        :func:`~skynav.datasets.runner.generate`.
+
+    Raises
+    ------
+    RecipeError
+        An unknown kind.
+
+    Examples
+    --------
+    >>> from skynav.datasets import preset_recipe
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe["kind"], recipe["frames"], recipe["camera"]
+    ('montecarlo', 3000, {'preset': 'paper'})
+    """
     if kind not in PRESETS:
         raise RecipeError("kind", kind, "one of: " + ", ".join(KINDS))
     return copy.deepcopy(PRESETS[kind])
@@ -261,11 +286,32 @@ def _validate_sequence(recipe) -> dict:
 def validate_recipe(recipe) -> dict:
     """Check a recipe and return its normalised copy (defaults filled, JSON types).
 
+    Parameters
+    ----------
+    recipe : dict
+        A recipe mapping (:func:`preset_recipe`, or a parsed recipe file).
+
+    Returns
+    -------
+    dict
+        A new, normalised recipe; the input is not changed.
+
     Raises
     ------
     RecipeError
         Naming the dotted key, the value and what is allowed, e.g.
         ``montecarlo.position_sigma_au.2 = -1 is not allowed; expected a number in [0, 100]``.
+
+    Examples
+    --------
+    >>> from skynav.datasets import RecipeError, preset_recipe, validate_recipe
+    >>> sorted(validate_recipe(preset_recipe("sequence")))
+    ['camera', 'catalog_limiting_v_mag', 'formats', 'kind', 'seed', 'sequence', 'visibility']
+    >>> try:
+    ...     validate_recipe({"kind": "survey"})
+    ... except RecipeError as exc:
+    ...     print(exc)
+    kind = 'survey' is not allowed; expected one of: montecarlo, sequence, scenes
     """
     if not isinstance(recipe, dict):
         raise RecipeError("recipe", type(recipe).__name__, "a mapping with a 'kind' key")
@@ -399,7 +445,38 @@ def read_recipe_mapping(path) -> dict:
 
 
 def load_recipe_file(path) -> dict:
-    """Read a YAML (or JSON) recipe file, or a preset name (``montecarlo``...), and validate it."""
+    """Read a YAML (or JSON) recipe file, or a preset name (``montecarlo``...), and validate it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A recipe file, or the name of a preset kind.
+
+    Returns
+    -------
+    dict
+        The normalised recipe (:func:`validate_recipe`).
+
+    Raises
+    ------
+    RecipeError
+        A bad value (the dotted key, the value, what is allowed).
+    SceneFileError
+        A missing or malformed file.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from skynav.datasets import load_recipe_file, recipe_yaml
+    >>> load_recipe_file("montecarlo")["frames"]
+    3000
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = Path(tmp) / "recipe.yaml"
+    ...     _ = path.write_text(recipe_yaml("montecarlo").replace("frames: 3000", "frames: 10"))
+    ...     print(load_recipe_file(path)["frames"])
+    10
+    """
     return validate_recipe(read_recipe_mapping(path))
 
 
@@ -489,10 +566,22 @@ def recipe_yaml(kind: str) -> str:
     The file gives the same normalised recipe as :func:`preset_recipe` (it also writes the
     ``visibility:`` and ``render:`` defaults out, which normalise to the same values).
 
+    Parameters
+    ----------
+    kind : str
+        ``montecarlo``, ``sequence`` or ``scenes``.
+
+    Returns
+    -------
+    str
+        The YAML text, one comment line (meaning, unit, allowed values) above each key.
+
     Examples
     --------
+    >>> import yaml
+    >>> from skynav.datasets import preset_recipe, recipe_yaml, validate_recipe
     >>> text = recipe_yaml("montecarlo")
-    >>> validate_recipe(__import__("yaml").safe_load(text)) == validate_recipe(preset_recipe("montecarlo"))
+    >>> validate_recipe(yaml.safe_load(text)) == validate_recipe(preset_recipe("montecarlo"))
     True
     """
     recipe = preset_recipe(kind)

@@ -60,7 +60,45 @@ __all__ = ["FrameResult", "GenerateSummary", "produce_frame", "plan_run", "resol
 
 @dataclass(frozen=True, kw_only=True)
 class GenerateSummary:
-    """Outcome of :func:`generate`."""
+    """Outcome of :func:`generate`.
+
+    Attributes
+    ----------
+    path : str
+        The dataset folder.
+    frames_total : int
+        Frames of the dataset.
+    frames_rendered, frames_reused : int
+        Frames made by this run, and frames kept from an earlier run (resumed).
+    draws : int or None
+        Scenes drawn by the sampler to find the frames (None where the kind draws none).
+    elapsed_s : float
+        Wall time of the run, s.
+    frames_per_s : float
+        Frames made per second of wall time.
+    workers : int
+        Worker processes (1: in this process).
+    executor : str
+        ``in-process``, a local process pool, or Dask.
+    mean_timings_s : dict
+        Mean time per frame of each step (``sample``, ``render``, ``write``), s.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> summary.frames_total, summary.frames_rendered, summary.frames_reused, summary.executor
+    (2, 2, 0, 'in-process')
+    >>> summary.lines()[0].endswith("(2 rendered, 0 already present)")
+    True
+    >>> tmp.cleanup()
+    """
 
     path: str
     frames_total: int
@@ -74,7 +112,7 @@ class GenerateSummary:
     mean_timings_s: dict = field(default_factory=dict)
 
     def lines(self) -> list:
-        """Printable summary lines."""
+        """Printable summary lines (counts, rate, mean step times in ms)."""
         t = ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in self.mean_timings_s.items())
         out = [f"dataset {self.path}: {self.frames_total} frames complete "
                f"({self.frames_rendered} rendered, {self.frames_reused} already present)",
@@ -264,14 +302,18 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     workers : int, optional
         Local worker processes (default ``os.cpu_count()``); 1 runs in this process.
     dask_scheduler : str, optional
-        Address of a Dask scheduler; or pass ``client`` (a ``distributed.Client``).
+        Address of a Dask scheduler; or pass ``client``.
+    client : distributed.Client, optional
+        A Dask client to run the frames on (not closed here).
     progress : bool or callable
         True: a tqdm bar with rate and ETA; a callable ``progress(done, total)``; False: silent.
     render_options : skynav.renderer.render.RenderOptions, optional
         Recorded in the manifest; a resume must pass the same. The recipe's ``render:`` keys
         (``cosmic_rays_per_frame``, ``mitsuba_spp``) replace the fields of the same name.
     flush_every_s : float
-        Interval between manifest checkpoints while running.
+        Interval between manifest checkpoints while running, s.
+    ephemeris : skynav.scenes.ephemeris_jpl.Ephemeris, optional
+        The ephemeris of the in-process planning (default: DE421, ``default_ephemeris()``).
     max_frames : int, optional
         Stop after rendering this many new frames (the manifest stays incomplete; for tests and
         for splitting a long campaign into sessions).
@@ -279,12 +321,33 @@ def generate(recipe, out_dir, *, workers: int | None = None, dask_scheduler: str
     Returns
     -------
     GenerateSummary
+        What was made, reused, and how fast.
 
     Raises
     ------
     RecipeError, DatasetMismatchError, DatasetError
         ``DatasetLockedError`` (a ``DatasetError``) when another generator is running on the
         folder (:mod:`skynav.datasets.lock`).
+
+    Examples
+    --------
+    Two 64 x 64 px frames, then the same call again: a complete dataset is not made twice.
+
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> summary.frames_rendered
+    2
+    >>> again = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                  render_options=RenderOptions(backend="numpy"))
+    >>> again.frames_rendered, again.frames_reused
+    (0, 2)
+    >>> tmp.cleanup()
     """
     t_start = time.perf_counter()
     use_dask = client is not None or dask_scheduler is not None
@@ -351,9 +414,40 @@ def _generate_locked(recipe, out_dir, *, use_dask, n_workers, client, progress, 
 def regenerate_frame(path, k: int, out_dir, *, render_options=None):
     """Re-make frame ``k`` of an existing dataset alone into ``out_dir`` (for checks and repairs).
 
-    The render options default to the ones the manifest records. Returns the
-    :class:`FrameResult`; its checksums equal the manifest's when the package, recipe, seed and
-    backends are the same.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The dataset folder (its manifest holds the recipe and seed).
+    k : int
+        Frame index.
+    out_dir : str or os.PathLike
+        Folder to write into (``frames/NNNNNN.*`` under it; created).
+    render_options : skynav.renderer.render.RenderOptions, optional
+        Default: the ones the manifest records.
+
+    Returns
+    -------
+    FrameResult
+        The frame's files and checksums; they equal the manifest's when the package, recipe,
+        seed and backends are the same (frame k draws from ``SeedSequence([seed, k])`` alone).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from skynav.datasets import generate, preset_recipe
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> summary = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...                    render_options=RenderOptions(backend="numpy"))
+    >>> from pathlib import Path
+    >>> from skynav.datasets import regenerate_frame
+    >>> _ = regenerate_frame(tmp.name + "/ds", 1, tmp.name + "/again")
+    >>> a = Path(tmp.name, "ds", "frames", "000001.png").read_bytes()
+    >>> a == Path(tmp.name, "again", "frames", "000001.png").read_bytes()
+    True
+    >>> tmp.cleanup()
     """
     m = layout.read_manifest(path)
     recipe = m["recipe"]

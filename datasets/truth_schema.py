@@ -313,9 +313,32 @@ def _schema_text(name: str) -> str:
 
 
 def load_schema(name: str = FRAME_SCHEMA) -> dict:
-    """The published JSON Schema of ``"skynav.frame/2"`` (``/1`` reads the same file) or ``"skynav.dataset/1"`` (a fresh copy).
+    """The published JSON Schema (draft 2020-12) of the frame truth or of the manifest.
 
     The files are package data: ``importlib.resources.files("skynav.datasets") / "schemas"``.
+
+    Parameters
+    ----------
+    name : str
+        ``"skynav.frame/2"`` (``"skynav.frame/1"`` reads the same file) or ``"skynav.dataset/1"``.
+
+    Returns
+    -------
+    dict
+        A fresh copy of the schema (the caller may change it).
+
+    Raises
+    ------
+    KeyError
+        No published schema of that name.
+
+    Examples
+    --------
+    >>> from skynav.datasets import load_schema
+    >>> load_schema("skynav.frame/2")["title"]
+    'skynav.frame/2: ground truth of one frame'
+    >>> load_schema("skynav.dataset/1")["title"]
+    'skynav.dataset/1: manifest.json of a dataset folder'
     """
     return json.loads(_schema_text(name))
 
@@ -461,10 +484,21 @@ def validate_truth(truth) -> list:
     the dict is converted as :func:`truth_json_bytes` would write it, then validated. Extra keys
     are welcome and not reported.
 
+    Parameters
+    ----------
+    truth : dict
+        One frame's ground truth (``skynav.frame/2``), in memory or as read from its JSON.
+
     Returns
     -------
     list of str
         E.g. ``["$.attitude.q_cam_icrs: missing", "$.stars[2].xy: 3 items, expected at most 2"]``.
+
+    Examples
+    --------
+    >>> from skynav.datasets import validate_truth
+    >>> validate_truth({"schema": "skynav.frame/2"})[:2]
+    ['$.attitude: missing', '$.bodies: missing']
     """
     try:
         plain = truth_to_jsonable(truth)
@@ -474,5 +508,22 @@ def validate_truth(truth) -> list:
 
 
 def validate_manifest(manifest) -> list:
-    """Problems of a dataset's ``manifest.json`` content against ``manifest.schema.json``."""
+    """Problems of a dataset's ``manifest.json`` content against ``manifest.schema.json``.
+
+    Parameters
+    ----------
+    manifest : dict
+        The parsed ``manifest.json`` (``skynav.dataset/1``).
+
+    Returns
+    -------
+    list of str
+        One line per problem with its JSON path; empty when the manifest conforms.
+
+    Examples
+    --------
+    >>> from skynav.datasets import validate_manifest
+    >>> validate_manifest({})[:2]
+    ['$.camera: missing', '$.complete: missing']
+    """
     return schema_problems(manifest, MANIFEST_SCHEMA)
