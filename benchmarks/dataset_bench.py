@@ -157,7 +157,7 @@ PAIR = "2 processes"
 
 def _one_thread() -> dict:
     """The runner's thread-count variables, all at 1."""
-    from skynav.datasets.pool import THREAD_VARS
+    from skynav.infra.pool import THREAD_VARS
 
     return {name: "1" for name in THREAD_VARS}
 
@@ -337,7 +337,7 @@ def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
     import numpy as np
 
     from skynav.datasets import generate, layout
-    from skynav.datasets.atomic_files import atomic_write_many, sha256_file
+    from skynav.infra.atomic_files import atomic_write_many, sha256_file
     from skynav.datasets.frame_files import frame_file_bytes
     from skynav.datasets.journal import write_record
     from skynav.datasets.recipes import validate_recipe

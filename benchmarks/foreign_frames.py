@@ -263,7 +263,7 @@ def main(argv=None) -> int:
         print(f"foreign_frames: --count must be >= 1, got {a.count}", file=sys.stderr)
         return 2
     from skynav.scenes.catalog_hipparcos import load_catalog
-    from skynav.scenes.count_cap import cap_count
+    from skynav.infra.count_cap import cap_count
     from skynav.scenes.ephemeris_jpl import default_ephemeris
 
     count = cap_count(a.count, "foreign frames per set")

@@ -192,7 +192,7 @@ class _Plain:
     """Two warm plain render processes (spawned with a service worker's thread budget)."""
 
     def __init__(self, threads: int):
-        from skynav.datasets.pool import WorkerThreads
+        from skynav.infra.pool import WorkerThreads
 
         ctx = multiprocessing.get_context("spawn")
         self.conns, self.procs = [], []

@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from skynav.datasets.frame_files import PNG_SCALING, atomic_write_bytes, read_png, write_png
+from skynav.datasets.frame_files import PNG_SCALING, read_png, write_png
 from skynav.datasets.hil_export import export_dataset
 from skynav.datasets.lock import dataset_lock
 from skynav.datasets.reader import open_dataset
 from skynav.datasets.recipes import preset_recipe
 from skynav.datasets.runner import generate
+from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.renderer.detector import Sensor
 from skynav.scenes.camera import Camera
 from skynav.scenes.facility import Facility

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from skynav.scenes.errors import SkynavError
+from skynav.infra.errors import SkynavError
 
 
 class CalibrationInputError(SkynavError, ValueError):

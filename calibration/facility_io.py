@@ -9,8 +9,8 @@ from pathlib import Path
 
 import yaml
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes import facility as fac
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.psf import resolve_psf_files
 
 from .errors import FacilityFileError

@@ -17,9 +17,10 @@ import numpy as np
 from PIL import Image, ImageDraw
 from skimage.draw import circle_perimeter
 
+from skynav.infra.atomic_files import atomic_write_bytes
+
 from . import layout
 from .errors import DatasetError
-from .frame_files import atomic_write_bytes
 from .plots import plot_leg_magnitudes
 from .reader import open_dataset
 from .samplers import make_plan

@@ -1,23 +1,20 @@
 """Errors of the datasets room.
 
-Every class subclasses :class:`skynav.scenes.errors.SkynavError` (so the command line prints one
+Every class subclasses :class:`skynav.infra.errors.SkynavError` (so the command line prints one
 line and exits with code 2) and the builtin exception a caller would expect.
 """
 
 from __future__ import annotations
 
-from skynav.scenes.errors import ConfigValueError, LambertError, SkynavError
+from skynav.infra.errors import ConfigValueError, SkynavError
 
 __all__ = [
-    "SkynavError",
-    "ConfigValueError",
     "DatasetError",
     "RecipeError",
     "IncompleteDatasetError",
     "DatasetMismatchError",
     "FrameIndexError",
     "SceneSamplingError",
-    "LambertError",
     "OutputFormatError",
     "OutputPathError",
     "TruthSchemaError",

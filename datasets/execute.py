@@ -10,7 +10,7 @@ order in which frames ran (docs/conventions.md "Randomness"). The executors diff
   a writer thread while frame k + 1 is rendered and encoded (:func:`make_frame`,
   :func:`commit_frame`).
 - :func:`run_process_pool` (``workers=N``): skynav's one process pool,
-  :func:`skynav.datasets.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
+  :func:`skynav.infra.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
   module docstring says why), one job per run of up to :data:`POOL_CHUNK` consecutive frames,
   made in the worker as in :func:`run_in_process`. The plan travels pickled.
 - :func:`run_dask`: one Dask task per run of frames (``pure=False``); the workers must see the
@@ -33,16 +33,17 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.infra.atomic_files import atomic_write_many
+from skynav.infra.heap import LargeArraysOnHeap, WarmHeap
+from skynav.infra.pool import process_pool_map
 from skynav.renderer.render import RenderOptions, render
 from skynav.scenes.scene import build_scene
 
 from . import layout
-from .atomic_files import atomic_write_many
 from .errors import DatasetMismatchError
 from .frame_files import encode_frame
 from .journal import write_record
 from .plan import frame_seed
-from .pool import THREAD_VARS, LargeArraysOnHeap, WarmHeap, WorkerThreads, exit_with_parent, process_pool_map  # noqa: F401 - re-exported
 
 __all__ = ["FrameResult", "EncodedFrame", "produce_frame", "make_frame", "commit_frame", "run_in_process",
            "run_process_pool", "run_dask", "check_backends"]

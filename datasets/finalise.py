@@ -16,8 +16,9 @@ import dataclasses
 import time
 from pathlib import Path
 
+from skynav.infra.atomic_files import atomic_write_bytes, sha256_file
+
 from . import frame_files, layout
-from .frame_files import atomic_write_bytes, sha256_file
 from .plan import SEED_SCHEME
 
 __all__ = ["base_manifest", "Progress", "write_checkpoint", "finalise"]

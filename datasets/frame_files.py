@@ -1,4 +1,4 @@
-"""Frame files: OpenEXR, PNG, FITS with a TAN WCS; atomic writes and SHA-256.
+"""Frame files: OpenEXR, PNG, FITS with a TAN WCS.
 
 Adapter module: the one place that talks to OpenEXR, Pillow and
 ``astropy.io.fits`` for frames. The renderer returns frames in memory
@@ -27,10 +27,10 @@ renderer. File contracts are those of docs/conventions.md "Files":
   ``EXPTIME``, ``BUNIT``, ``GAIN``, ``SATURATE``, the observer's state...).
 - **JSON** ground truth: :mod:`skynav.datasets.truth_schema`.
 
-Atomicity: each writer encodes to memory and hands the bytes to :func:`atomic_write_bytes`
-(temp file in the same directory, ``fsync``, ``os.replace``, directory ``fsync``), so a reader
-sees either the old file or the complete new one, never a partial file, and a failure leaves no
-temp file behind. :func:`atomic_path` offers the same guarantee to writers that need a path.
+Atomicity: each writer encodes to memory and hands the bytes to
+:func:`~skynav.infra.atomic_files.atomic_write_bytes` (temp file in the same directory, ``fsync``,
+``os.replace``, directory ``fsync``), so a reader sees either the old file or the complete new one,
+never a partial file, and a failure leaves no temp file behind.
 
 Determinism: identical inputs give identical bytes (same library versions): no writer embeds
 a date, a host name or a random value. Tests pin this by SHA-256.
@@ -54,12 +54,13 @@ import numpy as np
 from PIL import Image
 from zlib_ng import zlib_ng
 
+from skynav.infra.atomic_files import atomic_write_bytes, open_binary
+from skynav.infra.errors import ConfigValueError
+from skynav.infra.threads import thread_budget
 from skynav.scenes.camera import Camera
-from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
 from skynav.scenes.timescales import time_from_tdb_seconds
 
-from .atomic_files import _open_binary, atomic_path, atomic_write_bytes, sha256_file  # noqa: F401  (re-exported)
-from .errors import ConfigValueError, OutputFormatError, OutputPathError
+from .errors import OutputFormatError, OutputPathError
 from .frame_truth import epoch_tdb_seconds
 from .truth_schema import truth_json_bytes
 
@@ -68,10 +69,6 @@ __all__ = [
     "check_output_dir",
     "check_stem",
     "OutputFormatError",
-    "atomic_write_bytes",
-    "atomic_path",
-    "sha256_file",
-    "thread_budget",
     "write_exr",
     "read_exr",
     "read_exr_header",
@@ -466,7 +463,7 @@ def read_exr(source) -> dict:
     # OpenEXR only for EXR files: the reader imports this module for PNGs
     import OpenEXR
 
-    with _open_binary(source) as f:
+    with open_binary(source) as f:
         exr = OpenEXR.File(f, separate_channels=True)
         return {name: np.array(ch.pixels) for name, ch in exr.channels().items()}
 
@@ -476,7 +473,7 @@ def read_exr_header(source) -> dict:
     # OpenEXR only for EXR files: the reader imports this module for PNGs
     import OpenEXR
 
-    with _open_binary(source) as f:
+    with open_binary(source) as f:
         return dict(OpenEXR.File(f, header_only=True).header())
 
 
@@ -669,7 +666,7 @@ def read_png_layout(source) -> dict:
     exceed ``2**sBIT - 1``. ``"raw"``: the values are the DN (files of skynav <= 0.3.0, whose
     ``sBIT`` named the bit depth of unscaled DN, and PNGs without ``sBIT``).
     """
-    with _open_binary(source) as f:
+    with open_binary(source) as f:
         data = f.read()
     with Image.open(io.BytesIO(data)) as image:
         stored_max = int(np.asarray(image).max()) if image.width and image.height else 0
@@ -683,7 +680,7 @@ def read_png(source) -> np.ndarray:
     raw ones (skynav <= 0.3.0, plain PNGs) are returned as stored. Either way the DN are those
     that were written.
     """
-    with _open_binary(source) as f:
+    with open_binary(source) as f:
         data = f.read()
     with Image.open(io.BytesIO(data)) as image:
         if image.mode not in ("L", "I;16", "I;16B", "I"):
@@ -902,7 +899,7 @@ def read_fits(source):
     # astropy (~0.2-0.7 s to import) only for FITS files: the reader imports this module for PNGs
     from astropy.io import fits
 
-    with _open_binary(source) as f, fits.open(f, memmap=False) as hdul:
+    with open_binary(source) as f, fits.open(f, memmap=False) as hdul:
         return np.array(hdul[0].data), hdul[0].header.copy()
 
 

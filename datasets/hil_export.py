@@ -37,20 +37,21 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.infra.atomic_files import atomic_write_bytes, sha256_file
+from skynav.infra.errors import SkynavError
+from skynav.infra.pool import process_pool_map
 from skynav.renderer.display import screen_frame
 from skynav.scenes.camera import Camera
-from skynav.scenes.errors import SkynavError
 from skynav.scenes.scene import build_scene
 from skynav.scenes.visibility import VisibilityCriteria
 
 from . import open_dataset
 from .errors import DatasetMismatchError, OutputFormatError, OutputPathError, TruthSchemaError
-from .frame_files import PNG_SCALING, atomic_write_bytes, png_bytes, sha256_file
+from .frame_files import PNG_SCALING, png_bytes
 from .frame_truth import epoch_tdb_seconds
 from .journal import frame_problem, write_record
 from .layout import MANIFEST_NAME, frame_relpaths, package_version
 from .lock import dataset_lock
-from .pool import process_pool_map
 from .runner import connect_dask
 
 SCHEMA = "skynav.hil_frame/2"

@@ -18,11 +18,12 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from skynav.infra.atomic_files import sha256_file
+from skynav.infra.errors import SkynavError
 from skynav.scenes.camera import Camera
 
 from . import layout
-from .errors import DatasetError, SkynavError
-from .frame_files import sha256_file
+from .errors import DatasetError
 from .journal import RECORD_EXT, decode_problem, record_relpath
 from .truth_schema import FRAME_SCHEMA, schema_problems, validate_manifest
 

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.infra.atomic_files import atomic_write_bytes, sha256_file
 from skynav.scenes.frames import dcm_to_radec_twist
 
-from .atomic_files import atomic_write_bytes, sha256_file
 from .errors import DatasetError, DatasetMismatchError, IncompleteDatasetError
 
 __all__ = [

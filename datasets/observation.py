@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import Camera
 from skynav.scenes.timescales import time_from_tdb_seconds
 
-from .errors import ConfigValueError
 from .frame_truth import epoch_tdb_seconds
 
 __all__ = ["CalibrationErrorModel", "CalibrationOffsets", "Observation", "make_observation"]

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.infra.errors import SkynavError
 from skynav.scenes.camera import Camera
 
 from . import layout
@@ -31,7 +32,6 @@ from .errors import (
     FrameIndexError,
     IncompleteDatasetError,
     OutputFormatError,
-    SkynavError,
     TruthSchemaError,
 )
 from .frame_files import read_exr, read_png

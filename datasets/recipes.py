@@ -36,6 +36,7 @@ import os
 
 import yaml
 
+from skynav.infra.count_cap import cap_count
 from skynav.scenes.config import (
     RENDER_KEYS,
     camera_from_mapping,
@@ -44,7 +45,6 @@ from skynav.scenes.config import (
     scene_spec_from_mapping,
     visibility_from_mapping,
 )
-from skynav.scenes.count_cap import cap_count
 from skynav.scenes.errors import MovedKeyError
 from skynav.scenes.psf import resolve_psf_files
 from skynav.scenes.timescales import to_time

@@ -39,6 +39,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.renderer import jit_backend
 from skynav.renderer.render import RenderOptions, sensor_backend
 
@@ -46,7 +47,7 @@ from . import execute, layout
 from .errors import DatasetError, RecipeError
 from .execute import FrameResult, check_backends, produce_frame
 from .finalise import Progress, base_manifest, finalise, write_checkpoint
-from .frame_files import atomic_write_bytes, check_output_dir
+from .frame_files import check_output_dir
 from .journal import frame_problem
 from .lock import dataset_lock
 from .plan import RunPlan

@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from skynav.infra.count_cap import cap_count
 from skynav.scenes import frames
 from skynav.scenes.constants import GM_KM3_S2, SECONDS_PER_DAY
-from skynav.scenes.count_cap import cap_count
 from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import LambertError

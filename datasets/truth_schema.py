@@ -27,7 +27,8 @@ from importlib.resources import files
 import numpy as np
 import orjson
 
-from .atomic_files import _open_binary, atomic_write_bytes
+from skynav.infra.atomic_files import atomic_write_bytes, open_binary
+
 from .errors import TruthSchemaError
 from .layout import MANIFEST_SCHEMA
 
@@ -296,7 +297,7 @@ def write_truth_json(path, truth: Mapping, *, strict: bool = False) -> None:
 
 def read_truth_json(source) -> dict:
     """Ground truth of one frame (``null`` comes back as None); checks the schema name."""
-    with _open_binary(source) as f:
+    with open_binary(source) as f:
         truth = json.loads(f.read().decode("utf-8"))
     if not isinstance(truth, dict) or truth.get("schema") not in FRAME_SCHEMAS_READ:
         got = truth.get("schema") if isinstance(truth, dict) else type(truth).__name__

@@ -3,7 +3,7 @@
 Adapter: built once from Hipparcos (:mod:`skynav.scenes.catalog_hipparcos`), stars with
 ``V < limiting_v_mag`` (5.5 by default) and every pair closer than ``max_angle_rad`` (the field's
 diagonal), sorted by angle with the pair ids ``I``, ``J``; cached as one ``.npz`` in
-:func:`skynav.scenes.data_files.cache_dir`, keyed by the build parameters.
+:func:`skynav.infra.data_files.cache_dir`, keyed by the build parameters.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skynav.infra.data_files import cache_dir, hip2_path
 from skynav.scenes.catalog_hipparcos import load_catalog
-from skynav.scenes.data_files import cache_dir, hip2_path
 
 from .kvector import KVector
 

@@ -1,9 +1,9 @@
-"""Errors of the pipeline room (each also a :class:`skynav.scenes.errors.SkynavError`, so the
+"""Errors of the pipeline room (each also a :class:`skynav.infra.errors.SkynavError`, so the
 command line prints one line and exits with code 2)."""
 
 from __future__ import annotations
 
-from skynav.scenes.errors import SkynavError
+from skynav.infra.errors import SkynavError
 
 __all__ = ["BenchInputError", "SkynavError"]
 

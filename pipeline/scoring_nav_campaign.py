@@ -6,7 +6,7 @@ on-board DE421 and the commanded pointing plan, never the truth; the truth gives
 states (Andreis et al. (2024), Eq. 45-46) and the scores. The image processing runs once per frame for all the
 runs of a worker (the predicted state it gets is the runs' mean, with the runs' mean covariance
 plus their spread); with ``workers > 1`` the runs are split into chunks over the house's process
-pool (:func:`skynav.datasets.pool.process_pool_map`) and every worker processes the frames once
+pool (:func:`skynav.infra.pool.process_pool_map`) and every worker processes the frames once
 for its chunk.
 """
 
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import skynav.datasets as sdat
-from skynav.datasets.pool import process_pool_map
+from skynav.infra.pool import process_pool_map
 from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 

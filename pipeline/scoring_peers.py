@@ -17,7 +17,7 @@ from importlib.metadata import version
 
 import numpy as np
 
-from skynav.scenes.data_files import cache_dir
+from skynav.infra.data_files import cache_dir
 
 __all__ = ["available_peers", "Tetra3rsPeer"]
 

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import Camera
-from skynav.scenes.errors import ConfigValueError
 
 __all__ = [
     "GEOMETRIC_ALBEDO_V",

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skynav.scenes.errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 _SUBSAMPLES_PER_PX = 32  # points per px of track length used to share charge between pixels
 

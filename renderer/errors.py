@@ -1,14 +1,14 @@
 """Errors of the renderer room.
 
-Every class subclasses :class:`skynav.scenes.errors.SkynavError` (so the command line prints one
+Every class subclasses :class:`skynav.infra.errors.SkynavError` (so the command line prints one
 line and exits with code 2) and the builtin exception a caller would expect. Configuration values
-outside their range raise :class:`~skynav.scenes.errors.ConfigValueError` (re-exported here);
+outside their range raise :class:`~skynav.infra.errors.ConfigValueError` (re-exported here);
 the file-format errors live with the writers and readers on the datasets side.
 """
 
 from __future__ import annotations
 
-from skynav.scenes.errors import ConfigValueError, SkynavError
+from skynav.infra.errors import ConfigValueError, SkynavError
 
 __all__ = [
     "SkynavError",

@@ -45,9 +45,8 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from skynav.scenes.data_files import cache_dir
-from skynav.scenes.errors import SkynavError  # noqa: F401  (tests name it through this module)
-from skynav.scenes.threads import thread_budget  # noqa: F401  (re-exported)
+from skynav.infra.data_files import cache_dir
+from skynav.infra.threads import thread_budget
 
 from .errors import BackendUnavailableError  # noqa: F401  (its home is renderer/errors.py; re-exported)
 

@@ -110,11 +110,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import Camera
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.constants import C_M_S as _C_M_S
 from skynav.scenes.constants import PLANCK_J_S as _H_J_S
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.frames import propagate_attitude
 from skynav.scenes.scene import RESOLVED_THRESHOLD_PX  # the default diameter (px) above which a body is ray-traced
 

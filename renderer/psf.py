@@ -21,7 +21,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.special import erf, erfinv
 
-from skynav.scenes.errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 __all__ = ["PSF", "GaussianPSF", "TablePSF", "CutPSF", "stamp_origin", "STAMP_NOISE_FRACTION",
            "STAMP_CENTRE_TOLERANCE_PX"]

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skynav.scenes.errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 from .psf import PSF, stamp_origin
 

@@ -34,9 +34,9 @@ import numpy as np
 from scipy.ndimage import convolve1d
 from scipy.signal import fftconvolve
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes import frames
 from skynav.scenes.camera import Camera
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.projection import Projection
 from skynav.scenes.scene import Scene
 

@@ -18,8 +18,9 @@ as before (``skynav.scenes.camera``, ...).
 
 import importlib as _importlib
 
-# name -> module that defines it; imported on first access. No module may share a name with an
-# entry here: importing a submodule binds its name on the package, which would hide the entry.
+# name -> module that defines it (of this package, or a full dotted name); imported on first
+# access. No module may share a name with an entry here: importing a submodule binds its name on
+# the package, which would hide the entry.
 _LAZY = {
     # the scene
     "Scene": "scene", "SkyBody": "scene", "StarsInView": "scene", "BodyInView": "scene",
@@ -49,9 +50,11 @@ _LAZY = {
     "ForceModel": "dynamics", "Trajectory": "dynamics", "propagate": "dynamics", "propagate_stm": "dynamics",
     "LambertSolution": "lambert", "solve_lambert": "lambert",
     # errors
-    "SkynavError": "errors", "SkynavWarning": "errors", "ConfigValueError": "errors", "SceneFileError": "errors",
-    "MovedKeyError": "errors", "EphemerisRangeError": "errors", "UnknownBodyError": "errors",
-    "DataFileError": "errors", "LambertError": "errors", "ObserverInsideBodyError": "errors",
+    "SceneFileError": "errors", "MovedKeyError": "errors", "EphemerisRangeError": "errors",
+    "UnknownBodyError": "errors", "LambertError": "errors", "ObserverInsideBodyError": "errors",
+    # skynav's own error class and the errors every room raises (their home: skynav.infra.errors)
+    "SkynavError": "skynav.infra.errors", "SkynavWarning": "skynav.infra.errors",
+    "ConfigValueError": "skynav.infra.errors", "DataFileError": "skynav.infra.errors",
 }
 
 __all__ = sorted(_LAZY)
@@ -61,7 +64,7 @@ def __getattr__(name):
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'skynav.scenes' has no attribute {name!r}")
-    value = getattr(_importlib.import_module(f".{module}", __name__), name)
+    value = getattr(_importlib.import_module(module if module.startswith("skynav.") else f".{module}", __name__), name)
     globals()[name] = value
     return value
 

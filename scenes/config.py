@@ -18,10 +18,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from skynav.infra.errors import ConfigValueError, SkynavWarning
+
 from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
 from .constants import C_KM_S, SECONDS_PER_DAY
 from .ephemeris_jpl import BODIES
-from .errors import ConfigValueError, MovedKeyError, SceneFileError, SkynavWarning, UnknownBodyError
+from .errors import MovedKeyError, SceneFileError, UnknownBodyError
 from .psf import GaussianPSFModel, psf_from_dict, resolve_psf_files
 from .scene import RESOLVED_THRESHOLD_PX
 from .timescales import to_time

@@ -1,7 +1,7 @@
 """Adapter over ``jplephem``: JPL DE421 positions and velocities of the Sun, Moon and planets.
 
 The kernel is the ``de421.bsp`` that the ``skyfield-data`` package installs
-(:func:`skynav.scenes.data_files.de421_path`); it is opened lazily on first use, never in a
+(:func:`skynav.infra.data_files.de421_path`); it is opened lazily on first use, never in a
 constructor or on import, and an :class:`Ephemeris` pickles without it (it reopens after
 unpickling). Outputs are barycentric ICRS: km and km/s; times are TDB seconds past J2000
 (JD 2451545.0 TDB), passed to jplephem as a two-part Julian date for full precision.
@@ -33,8 +33,9 @@ _T0 = J2000_JD
 _S_PER_DAY = SECONDS_PER_DAY
 from jplephem.spk import SPK
 
-from .data_files import de421_path
-from .errors import DataFileError, EphemerisRangeError, UnknownBodyError
+from skynav.infra.data_files import de421_path
+from skynav.infra.errors import DataFileError
+from .errors import EphemerisRangeError, UnknownBodyError
 
 BODIES = ("sun", "mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
 
@@ -115,7 +116,7 @@ class Ephemeris:
     Parameters
     ----------
     path : str or Path, optional
-        SPK file; default :func:`skynav.scenes.data_files.de421_path`. Nothing is opened here.
+        SPK file; default :func:`skynav.infra.data_files.de421_path`. Nothing is opened here.
 
     Examples
     --------

@@ -1,57 +1,14 @@
 """Errors of the sky model.
 
-Every class also subclasses the builtin exception a caller would expect (``ValueError``,
-``KeyError``), so generic handlers keep working, and carries the data that explains it. The
-command line prints ``str(error)`` on one line and exits with code 2 for any ``SkynavError``.
+Every class subclasses skynav's own :class:`~skynav.infra.errors.SkynavError` (the command line
+prints ``str(error)`` on one line and exits with code 2) and the builtin exception a caller would
+expect (``ValueError``, ``KeyError``), so generic handlers keep working, and carries the data that
+explains it.
 """
 
 from __future__ import annotations
 
-
-class SkynavError(Exception):
-    """Base class of every error skynav raises for a user's bad input.
-
-    Its message is one line naming the bad input and what is allowed; the command line prints
-    it and exits with code 2.
-
-    Examples
-    --------
-    >>> from skynav.scenes import Camera, SkynavError
-    >>> try:
-    ...     Camera(width=0, height=64, focal_length_mm=40.0, pixel_pitch_um=10.0)
-    ... except SkynavError as exc:
-    ...     print(exc)
-    camera.width = 0 is not allowed; expected a positive integer
-    """
-
-
-class ConfigValueError(SkynavError, ValueError):
-    """A configuration value is outside what is allowed.
-
-    Parameters
-    ----------
-    key : str
-        Dotted name of the offending key, e.g. ``camera.exposure_s``.
-    value : object
-        The value given.
-    allowed : str
-        What is allowed, in words, e.g. ``"> 0"`` or ``"one of: a, b"``.
-
-    Examples
-    --------
-    >>> from skynav.scenes import Camera, ConfigValueError
-    >>> try:
-    ...     Camera(width=64, height=64, focal_length_mm=40.0, pixel_pitch_um=10.0, exposure_s=0.0)
-    ... except ConfigValueError as exc:
-    ...     print(exc.key, "|", exc)
-    camera.exposure_s | camera.exposure_s = 0.0 is not allowed; expected > 0 (seconds)
-    """
-
-    def __init__(self, key: str, value, allowed: str):
-        self.key = key
-        self.value = value
-        self.allowed = allowed
-        super().__init__(f"{key} = {value!r} is not allowed; expected {allowed}")
+from skynav.infra.errors import ConfigValueError, SkynavError
 
 
 class SceneFileError(SkynavError, ValueError):
@@ -124,21 +81,6 @@ class UnknownBodyError(SkynavError, KeyError):
     def __str__(self) -> str:  # KeyError would print the repr of the key only
         return f"unknown body {self.name!r}; known bodies: {', '.join(self.allowed)}"
 
-
-class DataFileError(SkynavError, OSError):
-    """An installed data file (ephemeris, catalog) is missing or unreadable.
-
-    Examples
-    --------
-    >>> import io
-    >>> from skynav.scenes import DataFileError
-    >>> from skynav.scenes.catalog_hipparcos import read_hipparcos
-    >>> try:
-    ...     read_hipparcos(io.BytesIO(b""))
-    ... except DataFileError as exc:
-    ...     print(exc)
-    Hipparcos catalog file is empty
-    """
 
 
 class LambertError(SkynavError, ValueError):
@@ -217,25 +159,3 @@ class ObserverInsideBodyError(SkynavError, ValueError):
         self.position_km = tuple(float(x) for x in position_km)
         super().__init__(f"observer.position_km = {[round(x, 3) for x in self.position_km]} is inside {body}: "
                          f"{self.distance_km:.3f} km from its centre, radius {self.radius_km:g} km")
-
-
-class SkynavWarning(UserWarning):
-    r"""An absurd but possible input (a 173 deg field, ``k1: 1000``, 1e6 deg/s).
-
-    The work goes on and the command line prints one ``skynav: warning:`` line.
-
-    Examples
-    --------
-    >>> import io, warnings
-    >>> from skynav.scenes import SkynavWarning, read_scene_file
-    >>> text = ("epoch: 2030-01-01T00:00:00\n"
-    ...         "observer: {position_km: [1.5e8, 0, 0], velocity_km_s: [0, 30, 0]}\n"
-    ...         "attitude: {ra_deg: 10, dec_deg: 0, angular_velocity_deg_s: [0, 0, 1000]}\n")
-    >>> with warnings.catch_warnings(record=True) as caught:
-    ...     warnings.simplefilter("always")
-    ...     spec = read_scene_file(io.StringIO(text), "spin.yaml")
-    >>> caught[0].category is SkynavWarning
-    True
-    >>> print(caught[0].message)
-    attitude.angular_velocity_deg_s: 1000 deg/s is more than one turn per second; the stars are long streaks
-    """

@@ -32,10 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
+from skynav.infra.errors import ConfigValueError
+
 from .camera import Camera, paper_camera
 from .config import camera_from_mapping
 from .constants import ARCSEC_RAD, C_M_S, PLANCK_J_S
-from .errors import ConfigValueError
 from .facility_schema import validate_facility_mapping
 
 SCHEMA = "skynav.facility/1"

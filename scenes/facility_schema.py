@@ -11,7 +11,7 @@ model imports no other room and no validation library): the keywords used here (
 ``const``, ``enum``, ``properties``, ``required``, ``additionalProperties``, ``minimum``,
 ``maximum``, ``exclusiveMinimum``, ``exclusiveMaximum``, ``items``, ``minItems``, ``maxItems``)
 are interpreted as JSON Schema defines them, and the first violation is raised as one
-:class:`~skynav.scenes.errors.ConfigValueError` naming the dotted key (``geometric.parameters.k1``,
+:class:`~skynav.infra.errors.ConfigValueError` naming the dotted key (``geometric.parameters.k1``,
 ``spectra.screen_emission.relative[3]``), the value and what is allowed; an unknown key names the
 closest valid one (``difflib``). What JSON Schema cannot say is checked after it, in the same
 words: grids strictly increasing, 2-D tables of the grid's shape, the screen's pixel count, a
@@ -22,7 +22,7 @@ Camera keys are those of a scene file's ``camera:`` section and are checked by
 >>> validate_facility_mapping({"schema": "skynav.facility/1"})
 Traceback (most recent call last):
 ...
-skynav.scenes.errors.ConfigValueError: screen = None is not allowed; expected a value (missing)
+skynav.infra.errors.ConfigValueError: screen = None is not allowed; expected a value (missing)
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import difflib
 import json
 import math
 
-from .errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 __all__ = ["FACILITY_SCHEMA", "SCHEMA_ID", "MAX_SCREEN_SIDE_PX", "MAX_SCREEN_PIXELS", "MAX_GRID_NODES",
            "MAX_SPECTRUM_SAMPLES", "validate_facility_mapping", "schema_json"]

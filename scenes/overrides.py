@@ -20,8 +20,9 @@ import re
 
 import yaml
 
+from skynav.infra.errors import SkynavError
+
 from .config import load_yaml
-from .errors import SkynavError
 
 __all__ = ["OverrideError", "parse_override", "apply_overrides", "dataclass_from_overrides"]
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import copy
 
+from skynav.infra.errors import ConfigValueError
+
 from .config import scene_spec_from_mapping
-from .errors import ConfigValueError
 
 DEFAULT_SCENE = {
     "epoch": "2027-02-01T00:00:00",

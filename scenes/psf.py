@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "TabulatedPSFModel", "FieldPSF",
            "psf_from_dict", "resolve_psf_files", "PSF_MODELS", "MAX_HALF_SIZE_PX"]

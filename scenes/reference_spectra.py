@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 from astropy.io import fits
 
-from .data_files import pyphot_table_path
+from skynav.infra.data_files import pyphot_table_path
 
 __all__ = ["read_calspec", "read_synphot_csv", "vega_table", "sun_table", "johnson_v_table"]
 

@@ -14,12 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from skynav.infra.errors import ConfigValueError
+
 from . import apparent, frames, photometry
 from .camera import Camera
 from .catalog_hipparcos import load_catalog
 from .constants import ARCSEC_RAD
 from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-from .errors import ConfigValueError, ObserverInsideBodyError
+from .errors import ObserverInsideBodyError
 from .timescales import tdb_seconds
 from .visibility import VisibilityCriteria
 

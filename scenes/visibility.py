@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 
 
 @dataclass(frozen=True, kw_only=True)

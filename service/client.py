@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import orjson
 from skynav.datasets.frame_files import read_exr, read_png
-from skynav.scenes.errors import SkynavError
+from skynav.infra.errors import SkynavError
 
 from .protocol import API_PREFIX, MULTIPART, OUTPUTS
 

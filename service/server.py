@@ -42,7 +42,7 @@ try:  # uvicorn's httptools protocol (httptools is a dependency), for the direct
 except ImportError:
     HttpToolsProtocol = None
 
-from skynav.datasets.pool import WorkerThreads
+from skynav.infra.pool import WorkerThreads
 
 from .openapi import openapi_document
 from .protocol import (

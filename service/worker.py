@@ -38,10 +38,10 @@ from skynav.calibration.errors import CalibrationInputError
 from skynav.calibration.facility_io import load_facility
 from skynav.datasets.frame_files import frame_file_bytes
 from skynav.datasets.hil_export import screen_frame_bytes
-from skynav.datasets.pool import WarmHeap
+from skynav.infra.errors import ConfigValueError, SkynavError
+from skynav.infra.heap import WarmHeap
 from skynav.renderer.render import RenderOptions, render
 from skynav.scenes.config import scene_spec_from_mapping
-from skynav.scenes.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
@@ -51,7 +51,7 @@ from .protocol import OUTPUTS, answer_chunks, answer_head, answer_headers, read_
 def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
     """Render one scene mapping; ``({output: bytes}, [warning lines])``.
 
-    Raises a :class:`~skynav.scenes.errors.SkynavError` for a bad mapping (the scene-file words).
+    Raises a :class:`~skynav.infra.errors.SkynavError` for a bad mapping (the scene-file words).
     """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -99,7 +99,7 @@ def warm_up(facility=None) -> float:
 def settle_heap(max_frames: int = 12, pages: int = 64) -> int:
     """Render the default frame (PNG and truth) until one takes fewer than ``pages`` new memory
     pages (minor page faults), at most ``max_frames`` times; how many it rendered. Call it inside
-    the :class:`~skynav.datasets.pool.WarmHeap` of the request loop, once warm.
+    the :class:`~skynav.infra.heap.WarmHeap` of the request loop, once warm.
 
     With the young generation collected every 20,000 containers instead of 700, the process's
     heap grows for its first frames before it reuses its memory: the first six frames after the

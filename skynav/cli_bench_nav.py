@@ -15,6 +15,7 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 import skynav.datasets as sdat
+from skynav.infra.count_cap import cap_count
 from skynav.pipeline.filter_dynamics import FilterDynamics
 from skynav.pipeline.references import NAVIGATION
 from skynav.pipeline.scoring_nav import (
@@ -28,7 +29,6 @@ from skynav.pipeline.scoring_nav import (
 )
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
 from skynav.pipeline.star_id import star_id_camera_check
-from skynav.scenes.count_cap import cap_count
 from skynav.scenes.overrides import OverrideError
 
 from .cli_common import (

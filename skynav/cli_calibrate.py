@@ -11,9 +11,9 @@ from skynav.calibration.patterns import MAX_PHASES
 from skynav.calibration.plots import radiometric_figure, residual_figure
 from skynav.calibration.radiometric import calibrate_radiometric
 from skynav.calibration.virtual_bench import MAX_FRAMES, SCENARIO_NAMES
-from skynav.datasets.frame_files import atomic_write_bytes
 from skynav.datasets.plots import figure_png
-from skynav.scenes.count_cap import cap_count
+from skynav.infra.atomic_files import atomic_write_bytes
+from skynav.infra.count_cap import cap_count
 
 from .cli_common import COMMAND_HELP, ProgressBar, add_quiet, check_output, float_in, int_in, say, seed_int
 

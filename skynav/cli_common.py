@@ -5,7 +5,7 @@ translation of exceptions into one line and an exit code happens once, in :func:
 (called by :func:`skynav.cli.main` for every sub-command).
 
 Exit codes: 0 success; 1 a check that ran and found a problem (``dataset verify``); 2 bad input
-(any :class:`~skynav.scenes.errors.SkynavError`, an argparse usage error, an output path the
+(any :class:`~skynav.infra.errors.SkynavError`, an argparse usage error, an output path the
 system refuses, a frame too large for memory); a traceback only for a bug.
 """
 
@@ -21,7 +21,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from skynav.scenes.errors import SkynavError, SkynavWarning
+from skynav.infra.errors import SkynavError, SkynavWarning
 
 #: The one-line help of each ``skynav`` command (``skynav --help`` lists them without importing
 #: the commands' modules; each module's ``add_parser`` uses its line).

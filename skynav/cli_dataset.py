@@ -5,10 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from skynav import datasets
-from skynav.datasets.atomic_files import atomic_write_bytes
 from skynav.datasets.errors import OutputPathError, RecipeError
 from skynav.datasets.frame_files import check_output_dir, check_stem
 from skynav.datasets.recipes import PRESETS, read_recipe_mapping, recipe_yaml
+from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.scenes.overrides import apply_overrides
 
 from .cli_common import (

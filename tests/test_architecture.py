@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ROOMS = ("scenes", "renderer", "datasets", "pipeline", "calibration", "service")
+ROOMS = ("infra", "scenes", "renderer", "datasets", "pipeline", "calibration", "service")
 CLI_PACKAGE = "skynav"
 
 # File-format libraries: the renderer returns frames in memory; writers and readers live in datasets.
@@ -139,15 +139,52 @@ def test_the_walk_covers_every_room(graph):
     assert "skynav.scenes.scene" in graph["skynav.renderer.render"][1]
 
 
+def test_infra_imports_no_room(graph):
+    """The infrastructure is the house's floor: every room may import it, it imports none."""
+    bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) == "infra"
+           for n in names if _room_of(n) not in (None, "infra") or (_within(n, CLI_PACKAGE) and _room_of(n) is None)]
+    assert bad == []
+    assert any(_room_of(n) == "infra" for m, (_, names) in graph.items() if _room_of(m) == "scenes" for n in names)
+
+
 def test_scenes_imports_no_other_room(graph):
     bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) == "scenes"
-           for n in names if (_room_of(n) not in (None, "scenes")) or _is_cli(n) and n != CLI_PACKAGE]
+           for n in names if (_room_of(n) not in (None, "infra", "scenes")) or _is_cli(n) and n != CLI_PACKAGE]
     assert bad == []
 
 
 def test_renderer_imports_only_scenes(graph):
     bad = [(rel, n) for m, (rel, names) in graph.items() if _room_of(m) == "renderer"
-           for n in names if _room_of(n) not in (None, "scenes", "renderer") or (_is_cli(n) and n != CLI_PACKAGE)]
+           for n in names if _room_of(n) not in (None, "infra", "scenes", "renderer") or (_is_cli(n) and n != CLI_PACKAGE)]
+    assert bad == []
+
+
+def _infra_names() -> dict:
+    """{name: module} of everything the infrastructure's modules define at top level."""
+    out = {}
+    for path in sorted((REPO / "infra").glob("*.py")):
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                out[node.name] = f"skynav.infra.{path.stem}"
+            elif isinstance(node, ast.Assign):
+                out.update({t.id: f"skynav.infra.{path.stem}" for t in node.targets if isinstance(t, ast.Name)})
+    out.pop("__all__", None)
+    return out
+
+
+def test_infrastructure_has_one_address(graph):
+    """A name of the infrastructure is imported from its home, never through another module
+    that imported it (no re-export shims: ``atomic_write_bytes`` is not also a name of
+    ``frame_files``). The rooms' packages may list skynav's own errors in their public API (the
+    errors module of a room subclasses them)."""
+    names = _infra_names()
+    assert {"atomic_write_bytes", "process_pool_map", "WarmHeap", "thread_budget", "cap_count"} <= set(names)
+    bad = []
+    for m, (rel, imported) in graph.items():
+        for n in imported:
+            module, _, name = n.rpartition(".")
+            if name in names and module != names[name] and module in graph and not _within(module, "skynav.infra"):
+                bad.append((rel, n))
     assert bad == []
 
 
@@ -201,11 +238,9 @@ def test_datasets_never_import_calibration_and_calibration_never_imports_pipelin
     assert bad == []
 
 
-# What of skynav.datasets the pipeline may import: the reader and its observation view, and the
-# house's one process pool (bench nav's workers); the typed truth only from scoring modules
-# (docs/architecture.md: ground truth enters only in scoring).
-PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors",
-                             "skynav.datasets.pool")
+# What of skynav.datasets the pipeline may import: the reader and its observation view; the typed
+# truth only from scoring modules (docs/architecture.md: ground truth enters only in scoring).
+PIPELINE_DATASETS_MODULES = ("skynav.datasets.reader", "skynav.datasets.observation", "skynav.datasets.errors")
 PIPELINE_PACKAGE_MEMBERS = {"open", "open_dataset", "Dataset", "Observation", "CalibrationErrorModel", "DatasetError",
                             "FrameIndexError", "IncompleteDatasetError", "reader", "observation", "errors"}
 PIPELINE_SCORING_ONLY = ("skynav.datasets.frame_truth", "skynav.datasets.FrameTruth", "skynav.datasets.BodyTruth")

@@ -358,8 +358,8 @@ def test_documented_output_is_what_runs(block, workspaces):
 
 def test_cap_is_read_from_the_environment(monkeypatch):
     """SKYNAV_MAX_COUNT caps a count, warns once naming both numbers, and refuses a bad value."""
-    from skynav.scenes.count_cap import ENV_VAR, cap_count
-    from skynav.scenes.errors import ConfigValueError, SkynavWarning
+    from skynav.infra.count_cap import ENV_VAR, cap_count
+    from skynav.infra.errors import ConfigValueError, SkynavWarning
 
     monkeypatch.delenv(ENV_VAR, raising=False)
     assert cap_count(3000, "frames") == 3000

@@ -14,8 +14,8 @@ import pkgutil
 import numpy as np
 import pytest
 
-ROOMS = ("skynav.scenes", "skynav.renderer", "skynav.datasets", "skynav.pipeline", "skynav.calibration",
-         "skynav.service")
+ROOMS = ("skynav.infra", "skynav.scenes", "skynav.renderer", "skynav.datasets", "skynav.pipeline",
+         "skynav.calibration", "skynav.service")
 
 
 def _modules():

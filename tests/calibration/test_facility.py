@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.constants import ARCSEC_RAD
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.facility import (
     FlatField,
     GeometricModel,

@@ -11,7 +11,7 @@ import jsonschema
 import pytest
 from hypothesis import HealthCheck, given, settings
 
-from skynav.scenes.errors import ConfigValueError
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.facility import PRESETS
 from skynav.scenes.facility_schema import FACILITY_SCHEMA, _check_node, schema_json, validate_facility_mapping
 

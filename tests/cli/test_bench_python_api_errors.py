@@ -10,7 +10,7 @@ import shutil
 import pytest
 import yaml
 
-from skynav.scenes.errors import SkynavError
+from skynav.infra.errors import SkynavError
 
 
 @pytest.fixture(scope="module")

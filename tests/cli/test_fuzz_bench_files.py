@@ -2,7 +2,7 @@
 
 Each generated file goes through the reader its command uses (``load_facility``,
 ``read_patterns``, ``read_measurements``); the only allowed outcomes are a value or a
-:class:`~skynav.scenes.errors.SkynavError` with a one-line message, never another exception (the
+:class:`~skynav.infra.errors.SkynavError` with a one-line message, never another exception (the
 command line would print a traceback), and never a hang (a per-example deadline). The fast run is
 CI-sized; the ``slow`` run tries 1000 files of each kind (``pytest -m slow
 tests/cli/test_fuzz_bench_files.py``).
@@ -18,7 +18,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from skynav.scenes.errors import SkynavError
+from skynav.infra.errors import SkynavError
 
 FAST = settings(max_examples=60, deadline=5000, suppress_health_check=list(HealthCheck), derandomize=True)
 SLOW = settings(max_examples=1000, deadline=5000, suppress_health_check=list(HealthCheck), derandomize=True)

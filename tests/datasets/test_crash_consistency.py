@@ -150,8 +150,7 @@ def test_sigkill_at_a_write_then_resume_identical(small_reference, tmp_path, die
 
 def test_full_disk_is_one_line_and_the_resume_ends_identical(small_reference, tmp_path, monkeypatch, capsys):
     """ENOSPC simulated at the 7th write (runs where no file system can be mounted)."""
-    import skynav.datasets.atomic_files as af
-    import skynav.datasets.frame_files as ff
+    import skynav.infra.atomic_files as af
     from skynav.cli import main
 
     real = af.atomic_path
@@ -163,16 +162,14 @@ def test_full_disk_is_one_line_and_the_resume_ends_identical(small_reference, tm
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return real(path, **kw)
 
-    for mod in (af, ff):  # the one home, and the image writers' imported name
-        monkeypatch.setattr(mod, "atomic_path", full)
+    monkeypatch.setattr(af, "atomic_path", full)  # its one home: every atomic write goes through it
     out = tmp_path / "ds"
     recipe_file = tmp_path / "r.json"
     recipe_file.write_text(json.dumps(recipe()))
     code = main(["dataset", "generate", str(recipe_file), "-o", str(out), "--workers", "1", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "no space left" in err[0], err
-    for mod in (af, ff):
-        monkeypatch.setattr(mod, "atomic_path", real)
+    monkeypatch.setattr(af, "atomic_path", real)
     generate(recipe(), out, workers=1, progress=False)
     assert tree_sha256(out) == small_reference
 

@@ -17,13 +17,10 @@ from astropy.wcs import WCS
 
 from skynav.datasets.frame_files import (
     OutputFormatError,
-    atomic_path,
-    atomic_write_bytes,
     read_exr,
     read_exr_header,
     read_fits,
     read_png,
-    sha256_file,
     tan_wcs_header,
     write_exr,
     write_fits,
@@ -36,8 +33,9 @@ from skynav.datasets.truth_schema import (
     validate_truth,
     write_truth_json,
 )
+from skynav.infra.atomic_files import atomic_path, atomic_write_bytes, sha256_file
+from skynav.infra.errors import SkynavError
 from skynav.scenes.camera import paper_camera
-from skynav.scenes.errors import SkynavError
 from skynav.scenes.frames import radec_twist_to_dcm, unit_to_radec
 
 
@@ -476,8 +474,8 @@ def test_truth_numpy_nan_and_inf_inside_arrays(tmp_path):
 
 def test_thread_budget_reads_skynav_threads_without_the_renderer(monkeypatch):
     # the file side reads SKYNAV_THREADS itself (it may not import the renderer); same meaning
-    from skynav.datasets.frame_files import thread_budget
-    from skynav.scenes.errors import ConfigValueError
+    from skynav.infra.threads import thread_budget
+    from skynav.infra.errors import ConfigValueError
 
     monkeypatch.delenv("SKYNAV_THREADS", raising=False)
     assert thread_budget() is None
@@ -511,7 +509,7 @@ def test_write_frame_writes_each_format_and_refuses_unknown_ones(tmp_path, rng):
 
 
 def test_atomic_write_many_writes_all_and_leaves_no_temp_files(tmp_path):
-    from skynav.datasets.atomic_files import atomic_write_many
+    from skynav.infra.atomic_files import atomic_write_many
 
     (tmp_path / "b.json").write_bytes(b"old")
     atomic_write_many([(tmp_path / "a.exr", b"\x00" * 10), (tmp_path / "b.json", b"{}")])

@@ -14,7 +14,8 @@ import pytest
 
 import skynav.datasets as D
 from skynav.datasets import CalibrationErrorModel, FrameTruth, Observation
-from skynav.datasets.errors import ConfigValueError, TruthSchemaError
+from skynav.datasets.errors import TruthSchemaError
+from skynav.infra.errors import ConfigValueError
 from skynav.datasets.observation import make_observation
 from skynav.scenes.camera import Camera
 from skynav.scenes.timescales import tdb_seconds

@@ -14,9 +14,10 @@ from skynav.datasets.errors import RecipeError
 from skynav.datasets.frame_files import read_exr
 from skynav.datasets.recipes import PRESETS, load_recipe_file, preset_recipe, recipe_yaml, validate_recipe
 from skynav.datasets.runner import recipe_render_options
+from skynav.infra.errors import ConfigValueError
 from skynav.renderer.render import RenderOptions
 from skynav.scenes.config import RENDER_KEYS, scene_spec_from_mapping
-from skynav.scenes.errors import ConfigValueError, MovedKeyError
+from skynav.scenes.errors import MovedKeyError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import RESOLVED_THRESHOLD_PX
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from skynav.infra.errors import ConfigValueError
 from skynav.renderer.cosmic_rays import ChargeModel, CosmicRayHits, deposit, draw_cosmic_rays
 from skynav.renderer.detector import Sensor
 from skynav.scenes.camera import SensorParams
-from skynav.scenes.errors import ConfigValueError
 
 
 def test_poisson_counts_chi_square():

@@ -2,8 +2,8 @@
 
 import pytest
 
+from skynav.infra.errors import SkynavError
 from skynav.renderer import errors, jit_backend
-from skynav.scenes.errors import SkynavError
 
 
 @pytest.mark.parametrize("cls, builtin", [

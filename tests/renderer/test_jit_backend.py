@@ -7,6 +7,7 @@ import os
 
 import pytest
 
+from skynav.infra.errors import SkynavError
 from skynav.renderer import jit_backend as jb
 
 LLVM15 = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so"
@@ -166,7 +167,7 @@ def test_thread_budget_parses_and_refuses_bad_values(monkeypatch):
     assert jb.thread_budget() == 3
     for bad in ("0", "-2", "two", "1.5"):
         monkeypatch.setenv("SKYNAV_THREADS", bad)
-        with pytest.raises(jb.SkynavError, match="SKYNAV_THREADS"):
+        with pytest.raises(SkynavError, match="SKYNAV_THREADS"):
             jb.thread_budget()
 
 

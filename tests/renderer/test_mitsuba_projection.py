@@ -225,7 +225,7 @@ def test_sensor_choice_follows_the_projection(body_scene):
     """``auto`` keeps the table for distortion and rectangular pixels; ``perspective`` is refused
     there, in one line naming the choices (no Mitsuba scene is built for a refused request)."""
     from skynav.renderer.mitsuba_backend import _sensor_kind
-    from skynav.scenes.errors import ConfigValueError
+    from skynav.infra.errors import ConfigValueError
 
     plain = paper_camera()
     distorted = paper_camera(distortion=BrownConrady(k1=-0.05))

@@ -14,9 +14,9 @@ import pytest
 from scipy import integrate
 from scipy.stats import norm
 
+from skynav.infra.errors import ConfigValueError
 from skynav.renderer.psf import GaussianPSF, PSF, stamp_origin
 from skynav.renderer.raster import rasterize
-from skynav.scenes.errors import ConfigValueError
 
 
 def _centroid(img):

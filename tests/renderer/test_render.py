@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from skynav.infra.errors import ConfigValueError
 from skynav.renderer.psf import GaussianPSF
 from skynav.renderer.render import RenderOptions, blur_crop, render
 from skynav.scenes import presets
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.scene import build_from_spec
 
 

@@ -15,8 +15,8 @@ Jupiter + Saturn deflection against skyfield's default and bounds it by its phys
 import numpy as np
 import pytest
 
+from skynav.infra.data_files import de421_path
 from skynav.scenes.apparent import apparent_body
-from skynav.scenes.data_files import de421_path
 from skynav.scenes.ephemeris_jpl import BODIES, default_ephemeris
 
 skyfield_api = pytest.importorskip("skyfield.api")

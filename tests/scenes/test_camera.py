@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import BrownConrady, Camera, paper_camera
-from skynav.scenes.errors import ConfigValueError
 
 
 def test_paper_camera_matches_paper002_table4():

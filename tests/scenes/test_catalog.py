@@ -12,8 +12,8 @@ import os
 import numpy as np
 import pytest
 
+from skynav.infra.data_files import hip2_path
 from skynav.scenes import catalog_hipparcos as ch
-from skynav.scenes.data_files import hip2_path
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 DEG = np.pi / 180.0

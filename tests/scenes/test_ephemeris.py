@@ -6,8 +6,9 @@ import pickle
 import numpy as np
 import pytest
 
+from skynav.infra.errors import SkynavError
 from skynav.scenes.ephemeris_jpl import BODIES, BODY_NAIF_IDS, BODY_RADII_KM, Ephemeris, default_ephemeris
-from skynav.scenes.errors import EphemerisRangeError, SkynavError, UnknownBodyError
+from skynav.scenes.errors import EphemerisRangeError, UnknownBodyError
 
 YEAR_S = 365.25 * 86400.0
 

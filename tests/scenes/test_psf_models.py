@@ -5,9 +5,9 @@ import pickle
 import numpy as np
 import pytest
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import Camera, paper_camera
 from skynav.scenes.config import camera_from_mapping
-from skynav.scenes.errors import ConfigValueError
 from skynav.scenes.psf import (AiryPSFModel, FieldPSF, GaussianPSFModel, OpticalPSFModel,  # noqa: F401 (eval)
                                TabulatedPSFModel, psf_from_dict)
 

@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
+from skynav.infra.errors import ConfigValueError
 from skynav.scenes import config, presets
-from skynav.scenes.errors import ConfigValueError, MovedKeyError, ObserverInsideBodyError
+from skynav.scenes.errors import MovedKeyError, ObserverInsideBodyError
 from skynav.scenes.scene import build_from_spec, sky_bodies
 from skynav.scenes.visibility import VisibilityCriteria
 

@@ -89,7 +89,7 @@ def test_workers_are_separate_processes_with_their_share_of_threads(server):
     import os
     from pathlib import Path
 
-    from skynav.datasets.pool import THREAD_VARS
+    from skynav.infra.pool import THREAD_VARS
 
     kids = []
     for st in Path("/proc").glob("[0-9]*/stat"):

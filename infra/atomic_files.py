@@ -1,10 +1,11 @@
-"""Atomic file writes and checksums: the lowest layer of the datasets' file handling.
+"""Atomic file writes and checksums: the lowest layer of skynav's file handling.
 
 Every file skynav writes goes through :func:`atomic_path` / :func:`atomic_write_bytes` (temp file
 in the same folder, fsync, rename, fsync of the folder), so a reader never sees a partly written
-file. :func:`sha256_file` gives the checksums of the manifest and the per-frame records. The
-format modules (:mod:`.frame_files`, :mod:`.truth_schema`) and the layout (:mod:`.layout`) build
-on this module; it imports none of them.
+file. :func:`sha256_file` gives the checksums of a dataset's manifest and per-frame records;
+:func:`open_binary` lets a reader take a path or a binary file object. The file formats
+(:mod:`skynav.datasets.frame_files`, :mod:`skynav.datasets.truth_schema`), the dataset layout, the
+bench's files and the command line build on this module.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import hashlib
 import os
 import secrets
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_many", "sha256_file"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_many", "open_binary", "sha256_file"]
 
 
 def _fsync_dir(directory: str) -> None:
@@ -104,7 +105,6 @@ def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> None:
             f.flush()
 
 
-
 def atomic_write_many(files) -> None:
     """Write ``(path, bytes)`` pairs, each atomically and durably, on this thread: every temp file
     written and fsync'ed, then each renamed onto its path, then each folder fsync'ed once (what
@@ -131,6 +131,7 @@ def atomic_write_many(files) -> None:
     for directory in dict.fromkeys(os.path.dirname(final) for final, _ in files):
         _fsync_dir(directory)
 
+
 def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
     """Hexadecimal SHA-256 of a file's bytes (for ``manifest.json``)."""
     h = hashlib.sha256()
@@ -141,7 +142,7 @@ def sha256_file(path, *, chunk_bytes: int = 1 << 20) -> str:
 
 
 @contextlib.contextmanager
-def _open_binary(source):
+def open_binary(source):
     """Yield a binary file object for a path or pass a file object through (not closed)."""
     if hasattr(source, "read"):
         yield source

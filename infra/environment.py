@@ -1,6 +1,6 @@
 """skynav's environment variables that hold a count, read one way (``SKYNAV_THREADS``,
 ``SKYNAV_MAX_COUNT``): unset or empty means "no value"; anything else must be a whole number >= 1,
-or the one-line :class:`~skynav.scenes.errors.ConfigValueError` names the variable and its value."""
+or the one-line :class:`~skynav.infra.errors.ConfigValueError` names the variable and its value."""
 
 from __future__ import annotations
 

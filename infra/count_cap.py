@@ -2,7 +2,7 @@
 
 Set to a whole number N, it caps the counts that make a command or a function long (the frames
 of a generated dataset, ``bench nav``'s Monte Carlo runs, the exposures ``calibrate simulate``
-averages) at N, and each capped count says so in one :class:`~skynav.scenes.errors.SkynavWarning`
+averages) at N, and each capped count says so in one :class:`~skynav.infra.errors.SkynavWarning`
 line. Nothing else changes: image sizes, seeds, options and files are what the command makes
 without it. It is for smoke tests and for the documentation test (``tests/test_docs.py``), which
 runs every documented command as typed, at small sizes. It lives in ``scenes`` because every room
