@@ -1,6 +1,6 @@
 """Hardware-in-the-loop bench campaign: calibration accuracy and speed, screen-frame export speed.
 
-Run: ``python benchmarks/hil_bench.py [--preset bench] [--scenarios realistic,stress,shifted,roll90]
+Run: ``python benchmarks/hil_bench.py [--preset screen] [--scenarios realistic,stress,shifted,roll90]
 [--frames 16] [--phases 4] [--closed-loop [--loop-frames 100] [--loop-seed S]] [--skip-export] [--timing-reps 9]``. For each virtual-bench scenario it writes the patterns (``phases**2``
 dot grids + 3 flats + 1 dark: 20 patterns for ``--phases 4``), captures them on the virtual bench,
 fits, and prints the uncalibrated error, the held-out residuals (p50/p99/max arcsec, measurement
@@ -57,7 +57,7 @@ def print_closed_loop(s: dict, seconds: float) -> None:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--preset", default="bench")
+    ap.add_argument("--preset", default="screen")
     ap.add_argument("--scenarios", default="realistic,stress,shifted,roll90")
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--phases", type=int, default=4)

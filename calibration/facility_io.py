@@ -20,10 +20,13 @@ MAX_FILE_BYTES = 16 << 20
 
 
 def load_facility(arg) -> fac.Facility:
-    """A facility from a preset name (``bench``, ``bench_small``) or a YAML file path."""
+    """A facility from a preset name (``screen``, ``screen_small``) or a YAML file path."""
     if str(arg) in fac.PRESETS:
         return fac.PRESETS[str(arg)]()
     path = Path(arg)
+    renamed = fac.renamed_preset_line(str(arg))
+    if renamed and not path.is_file():  # a former preset name (a file of that name is still read)
+        raise FacilityFileError(renamed)
     if not path.is_file():
         close = difflib.get_close_matches(str(arg), list(fac.PRESETS), n=1)
         hint = f"did you mean the preset {close[0]}? " if close else ""

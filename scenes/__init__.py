@@ -1,7 +1,7 @@
 """skynav.scenes: what is out there, and how it projects.
 
 Epochs and ephemerides, the star catalogue, planet photometry, spacecraft state and attitude,
-the camera and the bench, and the scene that ties them together. Pure computation, no images.
+the camera and the hardware-in-the-loop facility, and the scene that ties them together. Pure computation, no images.
 
 Public API at package level (listed in ``__all__``), as in Skyfield or GalSim::
 
@@ -29,11 +29,11 @@ _LAZY = {
     "OverrideError": "overrides", "parse_override": "overrides", "apply_overrides": "overrides",
     "dataclass_from_overrides": "overrides",
     "default_scene_spec": "presets",
-    # camera and bench
+    # camera and facility
     "Camera": "camera", "SensorParams": "camera", "BrownConrady": "camera", "paper_camera": "camera",
     "Projection": "projection", "VisibilityCriteria": "visibility",
-    "Facility": "facility", "Screen": "facility", "facility_from_mapping": "facility", "bench_preset": "facility",
-    "bench_small_preset": "facility",
+    "Facility": "facility", "Screen": "facility", "facility_from_mapping": "facility", "screen_preset": "facility",
+    "screen_small_preset": "facility",
     "GaussianPSFModel": "psf", "AiryPSFModel": "psf", "OpticalPSFModel": "psf", "TabulatedPSFModel": "psf",
     "psf_from_dict": "psf",
     # ephemerides, time, catalogue, photometry

@@ -1,8 +1,9 @@
-"""A hardware-in-the-loop bench (a *facility*): a screen seen by the camera through a collimator.
+"""A hardware-in-the-loop facility: a screen seen by the camera through a collimator.
 
 Andreis et al. (2023b), Sec. 3 (RETINA): a microdisplay sits in the focal plane of a collimator; the flight
 camera looks into the collimator, so every screen pixel becomes a direction in the camera frame.
-This module is the model of such a bench, pure computation:
+This module is the model of such a facility (an optical bench; skynav calls it a *facility*
+and keeps "bench" for its benchmark commands), pure computation:
 
 - :class:`GeometricModel` / :class:`ScreenProjection`: screen pixel <-> camera-frame line of
   sight, both directions, a physical model (screen decentre, tilt and roll, collimator focal
@@ -150,14 +151,14 @@ class ResidualField:
 
 @dataclass(frozen=True, kw_only=True)
 class GeometricModel:
-    """Physical model of the bench geometry (``model: physical/1``). Angles rad, lengths mm.
+    """Physical model of the facility geometry (``model: physical/1``). Angles rad, lengths mm.
 
     Screen pixel ``(x, y)`` -> millimetres from the screen centre -> rolled by ``roll_rad`` ->
     tilted (``tilt_x_rad`` about x, then ``tilt_y_rad`` about y) and offset by the decentre, at
     ``focal_length_mm`` from the collimator -> chief-ray slope -> Brown-Conrady distortion of the
     collimator ``(k1, k2, p1, p2)`` -> rotated by the camera misalignment (rotation vector,
     rad) -> plus the residual field. Screen x right and y down map to camera +x and +y for a
-    perfectly aligned bench (the image inversion of a real collimator is a 180 deg roll).
+    perfectly aligned facility (the image inversion of a real collimator is a 180 deg roll).
     """
 
     focal_length_mm: float
@@ -237,7 +238,7 @@ class GeometricModel:
 
 @dataclass(frozen=True, kw_only=True)
 class ScreenProjection:
-    """Screen pixel <-> camera-frame line of sight of a bench: a
+    """Screen pixel <-> camera-frame line of sight of a facility: a
     :class:`~skynav.scenes.projection.Projection` at screen resolution.
 
     :meth:`line_of_sight` is the model in closed form; :meth:`project` inverts it by Newton's
@@ -378,12 +379,12 @@ FLAT_RESPONSIVITY = ((300.0, 1200.0), (1.0, 1.0))
 # ----------------------------------------------------------------------------- the facility
 @dataclass(frozen=True, kw_only=True)
 class Facility:
-    """A bench: screen, collimator, camera, geometric and radiometric models.
+    """A facility: screen, collimator, camera, geometric and radiometric models.
 
     Parameters
     ----------
     name : str
-        The bench's name (file key ``name``).
+        The facility's name (file key ``name``).
     screen : Screen
         The display.
     camera : Camera
@@ -404,21 +405,21 @@ class Facility:
     References
     ----------
     Andreis et al. (2023b), Sec. 3 (the RETINA bench); the file form is ``skynav.facility/1``
-    (docs/bench.md).
+    (docs/hil.md).
 
     Examples
     --------
-    >>> from skynav.scenes import bench_small_preset, facility_from_mapping
-    >>> bench = bench_small_preset()
-    >>> bench.screen.width_px, bench.camera.width
+    >>> from skynav.scenes import facility_from_mapping, screen_small_preset
+    >>> fac = screen_small_preset()
+    >>> fac.screen.width_px, fac.camera.width
     (640, 256)
-    >>> bench.projection.project(np.array([0.0, 0.0, 1.0]))   # the boresight, screen px
+    >>> fac.projection.project(np.array([0.0, 0.0, 1.0]))   # the boresight, screen px
     array([319.5, 319.5])
-    >>> facility_from_mapping(bench.to_mapping()) == bench
+    >>> facility_from_mapping(fac.to_mapping()) == fac
     True
     """
 
-    name: str = "bench"
+    name: str = "screen"
     screen: Screen
     camera: Camera
     geometric: GeometricModel
@@ -483,7 +484,7 @@ class Facility:
 
     def coverage(self, n: int = 64) -> float:
         """Smallest distance (screen px, negative = outside) from the camera's image border,
-        seen through the bench, to the screen's edge."""
+        seen through the collimator, to the screen's edge."""
         W, H = self.camera.width, self.camera.height
         s = np.linspace(-0.5, 1.0, n)
         xs = np.linspace(-0.5, W - 0.5, n)
@@ -561,13 +562,13 @@ def facility_from_mapping(d) -> Facility:
     Parameters
     ----------
     d : dict
-        The parsed YAML of a facility file (``schema: skynav.facility/1``; keys in docs/bench.md):
+        The parsed YAML of a facility file (``schema: skynav.facility/1``; keys in docs/hil.md):
         angles in degrees or arcsec, lengths in mm and um, irradiance in W/m^2.
 
     Returns
     -------
     Facility
-        The bench, angles converted to radians.
+        The facility, angles converted to radians.
 
     Raises
     ------
@@ -576,10 +577,10 @@ def facility_from_mapping(d) -> Facility:
 
     Examples
     --------
-    >>> from skynav.scenes import ConfigValueError, bench_small_preset, facility_from_mapping
-    >>> mapping = bench_small_preset().to_mapping()
+    >>> from skynav.scenes import ConfigValueError, screen_small_preset, facility_from_mapping
+    >>> mapping = screen_small_preset().to_mapping()
     >>> facility_from_mapping(mapping).name
-    'bench_small'
+    'screen_small'
     >>> mapping["screen"]["pixel_pitch_um"] = -1
     >>> try:
     ...     facility_from_mapping(mapping)
@@ -629,7 +630,7 @@ def facility_from_mapping(d) -> Facility:
         kw["screen_spectrum"] = (spectra["screen_emission"]["wavelengths_nm"], spectra["screen_emission"]["relative"])
     if "power_meter_responsivity" in spectra:
         kw["meter_responsivity"] = (spectra["power_meter_responsivity"]["wavelengths_nm"], spectra["power_meter_responsivity"]["relative"])
-    fac = Facility(name=str(d.get("name", "bench")), screen=screen, camera=camera, geometric=g, radiometric=rm,
+    fac = Facility(name=str(d.get("name", "screen")), screen=screen, camera=camera, geometric=g, radiometric=rm,
                    flat_field=flat, calibrated_geometric=cal_geo, calibrated_radiometric=cal_rad, **kw)
     fac.check_spectra()
     return fac
@@ -644,14 +645,14 @@ def nominal_radiometric(screen: Screen, camera: Camera) -> RadiometricModel:
     return RadiometricModel(black_w_m2=peak / 5.0e4, peak_w_m2=peak, gamma=2.2, max_dn=screen.max_dn)
 
 
-def _bench(camera: Camera, screen_px: int, pitch_um: float, focal_mm: float, name: str) -> Facility:
+def _facility(camera: Camera, screen_px: int, pitch_um: float, focal_mm: float, name: str) -> Facility:
     screen = Screen(width_px=screen_px, height_px=screen_px, pixel_pitch_um=pitch_um, bit_depth=10)
     return Facility(name=name, screen=screen, camera=camera, geometric=GeometricModel(focal_length_mm=focal_mm),
                     radiometric=nominal_radiometric(screen, camera))
 
 
-def bench_preset() -> Facility:
-    """The ``bench`` preset: the paper camera behind a 50 mm collimator and a 2560 px microdisplay.
+def screen_preset() -> Facility:
+    """The ``screen`` preset: the paper camera behind a 50 mm collimator and a 2560 px microdisplay.
 
     The paper camera (20 deg, 1024 px) looks at a square 2560 x 2560 px, 8 um, 10-bit
     microdisplay: the screen spans +/-11.6 deg (a 1.6 deg margin for misalignment) at 2.15
@@ -660,7 +661,7 @@ def bench_preset() -> Facility:
     Returns
     -------
     Facility
-        A new bench, perfectly aligned (no residual field, no flat field).
+        A new facility, perfectly aligned (no residual field, no flat field).
 
     References
     ----------
@@ -668,16 +669,16 @@ def bench_preset() -> Facility:
 
     Examples
     --------
-    >>> from skynav.scenes import bench_preset
-    >>> bench = bench_preset()
-    >>> bench.screen.width_px, bench.screen.pixel_pitch_um, bench.geometric.focal_length_mm
+    >>> from skynav.scenes import screen_preset
+    >>> fac = screen_preset()
+    >>> fac.screen.width_px, fac.screen.pixel_pitch_um, fac.geometric.focal_length_mm
     (2560, 8.0, 50.0)
     """
-    return _bench(paper_camera(), 2560, 8.0, 50.0, "bench")
+    return _facility(paper_camera(), 2560, 8.0, 50.0, "screen")
 
 
-def bench_small_preset() -> Facility:
-    """The ``bench_small`` preset: the ``bench`` optics scaled down for quick rehearsals and tests.
+def screen_small_preset() -> Facility:
+    """The ``screen_small`` preset: the ``screen`` optics scaled down for quick rehearsals and tests.
 
     A 256 x 256 px camera with the paper camera's 20 deg field, a 640 x 640 px, 32 um screen
     (2.15 screen px per camera px), the 50 mm collimator.
@@ -685,18 +686,34 @@ def bench_small_preset() -> Facility:
     Returns
     -------
     Facility
-        A new bench, perfectly aligned, with a nominal radiometric curve.
+        A new facility, perfectly aligned, with a nominal radiometric curve.
 
     Examples
     --------
-    >>> from skynav.scenes import bench_small_preset
-    >>> bench = bench_small_preset()
-    >>> bench.camera.width, round(float(np.degrees(bench.camera.fov_x_rad)), 6)
+    >>> from skynav.scenes import screen_small_preset
+    >>> fac = screen_small_preset()
+    >>> fac.camera.width, round(float(np.degrees(fac.camera.fov_x_rad)), 6)
     (256, 20.0)
     """
     cam = paper_camera()
     cam = cam.replace(width=256, height=256, pixel_pitch_um=cam.pixel_pitch_um * 4)
-    return _bench(cam, 640, 32.0, 50.0, "bench_small")
+    return _facility(cam, 640, 32.0, 50.0, "screen_small")
 
 
-PRESETS = {"bench": bench_preset, "bench_small": bench_small_preset}
+PRESETS = {"screen": screen_preset, "screen_small": screen_small_preset}
+
+#: Former preset names, refused naming the new one: "bench" is the benchmark command group
+#: (``skynav bench ip|nav|loop``); the facility presets are named after what the camera looks at.
+RENAMED_PRESETS = {"bench": "screen", "bench_small": "screen_small"}
+
+
+def renamed_preset_line(name: str) -> str | None:
+    """The one-line refusal of a former preset name (None for any other name).
+
+    >>> renamed_preset_line("bench_small")
+    "bench_small: the facility preset is now named screen_small ('bench' means only the benchmark commands); give screen_small"
+    """
+    new = RENAMED_PRESETS.get(str(name))
+    if new is None:
+        return None
+    return f"{name}: the facility preset is now named {new} ('bench' means only the benchmark commands); give {new}"

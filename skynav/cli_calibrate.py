@@ -93,8 +93,8 @@ def cmd_radiometric(args) -> int:
 
 def add_parser(sub) -> None:
     c = sub.add_parser("calibrate", help=COMMAND_HELP["calibrate"],
-                       description="Bench calibration: write patterns, simulate captures on a virtual bench, fit the "
-                       "geometric and radiometric models into a facility file. FACILITY: a YAML file or a preset (bench, bench_small).")
+                       description="Facility calibration: write patterns, simulate captures on a virtual bench, fit the "
+                       "geometric and radiometric models into a facility file. FACILITY: a YAML file or a preset (screen, screen_small).")
     cs = c.add_subparsers(dest="calibrate_command", metavar="STEP")
     c.set_defaults(func=lambda a: (c.print_help(), 2)[1])
 
@@ -112,11 +112,11 @@ def add_parser(sub) -> None:
     s.add_argument("facility")
     s.add_argument("--patterns", required=True, help="pattern folder")
     s.add_argument("-o", "--output", required=True, help="captures folder")
-    s.add_argument("--scenario", choices=SCENARIO_NAMES, default="realistic", help="true bench (default realistic)")
+    s.add_argument("--scenario", choices=SCENARIO_NAMES, default="realistic", help="the virtual bench's true facility (default realistic)")
     s.add_argument("--frames", type=int_in(1, MAX_FRAMES, "each is a full camera frame of noise"), default=16,
                    help=f"exposures averaged per capture, 1..{MAX_FRAMES} (default 16; each is a full camera frame of "
                         "noise per pattern: time grows with it)")
-    s.add_argument("--seed", type=seed_int, default=0, help="seed of the bench's noise (default 0)")
+    s.add_argument("--seed", type=seed_int, default=0, help="seed of the virtual bench's noise (default 0)")
     add_quiet(s)
     s.set_defaults(func=cmd_simulate)
 

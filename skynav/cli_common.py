@@ -30,8 +30,8 @@ COMMAND_HELP = {
     "render": "render one frame (PNG, EXR, ground-truth JSON)",
     "dataset": "generate, verify, inspect and preview datasets",
     "bench": "benchmark navigation software on datasets",
-    "calibrate": "calibrate a hardware-in-the-loop bench (patterns, fits, virtual bench)",
-    "hil": "hardware-in-the-loop bench: facility files, screen-frame export",
+    "calibrate": "calibrate a hardware-in-the-loop facility (patterns, fits, virtual bench)",
+    "hil": "hardware in the loop: facility files, screen-frame export",
     "serve": "render service: frames by pose over HTTP for flight software and simulators",
 }
 

@@ -1,4 +1,4 @@
-"""``skynav hil``: facility (write a facility file), export (a dataset as bench screen frames)."""
+"""``skynav hil``: facility (write a facility file), export (a dataset as screen frames)."""
 
 from __future__ import annotations
 
@@ -104,21 +104,21 @@ def render_hil(args, spec, seed) -> int:
 
 def add_parser(sub) -> None:
     h = sub.add_parser("hil", help=COMMAND_HELP["hil"],
-                       description="Hardware-in-the-loop bench. FACILITY: a YAML file or a preset (bench, bench_small).")
+                       description="Hardware in the loop: a screen seen by the camera through a collimator (a facility). FACILITY: a YAML file or a preset (screen, screen_small).")
     hs = h.add_subparsers(dest="hil_command", metavar="STEP")
     h.set_defaults(func=lambda a: (h.print_help(), 2)[1])
     f = hs.add_parser("facility", help="write a facility file from a preset")
-    f.add_argument("preset", nargs="?", default="bench", help="preset name or facility file (default: bench)")
+    f.add_argument("preset", nargs="?", default="screen", help="preset name or facility file (default: screen)")
     f.add_argument("-o", "--output", required=True)
     add_quiet(f)
     f.set_defaults(func=cmd_facility)
     e = hs.add_parser("export", help="export a dataset as screen frames",
-                      description="Export a dataset as the screen frames a bench shows its camera. --set changes "
+                      description="Export a dataset as the screen frames a facility shows its camera. --set changes "
                       "a key of the facility (file or preset, in the form 'skynav hil facility' writes), e.g. "
                       "--set radiometric.parameters.gamma=2.4 or --set screen.bit_depth=8; the dataset itself "
                       "is read as it is (to change what it shows, regenerate it with 'dataset generate --set').")
     e.add_argument("dataset")
-    e.add_argument("--facility", required=True, help="facility YAML file or preset (bench, bench_small)")
+    e.add_argument("--facility", required=True, help="facility YAML file or preset (screen, screen_small)")
     e.add_argument("-o", "--output", required=True)
     e.add_argument("--workers", type=int_in(1, MAX_WORKERS, "each holds a screen frame in memory"), default=1,
                    help=f"local processes, 1..{MAX_WORKERS} (default 1; each holds a screen frame in memory)")

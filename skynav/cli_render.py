@@ -134,6 +134,6 @@ def add_parser(sub) -> None:
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
     add_quiet(r)
     r.add_argument("--backend", choices=("auto", "llvm", "cuda", "numpy"), default="auto", help="sensor noise backend")
-    r.add_argument("--hil", metavar="FACILITY", default=None, help="render a bench screen frame for FACILITY instead")
+    r.add_argument("--hil", metavar="FACILITY", default=None, help="render the screen frame of a hardware-in-the-loop FACILITY instead")
     add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
     r.set_defaults(func=cmd_render)

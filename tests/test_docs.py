@@ -377,7 +377,7 @@ def test_cap_is_read_from_the_environment(monkeypatch):
 BROKEN = """# A broken page
 
 ```bash
-skynav hil facility bench_small -o lab.yaml
+skynav hil facility screen_small -o lab.yaml
 skynav no-such-command
 echo never reached
 ```

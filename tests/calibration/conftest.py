@@ -4,9 +4,9 @@ import pytest
 
 @pytest.fixture(scope="session")
 def small_facility():
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    return bench_small_preset()
+    return screen_small_preset()
 
 
 @pytest.fixture(scope="session")

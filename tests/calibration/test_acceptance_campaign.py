@@ -12,9 +12,9 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
     from skynav.calibration.bench_files import write_patterns
-    from skynav.scenes.facility import bench_preset
+    from skynav.scenes.facility import screen_preset
 
-    fac = bench_preset()
+    fac = screen_preset()
     d = tmp_path_factory.mktemp("bench")
     write_patterns(fac, d / "pat", phases=4)  # 20 patterns
     return fac, d
@@ -34,6 +34,6 @@ def test_holdout_residuals(campaign, name):
     assert s["max"] <= 5.0
     assert res.seconds <= 30.0
     assert np.percentile(true_error_arcsec(fac, res.facility, truth), 99) <= 0.5
-    # issue 12: p99 <= 0.5 arcsec on held-out dots in every scenario, stress included (docs/bench.md
+    # issue 12: p99 <= 0.5 arcsec on held-out dots in every scenario, stress included (docs/hil.md
     # "Accuracy and speed" has the measured figures)
     assert s["p99"] <= 0.5

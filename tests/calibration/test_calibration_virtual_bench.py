@@ -1,4 +1,4 @@
-"""Calibration on the virtual bench (bench_small: 256 px camera, 281 arcsec per camera pixel).
+"""Calibration on the virtual bench (screen_small: 256 px camera, 281 arcsec per camera pixel).
 
 The acceptance numbers (bench preset, 1024 px camera) are in test_acceptance_campaign.py (slow)
 and benchmarks/hil_bench.py; here the same steps run at a quarter of the resolution.

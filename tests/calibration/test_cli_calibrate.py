@@ -24,7 +24,7 @@ def _one_line_exit_2(rc, err, *words):
 
 def test_full_chain_runs(tmp_path, capsys, small_patterns, small_captures):
     fac = tmp_path / "fac.yaml"
-    assert main(["hil", "facility", "bench_small", "-o", str(fac)]) == 0
+    assert main(["hil", "facility", "screen_small", "-o", str(fac)]) == 0
     assert main(["calibrate", "geometric", str(fac), "--patterns", str(small_patterns), "--captures", str(small_captures),
                  "-o", str(tmp_path / "geo.yaml")]) == 0
     assert (tmp_path / "geo_residuals.png").is_file()
@@ -39,7 +39,7 @@ def test_missing_capture(tmp_path, capsys, small_patterns, small_captures):
     cap = tmp_path / "cap"
     shutil.copytree(small_captures, cap)
     (cap / "dots_03.png").unlink()
-    rc, err = _run(capsys, "calibrate", "geometric", "bench_small", "--patterns", str(small_patterns), "--captures", str(cap), "-o", str(tmp_path / "o.yaml"))
+    rc, err = _run(capsys, "calibrate", "geometric", "screen_small", "--patterns", str(small_patterns), "--captures", str(cap), "-o", str(tmp_path / "o.yaml"))
     _one_line_exit_2(rc, err, "missing", "dots_03.png")
 
 
@@ -51,12 +51,12 @@ def test_capture_of_wrong_size_or_bit_depth(tmp_path, capsys, small_patterns, sm
     shutil.copytree(small_captures, cap)
     img = np.zeros((200, 256), np.uint8) if bad == "size" else np.full((256, 256), 1000, np.uint16)
     write_png(cap / "dots_00.png", img)
-    rc, err = _run(capsys, "calibrate", "geometric", "bench_small", "--patterns", str(small_patterns), "--captures", str(cap), "-o", str(tmp_path / "o.yaml"))
+    rc, err = _run(capsys, "calibrate", "geometric", "screen_small", "--patterns", str(small_patterns), "--captures", str(cap), "-o", str(tmp_path / "o.yaml"))
     _one_line_exit_2(rc, err, "dots_00.png")
 
 
 def test_patterns_for_another_screen(tmp_path, capsys, small_patterns, small_captures):
-    rc, err = _run(capsys, "calibrate", "geometric", "bench", "--patterns", str(small_patterns), "--captures", str(small_captures), "-o", str(tmp_path / "o.yaml"))
+    rc, err = _run(capsys, "calibrate", "geometric", "screen", "--patterns", str(small_patterns), "--captures", str(small_captures), "-o", str(tmp_path / "o.yaml"))
     _one_line_exit_2(rc, err, "screen")
 
 
@@ -69,7 +69,7 @@ def test_patterns_for_another_screen(tmp_path, capsys, small_patterns, small_cap
 def test_bad_measurement_file(tmp_path, capsys, text, word):
     csv = tmp_path / "m.csv"
     csv.write_text(text)
-    rc, err = _run(capsys, "calibrate", "radiometric", "bench_small", "--measurements", str(csv), "-o", str(tmp_path / "o.yaml"))
+    rc, err = _run(capsys, "calibrate", "radiometric", "screen_small", "--measurements", str(csv), "-o", str(tmp_path / "o.yaml"))
     _one_line_exit_2(rc, err, word)
 
 
@@ -77,7 +77,7 @@ def test_facility_that_does_not_cover_the_field(tmp_path, capsys):
     import yaml
 
     fac = tmp_path / "fac.yaml"
-    assert main(["hil", "facility", "bench_small", "-o", str(fac)]) == 0
+    assert main(["hil", "facility", "screen_small", "-o", str(fac)]) == 0
     d = yaml.safe_load(fac.read_text())
     d["collimator"]["focal_length_mm"] = 80.0
     d["geometric"]["parameters"]["focal_length_mm"] = 80.0

@@ -2,7 +2,7 @@
 calibration/closed_loop.py): a montecarlo dataset exported with the calibrated facility,
 captured by the virtual camera and measured like its software frames.
 
-Fast tests use ``bench_small`` (256 px camera, 281 arcsec per camera px, 640 px screen) on a few
+Fast tests use ``screen_small`` (256 px camera, 281 arcsec per camera px, 640 px screen) on a few
 frames and check the noise-free loop (the bench's systematic error) in camera pixels, against an
 uncalibrated bench that must fail the same checks. The issue's acceptance numbers (``bench``
 preset, 71 arcsec per px, with camera noise) are in the ``slow`` test at the end:
@@ -76,9 +76,9 @@ def test_issue_12_closed_loop_acceptance(tmp_path):
     capture electrons vs software-frame electrons within 0.03 mag RMS, bias <= 0.01 mag."""
     from skynav.calibration.radiometric import calibrate_radiometric
     from skynav.calibration.bench_files import calibrate_geometric, simulate, write_patterns
-    from skynav.scenes.facility import bench_preset
+    from skynav.scenes.facility import screen_preset
 
-    fac = bench_preset()
+    fac = screen_preset()
     write_patterns(fac, tmp_path / "pat", phases=4)
     simulate(fac, tmp_path / "pat", tmp_path / "cap", scenario_name="realistic")
     geo = calibrate_geometric(fac, tmp_path / "pat", tmp_path / "cap")

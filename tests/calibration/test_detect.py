@@ -207,15 +207,15 @@ def test_dots_on_the_image_edge_are_dropped():
     assert len(b.xy_px) == 1 and np.abs(b.xy_px[0] - c[2]).max() < 0.0005
 
 
-def test_bench_small_stress_captures_against_the_true_dot_positions():
+def test_screen_small_stress_captures_against_the_true_dot_positions():
     """The virtual bench's stress case (4x distortion, 35 % vignetting, screen non-uniformity) on
-    the bench_small preset: each detected dot against the true image of its screen centre (which
+    the screen_small preset: each detected dot against the true image of its screen centre (which
     only the test knows; the detector sees the captures)."""
     from skynav.calibration.patterns import design, draw
     from skynav.calibration.virtual_bench import VirtualBench, scenario
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     truth = scenario("stress", fac)
     bench = VirtualBench(fac, truth)
     sc, cam = fac.screen, fac.camera

@@ -12,8 +12,8 @@ from skynav.scenes.facility import (
     GeometricModel,
     ResidualField,
     ScreenProjection,
-    bench_preset,
-    bench_small_preset,
+    screen_preset,
+    screen_small_preset,
     facility_from_mapping,
 )
 from skynav.scenes.projection import Projection
@@ -29,7 +29,7 @@ def _bent(screen, roll_rad=0.004):
 
 @pytest.mark.parametrize("roll_rad", [0.004, math.pi / 2 + 0.003, math.pi])
 def test_inverse_accurate_to_a_hundredth_of_an_arcsec_everywhere(roll_rad):
-    f = bench_preset()
+    f = screen_preset()
     P = ScreenProjection(screen=f.screen, model=_bent(f.screen, roll_rad))
     assert isinstance(P, Projection)
     rng = np.random.default_rng(5)
@@ -44,7 +44,7 @@ def test_inverse_accurate_to_a_hundredth_of_an_arcsec_everywhere(roll_rad):
 
 
 def test_file_form_round_trip_and_fixed_keys():
-    f = bench_preset()
+    f = screen_preset()
     g = _bent(f.screen)
     flat = FlatField(x_px=[0, 1279.5, 2559], y_px=[0, 1279.5, 2559], relative=[[0.8, 0.9, 0.8], [0.9, 1.0, 0.9], [0.8, 0.9, 0.8]])
     f2 = f.replace(geometric=g, flat_field=flat)
@@ -61,7 +61,7 @@ def test_file_form_round_trip_and_fixed_keys():
 
 
 def test_presets_cover_the_field_with_two_screen_px_per_camera_px():
-    for f in (bench_preset(), bench_small_preset()):
+    for f in (screen_preset(), screen_small_preset()):
         f.check_coverage()
         scale = f.geometric.focal_length_mm / (f.screen.pixel_pitch_um * 1e-3) / f.camera.focal_length_px
         assert scale >= 2.0
@@ -69,7 +69,7 @@ def test_presets_cover_the_field_with_two_screen_px_per_camera_px():
 
 
 def test_a_screen_too_small_is_refused():
-    f = bench_preset()
+    f = screen_preset()
     small = f.replace(screen=type(f.screen)(width_px=1800, height_px=1800, pixel_pitch_um=8.0, bit_depth=10))
     small = small.replace(radiometric=f.radiometric)
     with pytest.raises(ConfigValueError, match="cover"):
@@ -77,7 +77,7 @@ def test_a_screen_too_small_is_refused():
 
 
 def test_radiometric_curve_monotone_and_inverse():
-    rm = bench_preset().radiometric
+    rm = screen_preset().radiometric
     dn = np.arange(0, rm.max_dn + 1)
     e = rm.irradiance_w_m2(dn)
     assert np.all(np.diff(e) > 0)
@@ -85,7 +85,7 @@ def test_radiometric_curve_monotone_and_inverse():
 
 
 def test_electrons_per_watt_use_the_screen_spectrum_not_broadband_watts():
-    f = bench_preset()
+    f = screen_preset()
     k = f.electrons_per_s_per_w_m2()
     # equal spectra: a screen emitting like a 550 nm line gives A * QE(550) * photons per joule at 550 nm
     line = f.replace(screen_spectrum=((549.0, 550.0, 551.0), (0.0, 1.0, 0.0)))

@@ -18,9 +18,9 @@ def source(tmp_path_factory):
     recipe = datasets.preset_recipe("montecarlo")
     recipe["frames"] = 3
     recipe["formats"] = ["png", "json"]
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    recipe["camera"] = bench_small_preset().camera.to_dict()  # the bench's camera (export refuses another)
+    recipe["camera"] = screen_small_preset().camera.to_dict()  # the bench's camera (export refuses another)
     root = tmp_path_factory.mktemp("hilsrc") / "ds"
     datasets.generate(recipe, root, workers=1, progress=False)
     return root
@@ -32,7 +32,7 @@ def reference(source, tmp_path_factory):
     from skynav.datasets.hil_export import export_dataset
 
     out = tmp_path_factory.mktemp("hilref") / "screen"
-    s = export_dataset(load_facility("bench_small"), source, out)
+    s = export_dataset(load_facility("screen_small"), source, out)
     assert s == {"frames": 3, "exported": 3, "skipped": 0, "workers": 1, "executor": "in-process"}
     return out
 
@@ -48,7 +48,7 @@ def test_export_writes_records_and_a_complete_manifest(reference):
         assert frame_problem(reference, k, ("png", "json"))[0] is None
     m = json.loads((reference / "export.json").read_text())
     assert m["complete"] is True and m["schema"] == "skynav.hil_export/2"
-    assert m["facility"]["name"] == "bench_small" and len(m["facility"]["sha256"]) == 64
+    assert m["facility"]["name"] == "screen_small" and len(m["facility"]["sha256"]) == 64
     assert sorted(m["checksums"]) == sorted(f"frames/{k:06d}.{e}" for k in range(3) for e in ("png", "json", "sha256"))
 
 
@@ -64,7 +64,7 @@ def test_resume_redoes_damaged_and_interrupted_frames_only(source, reference, tm
     png1.write_bytes(png1.read_bytes()[:100])          # a truncated file (a crash, a full disk)
     (out / "frames" / "000002.sha256").unlink()        # a frame whose commit point never came
     kept = (out / "frames" / "000000.png").stat().st_mtime_ns
-    s = export_dataset(load_facility("bench_small"), source, out)
+    s = export_dataset(load_facility("screen_small"), source, out)
     assert (s["exported"], s["skipped"]) == (2, 1)
     assert (out / "frames" / "000000.png").stat().st_mtime_ns == kept
     assert _bytes(out) == _bytes(reference)
@@ -75,7 +75,7 @@ def test_spawned_processes_and_dask_give_the_same_bytes(source, reference, tmp_p
     from skynav.calibration.facility_io import load_facility
     from skynav.datasets.hil_export import export_dataset
 
-    fac = load_facility("bench_small")
+    fac = load_facility("screen_small")
     s = export_dataset(fac, source, tmp_path / "pool", workers=2)
     assert s["executor"] == "processes (spawn)" and s["exported"] == 3
     assert _bytes(tmp_path / "pool") == _bytes(reference)
@@ -92,7 +92,7 @@ def test_a_folder_holding_another_facilitys_export_is_refused(source, reference,
     out = tmp_path / "screen"
     shutil.copytree(reference, out)
     capsys.readouterr()
-    assert main(["hil", "export", str(source), "--facility", "bench_small", "--set", "screen.bit_depth=8", "-o", str(out),
+    assert main(["hil", "export", str(source), "--facility", "screen_small", "--set", "screen.bit_depth=8", "-o", str(out),
                  "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another facility" in err[0] and "Traceback" not in err[0]
@@ -110,7 +110,7 @@ def test_an_export_of_format_1_is_not_resumed(source, reference, tmp_path, capsy
         m.pop(key)
     (out / "export.json").write_text(json.dumps(m))
     capsys.readouterr()
-    assert main(["hil", "export", str(source), "--facility", "bench_small", "-o", str(out), "-q"]) == 2
+    assert main(["hil", "export", str(source), "--facility", "screen_small", "-o", str(out), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another file format" in err[0]
 

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.special import erf
 
 from skynav.renderer.display import spread_over_full_scale
-from skynav.scenes.facility import bench_small_preset
+from skynav.scenes.facility import screen_small_preset
 
 
 def _source(shape, xy, total_e, sigma_px=0.6):
@@ -19,7 +19,7 @@ def _source(shape, xy, total_e, sigma_px=0.6):
 
 
 def test_excess_charge_keeps_total_and_centroid():
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     rm, cam = fac.radiometric, fac.camera
     e_full = (rm.peak_w_m2 - rm.black_w_m2) * fac.electrons_per_s_per_w_m2() * cam.exposure_s
     shape = (fac.screen.height_px, fac.screen.width_px)
@@ -38,7 +38,7 @@ def test_excess_charge_keeps_total_and_centroid():
 
 
 def test_nothing_changes_below_full_scale():
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     img = _source((fac.screen.height_px, fac.screen.width_px), (100.2, 200.7), 1e4)
     out, n_over = spread_over_full_scale(img, fac)
     assert n_over == 0 and out is img
@@ -58,7 +58,7 @@ def test_over_full_scale_source_keeps_its_analytic_centre_and_symmetry():
     source's, no pixel exceeds full scale, the first moment is the analytic position, and so is
     the centroid of the image cut at any level (what a fit of the unsaturated wings sees): the
     spot is symmetric about the source, not shaped by the pixel grid."""
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     rm, cam = fac.radiometric, fac.camera
     e_full = (rm.peak_w_m2 - rm.black_w_m2) * fac.electrons_per_s_per_w_m2() * cam.exposure_s
     shape = (fac.screen.height_px, fac.screen.width_px)
@@ -89,7 +89,7 @@ def test_resolved_disc_over_full_scale_keeps_total_and_centroid():
     """A resolved disc above full scale over its whole area, wider than the widest kernel allows
     (here 6 px): the excess is spread to the neighbours pixel by pixel instead, still keeping the
     electrons and the centroid; within the kernel family, the same."""
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     rm, cam = fac.radiometric, fac.camera
     e_full = (rm.peak_w_m2 - rm.black_w_m2) * fac.electrons_per_s_per_w_m2() * cam.exposure_s
     shape = (fac.screen.height_px, fac.screen.width_px)

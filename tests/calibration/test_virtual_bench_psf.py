@@ -1,6 +1,6 @@
 """The virtual bench's camera draws with the camera's own PSF model (the renderer's kernels).
 
-bench_small (256 px camera, 640 px screen, 2.2 screen px per camera px), stopped down to f/40
+screen_small (256 px camera, 640 px screen, 2.2 screen px per camera px), stopped down to f/40
 (lambda F = 0.4 camera px at 550 nm) so that diffraction and coma are resolved. A dot (a
 Gaussian blob of 1.5 screen px) is shown on an ``ideal`` bench; the images compared are the
 noise-free electrons of the dot minus those of a black screen (the screen's black level

@@ -8,7 +8,7 @@ one stderr line ``skynav: error: ...`` naming the key, flag or path at fault, no
 every input unchanged afterwards (every file under the inputs folder, hidden ones included,
 is hashed before and after each case; a new file there counts as a change).
 
-Inputs are tiny (the ``bench_small`` facility, one dot grid, one-frame datasets), so the table
+Inputs are tiny (the ``screen_small`` facility, one dot grid, one-frame datasets), so the table
 runs in seconds; commands run in this process through ``skynav.__main__.main``.
 """
 
@@ -179,7 +179,7 @@ def world(tmp_path_factory):
     inp, out = tmp / "in", tmp / "out"
     inp.mkdir()
     out.mkdir()
-    fac = load_facility("bench_small")
+    fac = load_facility("screen_small")
     write_facility(fac, inp / "fac.yaml")
     write_patterns(fac, inp / "pats", phases=2)
     simulate(fac, inp / "pats", inp / "caps", frames=1, seed=3)
@@ -231,7 +231,10 @@ def _facility_cases(tmp, inp, out):
                                                      str(out / "p16"), "-q"], "screen"))
     cases.append(("facility:missing", ["hil", "facility", str(inp / "nope.yaml"), "-o", str(out / "f.yaml")], "nope.yaml"))
     cases.append(("facility:a-folder", ["hil", "facility", str(inp / "pats"), "-o", str(out / "f.yaml")], "pats"))
-    cases.append(("facility:preset-typo", ["hil", "facility", "bench_smal", "-o", str(out / "f.yaml")], "bench_small"))
+    cases.append(("facility:preset-typo", ["hil", "facility", "screen_smal", "-o", str(out / "f.yaml")], "screen_small"))
+    cases.append(("facility:former-preset-name", ["hil", "facility", "bench_small", "-o", str(out / "g.yaml")],
+                  "now named screen_small"))
+    cases.append(("facility:former-preset-name-render", ["render", "--hil", "bench", "-o", str(out / "h")], "give screen"))
     return cases
 
 
@@ -301,8 +304,8 @@ def _flag_cases(tmp, inp, out):
         (exp + ["--set", "collimator.focal_length_mm=-5"], "collimator.focal_length_mm"),
         (exp + ["--dask-scheduler", "not an address"], "--dask-scheduler"),
         (["hil", "export", str(inp / "ds512"), "--facility", fac, "-o", str(out / "e2"), "-q"], "camera"),
-        (["hil", "export", str(inp / "ds512"), "--facility", "bench_small", "-o", str(out / "e3"), "-q"], "camera"),
-        (["render", "--hil", "bench_small", "--seed", "-1", "-o", str(out / "r")], "--seed"),
+        (["hil", "export", str(inp / "ds512"), "--facility", "screen_small", "-o", str(out / "e3"), "-q"], "camera"),
+        (["render", "--hil", "screen_small", "--seed", "-1", "-o", str(out / "r")], "--seed"),
         (["render", "--hil", "no_such_bench", "-o", str(out / "r")], "no_such_bench"),
         (["calibrate", "patterns", fac], "--output"),
         (["calibrate", "frobnicate", fac], "frobnicate"),
@@ -346,16 +349,16 @@ def _path_cases(tmp, inp, out):
          str(out)),
         ("path:radiometric-csv-a-folder", ["calibrate", "radiometric", fac, "--measurements", caps, "-o",
                                            str(out / "r.yaml"), "-q"], caps),
-        ("path:hil-facility-onto-a-folder", ["hil", "facility", "bench_small", "-o", str(out), "-q"], str(out)),
+        ("path:hil-facility-onto-a-folder", ["hil", "facility", "screen_small", "-o", str(out), "-q"], str(out)),
         ("path:hil-facility-onto-itself", ["hil", "facility", fac, "-o", fac, "-q"], fac),
-        ("path:hil-facility-under-a-file", ["hil", "facility", "bench_small", "-o", a_file + "/f.yaml", "-q"], a_file),
-        ("path:hil-facility-onto-a-device", ["hil", "facility", "bench_small", "-o", "/dev/full", "-q"], "/dev/full"),
-        ("path:hil-facility-into-dev", ["hil", "facility", "bench_small", "-o", "/dev/skynav.yaml", "-q"], "/dev"),
+        ("path:hil-facility-under-a-file", ["hil", "facility", "screen_small", "-o", a_file + "/f.yaml", "-q"], a_file),
+        ("path:hil-facility-onto-a-device", ["hil", "facility", "screen_small", "-o", "/dev/full", "-q"], "/dev/full"),
+        ("path:hil-facility-into-dev", ["hil", "facility", "screen_small", "-o", "/dev/skynav.yaml", "-q"], "/dev"),
         ("path:geometric-into-sys", ["calibrate", "geometric", fac, "--patterns", pats, "--captures", caps, "-o",
                                      "/sys/cal.yaml", "-q"], "/sys"),
         ("path:simulate-into-proc", ["calibrate", "simulate", fac, "--patterns", pats, "-o", "/proc/caps", "-q"], "/proc"),
         ("path:patterns-under-a-file", ["calibrate", "patterns", fac, "-o", a_file + "/p", "-q"], a_file),
-        ("path:hil-facility-in-proc", ["hil", "facility", "bench_small", "-o", "/proc/skynav.yaml", "-q"], "/proc/skynav.yaml"),
+        ("path:hil-facility-in-proc", ["hil", "facility", "screen_small", "-o", "/proc/skynav.yaml", "-q"], "/proc/skynav.yaml"),
         ("path:bench-ip-into-dataset", ["bench", "ip", ds, "-o", ds + "/report", "-q"], ds),
         ("path:bench-ip-onto-dataset", ["bench", "ip", ds, "-o", ds, "-q"], ds),
         ("path:bench-ip-no-dir", ["bench", "ip", str(inp / "nodir"), "-o", str(out / "ip"), "-q"], "nodir"),
@@ -584,14 +587,14 @@ def test_every_bad_input_gives_one_line_exit_2_and_leaves_the_inputs_alone(world
 
 # ----------------------------------------------------------------------------- the good paths, on the command line
 SMALL_CAMERA = ["--set", "camera.width=256", "--set", "camera.height=256", "--set",
-                "camera.pixel_pitch_um=55.102181471395305"]  # the bench_small facility's camera
+                "camera.pixel_pitch_um=55.102181471395305"]  # the screen_small facility's camera
 
 
 @pytest.mark.parametrize("facility", ["preset", "nominal", "calibrated"])
 def test_render_hil_documented_paths_run_on_the_command_line(world, facility, capsys):
     """``skynav render --hil`` with a preset, a nominal facility file and a calibrated one."""
     tmp, inp, out = world
-    fac = {"preset": "bench_small", "nominal": str(inp / "fac.yaml"), "calibrated": str(inp / "cal.yaml")}[facility]
+    fac = {"preset": "screen_small", "nominal": str(inp / "fac.yaml"), "calibrated": str(inp / "cal.yaml")}[facility]
     before = _sha_tree(inp)
     dest = out / f"render_{facility}"
     code, stdout, err = _run(["render", "--hil", fac, "-o", str(dest), *SMALL_CAMERA], capsys)
@@ -632,10 +635,10 @@ def test_a_power_meter_table_with_a_byte_order_mark_is_read(world, capsys):
 
 def test_set_collimator_focal_length_on_a_nominal_preset_changes_the_model(world, capsys):
     tmp, inp, out = world
-    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "bench_small", "-o", str(out / "f55"), "-q",
+    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "screen_small", "-o", str(out / "f55"), "-q",
                          "--set", "collimator.focal_length_mm=55"], capsys)
     assert code == 0, err
-    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "bench_small", "-o", str(out / "f50"), "-q"], capsys)
+    code, _, err = _run(["hil", "export", str(inp / "ds"), "--facility", "screen_small", "-o", str(out / "f50"), "-q"], capsys)
     assert code == 0, err
     a = json.loads((out / "f55" / "frames" / "000000.json").read_text())["stars"]
     b = json.loads((out / "f50" / "frames" / "000000.json").read_text())["stars"]

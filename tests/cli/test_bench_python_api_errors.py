@@ -82,9 +82,9 @@ def test_a_truth_with_a_damaged_camera_gives_one_line(ds_root, tmp_path):
 
 def test_the_facility_loader_names_the_file_and_the_key(tmp_path):
     from skynav.calibration.facility_io import load_facility
-    from skynav.scenes.facility import bench_small_preset, facility_from_mapping
+    from skynav.scenes.facility import screen_small_preset, facility_from_mapping
 
-    m = bench_small_preset().to_mapping()
+    m = screen_small_preset().to_mapping()
     m["geometric"]["parameters"]["k_1"] = 0.1
     f = tmp_path / "f.yaml"
     f.write_text(yaml.safe_dump(m))
@@ -109,3 +109,14 @@ def test_the_calibration_readers_raise_skynav_errors(tmp_path):
     with pytest.raises(ValueError) as e:
         read_measurements(tmp_path / "pm.csv")
     _one_line(e, ValueError, "pm.csv")
+
+
+def test_a_former_facility_preset_name_is_refused_naming_the_new_one():
+    """"bench" means only the benchmark commands: the facility presets are screen and screen_small."""
+    from skynav.calibration.errors import FacilityFileError
+    from skynav.calibration.facility_io import load_facility
+
+    for old, new in (("bench", "screen"), ("bench_small", "screen_small")):
+        with pytest.raises(FacilityFileError, match=f"now named {new} .*; give {new}$"):
+            load_facility(old)
+        assert load_facility(new).name == new

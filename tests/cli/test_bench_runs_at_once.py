@@ -31,7 +31,7 @@ def inputs(tmp_path_factory):
     from skynav.calibration.bench_files import write_patterns
 
     tmp = tmp_path_factory.mktemp("runs_at_once")
-    fac = load_facility("bench_small")
+    fac = load_facility("screen_small")
     write_patterns(fac, tmp / "pats", phases=2)
     recipe = datasets.preset_recipe("montecarlo")
     recipe.update(frames=2, formats=["png", "json"], camera=fac.camera.to_dict())
@@ -50,10 +50,10 @@ def test_a_second_run_on_a_held_folder_is_refused(inputs, tmp_path, capsys, comm
 
     out = tmp_path / "out"
     out.mkdir()
-    argv = {"simulate": ["calibrate", "simulate", "bench_small", "--patterns", str(inputs / "pats"), "-o", str(out),
+    argv = {"simulate": ["calibrate", "simulate", "screen_small", "--patterns", str(inputs / "pats"), "-o", str(out),
                          "--frames", "1", "-q"],
-            "export": ["hil", "export", str(inputs / "ds"), "--facility", "bench_small", "-o", str(out), "-q"],
-            "patterns": ["calibrate", "patterns", "bench_small", "-o", str(out), "-q"]}[command]
+            "export": ["hil", "export", str(inputs / "ds"), "--facility", "screen_small", "-o", str(out), "-q"],
+            "patterns": ["calibrate", "patterns", "screen_small", "-o", str(out), "-q"]}[command]
     with dataset_lock(out):  # another live run holds the folder
         _one_line(capsys, main(argv), "already running")
     assert [p.name for p in out.iterdir() if p.name != ".skynav.lock"] in ([], ["frames"])
@@ -72,7 +72,7 @@ def _kill_after_first_file(argv, folder, pattern):
 
 
 def test_a_killed_simulate_run_again_gives_the_uninterrupted_bytes(inputs, tmp_path):
-    argv = lambda out: ["calibrate", "simulate", "bench_small", "--patterns", str(inputs / "pats"), "-o", str(out),  # noqa: E731
+    argv = lambda out: ["calibrate", "simulate", "screen_small", "--patterns", str(inputs / "pats"), "-o", str(out),  # noqa: E731
                         "--frames", "2", "--seed", "5", "-q"]
     assert main(argv(tmp_path / "whole")) == 0
     _kill_after_first_file(argv(tmp_path / "killed"), tmp_path / "killed", "dots_00.png")
@@ -81,7 +81,7 @@ def test_a_killed_simulate_run_again_gives_the_uninterrupted_bytes(inputs, tmp_p
 
 
 def test_a_killed_export_run_again_gives_the_uninterrupted_bytes(inputs, tmp_path):
-    argv = lambda out: ["hil", "export", str(inputs / "ds"), "--facility", "bench_small", "-o", str(out), "-q"]  # noqa: E731
+    argv = lambda out: ["hil", "export", str(inputs / "ds"), "--facility", "screen_small", "-o", str(out), "-q"]  # noqa: E731
     assert main(argv(tmp_path / "whole")) == 0
     _kill_after_first_file(argv(tmp_path / "killed"), tmp_path / "killed", "000000.png")
     assert main(argv(tmp_path / "killed")) == 0
@@ -95,13 +95,13 @@ def test_an_export_without_its_manifest_is_remade_for_the_new_facility(inputs, t
     facility (the same bytes as a fresh export with it), none kept from the old one."""
     other = ["--set", "screen.bit_depth=8"]
     out, fresh = tmp_path / "out", tmp_path / "fresh"
-    assert main(["hil", "export", str(inputs / "ds"), "--facility", "bench_small", "-o", str(out), "-q"]) == 0
+    assert main(["hil", "export", str(inputs / "ds"), "--facility", "screen_small", "-o", str(out), "-q"]) == 0
     if damage == "lost":
         (out / "export.json").unlink()
     else:
         (out / "export.json").write_text("{trunc")
-    assert main(["hil", "export", str(inputs / "ds"), "--facility", "bench_small", "-o", str(out), "-q", *other]) == 0
-    assert main(["hil", "export", str(inputs / "ds"), "--facility", "bench_small", "-o", str(fresh), "-q", *other]) == 0
+    assert main(["hil", "export", str(inputs / "ds"), "--facility", "screen_small", "-o", str(out), "-q", *other]) == 0
+    assert main(["hil", "export", str(inputs / "ds"), "--facility", "screen_small", "-o", str(fresh), "-q", *other]) == 0
     strip = lambda files: {k: v for k, v in files.items() if k != "export.json"}  # noqa: E731
     assert strip(_files(out)) == strip(_files(fresh))
     assert json.loads((out / "frames" / "000000.json").read_text())["facility"]["screen"]["bit_depth"] == 8

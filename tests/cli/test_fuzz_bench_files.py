@@ -31,9 +31,9 @@ _values = st.recursive(_scalars, lambda inner: st.one_of(st.lists(inner, max_siz
 
 
 def _good_facility():
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    return json.loads(json.dumps(bench_small_preset().to_mapping()))
+    return json.loads(json.dumps(screen_small_preset().to_mapping()))
 
 
 def _paths(d, prefix=()):
@@ -95,9 +95,9 @@ def _check_facility(doc, tmp_path):
 
 def _good_patterns():
     from skynav.calibration.patterns import SCHEMA, design
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     pats = design(fac, phases=1)
     sc = fac.screen
     return {"schema": SCHEMA, "screen": {"width_px": sc.width_px, "height_px": sc.height_px, "bit_depth": sc.bit_depth},

@@ -46,7 +46,7 @@ def bars(stderr: str) -> dict:
     return out
 
 
-#: the camera of the bench_small facility (hil export refuses a dataset of another camera)
+#: the camera of the screen_small facility (hil export refuses a dataset of another camera)
 BENCH_SMALL_CAMERA = ("--set", "camera.width=256", "--set", "camera.height=256", "--set",
                       "camera.pixel_pitch_um=55.102181471395305")
 
@@ -66,7 +66,7 @@ def work(tmp_path_factory):
     runs["generate -q"] = _ok(skynav("dataset", "generate", "montecarlo", "-o", "mc", "--count", 3, "--workers", 2, "-q",
                                      *BENCH_SMALL_CAMERA, cwd=d))
     runs["generate"] = _ok(skynav("dataset", "generate", "sequence", "-o", "seq", "--count", 6, "--workers", 2, cwd=d))
-    runs["facility -q"] = _ok(skynav("hil", "facility", "bench_small", "-o", "fac.yaml", "-q", cwd=d))
+    runs["facility -q"] = _ok(skynav("hil", "facility", "screen_small", "-o", "fac.yaml", "-q", cwd=d))
     runs["patterns -q"] = _ok(skynav("calibrate", "patterns", "fac.yaml", "-o", "pat", "-q", cwd=d))
     runs["simulate"] = _ok(skynav("calibrate", "simulate", "fac.yaml", "--patterns", "pat", "-o", "cap", "--frames", 2,
                                   cwd=d))
@@ -136,7 +136,7 @@ def check_citations(report_dir: Path, *, cited: str) -> None:
 
 def test_hil_export_warns_once_for_an_uncalibrated_facility(work):
     d, _ = work
-    q = _ok(skynav("hil", "export", "mc", "--facility", "bench_small", "-o", "hilq", "--workers", 2, "-q", cwd=d))
+    q = _ok(skynav("hil", "export", "mc", "--facility", "screen_small", "-o", "hilq", "--workers", 2, "-q", cwd=d))
     assert q.stdout == ""
     lines = q.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(WARNING) and "never calibrated" in lines[0], q.stderr
@@ -152,7 +152,7 @@ def test_render_quiet_and_render_hil_warns_once(tmp_path):
     q = _ok(skynav("render", "-o", "r", "-q", "--set", "camera.width=128", "--set", "camera.height=128", cwd=tmp_path))
     assert (q.stdout, q.stderr) == ("", "")
     assert (tmp_path / "r" / "frame.png").is_file()
-    h = _ok(skynav("render", "--hil", "bench", "-o", "s", cwd=tmp_path))
+    h = _ok(skynav("render", "--hil", "screen", "-o", "s", cwd=tmp_path))
     assert "screen frame 2560x2560 10-bit" in h.stdout
     lines = h.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(WARNING) and "bench was never calibrated" in lines[0], h.stderr

@@ -71,10 +71,10 @@ def test_facility_file_psf_is_read_beside_the_facility_file(lab):
     import dataclasses
 
     from skynav.calibration.facility_io import load_facility, write_facility
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
     folder, real = lab
-    f = bench_small_preset()
+    f = screen_small_preset()
     f = dataclasses.replace(f, camera=f.camera.replace(psf=real))
     path = write_facility(f, folder / "facility.yaml")
     text = path.read_text()

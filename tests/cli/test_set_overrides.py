@@ -127,14 +127,14 @@ def test_hil_export_set_addresses_the_facility(tiny_dataset, tmp_path, capsys):
     # the dataset's camera (128 px, the paper camera's pitch) set on the facility: export refuses another
     cam = ["--set", "camera.width=128", "--set", "camera.height=128", "--set",
            f"camera.pixel_pitch_um={paper_camera().pixel_pitch_um!r}"]
-    assert main(["hil", "export", str(tiny_dataset), "--facility", "bench_small", "-o", str(out), "-q",
+    assert main(["hil", "export", str(tiny_dataset), "--facility", "screen_small", "-o", str(out), "-q",
                  "--set", "screen.bit_depth=8", *cam]) == 0
     assert json.loads((out / "frames" / "000000.json").read_text())["facility"]["screen"]["bit_depth"] == 8
     assert "never calibrated" in capsys.readouterr().err  # the nominal facility's one warning line
-    _one_line(capsys, main(["hil", "export", str(tiny_dataset), "--facility", "bench_small", "-o", str(tmp_path / "x"),
+    _one_line(capsys, main(["hil", "export", str(tiny_dataset), "--facility", "screen_small", "-o", str(tmp_path / "x"),
                             "--set", "screen.gama=2"]),
               "--set screen.gama=2: the facility has no key screen.gama; allowed keys in screen: bit_depth, height_px")
-    _one_line(capsys, main(["hil", "export", str(tiny_dataset), "--facility", "bench_small", "-o", str(tmp_path / "x"),
+    _one_line(capsys, main(["hil", "export", str(tiny_dataset), "--facility", "screen_small", "-o", str(tmp_path / "x"),
                             "--set", "radiometric.parameters.gamma=steep"]),
               "radiometric.parameters.gamma = 'steep' is not allowed; expected a finite number")
 

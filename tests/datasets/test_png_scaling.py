@@ -142,10 +142,10 @@ def screen(tmp_path_factory):
     from skynav.datasets.hil_export import write_screen_frame
     from skynav.renderer.display import screen_frame
     from skynav.scenes import config, presets
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
     from skynav.scenes.scene import build_from_spec
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     scene = build_from_spec(config.scene_spec_from_mapping(presets.preset_mapping("default")))
     out = tmp_path_factory.mktemp("screen")
     rec = write_screen_frame(fac, scene, out, "f", source={"scene": "default"}, seed=3)
@@ -180,9 +180,9 @@ def test_screen_frame_of_0_3_0_reads_the_same_screen_dn(screen, tmp_path):
 # ----------------------------------------------------------------------------- calibration patterns
 @pytest.fixture(scope="module")
 def small_facility():
-    from skynav.scenes.facility import bench_small_preset
+    from skynav.scenes.facility import screen_small_preset
 
-    return bench_small_preset()
+    return screen_small_preset()
 
 
 @pytest.fixture(scope="module")

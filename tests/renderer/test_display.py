@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from skynav.scenes import config, presets
-from skynav.scenes.facility import FlatField, bench_small_preset
+from skynav.scenes.facility import FlatField, screen_small_preset
 from skynav.scenes.scene import build_from_spec
 
 
@@ -19,7 +19,7 @@ def scene():
 def test_expected_image_at_the_projection_size(scene):
     from skynav.renderer.render import RenderOptions, expected_image
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     opts = RenderOptions(resolved=False)
     img = expected_image(scene, projection=fac.projection, rng=np.random.default_rng(0), options=opts, own_size=True)
     assert img.electrons.shape == (640, 640)
@@ -31,7 +31,7 @@ def test_expected_image_at_the_projection_size(scene):
 def test_stars_land_where_their_line_of_sight_is(scene):
     from skynav.renderer.display import screen_frame
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     sf = screen_frame(scene, fac, rng=np.random.default_rng(0))
     assert sf.dn.shape == (640, 640) and sf.dn.dtype == np.uint16
     e = sf.electrons
@@ -48,7 +48,7 @@ def test_stars_land_where_their_line_of_sight_is(scene):
 def test_flat_field_is_corrected(scene):
     from skynav.renderer.display import dn_of_electrons
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     flat = FlatField(x_px=[0, 319.5, 639], y_px=[0, 319.5, 639], relative=[[0.7, 0.8, 0.7], [0.8, 1.0, 0.8], [0.7, 0.8, 0.7]])
     vf = fac.replace(flat_field=flat)
     e = np.full(3, 2000.0)

@@ -169,9 +169,9 @@ def test_screen_projection_disk_photocentre_where_the_bench_puts_it(mitsuba_vari
     within 1e-3 (tolerances as above: sampling noise ~0.003 px, ~1e-4)."""
     import dataclasses
 
-    from skynav.scenes.facility import GeometricModel, bench_small_preset
+    from skynav.scenes.facility import GeometricModel, screen_small_preset
 
-    fac = bench_small_preset()
+    fac = screen_small_preset()
     geo = GeometricModel(focal_length_mm=50.0, decentre_x_mm=0.3, decentre_y_mm=-0.2, tilt_x_rad=0.01, tilt_y_rad=-0.02,
                          roll_rad=0.05, k1=-0.08, k2=0.01, p1=2e-4, p2=-1e-4, misalignment_rad=(1e-3, -2e-3, 4e-3))
     proj = dataclasses.replace(fac, geometric=geo).projection

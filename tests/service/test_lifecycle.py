@@ -47,13 +47,13 @@ def test_screen_png_is_the_bytes_of_render_hil(tmp_path):
     from skynav.scenes.presets import preset_mapping
     from skynav.service import Client, ServiceError
 
-    s = start_server("--workers", "1", "--facility", "bench")
+    s = start_server("--workers", "1", "--facility", "screen")
     try:
         good = Client(s.url)
-        assert good.health()["facility"] == "bench" and "screen_png" in good.health()["outputs"]
+        assert good.health()["facility"] == "screen" and "screen_png" in good.health()["outputs"]
         # the bench screen frame: the bytes of skynav render --hil (same code, same seed)
         screen = good.render(preset_mapping("default"), outputs=("screen_png",)).screen_png
-        run = subprocess.run([sys.executable, "-m", "skynav", "render", "--hil", "bench", "-o", str(tmp_path / "hil")],
+        run = subprocess.run([sys.executable, "-m", "skynav", "render", "--hil", "screen", "-o", str(tmp_path / "hil")],
                              capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, run.stderr
         assert screen == (tmp_path / "hil" / "frames" / "frame.png").read_bytes()
