@@ -9,7 +9,75 @@ __all__ = ["ProcessOptions"]
 
 @dataclass(frozen=True, kw_only=True)
 class ProcessOptions:
-    """Speed/accuracy trade-offs of :func:`process_frame` (one object; vary with ``replace``)."""
+    """Speed/accuracy trade-offs of :func:`process_frame` (one object; vary with ``replace``).
+
+    "paper" and "improved" are the two modes of :func:`process_frame`; a parameter marked
+    improved is used by that mode only.
+
+    Parameters
+    ----------
+    T : float
+        Threshold of the spot detection, in sigmas of the background (paper Eq. 6; improved: on
+        the robust sigma).
+    T_step : float
+        Increase of ``T`` after a failed identification.
+    T_max_iterations : int
+        Tries of the identification with increasing ``T``.
+    eps_px : float
+        Range error of the k-vector search, px of the field (converted to an angle).
+    eps_max_arcsec : float
+        Largest range error of the k-vector search, arcsec (bounds the false pairs with coarse
+        pixels).
+    inlier_px : float
+        RANSAC and association tolerance, px.
+    n_max : int
+        Brightest spots used for the votes.
+    n_ransac : int
+        Paper mode: random triples tried.
+    min_matches : int
+        Improved: stars needed to accept an attitude.
+    max_spots : int
+        More regions than this: status ``too_many_spots``.
+    saturated_fraction : float
+        More saturated pixels than this fraction: status ``saturated``.
+    sigma_qv : float
+        Attitude measurement noise of the vector part of the quaternion (paper Eq. 22), no unit.
+    mag_sigma : float
+        Improved: standard deviation of the beacon brightness prior, mag.
+    deep_star_radius_px : float
+        Improved: spots this close to a deep-catalogue star are stars, px.
+    refine_v_mag : float
+        Improved: catalogue depth of the final attitude, V mag (5.5: off).
+    refine_px : float
+        Improved: association radius of the final attitude, px.
+    refine_max_spots : int
+        Improved: brightest spots offered to the final association.
+    variance_weights : bool
+        Improved: the final Wahba problem weighted by each star's centroid variance.
+    blend_px : float
+        Improved: beacons predicted closer than this may share a spot, px.
+    track_window_px : float
+        Improved tracking: half-size of the windows around predicted stars and beacons, px
+        (0: full-frame tracking).
+    track_window_max_px : float
+        Largest window (a beacon's 3-sigma reach), px; beyond it the full frame is used.
+    track_coarse_stars : int
+        Windowed tracking, first pass: the brightest predicted stars measured.
+    seed : int
+        Seed of the paper mode's RANSAC draws.
+
+    References
+    ----------
+    Andreis et al. (2023a), Eq. 6 (threshold), Sec. III.A.2 (k-vector), Eq. 22 (attitude noise).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.pipeline import ProcessOptions
+    >>> fast = dataclasses.replace(ProcessOptions(), refine_v_mag=5.5, track_window_px=0.0)
+    >>> fast.T, fast.refine_v_mag
+    (5.0, 5.5)
+    """
 
     T: float = 5.0                      # Eq. 6 tuning parameter (improved: on the robust sigma)
     T_step: float = 2.0                 # paper: T increase after a failed ID

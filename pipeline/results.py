@@ -35,11 +35,27 @@ BEACON_STATUSES = ("found", "not_found")
 class PredictedState:
     """The spacecraft's own prediction of its state (ICRS, barycentric), from the filter.
 
-    Attributes
+    Parameters
     ----------
-    position_km : ndarray, shape (3,), km
-    velocity_km_s : ndarray, shape (3,), km/s
-    position_cov_km2 : ndarray, shape (3, 3), km^2
+    position_km : array_like, shape (3,)
+        Position, km.
+    velocity_km_s : array_like, shape (3,)
+        Velocity, km/s.
+    position_cov_km2 : array_like, shape (3, 3)
+        Covariance of the position, km^2 (sizes the beacons' search ellipses).
+
+    Raises
+    ------
+    ValueError
+        An array of another shape.
+
+    Examples
+    --------
+    >>> from skynav.pipeline import PredictedState
+    >>> s = PredictedState(position_km=[1.5e8, 0, 0], velocity_km_s=[0, 30, 0],
+    ...                    position_cov_km2=np.eye(3) * 1e4)
+    >>> s.position_km.tolist(), s.position_km.flags.writeable
+    ([150000000.0, 0.0, 0.0], False)
     """
 
     position_km: np.ndarray
@@ -70,6 +86,13 @@ class AttitudeResult:
     error_estimate_arcsec : float
         1-sigma total pointing uncertainty estimate, arcsec (sqrt of the covariance trace; nan
         when not solved).
+
+    Examples
+    --------
+    >>> from skynav.pipeline import AttitudeResult
+    >>> unsolved = AttitudeResult()
+    >>> unsolved.R_cam_icrs is None, unsolved.n_stars, unsolved.error_estimate_arcsec
+    (True, 0, nan)
     """
 
     R_cam_icrs: np.ndarray | None = None
@@ -94,6 +117,18 @@ class BeaconResult:
         Covariance of the predicted projection (Andreis et al. (2023a), Eq. 13-22), px^2.
     status : str
         One of :data:`BEACON_STATUSES`.
+
+    References
+    ----------
+    Andreis et al. (2023a), Eqs. 13-22 (the predicted projection and its covariance).
+
+    Examples
+    --------
+    >>> from skynav.pipeline import BeaconResult
+    >>> b = BeaconResult(name="mars", xy_px=None, predicted_xy_px=np.array([100.0, 80.0]),
+    ...                  predicted_cov_px2=np.eye(2) * 4.0, status="not_found")
+    >>> b.status, float(np.sqrt(b.predicted_cov_px2[0, 0]))   # 1-sigma, px
+    ('not_found', 2.0)
     """
 
     name: str
@@ -127,6 +162,31 @@ class FrameResult:
         Catalog ids (HIP numbers) of the matched stars.
     matched_spot_index : ndarray, shape (M,), int
         Rows of ``centroids_xy_px`` matched to ``matched_star_ids``.
+
+    Examples
+    --------
+    One 256 x 256 px frame of a 20 deg camera, rendered, then processed:
+
+    >>> import tempfile
+    >>> from skynav.datasets import generate, open, preset_recipe
+    >>> from skynav.pipeline import OnboardCatalog, PredictedState, process_frame
+    >>> from skynav.renderer import RenderOptions
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=1, camera={"preset": "paper", "width": 256, "height": 256, "fov_deg": 20})
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> _ = generate(recipe, tmp.name + "/ds", workers=1, progress=False,
+    ...              render_options=RenderOptions(backend="numpy"))
+    >>> ds = open(tmp.name + "/ds")
+    >>> obs, truth = ds.observation(0), ds.truth(0)
+    >>> catalog = OnboardCatalog.load(camera=obs.camera)
+    >>> state = PredictedState(position_km=truth.position_km, velocity_km_s=truth.velocity_km_s,
+    ...                        position_cov_km2=np.eye(3) * 100.0**2)
+    >>> result = process_frame(obs, catalog=catalog, predicted_state=state)
+    >>> result.ok, result.mode, result.attitude.R_cam_icrs.shape
+    (True, 'improved', (3, 3))
+    >>> len(result.matched_star_ids) == len(result.matched_spot_index) == result.attitude.n_stars
+    True
+    >>> tmp.cleanup()
     """
 
     status: str
@@ -141,4 +201,5 @@ class FrameResult:
 
     @property
     def ok(self) -> bool:
+        """``status == "ok"``: the attitude was solved and verified."""
         return self.status == "ok"
