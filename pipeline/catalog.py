@@ -48,6 +48,23 @@ class OnboardCatalog:
         Build parameters.
     build_time_s : float
         Wall time of the build (pairs + sort + k-vector), s; 0 when loaded from the cache.
+    deep_cache : dict
+        The deeper catalogues of :meth:`deep_stars`, by magnitude limit (filled on use).
+
+    References
+    ----------
+    Andreis et al. (2023a), Sec. III.A.2 (the k-vector of inter-star angles); Mortari, D. &
+    Neta, B. (2000), "k-vector range searching techniques", AAS 00-128.
+
+    Examples
+    --------
+    >>> from skynav.pipeline import OnboardCatalog
+    >>> from skynav.scenes import paper_camera
+    >>> cat = OnboardCatalog.load(camera=paper_camera())   # built and cached on first use
+    >>> cat
+    OnboardCatalog(<2867 stars V<5.5, 265116 pairs < 28.00 deg>)
+    >>> bool(np.all(np.diff(cat.kvector.values) >= 0))   # pair angles, sorted, rad
+    True
     """
 
     stars: object

@@ -32,7 +32,33 @@ __all__ = ["UpdateResult", "NavFilter", "initial_covariance"]
 
 def initial_covariance(*, sigma_position_km: float = 1e4, sigma_velocity_km_s: float = 0.1,
                        sigma_residual_km_s2: float = 5e-10, sigma_srp_km_s2: float = 5e-10) -> np.ndarray:
-    """P0 of Andreis et al. (2023b), Table 2 (defaults: 1e4 km, 0.1 km/s, 5e-10 km/s^2 twice), shape (12, 12)."""
+    """Initial covariance P0 of the 12-state filter, diagonal.
+
+    Parameters
+    ----------
+    sigma_position_km : float
+        1-sigma of each position component, km.
+    sigma_velocity_km_s : float
+        1-sigma of each velocity component, km/s.
+    sigma_residual_km_s2, sigma_srp_km_s2 : float
+        1-sigma of each component of the two Gauss-Markov accelerations, km/s^2.
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
+        ``diag(sigma^2)`` over ``(r, v, eta_R, eta_SRP)``: km^2, km^2/s^2, km^2/s^4.
+
+    References
+    ----------
+    Andreis et al. (2023b), Table 2 (the defaults: 1e4 km, 0.1 km/s, 5e-10 km/s^2 twice).
+
+    Examples
+    --------
+    >>> from skynav.pipeline import initial_covariance
+    >>> P0 = initial_covariance(sigma_position_km=100.0)
+    >>> P0.shape, np.sqrt(np.diag(P0))[[0, 3, 6, 9]].tolist()
+    ((12, 12), [100.0, 0.1, 5e-10, 5e-10])
+    """
     return np.diag([sigma_position_km**2] * 3 + [sigma_velocity_km_s**2] * 3
                    + [sigma_residual_km_s2**2] * 3 + [sigma_srp_km_s2**2] * 3)
 
@@ -58,12 +84,19 @@ class UpdateResult:
 class NavFilter:
     """N extended Kalman filters sharing dynamics and epochs.
 
+    The state of each run is ``x = (r, v, eta_R, eta_SRP)``: barycentric ICRS position (km),
+    velocity (km/s) and two Gauss-Markov accelerations (km/s^2).
+
     Parameters
     ----------
     dynamics : BoundDynamics
-    x0 : ndarray, shape (N, 12)
+        :meth:`FilterDynamics.bind` over the span of the filter.
+    x0 : ndarray, shape (N, 12) or (12,)
+        Initial states of the N runs.
     P0 : ndarray, shape (12, 12) or (N, 12, 12)
+        Initial covariances (:func:`initial_covariance`).
     t0_tdb_s : float
+        Epoch of ``x0``, TDB s past J2000.
     corrections : LightCorrections
         Measurement-model case (:data:`skynav.pipeline.measurement.CASES`).
     gate_k : float
@@ -71,6 +104,27 @@ class NavFilter:
     iterations : int
         1: the EKF update; n > 1: the iterated EKF, relinearising the measurement n - 1 times about
         the updated state (the gate is on the first innovation).
+
+    References
+    ----------
+    Andreis et al. (2023b), Eqs. 1-7 and Table 2 (dynamics, noise, initial covariance);
+    Andreis et al. (2024), Eqs. 26-42 (the planet measurement and its Jacobian).
+
+    Examples
+    --------
+    One run from 5e6 km beside the Earth, propagated one hour:
+
+    >>> from skynav.pipeline import FilterDynamics, NavFilter, initial_covariance
+    >>> from skynav.scenes import default_ephemeris
+    >>> eph = default_ephemeris()
+    >>> r, v = eph.position_velocity("earth", 0.0)
+    >>> nav = NavFilter(FilterDynamics().bind(eph, 0.0, 86400.0),
+    ...                 np.concatenate([r + 5e6, v, np.zeros(6)]), initial_covariance(), 0.0)
+    >>> nav.propagate(3600.0)
+    >>> nav.x.shape, nav.P.shape, nav.t
+    ((1, 12), (1, 12, 12), 3600.0)
+    >>> bool(np.sqrt(nav.P[0, 0, 0]) > 1e4)   # the position sigma grows, km
+    True
     """
 
     def __init__(self, dynamics: BoundDynamics, x0, P0, t0_tdb_s: float, *,
@@ -89,6 +143,7 @@ class NavFilter:
 
     @property
     def n_runs(self) -> int:
+        """Number of runs N (the batch axis)."""
         return self.x.shape[0]
 
     def propagate(self, t_tdb_s: float) -> None:

@@ -31,7 +31,7 @@ above the campaign's 0.35 m/s 3-sigma target.
 The GM driving noises have power spectral densities
 ``q_R = 2 xi sigma_R^2`` and ``q_SRP = 2 xi sigma_SRP^2`` (so ``sigma_*`` is the steady-state
 standard deviation of each GM process), and the velocity gets ``q_a = (q_R + q_SRP) / (2 xi)``
-(km^2/s^3 read as a PSD). Covariance: ``dP/dt = F P + P F^T + Q`` (001 Table 1) integrated with
+(km^2/s^3 read as a PSD). Covariance: ``dP/dt = F P + P F^T + Q`` (Andreis et al. (2023b), Table 1) integrated with
 the state by :func:`scipy.integrate.solve_ivp`.
 
 Non-dimensional units (Andreis et al. (2024), Sec. 4.3, after Andreis et al.): the integration runs in
@@ -75,8 +75,9 @@ class FilterDynamics:
     Attributes
     ----------
     bodies : tuple of str
-        Point masses (ephemeris names).
+        Point masses (ephemeris names); must include ``"sun"``.
     srp : SpacecraftSRP or None
+        Cannonball solar radiation pressure (None: none).
     correlation_time_s : float
         ``1 / xi`` of the GM processes (Andreis et al. (2023b) does not list it; 10 days).
     sigma_residual_km_s2, sigma_srp_km_s2 : float
@@ -84,6 +85,21 @@ class FilterDynamics:
         the 5e-10 km/s^2 of Andreis et al. (2023b), Table 2, is their initial sigma).
     rtol, atol : float
         Integrator tolerances (non-dimensional).
+
+    References
+    ----------
+    Andreis et al. (2023b), Eqs. 1-7 and Table 2; Andreis et al. (2024), Sec. 4.3
+    (non-dimensional units).
+
+    Examples
+    --------
+    >>> from skynav.pipeline import FilterDynamics
+    >>> model = FilterDynamics()
+    >>> model.correlation_time_s / 86400.0   # days
+    10.0
+    >>> Q = model.process_noise_psd()
+    >>> Q.shape, bool(np.isclose(Q[6, 6], 2 / model.correlation_time_s * 1e-22))
+    ((12, 12), True)
     """
 
     bodies: tuple = ("sun", "mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
@@ -102,6 +118,7 @@ class FilterDynamics:
 
     @property
     def xi_per_s(self) -> float:
+        """``xi = 1 / correlation_time_s``, 1/s."""
         return 1.0 / self.correlation_time_s
 
     def process_noise_psd(self) -> np.ndarray:

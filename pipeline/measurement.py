@@ -105,6 +105,23 @@ class LightCorrections:
         First-order aberration in the model (Eq. 33).
     deaberrate_measurement : bool
         Case 2: the measured centroid is de-aberrated in image processing instead.
+
+    Raises
+    ------
+    ValueError
+        Aberration both in the model and removed from the measurement.
+
+    References
+    ----------
+    Andreis et al. (2024), Sec. 5.2 (cases 1-5), Eqs. 26-33.
+
+    Examples
+    --------
+    >>> from skynav.pipeline import CASES, LightCorrections
+    >>> CASES[2]
+    LightCorrections(light_time=True, aberration=False, deaberrate_measurement=True)
+    >>> LightCorrections(light_time=False, aberration=False) == CASES[3]
+    True
     """
 
     light_time: bool = True
@@ -186,6 +203,7 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
         its centre (an addition to Andreis et al. (2024)). The Jacobian treats the offset as constant (its
         derivative is ~ offset / distance, < 1e-3 of ``H``).
     planet_radius_km : float
+        The planet's radius, km (0: aim at its centre).
     photocentre : str
         Which centre of light (:data:`PHOTOCENTRE_LAWS`): ``"lambert"`` (the brightness-weighted
         one) or ``"saturated"`` (the lit area's, for a resolved disc whose pixels are at full scale).
@@ -193,10 +211,28 @@ def planet_pixel(position_km, velocity_km_s, planet_position_km, planet_velocity
     Returns
     -------
     PlanetMeasurement
+        ``xy_px`` (2,), px; ``H`` (2, 6), the Jacobian wrt ``(r, v)`` in px/km and px/(km/s);
+        ``light_time_s``; ``los_icrs``.
 
     References
     ----------
-    Andreis et al. (2024), Eq. 26-42.
+    Andreis et al. (2024), Eqs. 26-42.
+
+    Examples
+    --------
+    A planet 1e8 km away on the boresight, the spacecraft moving across the line of sight at
+    30 km/s: aberration moves it by 20.6 arcsec, 0.29 px of the paper camera:
+
+    >>> from skynav.pipeline import CASES, planet_pixel
+    >>> from skynav.scenes import paper_camera, point_boresight
+    >>> r, v = np.array([1.5e8, 0.0, 0.0]), np.array([30.0, 0.0, 0.0])
+    >>> rp, vp = np.array([1.5e8, 1e8, 0.0]), np.zeros(3)
+    >>> cam, R = paper_camera(), point_boresight(rp - r)
+    >>> planet_pixel(r, v, rp, vp, R, cam, corrections=CASES[3]).xy_px   # geometric
+    array([511.5, 511.5])
+    >>> m = planet_pixel(r, v, rp, vp, R, cam)   # light-time and aberration
+    >>> m.xy_px.round(3), m.H.shape, round(m.light_time_s, 2)
+    (array([511.5  , 511.209]), (2, 6), 333.56)
     """
     r = np.asarray(position_km, dtype=float)
     v = np.asarray(velocity_km_s, dtype=float)

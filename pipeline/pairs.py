@@ -72,7 +72,40 @@ def figure_of_merit(l_i, d_i_km, l_j, d_j_km, sigma_rad: float = 1.0) -> float:
 
 
 def optimal_pair(candidates, *, limiting_v_mag: float = 7.0, elongation_min_rad: float = math.radians(20.0)):
-    """The pair of eligible :class:`PairCandidate` minimising :func:`figure_of_merit` (or None)."""
+    """The pair of eligible planets minimising :func:`figure_of_merit` (or None).
+
+    Parameters
+    ----------
+    candidates : sequence of PairCandidate
+        The planets as the spacecraft predicts to see them (:func:`candidates_from_state`).
+    limiting_v_mag : float
+        Eligible when ``V < limiting_v_mag``, mag.
+    elongation_min_rad : float
+        Eligible when the angle from the Sun exceeds this, rad.
+
+    Returns
+    -------
+    PairChoice or None
+        The pair (the brighter tracked first), its ``J`` and every pair's; one eligible planet
+        gives that planet twice (``J`` infinite); None when none is eligible.
+
+    References
+    ----------
+    Andreis et al. (2024), Sec. 2.2, Eqs. 1-2, and Sec. 5.2 (V < 7, 20 deg).
+
+    Examples
+    --------
+    Venus is brightest but 11 deg from the Sun: the pair is Jupiter and Mars.
+
+    >>> from skynav.pipeline import optimal_pair
+    >>> from skynav.pipeline.pairs import PairCandidate
+    >>> c = [PairCandidate(name="mars", los_icrs=(1.0, 0, 0), distance_km=1.5e8, v_mag=-1.0, elongation_rad=2.0),
+    ...      PairCandidate(name="jupiter", los_icrs=(0, 1.0, 0), distance_km=6e8, v_mag=-2.0, elongation_rad=1.5),
+    ...      PairCandidate(name="venus", los_icrs=(0.6, 0.8, 0), distance_km=1e8, v_mag=-4.0, elongation_rad=0.2)]
+    >>> choice = optimal_pair(c)
+    >>> choice.first, choice.second, round(choice.figure_of_merit, 3)
+    ('jupiter', 'mars', 18.038)
+    """
     elig = [c for c in candidates if c.name in PLANETS and np.isfinite(c.v_mag) and c.v_mag < limiting_v_mag
             and c.elongation_rad > elongation_min_rad]
     if not elig:
