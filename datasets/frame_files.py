@@ -10,7 +10,7 @@ renderer. File contracts are those of docs/conventions.md "Files":
   ``source_id``. Compression is RLE (run-length on bytes, EXR 1.0): lossless for float32 and
   uint32, deterministic, and read by every EXR tool. Chosen by measurement on the default
   frame's two 1024 x 1024 float32 maps (96 % zero pixels; one thread, OpenEXR 3.5, median of 12
-  writes; docs/conventions.md "What changed"): RLE 26 ms, 460 kB; ZIP 36 ms, 362 kB (its
+  writes; CHANGELOG.md): RLE 26 ms, 460 kB; ZIP 36 ms, 362 kB (its
   ``zipCompressionLevel`` 1..9 changes neither); ZIPS 60 ms; ZSTD 43 ms, 429 kB (and OpenEXR >= 3.4
   only); PIZ 94 ms, 0.9 MB; none 9 ms, 8.4 MB. The Python binding holds the GIL while it writes,
   so a writer thread would not overlap it with rendering. The RLE chunks of files whose channels
@@ -606,7 +606,7 @@ def _png_bytes(a: np.ndarray, sbit: int | None, level: int) -> bytes:
     in 0.18 ms instead of 1.4 ms on the default frame (1024 x 1024, 8 bit, 10 kB). Pillow's
     adaptive filters with zlib: 13 ms, 16 kB. ISA-L (``isal``, level 1) took 0.13 ms and 15 kB,
     but its bytes for the same rows were not always the same from one process to the next (the
-    DN were), so a dataset's files were not reproducible (docs/conventions.md "What changed")."""
+    DN were), so a dataset's files were not reproducible (CHANGELOG.md)."""
     h, w = a.shape
     if a.dtype == np.uint16:
         a = a.astype(">u2", copy=False)  # PNG samples are big-endian

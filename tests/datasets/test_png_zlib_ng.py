@@ -3,7 +3,7 @@
 Reference: the Python standard library's ``zlib`` (the zlib that skynav used before, and that
 libpng and Pillow use), given the same rows: filter type 0 per row, then the samples
 (big-endian for 16 bits, PNG 2nd ed. 7.2), ``compressobj(level, DEFLATED, 15, 9, Z_RLE)``.
-Equal bytes mean that the switch changed no file (docs/conventions.md "What changed"), and a
+Equal bytes mean that the switch changed no file (CHANGELOG.md), and a
 zlib-ng release whose stream differs fails here, before a dataset holds files of both.
 """
 
