@@ -12,14 +12,21 @@ is read from the checkout itself (links, not copies), so the API pages always sh
 from __future__ import annotations
 
 import atexit
+import re
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-#: the folders pyproject's ``[tool.setuptools] package-dir`` maps to ``skynav.<folder>``
-ROOMS = ("scenes", "renderer", "datasets", "pipeline", "calibration", "service")
+
+
+def rooms() -> dict:
+    """``{sub-package: folder}`` of pyproject's ``[tool.setuptools] package-dir`` (``skynav.*``)."""
+    text = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    line = re.search(r"^package-dir\s*=\s*\{(.*)\}\s*$", text, re.M).group(1)
+    pairs = re.findall(r'"skynav\.(\w+)"\s*=\s*"([^"]+)"', line)
+    return dict(pairs)
 
 
 def _layout() -> Path:
@@ -29,8 +36,8 @@ def _layout() -> Path:
     pkg.mkdir()
     for path in (ROOT / "skynav").glob("*.py"):
         (pkg / path.name).symlink_to(path)
-    for room in ROOMS:
-        (pkg / room).symlink_to(ROOT / room, target_is_directory=True)
+    for name, folder in rooms().items():
+        (pkg / name).symlink_to(ROOT / folder, target_is_directory=True)
     return tmp
 
 
