@@ -78,7 +78,21 @@ class RenderOptions:
     noise : bool
         Apply the sensor noise chain (False: DN of the expected signal, no randomness).
     backend : str
-        ``"auto"``, ``"llvm"``, ``"cuda"`` or ``"numpy"`` for the sensor.
+        ``"auto"``, ``"llvm"``, ``"cuda"`` or ``"numpy"`` for the sensor (docs/conventions.md
+        "Randomness": one seed gives the same DN on one backend, the same statistics across
+        them).
+
+    Raises
+    ------
+    ConfigValueError
+        A value out of its range (the ``render.*`` key named).
+
+    Examples
+    --------
+    >>> from skynav.renderer import RenderOptions
+    >>> opts = RenderOptions(backend="numpy", cosmic_rays_per_frame=0.0)
+    >>> opts.noise, opts.mitsuba_spp
+    (True, 16)
     """
 
     flux_fraction_lost: float = 1e-6
@@ -126,6 +140,20 @@ class Frame:
         In-band irradiance at the pupil per pixel from the sources, W/m^2.
     truth : dict
         Ground truth, schema ``skynav.frame/2`` (docs/conventions.md).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> frame = render(scene, seed=1, options=RenderOptions(backend="numpy"))
+    >>> frame.dn.shape, frame.dn.dtype.name, frame.electrons.dtype.name
+    ((64, 64), 'uint8', 'float32')
+    >>> frame.truth["schema"], frame.truth["seeds"]["frame"]
+    ('skynav.frame/2', 1)
     """
 
     dn: np.ndarray
@@ -169,6 +197,21 @@ class ExpectedImage:
         with a background), so that a dark image is converted to float32 without a full pass
         (:func:`float32_image`). A caller who draws more into the images must drop it
         (``dataclasses.replace(expected, support=None)``) before :func:`detect`.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> from skynav.renderer import expected_image
+    >>> ex = expected_image(scene, rng=np.random.default_rng(1))
+    >>> ex.electrons.shape, ex.exposure_s, ex.star_electrons.shape == (len(scene.stars.xy),)
+    ((64, 64), 0.4, True)
+    >>> ex.mitsuba_variant is None   # nothing resolved at 64 px: no ray tracing
+    True
     """
 
     electrons: np.ndarray
@@ -213,6 +256,20 @@ class Detection:
     backend : str
         The sensor backend that ran: ``"llvm"``, ``"cuda"`` or ``"numpy"`` (the noise-free chain,
         ``RenderOptions(noise=False)``, is numpy).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> from skynav.renderer import detect, expected_image
+    >>> rng = np.random.default_rng(1)
+    >>> det = detect(expected_image(scene, rng=rng), scene.camera, rng, RenderOptions(backend="numpy"))
+    >>> det.backend, det.dn.dtype.name, int(det.dn.max()) <= scene.camera.sensor.max_dn
+    ('numpy', 'uint8', True)
     """
 
     dn: np.ndarray
@@ -321,6 +378,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
         The frame's stream. Only resolved bodies use it, through ``rng.spawn(1)[0]`` (the Mitsuba
         seeds), so ``rng``'s own draws are left for :func:`detect`.
     options : RenderOptions
+        Accuracy of the stamps and paths, background, Mitsuba sampling.
     own_size : bool
         True: the image has the projection's size (a bench screen seen through its collimator),
         not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
@@ -456,6 +514,29 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     Returns
     -------
     Detection
+        DN, the noise-free electrons plus cosmic-ray charge, the hits, the backend that ran.
+
+    References
+    ----------
+    EMVA Standard 1288 (release 4.0, 2021), the linear camera model of the sensor chain.
+
+    Examples
+    --------
+    The same expected image read twice from the same seed gives the same DN:
+
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> from skynav.renderer import detect, expected_image
+    >>> ex = expected_image(scene, rng=np.random.default_rng(1))
+    >>> opts = RenderOptions(backend="numpy")
+    >>> a = detect(ex, scene.camera, np.random.default_rng(7), opts)
+    >>> b = detect(ex, scene.camera, np.random.default_rng(7), opts)
+    >>> bool(np.array_equal(a.dn, b.dn))
+    True
     """
     cam = camera
     electrons = expected.electrons
@@ -497,13 +578,46 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     Parameters
     ----------
     scene : Scene
+        What is in view and how it is seen (:func:`skynav.scenes.build_from_spec`).
     seed : int or numpy.random.SeedSequence, optional
         Seed of the frame's random stream (recorded in the ground truth).
     rng : numpy.random.Generator, optional
         The random stream itself (used if given; ``seed`` is then only recorded).
     options : RenderOptions
+        Accuracy, cosmic rays, noise and the sensor backend.
     projection : Projection, optional
         Pixel <-> line of sight (default ``scene.camera``).
+
+    Returns
+    -------
+    Frame
+        ``dn`` (H, W) uint8 or uint16, DN at the camera's bit depth; ``electrons`` (H, W)
+        float32, e- (noise-free, with the cosmic rays); ``irradiance_w_m2`` (H, W) float32,
+        W/m^2 at the pupil; ``truth``, the ``skynav.frame/2`` ground truth. In memory: files
+        are :func:`skynav.datasets.write_frame`'s business.
+
+    References
+    ----------
+    Andreis et al. (2023b): the rendering engine this reproduces; Andreis et al. (2024),
+    Table 4: the default camera.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> frame = render(scene, seed=1, options=RenderOptions(backend="numpy"))
+    >>> frame.dn.shape, frame.dn.dtype.name
+    ((64, 64), 'uint8')
+    >>> mars = next(b for b in frame.truth["bodies"] if b["name"] == "mars")
+    >>> mars["in_fov"], [round(c, 3) for c in mars["xy"]]   # the boresight, px
+    (True, [31.5, 31.5])
+    >>> again = render(scene, seed=1, options=RenderOptions(backend="numpy"))
+    >>> bool(np.array_equal(again.dn, frame.dn))   # same seed, same backend: same DN
+    True
     """
     if rng is None:
         rng = np.random.default_rng(seed)
