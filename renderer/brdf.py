@@ -95,6 +95,19 @@ class BRDF:
         The law's scale ``k`` at 550 nm (see the module notes), dimensionless, > 0.
     roughness_rad : float
         Oren-Nayar facet slope standard deviation ``s``, rad (ignored by the other laws).
+
+    References
+    ----------
+    Hapke (2012), Theory of Reflectance and Emittance Spectroscopy (Lommel-Seeliger);
+    Oren & Nayar (1994), SIGGRAPH, Eq. 30 (the module's notes give the albedo relations).
+
+    Examples
+    --------
+    >>> from skynav.renderer import BRDF
+    >>> from skynav.renderer.brdf import sphere_geometric_albedo
+    >>> law = BRDF.for_geometric_albedo("lommel_seeliger", 0.12)
+    >>> round(law.reflectance_550, 6), round(sphere_geometric_albedo(law), 6)   # p = k / 8
+    (0.96, 0.12)
     """
 
     kind: str = "lambert"
@@ -128,6 +141,26 @@ def default_brdf(body_name: str, kind: str | None = None) -> BRDF:
 
     Cached: the albedo normalisation is a quadrature, and every unresolved body of every frame
     asks for it (a frozen BRDF is an immutable value, so sharing it is safe).
+
+    Parameters
+    ----------
+    body_name : str
+        The body (``mars``, ``moon``, ...); its first word is looked up, case-insensitively.
+    kind : str, optional
+        One of :data:`KINDS`; default: the body's own law.
+
+    Returns
+    -------
+    BRDF
+        The law, scaled so that the sphere has the body's V-band geometric albedo.
+
+    Examples
+    --------
+    >>> from skynav.renderer import default_brdf
+    >>> from skynav.renderer.brdf import sphere_geometric_albedo
+    >>> mars = default_brdf("mars")
+    >>> mars.kind, round(sphere_geometric_albedo(mars), 6)
+    ('oren_nayar', 0.17)
     """
     key = str(body_name).strip().lower().split()[0] if str(body_name).strip() else ""
     k = kind or _DEFAULT_KIND.get(key, "lambert")

@@ -54,6 +54,17 @@ class ChargeModel:
         Most probable value (moyal) or median (lognormal), e-.
     width_e : float
         Moyal scale, or ``mpv_e`` x log-standard deviation for the lognormal, e-.
+
+    References
+    ----------
+    Moyal, J. E. (1955), Phil. Mag. 46, 263 (the approximation of the Landau distribution).
+
+    Examples
+    --------
+    >>> from skynav.renderer import ChargeModel
+    >>> q = ChargeModel().sample(20000, np.random.default_rng(0))
+    >>> bool(1500 < np.median(q) < 1900), bool(q.min() >= 0)   # e-: the mode is mpv_e = 1600
+    (True, True)
     """
 
     kind: str = "moyal"
@@ -92,10 +103,22 @@ class CosmicRayHits:
     track_start_xy, track_end_xy : ndarray, shape (N, 2), px
         Track endpoints (both equal ``xy`` for a single-pixel hit).
     is_track : ndarray, shape (N,), bool
+        True for a track, False for a single-pixel hit.
     pixel_hit : ndarray, shape (M,), int
         Index of the hit each charged pixel belongs to.
     pixel_rows, pixel_cols : ndarray, shape (M,), int
+        Row and column of each charged pixel.
     pixel_electrons : ndarray, shape (M,), e-
+        Charge of each charged pixel.
+
+    Examples
+    --------
+    >>> from skynav.renderer import draw_cosmic_rays
+    >>> hits = draw_cosmic_rays((64, 64), 3, np.random.default_rng(1), mode="fixed", track_prob=1.0)
+    >>> len(hits), hits.is_track.tolist()
+    (3, [True, True, True])
+    >>> bool(np.allclose(np.bincount(hits.pixel_hit, hits.pixel_electrons), hits.electrons))
+    True
     """
 
     shape: tuple
@@ -284,11 +307,25 @@ def deposit(image_e: np.ndarray, hits: CosmicRayHits) -> np.ndarray:
     image_e : ndarray, shape (H, W), float, e-
         Modified in place (pass a copy to keep the original).
     hits : CosmicRayHits
+        The hits (:func:`draw_cosmic_rays`) of a sensor of the image's shape.
 
     Returns
     -------
     ndarray, shape (H, W), e-
         ``image_e`` itself.
+
+    Raises
+    ------
+    ConfigValueError
+        Not a writeable float array, or not the hits' shape.
+
+    Examples
+    --------
+    >>> from skynav.renderer import deposit, draw_cosmic_rays
+    >>> hits = draw_cosmic_rays((64, 64), 2, np.random.default_rng(0), mode="fixed")
+    >>> image = deposit(np.zeros((64, 64)), hits)
+    >>> bool(np.isclose(image.sum(), hits.electrons.sum()))   # charge conserved, e-
+    True
     """
     if not isinstance(image_e, np.ndarray) or image_e.dtype.kind != "f" or not image_e.flags.writeable:
         raise ConfigValueError("cosmic_rays.image", type(image_e).__name__, "a writeable float numpy array (charge is added in place)")

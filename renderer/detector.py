@@ -98,6 +98,17 @@ class ExposureDetails:
         Collected charge after shot noise, extra charge and full-well clipping / blooming, e-.
     backend : str
         ``"numpy"``, ``"llvm"`` or ``"cuda"``.
+
+    Examples
+    --------
+    >>> from skynav.renderer import Sensor
+    >>> from skynav.scenes import SensorParams
+    >>> sensor = Sensor(SensorParams(bit_depth=12, gain_dn_per_e=0.1), (4, 5))
+    >>> d = sensor.expose_details(np.full((4, 5), 1000.0), 0.1, np.random.default_rng(0), backend="numpy")
+    >>> d.backend, d.dn.dtype.name, d.charge_e.shape
+    ('numpy', 'uint16', (4, 5))
+    >>> bool(abs(d.mean_e.mean() - 1000.5) < 15)   # 1000 e- x PRNU (1 %) + 5 e-/s x 0.1 s
+    True
     """
 
     dn: np.ndarray
@@ -148,7 +159,10 @@ def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.nda
     Parameters
     ----------
     params : SensorParams
+        The sensor (``prnu_fraction``, ``dark_current_e_per_s``, ``dsnu_e_per_s``,
+        ``pattern_seed``).
     shape : tuple (H, W)
+        Image size, px.
 
     Returns
     -------
@@ -157,6 +171,20 @@ def fixed_patterns(params: SensorParams, shape: tuple[int, int]) -> tuple[np.nda
     dark_e_per_s : ndarray, shape (H, W), float32, read-only
         Dark current, e-/s: gamma distributed with mean ``dark_current_e_per_s`` and standard
         deviation ``dsnu_e_per_s`` (constant if either is 0).
+
+    References
+    ----------
+    EMVA Standard 1288 (release 4.0, 2021), Sect. 8 (spatial non-uniformity: PRNU, DSNU).
+
+    Examples
+    --------
+    >>> from skynav.renderer import fixed_patterns
+    >>> from skynav.scenes import SensorParams
+    >>> gain, dark = fixed_patterns(SensorParams(), (64, 64))   # 1 % PRNU, 5 +- 1 e-/s
+    >>> round(float(gain.mean()), 2), round(float(gain.std()), 3), round(float(dark.mean()), 1)
+    (1.0, 0.01, 5.0)
+    >>> fixed_patterns(SensorParams(), (64, 64))[0] is gain   # drawn once per sensor
+    True
     """
     prnu_ss, dsnu_ss = np.random.SeedSequence(params.pattern_seed).spawn(2)
     gain = 1.0 + params.prnu_fraction * np.random.default_rng(prnu_ss).standard_normal(shape)

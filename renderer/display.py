@@ -29,7 +29,39 @@ from .render import RenderOptions, expected_image
 
 @dataclass(frozen=True)
 class ScreenFrame:
-    """A screen frame: ``dn`` (H, W) uint8/uint16 at the screen's bit depth, and what went in."""
+    """A screen frame: ``dn`` (H, W) uint8/uint16 at the screen's bit depth, and what went in.
+
+    Made by :func:`screen_frame`.
+
+    Attributes
+    ----------
+    dn : ndarray, shape (H, W), uint8 or uint16
+        Screen digital counts (screen px), DN.
+    electrons : ndarray, shape (H, W)
+        Intended camera electrons per screen pixel over the exposure, e-.
+    stars_xy : ndarray, shape (N, 2)
+        Screen positions of the stars at mid-exposure, screen px.
+    stars_electrons : ndarray, shape (N,)
+        Intended camera electrons of each star, e-.
+    stars_peak_dn : ndarray, shape (N,)
+        Largest screen DN of each star.
+    bodies : list of dict
+        ``name``, ``xy`` (screen px), ``electrons`` (e-), ``peak_dn``.
+    clipped_bright_px : int
+        Screen pixels asked brighter than the screen's full scale.
+    clipped_faint_sources : int
+        Sources too faint for one screen DN.
+    black_pedestal_e_per_camera_px : float
+        Electrons per camera pixel of the screen's black level (a uniform pedestal), e-.
+
+    Examples
+    --------
+    See :func:`screen_frame`.
+
+    >>> from skynav.renderer import ScreenFrame
+    >>> sorted(ScreenFrame.__dataclass_fields__)[:3]
+    ['black_pedestal_e_per_camera_px', 'bodies', 'clipped_bright_px']
+    """
 
     dn: np.ndarray
     electrons: np.ndarray          # intended camera electrons per screen pixel
@@ -43,7 +75,32 @@ class ScreenFrame:
 
 
 def dn_of_electrons(facility, electrons, xy_grid=None):
-    """Real-valued screen DN giving ``electrons`` (per screen pixel over the exposure) in the camera."""
+    """Real-valued screen DN giving ``electrons`` (per screen pixel over the exposure) in the camera.
+
+    Parameters
+    ----------
+    facility : skynav.scenes.facility.Facility
+        The bench: camera exposure, spectra, radiometric curve, flat field.
+    electrons : array_like, shape (...)
+        Intended camera electrons per screen pixel over the exposure, e-.
+    xy_grid : array_like, shape (..., 2), optional
+        Screen pixels of the values, for the flat field (None: flat).
+
+    Returns
+    -------
+    dn : numpy.ndarray, shape (...)
+        Real-valued screen DN (the inverse radiometric curve above the black level).
+    bright : numpy.ndarray of bool, shape (...)
+        True where the screen's full scale is not enough.
+
+    Examples
+    --------
+    >>> from skynav.renderer import dn_of_electrons
+    >>> from skynav.scenes import screen_small_preset
+    >>> dn, bright = dn_of_electrons(screen_small_preset(), np.array([0.0, 100.0, 1e5]))
+    >>> dn.round(2).tolist(), bright.tolist()
+    ([0.0, 12.06, 278.66], [False, False, False])
+    """
     cam = facility.camera
     rate = np.asarray(electrons, dtype=float) / cam.exposure_s
     w = rate / facility.electrons_per_s_per_w_m2()
@@ -241,7 +298,41 @@ def _spread_in_place(out, facility, lit_idx, *, core_dilation_px: int = 4, edge_
 
 
 def screen_frame(scene, facility, *, rng: np.random.Generator, options=None, screen_psf_sigma_px: float = 0.5) -> ScreenFrame:
-    """Render ``scene`` for the bench ``facility``'s screen (see the module docstring)."""
+    """Render ``scene`` for the bench ``facility``'s screen (see the module docstring).
+
+    Parameters
+    ----------
+    scene : skynav.scenes.scene.Scene
+        The scene, seen by the facility's camera.
+    facility : skynav.scenes.facility.Facility
+        The bench: screen, collimator geometry, radiometry.
+    rng : numpy.random.Generator
+        The frame's stream (the Mitsuba seeds of resolved bodies).
+    options : RenderOptions, optional
+        Accuracy and ray-tracing options (the background is left to the real sky: 0).
+    screen_psf_sigma_px : float
+        Gaussian PSF in screen pixels that encodes sub-pixel positions, screen px.
+
+    Returns
+    -------
+    ScreenFrame
+        The screen's DN and what went in.
+
+    References
+    ----------
+    Andreis et al. (2023b), Sec. 3 (the RETINA bench).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, screen_frame
+    >>> from skynav.scenes import build_from_spec, default_scene_spec, screen_small_preset
+    >>> bench = screen_small_preset()
+    >>> scene = build_from_spec(dataclasses.replace(default_scene_spec(), camera=bench.camera))
+    >>> sf = screen_frame(scene, bench, rng=np.random.default_rng(1), options=RenderOptions(backend="numpy"))
+    >>> sf.dn.shape, sf.dn.dtype.name, [b["name"] for b in sf.bodies]
+    ((640, 640), 'uint16', ['mars'])
+    """
     options = options or RenderOptions()
     cam = scene.camera.replace(defocus_sigma_px=screen_psf_sigma_px)
     sc_scene = dataclasses.replace(scene, camera=cam)

@@ -20,17 +20,51 @@ __all__ = [
 
 
 class BackendUnavailableError(SkynavError, RuntimeError):
-    """A Dr.Jit backend was requested explicitly but does not work on this machine."""
+    """A Dr.Jit backend was requested explicitly but does not work on this machine.
+
+    Raised when ``RenderOptions(backend="llvm")`` or ``"cuda"`` (``--backend``) names a backend
+    that is not there (no libLLVM >= 19, no CUDA GPU); its line names the backend, why, and
+    ``backend='numpy' or 'auto'`` as what works. ``"auto"`` never raises it.
+
+    Examples
+    --------
+    >>> from skynav.renderer import BackendUnavailableError
+    >>> from skynav.scenes import SkynavError
+    >>> issubclass(BackendUnavailableError, SkynavError), issubclass(BackendUnavailableError, RuntimeError)
+    (True, True)
+    """
 
 
 class SensorInputError(SkynavError, ValueError):
-    """An image or exposure handed to the sensor is not acceptable."""
+    """An image or exposure handed to the sensor is not acceptable.
+
+    Examples
+    --------
+    >>> from skynav.renderer import Sensor, SensorInputError
+    >>> from skynav.scenes import SensorParams
+    >>> sensor = Sensor(SensorParams(), (4, 5))
+    >>> try:
+    ...     sensor.expose(np.zeros((3, 3)), 0.1, np.random.default_rng(0), backend="numpy")
+    ... except SensorInputError as exc:
+    ...     print(exc)
+    electrons has shape (3, 3); this sensor is (4, 5)
+    """
 
 
 class ProjectionCropError(SkynavError, ValueError):
-    """A resolved body's crop window cannot be ray-traced through the projection: its lines of
-    sight are not finite or span a hemisphere or more (the crop's rays are interpolated on the
-    plane tangent to its central line of sight).
+    """A resolved body's crop window cannot be ray-traced through the projection.
+
+    Its lines of sight are not finite or span a hemisphere or more (the crop's rays are
+    interpolated on the plane tangent to its central line of sight).
+
+    Parameters
+    ----------
+    body : str
+        Name of the body.
+    window : tuple of int
+        ``(x0, y0, w, h)`` of the crop, px.
+    why : str
+        What is wrong with the window's lines of sight.
 
     Attributes
     ----------
@@ -38,6 +72,12 @@ class ProjectionCropError(SkynavError, ValueError):
         Name of the body.
     window : tuple of int
         ``(x0, y0, w, h)`` of the crop, px.
+
+    Examples
+    --------
+    >>> from skynav.renderer import ProjectionCropError
+    >>> print(ProjectionCropError("earth", (0, 0, 64, 64), "spans 90 deg or more from its central line of sight"))
+    resolved body 'earth': crop (x0, y0, w, h) = (0, 0, 64, 64) spans 90 deg or more from its central line of sight; render it as a point (RenderOptions(resolved=False)) or use a projection defined over the crop
     """
 
     def __init__(self, body: str, window: tuple, why: str):

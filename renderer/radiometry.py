@@ -61,7 +61,9 @@ class Radiometry:
     Attributes
     ----------
     camera : skynav.scenes.camera.Camera
+        The camera (aperture, QE x T, band).
     aperture_area_m2 : float
+        Entrance pupil area, m^2.
     band_nm : tuple of float
         Wavelength span where the camera response is tabulated, nm (the band of the
         ``*_irradiance_w_m2`` figures).
@@ -69,6 +71,16 @@ class Radiometry:
         e-/s of the Vega spectrum scaled to V = 0 (A0V standard).
     zero_point_blackbody_e_per_s : float
         e-/s of a 9600 K blackbody at V = 0.
+
+    Examples
+    --------
+    >>> from skynav.renderer import Radiometry
+    >>> from skynav.scenes import paper_camera
+    >>> rad = Radiometry.for_camera(paper_camera())
+    >>> rad.band_nm, f"{rad.zero_point_e_per_s:.3g}"   # nm; e-/s of Vega at V = 0
+    ((350.0, 1050.0), '5.8e+06')
+    >>> f"{float(rad.star_electrons_per_s(5.0, 5800.0)):.3g}"   # a V = 5 solar-type star, e-/s
+    '6.65e+04'
     """
 
     def __init__(self, camera):

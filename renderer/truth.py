@@ -39,6 +39,7 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     Parameters
     ----------
     scene : skynav.scenes.scene.Scene
+        The rendered scene (epoch, observer, attitude, camera, stars, bodies).
     expected : skynav.renderer.render.ExpectedImage
         Electrons per source, the Mitsuba crops and the variant that made them.
     detection : skynav.renderer.render.Detection
@@ -46,6 +47,7 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     seed : int, sequence of int, numpy.random.SeedSequence or None
         The frame's seed, as given to :func:`~skynav.renderer.render.render`.
     options : skynav.renderer.render.RenderOptions
+        The options the frame was rendered with.
 
     Returns
     -------
@@ -53,6 +55,24 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
         ``render`` holds the options as requested plus ``backend_used`` (``"llvm"`` or
         ``"numpy"``) and ``mitsuba_variant`` (None when no body was ray-traced); each
         ``cosmic_rays`` record the hit's whole track (:meth:`CosmicRayHits.to_ground_truth`).
+        Keys, names and units: docs/conventions.md "Files" (``skynav.frame/2``).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> from skynav.datasets import validate_truth
+    >>> from skynav.renderer import detect, expected_image, frame_truth
+    >>> opts = RenderOptions(backend="numpy")
+    >>> rng = np.random.default_rng(1)
+    >>> ex = expected_image(scene, rng=rng, options=opts)
+    >>> truth = frame_truth(scene, ex, detect(ex, scene.camera, rng, opts), seed=1, options=opts)
+    >>> truth["render"]["backend_used"], validate_truth(truth)
+    ('numpy', [])
     """
     star_electrons = expected.star_electrons
     body_electrons = expected.body_electrons
