@@ -395,6 +395,25 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     Returns
     -------
     ExpectedImage
+        Electrons (e-) and irradiance (W/m^2) per pixel, float64, and each source's share.
+
+    Examples
+    --------
+    The electrons of the image are those of its sources (nothing leaves the image here but
+    the stars beyond the edges):
+
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, render
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
+    >>> from skynav.renderer import expected_image
+    >>> ex = expected_image(scene, rng=np.random.default_rng(1), options=RenderOptions(backend="numpy"))
+    >>> ex.electrons.shape, ex.irradiance_w_m2.shape, ex.electrons.dtype.name
+    ((64, 64), (64, 64), 'float64')
+    >>> bool(ex.electrons.sum() <= ex.star_electrons.sum() + sum(ex.body_electrons.values()))
+    True
     """
     proj = _check_projection(scene, projection, own_size)
     support = [] if support is None else support  # the pixels drawn: ExpectedImage.support (and the caller's list)
