@@ -33,7 +33,9 @@ class StarsInView:
     Attributes
     ----------
     hip : ndarray of int, shape (N,)
+        Hipparcos numbers.
     v_mag, b_v : ndarray, shape (N,)
+        Johnson V and B-V, mag.
     teff_k : ndarray, shape (N,)
         Effective temperature, K.
     u_icrs : ndarray, shape (N, 3)
@@ -45,6 +47,13 @@ class StarsInView:
         when the camera does not rotate).
     in_fov : ndarray of bool, shape (N,)
         ``xy`` on the sensor.
+
+    Examples
+    --------
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> stars = build_from_spec(default_scene_spec()).stars
+    >>> len(stars), int(stars.in_fov.sum()), stars.xy.shape[1]   # near the field, in it
+    (606, 586, 2)
     """
 
     hip: np.ndarray
@@ -68,11 +77,50 @@ class StarsInView:
 
 @dataclass(frozen=True, kw_only=True)
 class BodyInView:
-    """One solar-system body as seen from the spacecraft (floats in SI-ish units, see names).
+    """One solar-system body as seen from the spacecraft (units in the names).
 
-    ``xy`` is apparent (mid-exposure), ``xy_geometric`` uses the geometric direction;
-    ``position_km`` is the body's barycentric position at light emission; ``sun_position_km`` the
-    Sun's at the same emission epoch (for illumination); ``radius_km`` the mean radius.
+    Attributes
+    ----------
+    name : str
+        Body name.
+    u_icrs, u_geometric, u_light_time : tuple of float, shape (3,)
+        Apparent (light-time, Sun deflection, aberration), geometric and light-time-only unit
+        vectors, ICRS axes (``u_apparent`` is an alias of ``u_icrs``).
+    xy, xy_geometric, xy_light_time : tuple of float, shape (2,)
+        Pixel positions of those directions at mid-exposure, px.
+    xy_start, xy_end : tuple of float, shape (2,)
+        Apparent pixel positions at the start and the end of the exposure, px.
+    light_time_s : float
+        Light travel time, s.
+    distance_km : float
+        Observer to body at emission (light-time distance), km.
+    position_km : tuple of float, shape (3,)
+        The body's barycentric ICRS position at light emission, km.
+    sun_position_km : tuple of float, shape (3,)
+        The Sun's barycentric ICRS position at the same emission epoch (illumination), km.
+    radius_km : float
+        Mean radius, km.
+    v_mag : float
+        Apparent V magnitude (NaN outside the phase law's range).
+    phase_angle_rad : float
+        Sun-body-observer angle, rad.
+    elongation_rad : float
+        Sun-spacecraft-body angle, rad.
+    angular_diameter_px : float
+        Apparent diameter, px.
+    aberration_arcsec : float
+        Angle between the light-time-only and the apparent directions, arcsec.
+    in_fov, visible, resolved : bool
+        On the sensor; visible by the scene's :class:`VisibilityCriteria`; wider than the
+        resolved threshold (ray-traced).
+
+    Examples
+    --------
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> scene = build_from_spec(default_scene_spec())   # pointing at Mars
+    >>> mars = next(b for b in scene.bodies if b.name == "mars")
+    >>> [round(c, 6) for c in mars.xy], round(mars.v_mag, 2), mars.visible, mars.resolved
+    ([511.5, 511.5], -1.72, True, False)
     """
 
     name: str
@@ -119,7 +167,9 @@ class Scene:
     angular_velocity_rad_s : ndarray, shape (3,)
         Camera frame.
     camera : Camera
+        The camera (optics, sensor, exposure).
     stars : StarsInView
+        Catalogue stars near the field.
     bodies : tuple of BodyInView
         Every body considered (Sun excluded), in or out of the field.
     sun_u_icrs : ndarray, shape (3,)
@@ -128,6 +178,15 @@ class Scene:
         Faintest catalogue V magnitude included (the star catalogue cut).
     visibility : VisibilityCriteria
         The detection rule that set each body's ``visible`` flag.
+
+    Examples
+    --------
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> scene = build_from_spec(default_scene_spec())
+    >>> scene.epoch_tdb_s, scene.camera.width, [b.name for b in scene.bodies_in_fov()]
+    (854712000.0, 1024, ['mars'])
+    >>> round(float(np.degrees(scene.boresight_sun_angle_rad)), 1)
+    157.3
     """
 
     epoch_tdb_s: float
@@ -148,6 +207,7 @@ class Scene:
         return float(np.arccos(np.clip(self.R_cam_icrs[2] @ self.sun_u_icrs, -1.0, 1.0)))
 
     def bodies_in_fov(self):
+        """The bodies whose apparent position is on the sensor (tuple of :class:`BodyInView`)."""
         return tuple(b for b in self.bodies if b.in_fov)
 
 
@@ -164,7 +224,36 @@ RESOLVED_THRESHOLD_PX = 2.0
 
 @dataclass(frozen=True, kw_only=True)
 class SkyBody:
-    """A body's apparent geometry and brightness from the observer, before any pointing."""
+    """A body's apparent geometry and brightness from the observer, before any pointing.
+
+    Attributes
+    ----------
+    name : str
+        Body name.
+    directions : BodyDirections
+        Geometric, light-time and apparent directions and distances
+        (:func:`~skynav.scenes.apparent.apparent_bodies`).
+    radius_km : float
+        Mean radius, km.
+    v_mag : float
+        Apparent V magnitude (NaN outside the phase law's range).
+    phase_angle_rad : float
+        Sun-body-observer angle, rad.
+    elongation_rad : float
+        Sun-spacecraft-body angle, rad.
+    angular_diameter_rad : float
+        Apparent diameter, rad.
+
+    Examples
+    --------
+    See :func:`sky_bodies`.
+
+    >>> from skynav.scenes import SkyBody, default_ephemeris, sky_bodies
+    >>> r, v = default_ephemeris().position_velocity("earth", 0.0)
+    >>> bodies, _ = sky_bodies(0.0, r + [0.0, 0.0, 1e6], v, names=("mars",))
+    >>> isinstance(bodies[0], SkyBody), bodies[0].name
+    (True, 'mars')
+    """
 
     name: str
     directions: object  # apparent.BodyDirections
@@ -178,15 +267,45 @@ class SkyBody:
 def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES, sun=None):
     """Apparent directions, magnitudes and angles of solar-system bodies seen from the observer.
 
-    Returns a tuple of :class:`SkyBody` and the apparent unit vector of the Sun. ``sun``: the
-    Sun's :class:`~skynav.scenes.apparent.BodyDirections` for this epoch and observer when the
-    caller has it (:func:`sky_bodies_and_sun`; a caller asking for the bodies in two parts), else
-    computed with the bodies.
+    Parameters
+    ----------
+    t_tdb_s : float
+        Epoch (reception), TDB seconds past J2000.
+    position_km, velocity_km_s : array_like, shape (3,)
+        Observer barycentric ICRS state, km and km/s.
+    ephemeris : Ephemeris, optional
+        Default: DE421 (:func:`~skynav.scenes.ephemeris_jpl.default_ephemeris`).
+    names : sequence of str
+        The bodies (default: the eight planets and the Moon).
+    sun : BodyDirections, optional
+        The Sun's directions for this epoch and observer when the caller has them
+        (:func:`sky_bodies_and_sun`; a caller asking for the bodies in two parts), else
+        computed with the bodies.
+
+    Returns
+    -------
+    bodies : tuple of SkyBody
+        One per name, in order.
+    sun_u_icrs : numpy.ndarray, shape (3,)
+        Apparent unit vector of the Sun, ICRS.
 
     Raises
     ------
     ObserverInsideBodyError
         When the observer is inside one of the bodies (geometric distance <= radius).
+
+    References
+    ----------
+    Mallama & Hilton (2018) for the magnitudes (:func:`~skynav.scenes.photometry.planet_v_mag`);
+    the apparent directions as :func:`~skynav.scenes.apparent.apparent_bodies`.
+
+    Examples
+    --------
+    >>> from skynav.scenes import resolve_spec, default_scene_spec, sky_bodies
+    >>> t, r, v, _, _ = resolve_spec(default_scene_spec())   # 2027-02-01, Earth-Mars cruise
+    >>> bodies, sun_u = sky_bodies(t, r, v)
+    >>> [(b.name, round(b.v_mag, 2)) for b in bodies[:3]], sun_u.shape
+    ([('mercury', -0.29), ('venus', -3.74), ('earth', -2.34)], (3,))
     """
     bodies, sun = sky_bodies_and_sun(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=names, sun=sun)
     return bodies, np.asarray(sun.u_icrs, dtype=float)
@@ -298,8 +417,9 @@ def build_scene(
     R_cam_icrs : array_like, shape (3, 3)
         Attitude at mid-exposure.
     camera : Camera
+        The camera (projection, field, PSF reach).
     angular_velocity_rad_s : array_like, shape (3,)
-        Camera-frame body rate; sources move along paths during the exposure.
+        Camera-frame body rate, rad/s; sources move along paths during the exposure.
     catalog_limiting_v_mag : float
         Faintest catalogue V included (the star catalogue cut).
     visibility : VisibilityCriteria, optional
@@ -310,6 +430,22 @@ def build_scene(
         Injected adapters (defaults: DE421, Hipparcos).
     sky : optional
         Precomputed ``sky_bodies(...)`` result for this epoch and observer.
+
+    Returns
+    -------
+    Scene
+        Stars near the field and every body, with their pixel positions through ``camera``.
+
+    Examples
+    --------
+    The paper camera looking at the north celestial pole:
+
+    >>> from skynav.scenes import build_scene, paper_camera, point_boresight
+    >>> scene = build_scene("2027-02-01T00:00:00", position_km=[1.5e8, 0.0, 0.0],
+    ...                     velocity_km_s=[0.0, 30.0, 0.0], R_cam_icrs=point_boresight([0.0, 0.0, 1.0]),
+    ...                     camera=paper_camera())
+    >>> scene.epoch_tdb_s, bool(scene.stars.in_fov.sum() > 500)
+    (854712000.0, True)
     """
     vis = VisibilityCriteria() if visibility is None else visibility
     t = float(epoch) if isinstance(epoch, (int, float, np.floating)) else float(tdb_seconds(epoch))
@@ -383,8 +519,26 @@ def build_scene(
 def resolve_spec(spec, *, ephemeris=None):
     """Observer state, attitude and sky of a :class:`skynav.scenes.config.SceneSpec`.
 
-    Returns ``(t_tdb_s, position_km, velocity_km_s, R_cam_icrs, sky)`` where ``sky`` is the
-    :func:`sky_bodies` result (reused by :func:`build_scene`).
+    Parameters
+    ----------
+    spec : SceneSpec
+        The scene description (a scene file, parsed).
+    ephemeris : Ephemeris, optional
+        Default: DE421.
+
+    Returns
+    -------
+    tuple
+        ``(t_tdb_s, position_km, velocity_km_s, R_cam_icrs, sky)``: the epoch (TDB s past
+        J2000), the barycentric ICRS state (km, km/s; ``relative_to`` resolved), the attitude
+        (3, 3) and the :func:`sky_bodies` result (reused by :func:`build_scene`).
+
+    Examples
+    --------
+    >>> from skynav.scenes import default_scene_spec, resolve_spec
+    >>> t, r, v, R, (bodies, sun_u) = resolve_spec(default_scene_spec())
+    >>> t, R.shape, len(bodies)
+    (854712000.0, (3, 3), 9)
     """
     eph = ephemeris or default_ephemeris()
     t = float(tdb_seconds(spec.epoch_tdb_iso))
@@ -409,7 +563,30 @@ def resolve_spec(spec, *, ephemeris=None):
 
 
 def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
-    """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes."""
+    """Build the :class:`Scene` a :class:`skynav.scenes.config.SceneSpec` describes.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        The scene description (:func:`~skynav.scenes.config.load_scene_file`,
+        :func:`~skynav.scenes.presets.default_scene_spec`).
+    ephemeris : Ephemeris, optional
+        Default: DE421.
+    catalog : StarCatalog, optional
+        Default: Hipparcos (:func:`~skynav.scenes.catalog_hipparcos.load_catalog`).
+
+    Returns
+    -------
+    Scene
+        Everything the renderer needs for the frame.
+
+    Examples
+    --------
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> scene = build_from_spec(default_scene_spec())
+    >>> scene.camera.width, len(scene.stars.xy), [b.name for b in scene.bodies_in_fov()]
+    (1024, 606, ['mars'])
+    """
     eph = ephemeris or default_ephemeris()
     t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
     a = spec.attitude
