@@ -42,6 +42,20 @@ class LambertSolution:
         Izzo's non-dimensional variable at convergence (x < 1 ellipse, x > 1 hyperbola).
     iterations : int
         Householder iterations used.
+
+    References
+    ----------
+    Izzo, D. (2015), "Revisiting Lambert's problem", Celestial Mechanics and Dynamical
+    Astronomy 121, 1-15.
+
+    Examples
+    --------
+    A quarter of a circular orbit (mu = 1, radius 1, period 2 pi):
+
+    >>> from skynav.scenes import solve_lambert
+    >>> sol = solve_lambert([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], np.pi / 2, 1.0)
+    >>> np.round(sol.v1_km_s, 12) + 0.0, np.round(sol.v2_km_s, 12) + 0.0
+    (array([0., 1., 0.]), array([-1.,  0.,  0.]))
     """
 
     v1_km_s: np.ndarray
@@ -109,10 +123,13 @@ def solve_lambert(r1_km, r2_km, tof_s: float, mu_km3_s2: float, *, prograde: boo
         Only 0 is supported.
     rtol : float
         Convergence threshold on the change of ``x`` between iterations.
+    max_iterations : int
+        Householder iterations allowed before :class:`LambertError`.
 
     Returns
     -------
     LambertSolution
+        The velocities at both ends, km/s, and the solver's state.
 
     Raises
     ------
