@@ -230,8 +230,31 @@ def _warn_camera(camera: Camera, key: str) -> None:
 
 @dataclass(frozen=True, kw_only=True)
 class AttitudeSpec:
-    """How to point the camera: at a body (or ``auto``: the brightest visible planet), at
-    RA/Dec/twist, or by an explicit quaternion (scalar first) or matrix."""
+    """How to point the camera: at a body, at RA/Dec/twist, or by a quaternion.
+
+    ``point_at`` a body (or ``auto``: the brightest visible planet), else ``q_cam_icrs``, else
+    ``ra_rad``/``dec_rad``/``twist_rad`` (:func:`skynav.scenes.scene.resolve_spec`). Scene files
+    write the angles in degrees (``ra_deg``, ...; docs/conventions.md).
+
+    Parameters
+    ----------
+    point_at : str or None
+        A body name or ``auto``.
+    ra_rad, dec_rad : float or None
+        Boresight right ascension and declination, ICRS, rad.
+    twist_rad : float
+        Twist about the boresight, rad (:func:`~skynav.scenes.frames.radec_twist_to_dcm`).
+    q_cam_icrs : tuple of float or None
+        Scalar-first unit quaternion of ``R_cam_icrs`` (Andreis et al. (2023a), Eq. 14).
+    angular_velocity_rad_s : tuple of float, shape (3,)
+        Camera-frame angular velocity, rad/s (streaks over the exposure).
+
+    Examples
+    --------
+    >>> from skynav.scenes import AttitudeSpec
+    >>> AttitudeSpec(point_at="mars").twist_rad
+    0.0
+    """
 
     point_at: str | None = None
     ra_rad: float | None = None
@@ -249,6 +272,40 @@ class SceneSpec:
     catalogue cut), ``resolved_threshold_px``, ``cosmic_rays_per_frame`` (mean hits per frame,
     for ``RenderOptions``), ``mitsuba_spp`` (for ``RenderOptions``) and ``seed`` come from its
     ``render:`` section (:data:`RENDER_KEYS`).
+
+    Parameters
+    ----------
+    epoch_tdb_iso : str
+        Mid-exposure epoch, ISO date in TDB.
+    position_km, velocity_km_s : tuple of float, shape (3,), or None
+        Observer state, barycentric ICRS (or relative to ``relative_to``), km and km/s.
+    relative_to : str or None
+        A body whose barycentric state is added to the observer's.
+    attitude : AttitudeSpec
+        How the camera points.
+    camera : Camera
+        The camera (default: :func:`~skynav.scenes.camera.paper_camera`).
+    visibility : VisibilityCriteria
+        The detection rule of the bodies' ``visible`` flag.
+    catalog_limiting_v_mag : float
+        Faintest catalogue star included, V mag.
+    resolved_threshold_px : float
+        Apparent diameter above which a body is ray-traced, px.
+    cosmic_rays_per_frame : float
+        Mean cosmic-ray hits per frame.
+    mitsuba_spp : int
+        Mitsuba samples per pixel of resolved bodies.
+    seed : int
+        Seed of the frame's noise and cosmic rays.
+
+    Examples
+    --------
+    >>> from skynav.scenes import AttitudeSpec, SceneSpec, build_from_spec
+    >>> spec = SceneSpec(epoch_tdb_iso="2027-02-01T00:00:00", position_km=(1.5e8, 0.0, 0.0),
+    ...                  velocity_km_s=(0.0, 30.0, 0.0), attitude=AttitudeSpec(point_at="jupiter"))
+    >>> scene = build_from_spec(spec)
+    >>> next(b for b in scene.bodies if b.name == "jupiter").in_fov
+    True
     """
 
     epoch_tdb_iso: str
@@ -521,7 +578,39 @@ def read_scene_mapping(fobj, name: str = "<scene>"):
 
 
 def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
-    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file)."""
+    """Parse a YAML scene file object into a :class:`SceneSpec` (errors name the file).
+
+    Parameters
+    ----------
+    fobj : file object
+        The YAML text (text or binary).
+    name : str
+        The file's name, for the error messages.
+
+    Returns
+    -------
+    SceneSpec
+        The scene, checked (keys and units as docs/conventions.md: degrees, ISO epochs in TDB,
+        km), angles in radians.
+
+    Raises
+    ------
+    SceneFileError
+        Malformed YAML, or not a mapping of the scene keys.
+    ConfigValueError
+        A value out of its range (the dotted key named).
+
+    Examples
+    --------
+    >>> import io
+    >>> from skynav.scenes import read_scene_file
+    >>> spec = read_scene_file(io.StringIO(
+    ...     "epoch: 2030-01-01T00:00:00\\n"
+    ...     "observer: {position_km: [1.5e8, 0, 0], velocity_km_s: [0, 30, 0]}\\n"
+    ...     "attitude: {ra_deg: 90, dec_deg: 0}\\n"), "scene.yaml")
+    >>> spec.epoch_tdb_iso, round(spec.attitude.ra_rad, 6), spec.camera.width
+    ('2030-01-01T00:00:00.000', 1.570796, 1024)
+    """
     return scene_spec_from_mapping(read_scene_mapping(fobj, name))
 
 
@@ -536,4 +625,40 @@ def load_scene_mapping(path):
 
 
 def load_scene_file(path) -> SceneSpec:
+    """Read a YAML scene file into a :class:`SceneSpec`.
+
+    Relative PSF file paths in it are taken relative to the file's folder.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scene file (``docs/examples/default_scene.yaml`` is one to copy).
+
+    Returns
+    -------
+    SceneSpec
+        The scene, checked, angles in radians (:func:`read_scene_file`).
+
+    Raises
+    ------
+    SceneFileError
+        No such file, malformed YAML, or not a mapping of the scene keys.
+    ConfigValueError
+        A value out of its range (the dotted key named).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from skynav.scenes import load_scene_file
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = Path(tmp) / "scene.yaml"
+    ...     _ = path.write_text("epoch: 2030-01-01T00:00:00\\n"
+    ...                         "observer: {position_km: [1.5e8, 0, 0], velocity_km_s: [0, 30, 0]}\\n"
+    ...                         "attitude: {point_at: auto}\\n"
+    ...                         "camera: {preset: paper, exposure_s: 0.2}\\n")
+    ...     spec = load_scene_file(path)
+    >>> spec.attitude.point_at, spec.camera.exposure_s
+    ('auto', 0.2)
+    """
     return scene_spec_from_mapping(load_scene_mapping(path))
