@@ -28,7 +28,17 @@ __all__ = ["OverrideError", "parse_override", "apply_overrides", "dataclass_from
 
 
 class OverrideError(SkynavError, ValueError):
-    """An override that cannot be parsed or applied (one line, exit 2 on the command line)."""
+    """An override that cannot be parsed or applied (one line, exit 2 on the command line).
+
+    Examples
+    --------
+    >>> from skynav.scenes import OverrideError, parse_override
+    >>> try:
+    ...     parse_override("camera.width 256")
+    ... except OverrideError as exc:
+    ...     print(exc)
+    'camera.width 256': expected KEY.SUB=VALUE, e.g. camera.exposure_s=0.2
+    """
 
 
 def parse_override(text: str):
@@ -38,6 +48,17 @@ def parse_override(text: str):
     ``scenes.0.epoch`` or ``scenes[0].epoch``); VALUE is parsed as YAML with the scene files'
     loader (``0.2``, ``2e-1``, ``[png, json]``, ``{k: 1}``, ``true``; an empty VALUE is null).
 
+    Parameters
+    ----------
+    text : str
+        The override as typed, ``KEY.SUB=VALUE``.
+
+    Returns
+    -------
+    tuple
+        ``(text, path, value)``: the text, the path as a tuple of keys (str) and list indices
+        (int), the parsed value (units as the key's name says).
+
     Raises
     ------
     OverrideError
@@ -45,6 +66,7 @@ def parse_override(text: str):
 
     Examples
     --------
+    >>> from skynav.scenes import parse_override
     >>> parse_override("camera.exposure_s=0.2")[1:]
     (('camera', 'exposure_s'), 0.2)
     >>> parse_override("scenes[1].epoch=2027-03-15T00:00:00")[1]
@@ -74,10 +96,35 @@ def apply_overrides(mapping, overrides, *, known_keys_only: bool = False, what: 
     ``known_keys_only`` (a mapping written out in full, whose reader ignores unknown keys: a
     facility) a key that is not already there is refused here, naming the keys at that level.
 
+    Parameters
+    ----------
+    mapping : dict or None
+        The configuration mapping (a scene file, a recipe, a facility), not changed.
+    overrides : iterable of tuple
+        :func:`parse_override` results, applied in order.
+    known_keys_only : bool
+        Refuse a key that the mapping does not already have.
+    what : str
+        What the mapping is, for the error messages.
+
+    Returns
+    -------
+    dict
+        The new mapping, to validate as the file would be.
+
     Raises
     ------
     OverrideError
         The path goes through a value that is not a mapping or list, or past a list's end.
+
+    Examples
+    --------
+    >>> from skynav.scenes import apply_overrides, parse_override
+    >>> scene = {"camera": {"preset": "paper"}}
+    >>> apply_overrides(scene, [parse_override("camera.exposure_s=0.2"), parse_override("render.seed=3")])
+    {'camera': {'preset': 'paper', 'exposure_s': 0.2}, 'render': {'seed': 3}}
+    >>> scene
+    {'camera': {'preset': 'paper'}}
     """
     out = copy.deepcopy(mapping) if mapping is not None else {}
     if not isinstance(out, dict):
@@ -124,9 +171,35 @@ def dataclass_from_overrides(cls, overrides, *, what: str):
     Each KEY must be a field; each VALUE must have the default's type (an integer for int
     fields, a finite number for float fields, true/false for bool fields).
 
+    Parameters
+    ----------
+    cls : type
+        A frozen dataclass whose fields all have defaults (``ProcessOptions``, ...).
+    overrides : iterable of tuple
+        :func:`parse_override` results, one field each.
+    what : str
+        What the options are, for the error messages.
+
+    Returns
+    -------
+    object
+        ``cls(**fields)`` with the defaults and the overrides.
+
     Raises
     ------
     OverrideError
+        An unknown field, or a value of the wrong type (one line naming the field).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.scenes import dataclass_from_overrides, parse_override
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Options:
+    ...     threshold: float = 5.0
+    ...     steps: int = 3
+    >>> dataclass_from_overrides(Options, [parse_override("threshold=4")], what="options")
+    Options(threshold=4.0, steps=3)
     """
     defaults = cls()
     fields = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(cls)}
