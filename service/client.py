@@ -28,7 +28,7 @@ import orjson
 from skynav.datasets.frame_files import read_exr, read_png
 from skynav.infra.errors import SkynavError
 
-from .protocol import API_PREFIX, MULTIPART, OUTPUTS
+from .protocol import API_PREFIX, MULTIPART, OUTPUTS, parse_server_timing
 
 __all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
 
@@ -81,7 +81,11 @@ class RenderResult:
     screen_png : bytes or None
         The bench screen's frame (DN of the display) as a PNG, when the server has a facility.
     render_seconds : float
-        The server's time to render the frame, s (``Skynav-Render-Seconds``); NaN if not sent.
+        The worker's time to render and encode the frame, s (``render`` of ``Server-Timing``);
+        NaN if not sent.
+    server_timing : dict
+        The answer's ``Server-Timing`` durations, s: ``queue`` (waiting for a worker), ``render``,
+        ``service`` (the rest of the server's time on the request).
     warnings : list of str
         The server's warnings for this request, one line each.
 
@@ -100,6 +104,7 @@ class RenderResult:
     truth_json: bytes | None = None
     screen_png: bytes | None = None
     render_seconds: float = float("nan")
+    server_timing: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
     @property
@@ -389,10 +394,8 @@ class Client:
         parts = parse_multipart(data, ctype) if ctype.startswith(MULTIPART) else {outputs[0]: bytes(data)}
         res = RenderResult(png=parts.get("png"), exr=parts.get("exr"), truth_json=parts.get("truth"),
                            screen_png=parts.get("screen_png"))
-        try:
-            res.render_seconds = float(headers.get("skynav-render-seconds", "nan"))
-        except ValueError:
-            pass
+        res.server_timing = parse_server_timing(headers.get("server-timing", ""))
+        res.render_seconds = res.server_timing.get("render", float("nan"))
         w = headers.get("skynav-warnings")
         res.warnings = w.split(" | ") if w else []
         return res

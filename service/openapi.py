@@ -33,8 +33,9 @@ def openapi_document() -> dict:
                     "200": {"description": "one output: its bytes with its media type; several: a multipart/mixed "
                                            "body, one part per output in the order asked, each with Content-Type, "
                                            "Content-Length and Content-Disposition: inline; name=\"OUTPUT\"",
-                            "headers": {"Skynav-Render-Seconds": {"schema": {"type": "number"},
-                                                                  "description": "time the worker spent on the frame"},
+                            "headers": {"Server-Timing": {"schema": {"type": "string"}, "description":
+                                                          "milliseconds: queue (waiting for a worker), render (the "
+                                                          "worker's frame), service (the rest of the server's time)"},
                                         "Skynav-Warnings": {"schema": {"type": "string"},
                                                             "description": "the scene's warnings, ' | '-separated"}},
                             "content": {**{t: {"schema": {"type": "string", "format": "binary"}}

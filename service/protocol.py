@@ -102,30 +102,36 @@ def read_json(body: bytes):
     return json.loads(body.decode("utf-8"), parse_constant=_no_constant)
 
 
-#: What uvicorn refuses in a header value (``uvicorn.protocols.http.httptools_impl.HEADER_VALUE_RE``).
-_BAD_HEADER_VALUE = re.compile(b"[\x00-\x08\x0a-\x1f\x7f]")
+#: A control character, which no header value may hold (RFC 9110, 5.5).
+_CONTROL = re.compile("[\x00-\x1f\x7f]")
 
 
-def answer_headers(ctype: str, seconds: float, lines: list) -> list:
-    """The headers of a 200 answer, as (name, value) pairs, after the server's defaults (``date``,
-    ``server``) and before ``content-length``: its media type, the worker's time, the warnings."""
-    headers = [(b"content-type", ctype.encode("latin-1")), (b"skynav-render-seconds", b"%.6f" % seconds)]
-    if lines:
-        headers.append((b"skynav-warnings", " | ".join(lines).encode("ascii", "replace")[:4000]))
-    return headers
+def warnings_header(lines: list) -> str:
+    """The ``skynav-warnings`` header value of an answer: the scene's warnings, ``" | "``-separated,
+    in ASCII without control characters, at most 4000 characters."""
+    return _CONTROL.sub(" ", " | ".join(lines)).encode("ascii", "replace").decode("ascii")[:4000]
 
 
-def uvicorn_takes(headers: list) -> bool:
-    """Whether uvicorn writes these header values as they are (it answers 500 for one with a
-    control character: such an answer must go through it)."""
-    return not any(_BAD_HEADER_VALUE.search(value) for _, value in headers)
+def server_timing(**seconds: float) -> str:
+    """A ``Server-Timing`` header value (W3C Server Timing: ``name;dur=MILLISECONDS``, comma
+    separated) of the durations given in seconds, in the order given.
+
+    >>> server_timing(queue=0.0, render=0.0105, service=0.0004)
+    'queue;dur=0.000, render;dur=10.500, service;dur=0.400'
+    """
+    return ", ".join(f"{name};dur={1e3 * s:.3f}" for name, s in seconds.items())
 
 
-def answer_head(defaults: bytes, headers: list, length: int, keep_alive: bool) -> bytes:
-    """The status line and header block that uvicorn writes for a 200 answer with ``headers`` and
-    a body of ``length`` bytes (``RequestResponseCycle.send`` of ``http.response.start``):
-    ``defaults``, its ``date`` and ``server`` lines, first; ``connection: close`` when the
-    connection is not kept alive. ``tests/service/test_direct_answer.py`` checks it against
-    uvicorn's own."""
-    return b"".join([b"HTTP/1.1 200 OK\r\n", defaults, *(b"%s: %s\r\n" % h for h in headers),
-                     b"content-length: %d\r\n" % length, b"" if keep_alive else b"connection: close\r\n", b"\r\n"])
+def parse_server_timing(value: str) -> dict:
+    """``{name: seconds}`` of a ``Server-Timing`` header value (metrics without a ``dur`` left out)."""
+    out = {}
+    for metric in value.split(","):
+        name, *params = (p.strip() for p in metric.split(";"))
+        for p in params:
+            key, _, number = p.partition("=")
+            if key.strip().lower() == "dur":
+                try:
+                    out[name] = float(number.strip().strip('"')) / 1e3
+                except ValueError:
+                    pass
+    return out
