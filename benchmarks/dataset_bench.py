@@ -26,7 +26,7 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
 
    The first ``W`` frames (``--warmup``, default 8: Dr.Jit compiles its kernels, caches fill) are
    left out. It prints the median of each stage, and **frame / bare render = median cost of a
-   dataset frame (a) / median bare render (b)**, CPU time (the figure of issue #25) and wall
+   dataset frame (a) / median bare render (b)**, CPU time (the headline figure) and wall
    clock; then the median of the repeats, and the process's peak RSS.
 
 2. **Scaling** (``--no-scaling`` skips it): ``--frames`` (default 400) Monte Carlo frames,
@@ -58,8 +58,8 @@ beside each figure. Defaults take about 5 minutes on an idle 2-core machine.
    where some workers have no frame left. Also printed: frames / wall clock of the whole command (start-up
    included), and the peak RSS of a worker (of the process itself for 1 worker, which renders
    in-process; else the largest worker process). Scaling = steady-state rate of 2 workers / that
-   of 1 worker, in each round, median over the rounds, against ``1 worker, 1 thread`` (issue #25's
-   criterion), against ``1 worker, 1 core`` and against ``2 processes``. The folders must be byte-identical
+   of 1 worker, in each round, median over the rounds, against ``1 worker, 1 thread`` (the
+   headline figure), against ``1 worker, 1 core`` and against ``2 processes``. The folders must be byte-identical
    (checked: the files that differ are named, a PNG's DN compared, and the script exits with 1).
 
 ``--dir``: where the datasets go (a temporary folder in it; default the system's temporary

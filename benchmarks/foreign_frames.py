@@ -289,7 +289,7 @@ def main(argv=None) -> int:
 
 def score_set(folder, count):
     """``(ours, equal, peers, meta)``: ``bench ip``'s summaries of the set (lost in space, sigma
-    1e4 km, improved mode) with the variance weights and with equal weights (before issue 23),
+    1e4 km, improved mode) with the variance weights and with equal weights (the former final attitude),
     and its peers' (``summary["peers"]``)."""
     from skynav.pipeline.options import ProcessOptions
     from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers

@@ -1,11 +1,11 @@
-"""Speed of the image processing (issue 13): lost-in-space frame (centroids + ID + attitude +
+"""Speed of the image processing: lost-in-space frame (centroids + ID + attitude +
 beacons), tracking frame, and the k-vector build, on one core.
 
 Usage::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/ip_bench.py DATASET [--frames 200] [--mode improved]
 
-Prints medians and p90s in ms and the build time in s. Targets (issue 13): lost in space <= 10 ms,
+Prints medians and p90s in ms and the build time in s. Budgets: lost in space <= 10 ms,
 tracking <= 3 ms, k-vector build <= 5 s. With tetra3rs installed (the ``peers`` extra), also a pass
 interleaving tetra3rs's solve, our tracking frame and our lost-in-space frame frame by frame, and
 the ratios of their medians (the baseline in the same process: on this shared 2-core machine a

@@ -1,5 +1,5 @@
 """How far a CONSISTENT filter's campaign NEES falls from the 95 % band when all runs share one
-image sequence (issue 14's consistency criterion, read against its reference).
+image sequence (the consistency criterion, read against its reference).
 
 Usage::
 
@@ -15,7 +15,7 @@ one chi-square draw per frame, not to an average of independent runs: the band
 ``chi2.ppf([0.025, 0.975], 6 R) / R`` is the one for independent runs. About 30 s per campaign
 of 6 runs over 720 frames (the image processing dominates).
 
-``--realisations``: the Monte Carlo that issue 14's consistency criterion asks for, with
+``--realisations``: the Monte Carlo that the consistency criterion asks for, with
 independent measurement noise. Each SEQ is the same cruise rendered with another dataset seed
 (``skynav dataset generate sequence -o SEQk --seed k``: other image noise, cosmic rays and
 pointing jitter); the filter's R is calibrated once, on DATASET, not on the realisations (out of
@@ -68,7 +68,7 @@ def _pooled(results, label):
 
 
 def realisations(dataset, dirs, *, runs, case, dynamics=None):
-    """Issue 14's consistency criterion on independent image realisations (module docstring)."""
+    """The consistency criterion on independent image realisations (module docstring)."""
     import time
 
     ref = load_plan(dataset)

@@ -32,7 +32,7 @@ both alike, and medians are taken):
   the service's ratio and the ceiling's: two renders that contend for memory bandwidth slow each
   other down without any service, and the service cannot scale better than that. Also: renders
   in flight, the cores the workers obtained, and the CPU per frame (workers, server, client).
-- ``loop``: the issue's speed criterion, like for like: ``skynav bench loop RECIPE --runs 1
+- ``loop``: the closed loop's speed, like for like: ``skynav bench loop RECIPE --runs 1
   --bias-km none`` against ``skynav dataset generate RECIPE`` + ``skynav bench nav --runs 2`` (its
   least: bench nav needs two runs for sample statistics; the runs share the image processing, the
   second adds only its filter) on the same recipe, each with its default measurement noise (both

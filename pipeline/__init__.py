@@ -12,7 +12,7 @@ from .results import AttitudeResult, BeaconResult, FrameResult, PredictedState
 __all__ = ["AttitudeResult", "BeaconResult", "FrameResult", "OnboardCatalog", "PredictedState", "ProcessOptions",
            "process_frame"]
 
-# Navigation filter (issue 14): measurement model, EKF, optimal pair.
+# Navigation filter: measurement model, EKF, optimal pair.
 from .ekf import NavFilter, initial_covariance  # noqa: E402
 from .filter_dynamics import FilterDynamics  # noqa: E402
 from .measurement import CASES, LightCorrections, planet_pixel  # noqa: E402

@@ -36,7 +36,7 @@ from .scoring_peers import available_peers
 __all__ = ["FrameTruthLite", "BeaconScore", "FrameScore", "PeerScore", "open_frames", "predicted_state", "score_frame",
            "run_benchmark", "summarise", "summarise_peers", "WRONG_ATTITUDE_ARCSEC", "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
 
-WRONG_ATTITUDE_ARCSEC = 500.0    # issue 13: wrong = error > 500 arcsec
+WRONG_ATTITUDE_ARCSEC = 500.0    # wrong = error > 500 arcsec
 BEACON_WRONG_PX = 5.0            # Andreis et al. (2023a), Sec. V: a beacon error > 5 px is a failure
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)

@@ -1,6 +1,6 @@
 """Ground truth of a rendered frame, schema ``skynav.frame/2`` (docs/conventions.md "Files").
 
-Version 2 (PSF models, issue #26) adds ``camera.psf`` and, for each star and drawn body,
+Version 2 (PSF models) adds ``camera.psf`` and, for each star and drawn body,
 ``centre_of_light_xy``: the first moment of its drawn (PSF-blurred, streaked) image, beside its
 geometric ``xy``, so an asymmetric PSF's bias (coma) is in the ground truth.
 

@@ -1,4 +1,4 @@
-"""Issue 12 acceptance on the `bench` preset (1024 px camera, 71 arcsec per px): slow, run with
+"""The calibration acceptance on the `bench` preset (1024 px camera, 71 arcsec per px): slow, run with
 ``pytest -m slow tests/calibration/test_acceptance_campaign.py``."""
 
 import numpy as np
@@ -34,6 +34,6 @@ def test_holdout_residuals(campaign, name):
     assert s["max"] <= 5.0
     assert res.seconds <= 30.0
     assert np.percentile(true_error_arcsec(fac, res.facility, truth), 99) <= 0.5
-    # issue 12: p99 <= 0.5 arcsec on held-out dots in every scenario, stress included (docs/hil.md
+    # p99 <= 0.5 arcsec on held-out dots in every scenario, stress included (docs/hil.md
     # "Accuracy and speed" has the measured figures)
     assert s["p99"] <= 0.5

@@ -68,7 +68,7 @@ def test_an_uncalibrated_bench_fails_the_same_checks(tmp_path, small_facility):
 
 @pytest.mark.slow
 def test_issue_12_closed_loop_acceptance(tmp_path):
-    """Issue 12: on the realistic bench (25 % vignetting at the corner, the OLED-like screen
+    """On the realistic bench (25 % vignetting at the corner, the OLED-like screen
     spectrum, calibrated from its own captures), with camera noise: >= 99.5 % of the V < 6 stars
     within 5 arcsec of their true apparent direction, RMS <= 2 arcsec; unresolved planets within
     5 arcsec of their rendered photocentre (the truth direction of a disc's centre differs from
@@ -93,7 +93,7 @@ def test_issue_12_closed_loop_acceptance(tmp_path):
 
 
 def test_power_meter_readings_are_dense_at_low_counts(small_captures):
-    """Issue 12 asks the radiometric model be measured densely at low counts, where faint stars'
+    """The radiometric model must be measured densely at low counts, where faint stars'
     screen pixels sit: at least 10 distinct digital counts below 10 % of full scale, including the
     first few steps above black (DN 1-3), which set the curve's foot."""
     from skynav.calibration.radiometric import read_measurements

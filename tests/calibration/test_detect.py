@@ -5,7 +5,7 @@ centre convolved with a Gaussian (its exact radial profile by quadrature of the 
 integral), averaged over an 8 x 8 sub-grid of each pixel; or a Gaussian spot integrated exactly
 over each pixel (erf differences). It shares nothing with the detector's model (an erfc edge
 profile, point-sampled) and is itself centred to 1e-5 px. The scale of the bounds: on the `bench`
-preset one camera pixel is 71 arcsec, so the 0.5 arcsec p99 of issue 12 is 0.007 px for the whole
+preset one camera pixel is 71 arcsec, so the 0.5 arcsec p99 aimed at is 0.007 px for the whole
 chain (detection, model, residual field). The four-scenario acceptance on the `bench` preset
 (held-out p99 <= 0.5 arcsec, max <= 5 arcsec, fit <= 30 s) is the slow test_acceptance_campaign.py.
 """

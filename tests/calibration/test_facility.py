@@ -38,7 +38,7 @@ def test_inverse_accurate_to_a_hundredth_of_an_arcsec_everywhere(roll_rad):
     v = P.line_of_sight(xy)
     xy2 = P.project(v)
     ang = np.linalg.norm(np.cross(P.line_of_sight(xy2), v), axis=-1) / ARCSEC_RAD
-    assert ang.max() < 0.01  # the requirement
+    assert ang.max() < 0.01  # the requirement
     assert np.abs(xy2 - xy).max() < 1e-6
     assert np.allclose(np.linalg.norm(v, axis=-1), 1.0)
 

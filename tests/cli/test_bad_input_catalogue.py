@@ -1,4 +1,4 @@
-"""The bad-input catalogue (issue 11): every command, every kind of mistake, one line and exit 2.
+"""The bad-input catalogue: every command, every kind of mistake, one line and exit 2.
 
 Each case is a command line (with the files it needs: scene or recipe YAML, output paths, damaged
 datasets) that a user could type. Each must end with exit code 2 (``dataset verify``: its

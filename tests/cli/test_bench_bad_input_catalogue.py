@@ -1,4 +1,4 @@
-"""The bad-input catalogue of the bench, calibration and benchmark commands (issue 22).
+"""The bad-input catalogue of the bench, calibration and benchmark commands.
 
 The standard of ``test_bad_input_catalogue.py`` (render, scene, dataset) held over ``hil
 facility|export``, ``render --hil``, ``calibrate patterns|simulate|geometric|radiometric``,

@@ -1,6 +1,6 @@
 """The Python API raises skynav's errors (subclasses of the builtin ones) with one-line messages:
 ``skynav.datasets.open``, ``ds[k]``, ``ds.observation(k)``, ``ds.truth(k)``, the facility and
-calibration loaders (issue 22)."""
+calibration loaders."""
 
 from __future__ import annotations
 

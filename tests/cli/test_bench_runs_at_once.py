@@ -1,4 +1,4 @@
-"""Two runs at once and killed runs of ``calibrate simulate`` and ``hil export`` (issue 22).
+"""Two runs at once and killed runs of ``calibrate simulate`` and ``hil export``.
 
 A second run on a folder another run holds is refused in one line (the folder lock of ``dataset
 generate``); a run killed part-way and run again gives the bytes of one uninterrupted run; an

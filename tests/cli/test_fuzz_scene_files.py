@@ -1,4 +1,4 @@
-"""Property-based fuzz of scene and recipe mappings (issue 11).
+"""Property-based fuzz of scene and recipe mappings.
 
 Each example mutates a good scene file (one to three keys replaced by a value of another type or
 an extreme number, deleted, or added) and runs ``skynav render`` on it in this process. Allowed
@@ -9,8 +9,8 @@ frame), or exit 2 with one ``skynav: error:`` line. Never a traceback, never mor
 512 x 512 px (larger values are checked for refusal by the catalogue; a legitimate 10000 x 10000
 frame takes minutes, which is not a hang).
 
-The CI run draws ``FUZZ_EXAMPLES`` scenes and 40 recipes; ``-m slow`` draws 1000 scenes (the
-figures quoted in the issue's closing note come from that run: ``-s`` prints them).
+The CI run draws ``FUZZ_EXAMPLES`` scenes and 40 recipes; ``-m slow`` draws 1000 scenes
+(``-s`` prints its figures).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 (Byte-identical is a determinism demand here: the same code with the same seeds, on one machine.)
 
-- The defect of issue 11: a run killed before it finished, one PNG corrupted and another truncated
+- A run killed before it finished, one PNG corrupted and another truncated
   to 0 bytes, then resumed; both must be made again (a resume keeps a frame only if its per-frame
   checksum record, its hashes and its decoding agree), and ``verify`` must catch a damaged image
   even when its (damaged) hash was recorded.

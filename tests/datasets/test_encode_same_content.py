@@ -1,4 +1,4 @@
-"""The encoders and the sampler changed bytes and speed, not content (issue #25).
+"""The encoders and the sampler changed bytes and speed, not content.
 
 Reference: ``data/main_a259a83/`` was written by skynav's main branch at commit a259a83, before
 the encoders changed (EXR ZIP -> RLE, PNG by Pillow -> filter None + zlib RLE, truth JSON by the

@@ -52,7 +52,7 @@ def test_bench_ip_on_a_folder_of_frames(frame_folder, tmp_path, capsys):
 
 
 def test_scores_are_frozen_dataclasses_and_the_csv_has_a_row_per_beacon(frame_folder, tmp_path):
-    """Issue 23: results are frozen dataclasses; ``results.csv`` writes one row per beacon of a run
+    """Results are frozen dataclasses; ``results.csv`` writes one row per beacon of a run
     (one row for a run without beacons) with the beacon's name, outcome and error."""
     import csv
     import dataclasses
@@ -96,7 +96,7 @@ def test_not_a_dataset_and_missing_keys(frame_folder, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_report_html_in_headless_chromium(frame_folder, tmp_path):
-    """issue 13: report.html loads in a real browser with no console errors and shows the plots."""
+    """report.html loads in a real browser with no console errors and shows the plots."""
     import importlib.util
     from pathlib import Path
 

@@ -119,7 +119,7 @@ def test_images_option_uses_the_given_images(seq, tmp_path):
 
 @pytest.mark.slow
 def test_nav_report_html_in_headless_chromium(seq, tmp_path):
-    """issue 14: the nav report.html loads in a real browser with no console errors and its plots
+    """The nav report.html loads in a real browser with no console errors and its plots
     decode (benchmarks/check_report_html.py, shared with bench ip)."""
     import importlib.util
     from pathlib import Path

@@ -44,6 +44,6 @@ def test_catalog_is_cached_and_fast(onboard, paper_cam):
 
     assert OnboardCatalog.cache_file(max_angle_rad=2 * paper_cam.half_diagonal_fov_rad).exists()
     built = OnboardCatalog.build(camera=paper_cam)
-    assert built.build_time_s < 5.0  # issue 13: the k-vector build <= 5 s
+    assert built.build_time_s < 5.0  # the k-vector build's budget: 5 s
     assert len(built.pair_i) == len(onboard.pair_i)
     assert np.all(built.v_mag < 5.5)

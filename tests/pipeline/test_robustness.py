@@ -1,4 +1,4 @@
-"""Robustness (issue 13): bad frames give the right failure class, never a crash, never a wrong
+"""Robustness: bad frames give the right failure class, never a crash, never a wrong
 attitude reported as correct; real frames give the right attitude, in lost-in-space and tracking
 mode. Frames are rendered here (tests may use the renderer; the pipeline may not)."""
 

@@ -1,4 +1,4 @@
-"""Windowed tracking (issue 13, speed): spots only in windows around the stars and beacons
+"""Windowed tracking (speed): spots only in windows around the stars and beacons
 predicted from the previous attitude give the same matched stars and attitude as full-frame
 tracking, and a wrong prior falls back to the full frame (then lost in space)."""
 

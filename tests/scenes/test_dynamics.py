@@ -85,7 +85,7 @@ def test_cruise_propagation_against_tighter_tolerance_100_days():
     tight = propagate(eph, r0, v0, T0, t1, rtol=3e-14, atol_km=1e-8, atol_km_s=1e-14)  # SciPy's floor is 2.2e-14
     t = np.linspace(T0, t1, 201)
     err_km = np.linalg.norm(nominal.state(t)[0] - tight.state(t)[0], axis=1).max()
-    assert err_km < 1.0  # the requirement: < 1 km over 100 days
+    assert err_km < 1.0  # the requirement: < 1 km over 100 days
     # the force model matters at the level a navigation filter sees (Andreis et al. (2024): ~2000 km 3-sigma)
     newton = propagate(eph, r0, v0, T0, t1, model=ForceModel(srp=None, relativity=False))
     drift_km = np.linalg.norm(nominal.state(t1)[0] - newton.state(t1)[0])
