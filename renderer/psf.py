@@ -56,7 +56,21 @@ def stamp_origin(xy, half_size: int) -> np.ndarray:
 
 @runtime_checkable
 class PSF(Protocol):
-    """What the rasteriser needs from a kernel (a value object: hashable, comparable)."""
+    """What the rasteriser needs from a kernel (a value object: hashable, comparable).
+
+    :class:`GaussianPSF` and :class:`TablePSF` are the two kernels; the camera's PSF model
+    (:mod:`skynav.scenes.psf`) says which (``skynav.renderer.optics.kernel_for``).
+
+    Examples
+    --------
+    >>> from skynav.renderer import PSF, GaussianPSF
+    >>> psf = GaussianPSF(0.5)
+    >>> isinstance(psf, PSF), psf.half_size_px(1e-6)
+    (True, 3)
+    >>> stamp = psf.stamps(np.array([[10.0, 20.0]]), 3)   # one point at a pixel centre
+    >>> stamp.shape, round(float(stamp.sum()), 6)
+    ((1, 7, 7), 1.0)
+    """
 
     def half_size_px(self, flux_fraction_lost: float) -> int:
         """Smallest stamp half size ``h`` whose (2h+1)^2 stamp holds all but
@@ -214,6 +228,37 @@ class TablePSF:
     for every table alone; a blend's change of a pixel is the blend of its tables' changes.
 
     Value semantics: equal and hashing alike when their tables are equal (sha256 of the bytes).
+
+    Parameters
+    ----------
+    tables : sequence of ndarray, each shape (S, S)
+        Fine tables of the pixel-integrated PSF, fraction of a point's flux per pixel, sampled
+        ``n`` times per pixel.
+    n : int
+        Fine samples per pixel.
+    half : int
+        Largest stamp half size, px (stamps are at most ``(2 half + 1)^2`` px).
+    grid : tuple, optional
+        ``(xs, ys, index[iy][ix])``: the field points (px) of the tables, for a PSF that varies
+        across the field.
+    wavelengths_nm : sequence of float, optional
+        Effective wavelength of each table, nm, ascending (a polychromatic Airy).
+    noise_floor_e : float, optional
+        The camera's read noise, e-: faint points may get smaller stamps.
+
+    Examples
+    --------
+    The Airy kernel of the paper camera at 550 nm:
+
+    >>> from skynav.renderer import TablePSF
+    >>> from skynav.renderer.optics import kernel_for
+    >>> from skynav.scenes import AiryPSFModel, paper_camera
+    >>> kernel = kernel_for(paper_camera(psf=AiryPSFModel(wavelength_nm=550.0)))
+    >>> isinstance(kernel, TablePSF), kernel.n, kernel.half
+    (True, 23, 16)
+    >>> stamp = kernel.stamps(np.array([[10.2, 20.7]]), 3)
+    >>> stamp.shape, bool(stamp.sum() <= 1.0 + 1e-12)
+    ((1, 7, 7), True)
     """
 
     def __init__(self, tables, n: int, half: int, grid=None, wavelengths_nm=None, noise_floor_e=None):
