@@ -90,10 +90,19 @@ def _diffraction_half_size(camera, flux_fraction: float, wavelength_nm: float, o
 class GaussianPSFModel:
     """Circular Gaussian of standard deviation ``sigma_px`` (px): today's default PSF.
 
+    Parameters
+    ----------
+    sigma_px : float
+        Standard deviation, px, in [0, 1000] (0: all the light in one pixel); Andreis et al.
+        (2024), Table 4: 0.5 px of defocus.
+
     Examples
     --------
+    >>> from skynav.scenes import GaussianPSFModel
     >>> GaussianPSFModel(0.5).to_dict()
     {'model': 'gaussian', 'sigma_px': 0.5}
+    >>> GaussianPSFModel(0.5).half_size_px(1e-6)   # px: a 7 x 7 stamp
+    3
     """
 
     sigma_px: float = 0.5
@@ -118,13 +127,40 @@ class GaussianPSFModel:
         return 6.0 * self.sigma_px
 
     def to_dict(self) -> dict:
+        """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         return {"model": "gaussian", "sigma_px": self.sigma_px}
 
 
 @dataclass(frozen=True, kw_only=True)
 class AiryPSFModel:
-    """Diffraction of an annular aperture of the camera's f-number (``obscuration``: diameter
-    ratio of the central obstruction, in [0, 1)); ``wavelength_nm`` None: polychromatic."""
+    """Diffraction of an annular aperture at the camera's f-number (the Airy pattern).
+
+    Fraunhofer diffraction at the camera's f-number and pixel pitch; ``wavelength_nm`` None:
+    polychromatic, the Airy patterns over the band weighted by each source's electron spectrum.
+
+    Parameters
+    ----------
+    obscuration : float
+        Diameter ratio of the central obstruction, in [0, 0.95].
+    wavelength_nm : float or None
+        Monochromatic wavelength, nm (None: polychromatic).
+    max_half_px : int
+        Largest stamp half size, px (the wings beyond are cut; :data:`MAX_HALF_SIZE_PX`).
+
+    References
+    ----------
+    Born, M. & Wolf, E., Principles of Optics, Sec. 8.5.2 (the Airy pattern); the annular
+    aperture's pattern is the difference of two of them.
+
+    Examples
+    --------
+    >>> from skynav.scenes import AiryPSFModel, paper_camera
+    >>> airy = AiryPSFModel(obscuration=0.3, wavelength_nm=550.0)
+    >>> airy.to_dict()
+    {'model': 'airy', 'obscuration': 0.3, 'wavelength_nm': 550.0}
+    >>> airy.half_size_px(1e-6, paper_camera())   # px: capped at max_half_px
+    16
+    """
 
     obscuration: float = 0.0
     wavelength_nm: float | None = None
@@ -140,6 +176,7 @@ class AiryPSFModel:
                                                            allowed="a wavelength in [100, 20000] nm (or absent: polychromatic)"))
 
     def half_size_px(self, flux_fraction_lost: float, camera) -> int:
+        """Stamp half size leaving out less than ``flux_fraction_lost``, px, at most ``max_half_px``."""
         wl = self.wavelength_nm if self.wavelength_nm is not None else max(camera.response_wavelengths_nm)
         return _diffraction_half_size(camera, flux_fraction_lost, wl, self.obscuration, self.max_half_px)
 
@@ -148,6 +185,7 @@ class AiryPSFModel:
         return float(self.half_size_px(1e-6, camera))
 
     def to_dict(self) -> dict:
+        """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         d = {"model": "airy", "obscuration": self.obscuration}
         if self.wavelength_nm is not None:
             d["wavelength_nm"] = self.wavelength_nm
@@ -162,6 +200,29 @@ class OpticalPSFModel:
 
     ``zernike_waves``: ``((noll_index, waves_rms), ...)`` sorted by index (a mapping is
     accepted and sorted); index 1 (piston) is meaningless and refused, indices run to 36.
+
+    Parameters
+    ----------
+    wavelength_nm : float
+        Wavelength, nm, in [100, 20000].
+    obscuration : float
+        Diameter ratio of the central obstruction, in [0, 0.95].
+    zernike_waves : tuple or dict
+        Noll index (2..36) -> amplitude, waves RMS at ``wavelength_nm`` (zeros dropped).
+    max_half_px : int
+        Largest stamp half size, px.
+
+    References
+    ----------
+    Noll, R. J. (1976), "Zernike polynomials and atmospheric turbulence", JOSA 66, 207 (the
+    indices and normalisation; as GalSim's ``aberrations``).
+
+    Examples
+    --------
+    >>> from skynav.scenes import OpticalPSFModel
+    >>> defocus = OpticalPSFModel(wavelength_nm=550.0, zernike_waves={4: 0.5})
+    >>> defocus.zernike_waves, defocus.to_dict()["zernike_waves"]
+    (((4, 0.5),), {'4': 0.5})
     """
 
     wavelength_nm: float
@@ -193,6 +254,7 @@ class OpticalPSFModel:
         object.__setattr__(self, "zernike_waves", tuple(sorted((j, w) for j, w in out.items() if w != 0.0)))
 
     def half_size_px(self, flux_fraction_lost: float, camera) -> int:
+        """Stamp half size leaving out less than ``flux_fraction_lost``, px, at most ``max_half_px``."""
         # aberrations spread the core by about the wavefront slope: 4 lambda F per wave RMS
         waves = math.sqrt(sum(w * w for _, w in self.zernike_waves))
         base = _diffraction_half_size(camera, flux_fraction_lost, self.wavelength_nm, self.obscuration, self.max_half_px)
@@ -204,6 +266,7 @@ class OpticalPSFModel:
         return float(self.half_size_px(1e-6, camera))
 
     def to_dict(self) -> dict:
+        """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         d = {"model": "optical", "obscuration": self.obscuration, "wavelength_nm": self.wavelength_nm,
              "zernike_waves": {str(j): w for j, w in self.zernike_waves}}
         if self.max_half_px != MAX_HALF_SIZE_PX:
@@ -258,6 +321,36 @@ class TabulatedPSFModel:
     Relative paths are read from the current directory and stored absolute; a scene file, recipe
     or facility file first makes its own relative paths relative to its folder
     (:func:`resolve_psf_files`).
+
+    Parameters
+    ----------
+    oversampling : int
+        Samples of the image per pixel, 1..64 (the image is centred on its middle sample).
+    file : str or None
+        A ``.npy`` or ``.fits`` image (2-D, >= 0); or give ``field``.
+    field : tuple of FieldPSF or of dict
+        A rectangular grid of images across the field: ``{x_px, y_px, file}`` each (px).
+    max_half_px : int
+        Largest stamp half size, px.
+    sha256 : str
+        Filled on reading: the hash of the normalised tables.
+
+    Raises
+    ------
+    ConfigValueError
+        A missing or unreadable file, both or neither of ``file`` and ``field``, a grid that
+        is not rectangular.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from skynav.scenes import TabulatedPSFModel
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     y, x = np.mgrid[-8:9, -8:9]
+    ...     np.save(os.path.join(tmp, "psf.npy"), np.exp(-(x**2 + y**2) / 8.0))   # 4 samples/px
+    ...     psf = TabulatedPSFModel(file=os.path.join(tmp, "psf.npy"), oversampling=4)
+    >>> psf.to_dict()["model"], psf.oversampling, len(psf.sha256)
+    ('tabulated', 4, 64)
     """
 
     oversampling: int = 1
@@ -417,10 +510,34 @@ _KEYS = {
 def psf_from_dict(d, key: str = "camera.psf"):
     """A PSF model from its mapping (a scene file's ``camera.psf``, or :meth:`to_dict`).
 
+    Parameters
+    ----------
+    d : dict or PSF model
+        ``{model: gaussian|airy|optical|tabulated, ...}`` with the keys of that model (module
+        docstring); a model is returned as it is.
+    key : str
+        The mapping's dotted name, for the error messages.
+
+    Returns
+    -------
+    GaussianPSFModel, AiryPSFModel, OpticalPSFModel or TabulatedPSFModel
+        The model.
+
     Raises
     ------
     ConfigValueError
         Naming the bad key and what is allowed.
+
+    Examples
+    --------
+    >>> from skynav.scenes import ConfigValueError, psf_from_dict
+    >>> psf_from_dict({"model": "airy", "wavelength_nm": 550})
+    AiryPSFModel(obscuration=0.0, wavelength_nm=550.0, max_half_px=16)
+    >>> try:
+    ...     psf_from_dict({"model": "moffat"})
+    ... except ConfigValueError as exc:
+    ...     print(exc)
+    camera.psf.model = 'moffat' is not allowed; expected one of: gaussian, airy, optical, tabulated
     """
     if isinstance(d, (GaussianPSFModel, AiryPSFModel, OpticalPSFModel, TabulatedPSFModel)):
         return d

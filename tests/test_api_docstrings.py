@@ -72,7 +72,7 @@ def signature_names(obj) -> set[str] | None:
         return None
     names = set()
     for p in sig.parameters.values():
-        if p.name in ("self", "cls") or p.name.startswith("_"):
+        if p.name.startswith("_"):   # private fields (a dataclass's init=True internals)
             continue
         prefix = {p.VAR_POSITIONAL: "*", p.VAR_KEYWORD: "**"}.get(p.kind, "")
         names.add(prefix + p.name)
