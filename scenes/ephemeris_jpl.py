@@ -551,5 +551,28 @@ class EpochStates:
 
 @functools.lru_cache(maxsize=1)
 def default_ephemeris() -> Ephemeris:
-    """The process-wide DE421 :class:`Ephemeris` (kernel opened on first use)."""
+    """The process-wide DE421 :class:`Ephemeris` (kernel opened on first use).
+
+    Returns
+    -------
+    Ephemeris
+        The same object on every call: barycentric ICRS positions (km) and velocities (km/s)
+        of the Sun, planets and Moon at TDB epochs, 1899-07-29 to 2053-10-09.
+
+    References
+    ----------
+    Folkner, W. M. et al. (2009), "The Planetary and Lunar Ephemeris DE 421", JPL IPN Progress
+    Report 42-178.
+
+    Examples
+    --------
+    >>> from skynav.scenes import default_ephemeris
+    >>> eph = default_ephemeris()
+    >>> r, v = eph.position_velocity("earth", 0.0)   # J2000 TDB
+    >>> au_km = 1.495978707e8
+    >>> round(float(np.linalg.norm(r)) / au_km, 4), round(float(np.linalg.norm(v)), 2)   # au, km/s
+    (0.9819, 30.29)
+    >>> default_ephemeris() is eph
+    True
+    """
     return Ephemeris()
