@@ -79,8 +79,7 @@ JIT_BACKENDS = ("llvm", "cuda")
 _INVERSION_MAX_K = 200  # cap of the inversion loop: P(K > 200 | mean < 10) ~ 1e-200
 #: pmf terms per trip of the inversion loop (see _jit_charge); 200 is 25 trips of 8. The terms,
 #: their sums and the comparisons are the same whatever the count (so are the bits); fewer trips
-#: cost less loop overhead. Kernel time on the default frame's means (one core, medians of 22):
-#: 4 terms 4.54 ms, 6: 4.06, 7: 4.00, 8: 4.08, 10: 4.35.
+#: cost less loop overhead; 8 is among the fastest counts measured (docs/performance.md).
 _INVERSION_TERMS_PER_TRIP = 8
 
 
@@ -556,7 +555,7 @@ def _frozen_exposure(small_dn: bool, backend: str = "llvm", hit_pixels: bool = F
 
     The first call of each input layout (image size, extra charge or none) traces the chain and
     records its kernel launch; later calls replay the recording with the new inputs, skipping
-    ~800 operations of Python tracing a frame (~0.5 ms of a ~5 ms kernel). The recording is the
+    the ~800 operations of Python tracing a frame. The recording is the
     kernel a plain call compiles, so the two give the same bits (``tests/renderer/
     test_detector_emva1288.py``). Every per-frame number is an input (an opaque variable), never a
     constant of the recording. Calls are serialised by ``_frozen_lock`` (a recording is state).
@@ -667,8 +666,8 @@ def pixel_stream_seeds(key, index, *, rounds: int = PIXEL_SEED_TEA_ROUNDS):
     index : drjit.llvm.UInt32 or drjit.cuda.UInt32, shape (N,)
         Flat pixel indices (row-major), < 2^32.
     rounds : int
-        TEA cycles (:data:`PIXEL_SEED_TEA_ROUNDS`, Mitsuba's choice; each cycle costs about
-        0.2 ms per megapixel on one core).
+        TEA cycles (:data:`PIXEL_SEED_TEA_ROUNDS`, Mitsuba's choice; each cycle adds to the
+        kernel's time in proportion to the pixels).
 
     Returns
     -------
@@ -826,8 +825,7 @@ def _jit_erfinv(x):
     "Approximating the erfinv function", GPU Computing Gems Jade Edition, 109-116 (single
     precision, relative error < 4e-7), as Dr.Jit's ``erfinv``, except that the tail polynomial
     (|x| > 0.9966, 0.3 % of the read-noise draws) is evaluated only in the packets of lanes that
-    hold one: a loop that runs at most once, so ~95 % of the packets skip it (0.14 ms of a 4 ms
-    sensor kernel). Checked against ``math.erf`` (tests/renderer/test_detector_emva1288.py)."""
+    hold one: a loop that runs at most once, so ~95 % of the packets skip it. Checked against ``math.erf`` (tests/renderer/test_detector_emva1288.py)."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 

@@ -373,8 +373,7 @@ def auto_sensor_backend() -> str:
     """The sensor backend ``"auto"`` stands for here: ``"llvm"`` where Dr.Jit's LLVM backend
     works, else ``"cuda"`` where its CUDA backend works, else ``"numpy"``.
 
-    LLVM comes first: the sensor's kernel is bound by memory bandwidth (~4 ms a megapixel on one
-    core), and a GPU adds the copies of the image to it and back; a machine with both keeps the
+    LLVM comes first: the sensor's kernel is bound by memory bandwidth, and a GPU adds the copies of the image to it and back; a machine with both keeps the
     bits it had. A GPU machine without libLLVM >= 19 gets the GPU kernel rather than numpy.
     """
     if llvm_available():

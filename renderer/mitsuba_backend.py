@@ -27,7 +27,7 @@ filter), so lens distortion, fx != fy or a bench's table need nothing else.
 
 A plain pinhole (a :class:`~skynav.scenes.camera.Camera` without distortion, with square pixels)
 needs no table: its rays come from Mitsuba's built-in ``perspective`` sensor, in C++, which in
-the scalar variant is ~5x faster than a Python ``sample_ray`` called once per ray
+the scalar variant is faster than a Python ``sample_ray`` called once per ray
 (``benchmarks/mitsuba_bench.py``). That sensor looks along local +z with +x to the LEFT and +y UP
 of the image, and the skynav camera frame has +x right, +y down, so its ``to_world`` has the
 columns ``(-x_cam, -y_cam, +z_cam)`` (ICRS components, the rows of ``R_cam_icrs``) and the

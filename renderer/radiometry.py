@@ -109,7 +109,7 @@ class Radiometry:
         e0 = scale * self._band_electrons(bb)
         irr0 = scale * np.trapezoid(bb, self._wl, axis=-1)
         # dense lookup tables from the cubic spline, read with np.interp (linear in log T:
-        # < 1e-7 relative error, ~10x faster than evaluating the spline)
+        # < 1e-7 relative error, cheaper than evaluating the spline)
         self._log_teff_dense = np.linspace(self._log_teff[0], self._log_teff[-1], _N_TEFF_DENSE)
         self._log_e0_dense = CubicSpline(self._log_teff, np.log(e0))(self._log_teff_dense)
         self._log_irr0_dense = CubicSpline(self._log_teff, np.log(irr0))(self._log_teff_dense)
@@ -141,7 +141,7 @@ class Radiometry:
 
     def _lookup(self, table, teff_k):
         """Linear interpolation on the uniform log-Teff grid by direct indexing (np.interp's
-        binary search is ~10x slower for 1e4 unsorted queries)."""
+        binary search costs more for many unsorted queries)."""
         t = np.clip(np.asarray(teff_k, dtype=float), *TEFF_TABLE_RANGE_K)
         u = (np.log(t) - self._log_teff_dense[0]) * ((_N_TEFF_DENSE - 1) / (self._log_teff_dense[-1] - self._log_teff_dense[0]))
         i = np.minimum(u.astype(np.intp), _N_TEFF_DENSE - 2)

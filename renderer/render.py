@@ -231,8 +231,8 @@ class ExpectedImage:
 def float32_image(image: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
     """``image.astype(np.float32)``, reading only ``support`` (flat indices holding every nonzero
     pixel; None: every pixel): a float32 zero image with those pixels converted, the same bits.
-    A dark frame's stamps are ~3 % of its pixels, and the full 8 MB read of the float64 image
-    costs ~0.3 ms a frame when it is not in the cache."""
+    A dark frame's stamps are ~3 % of its pixels, so reading only those saves the full 8 MB read
+    of the float64 image when it is not in the cache."""
     if support is None:
         return image.astype(np.float32)
     out = np.zeros(image.shape, np.float32)
@@ -658,7 +658,7 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
 #: ``{(H, W): (electrons, irradiance)}``: the float64 images :func:`render` drew its last frame
 #: into, set back to zero over the frame's support, for its next frame of that size (one size
 #: kept). A fresh pair is 16 MB of zeros written each frame; a frame draws ~3 % of the pixels, so
-#: zeroing those is 0.5 ms less of a default frame's ~9 ms, and the cache keeps what the frame
+#: zeroing only those writes far less, and the cache keeps what the frame
 #: reads next (tests/renderer/test_render.py: a frame after others is the frame alone). Frames
 #: with a background (every pixel lit, no support) are not kept. A pair is taken out while a
 #: frame uses it, so two threads never draw into the same images.
@@ -698,7 +698,7 @@ def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wave
 def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:
     """True if any of a body's positions (mid-exposure, start, end; (3, 2) px) is within
     ``margin_px`` plus its apparent radius of the image (Python floats: three points, nine
-    bodies a frame, where numpy's per-call cost was 0.3 ms a frame)."""
+    bodies a frame, too few for numpy's per-call cost to pay)."""
     margin = margin_px + 0.5 * body.angular_diameter_px
     x_hi, y_hi = projection.width - 0.5 + margin, projection.height - 0.5 + margin
     lo = -0.5 - margin

@@ -86,7 +86,7 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     stars = scene.stars
     in_fov = np.asarray(stars.in_fov, dtype=bool)
     sel = np.flatnonzero(in_fov)
-    # one tolist() per column, then zip: ~20x faster than per-star conversions
+    # one tolist() per column, then zip: far cheaper than per-star conversions
     cols = {
         "hip": stars.hip[sel].astype(int).tolist(),
         "v_mag": stars.v_mag[sel].astype(float).tolist(),
