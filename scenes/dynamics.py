@@ -19,7 +19,7 @@ and km/s, time in TDB seconds past J2000, ``dx/dt = f(x, t) = (v, a(r, v, t))``:
 Integration: :func:`scipy.integrate.solve_ivp` with DOP853 at tight tolerances (relative 1e-12,
 absolute 1e-6 km / 1e-12 km/s by default), dense output kept for the frames' epochs.
 
-To keep the right-hand side cheap (a DE421 lookup costs ~0.2 ms per body), body states are read
+To keep the right-hand side cheap (a DE421 lookup per body and step would dominate), body states are read
 once on a regular grid (``table_step_s``, 3 h by default) and interpolated with a cubic Hermite
 spline on positions AND velocities; the interpolation error is below 10 m for every body at 3 h
 (tested against direct DE421 reads), which is far below anything that matters for a navigation

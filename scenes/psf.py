@@ -44,8 +44,7 @@ __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "T
 #: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
 #: beyond 24 px); stamps are cut there and normalised to the whole flux. The stamp's size sets
 #: most of a frame's cost; a faint source's is cut further by the renderer
-#: (``TablePSF.half_sizes_px``; benchmarks/psf_bench.py: the default frame with an Airy PSF
-#: takes 1.3x the Gaussian frame's CPU time at 16, 1.2x at 10).
+#: (``TablePSF.half_sizes_px``; benchmarks/psf_bench.py measures the cost, docs/performance.md).
 MAX_HALF_SIZE_PX = 16
 
 
