@@ -249,9 +249,8 @@ def _made_and_written(jobs, accept) -> None:
 
     Frame k is handed to the writer when frame k + 1's render begins, not when frame k is made:
     the writer's own Python (paths, checksums, the record) then runs while the render's Dr.Jit
-    kernels hold no GIL, instead of taking turns with the sampler's Python. Measured on the
-    Monte Carlo preset, one thread, six alternating pairs of 300 frames: 0.3-2.4 ms less CPU a
-    frame (22.4-23.3 against 22.7-25.4 ms), and less wall-clock time, in every pair."""
+    kernels hold no GIL, instead of taking turns with the sampler's Python (less CPU and wall
+    clock a frame; docs/performance.md)."""
     with LargeArraysOnHeap(), WarmHeap() as heap, ThreadPoolExecutor(1, thread_name_prefix="skynav-commit") as writer:
         pending = made = None
 

@@ -9,13 +9,11 @@ renderer. File contracts are those of docs/conventions.md "Files":
 - **EXR**: float32 named channels (``electrons``, ``irradiance_w_m2``, ...), optional uint32
   ``source_id``. Compression is RLE (run-length on bytes, EXR 1.0): lossless for float32 and
   uint32, deterministic, and read by every EXR tool. Chosen by measurement on the default
-  frame's two 1024 x 1024 float32 maps (96 % zero pixels; one thread, OpenEXR 3.5, median of 12
-  writes; CHANGELOG.md): RLE 26 ms, 460 kB; ZIP 36 ms, 362 kB (its
-  ``zipCompressionLevel`` 1..9 changes neither); ZIPS 60 ms; ZSTD 43 ms, 429 kB (and OpenEXR >= 3.4
-  only); PIZ 94 ms, 0.9 MB; none 9 ms, 8.4 MB. The Python binding holds the GIL while it writes,
+  frame's two float32 maps (the fastest lossless compression that shrinks them; the figures are
+  in docs/performance.md). The Python binding holds the GIL while it writes,
   so a writer thread would not overlap it with rendering. The RLE chunks of files whose channels
   are all 4-byte (float32, uint32) are written by :func:`_exr_rle_file`, which touches only the
-  bytes near non-zero pixels (10 -> 2.4 ms on that frame, 5 % larger files; OpenEXR reads the same
+  bytes near non-zero pixels (5 % larger files; OpenEXR reads the same
   bits back), inside OpenEXR's own header; ``_exr_bytes(..., sparse=False)`` is OpenEXR's encoder.
 - **PNG**: greyscale, uint8 for bit depth <= 8, uint16 for 9-16 bit; DN of fewer bits than the
   sample (a 12-bit sensor, a 10-bit screen) are scaled to the full range with an ``sBIT`` chunk
@@ -217,7 +215,7 @@ def _exr_bytes(channels: Mapping, header: Mapping | None, *, sparse: bool = True
 
 # OpenEXR's RLE scanline chunk (one scanline per chunk), encoded sparsely. The frames are mostly
 # exact zeros (the expected electrons and irradiance of a dark sky with stars), where OpenEXR's
-# byte-by-byte encoder spends ~10 ms on a 1024 x 1024 frame of two float32 channels; this one
+# byte-by-byte encoder walks every byte; this one
 # touches only the bytes near non-zero pixels. Same transform as OpenEXR (OpenEXRCore
 # internal_rle.c): the scanline's bytes split into even- then odd-indexed bytes, a byte-wise
 # delta predictor (d[0] = t[0], d[j] = t[j] - t[j-1] + 128 mod 256), then runs (count - 1 >= 0,
@@ -225,7 +223,7 @@ def _exr_bytes(channels: Mapping, header: Mapping | None, *, sparse: bool = True
 # literals may be cut at other places than OpenEXR's own encoder cuts them, so the file's bytes
 # can differ from OpenEXR's while every decoded pixel is the same (tests/datasets/test_exr_rle.py
 # reads the files back with OpenEXR). The header (and the file layout) is OpenEXR's own: it writes
-# a zero image of the same shape, channels and attributes once per process (~10 ms), and its
+# a zero image of the same shape, channels and attributes once per process, and its
 # header is reused.
 _EXR_LAYOUTS: dict = {}
 _RLE_GAP = 3  # runs of this many 128s or more between non-128 bytes end a literal
@@ -603,10 +601,9 @@ def _png_bytes(a: np.ndarray, sbit: int | None, level: int) -> bytes:
     time stamp. The deflate is zlib-ng's (``zlib-ng``, the zlib of its SIMD compare and checksum):
     its ``Z_RLE`` stream is the bytes of the standard library's zlib for the same rows and level
     (a run-length coder hashes nothing; tests/datasets/test_png_zlib_ng.py compares the two),
-    in 0.18 ms instead of 1.4 ms on the default frame (1024 x 1024, 8 bit, 10 kB). Pillow's
-    adaptive filters with zlib: 13 ms, 16 kB. ISA-L (``isal``, level 1) took 0.13 ms and 15 kB,
-    but its bytes for the same rows were not always the same from one process to the next (the
-    DN were), so a dataset's files were not reproducible (CHANGELOG.md)."""
+    faster (docs/performance.md). ISA-L was tried and left: its bytes for the same rows were not
+    always the same from one process to the next (the DN were), so a dataset's files were not
+    reproducible (CHANGELOG.md)."""
     h, w = a.shape
     if a.dtype == np.uint16:
         a = a.astype(">u2", copy=False)  # PNG samples are big-endian
