@@ -46,7 +46,7 @@ from .patterns import design
 #: screen is cut into squares (each screen pixel a uniform emitter) until this holds: 5 x 5 per
 #: screen pixel on the presets (2.2 screen px per camera px), a dot's flux then within 4.1e-5
 #: (tests/calibration/test_virtual_bench_psf.py; 3 x 3 and 4 x 4 left 1e-4 for a polychromatic
-#: Airy, 6 x 6 leaves 7e-6 in 2.4x the time).
+#: Airy, 6 x 6 leaves 7e-6 at a higher cost).
 PSF_SAMPLES_PER_CAMERA_PX = 10.0
 
 #: Camera pixels per side of the tiles a non-Gaussian PSF is applied in (bounds the memory of

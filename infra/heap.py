@@ -23,8 +23,7 @@ class WarmHeap:
     A warm worker holds ~220,000 objects (astropy, Mitsuba, Dr.Jit, the catalogue, the tables). A
     frame's ground truth is a few thousand small containers, and those alive when a young
     generation is collected are promoted, so a full collection ran every ~15 frames and walked
-    them all: ~100 ms each, 6.8 ms a frame on average (Monte Carlo preset, measured with
-    ``gc.callbacks``), at random frames. :func:`gc.freeze` moves the warm objects to the
+    them all, at random frames. :func:`gc.freeze` moves the warm objects to the
     permanent generation, which no collection walks; the frames' own cycles are still collected.
     Reference counting frees everything as before, so nothing else changes. The objects go back
     with :func:`gc.unfreeze` when the loop ends (a caller's process is left as it was); a process
@@ -33,8 +32,8 @@ class WarmHeap:
     The youngest generation is also collected less often: every :attr:`YOUNG` net new containers
     instead of Python's 700. A frame's truth holds a few thousand containers, freed by reference
     counting when the frame is written, so a collection every 700 found almost nothing and ran
-    ~5 times a frame (0.6 ms of a Monte Carlo frame; 467 objects freed in 1059 collections over
-    200 frames, measured with ``gc.callbacks``). The frames' own cycles (a sequence frame leaves
+    ~5 times a frame (467 objects freed in 1059 collections over 200 frames, measured with
+    ``gc.callbacks``). The frames' own cycles (a sequence frame leaves
     ~80 objects to the collector) are still collected, after at most :attr:`YOUNG` of them. The
     thresholds go back on exit, as the freeze does.
     """
@@ -74,8 +73,8 @@ class LargeArraysOnHeap:
     1-8 MB images from its heap. A ``MALLOC_TRIM_THRESHOLD_`` or ``MALLOC_MMAP_THRESHOLD_`` in the
     environment switches that off: Dask's nanny starts every worker with
     ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``), and there each
-    image's pages were faulted in and zeroed by the kernel, frame after frame. A Dask worker made
-    17-21 Monte Carlo frames/s where a process of its own made 41-45. Inside this context the mmap
+    image's pages were faulted in and zeroed by the kernel, frame after frame, and a Dask worker
+    made less than half the frames of a process of its own. Inside this context the mmap
     threshold is 32 MiB (glibc's largest) and the trim threshold 256 MiB; on exit both go back to
     the environment's values (glibc's defaults for the one not given) and the heap's free memory
     is handed back to the system (``malloc_trim``), as the environment asked. Elsewhere, and

@@ -6,8 +6,8 @@ inherits locked mutexes and a half-copied JIT, so children are spawned fresh and
 package themselves). Each worker gets ``cores // n_workers`` threads for the libraries that start
 thread pools (:class:`WorkerThreads`: Dr.Jit and OpenEXR via ``SKYNAV_THREADS``,
 OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a variable the user set is left alone): N
-processes each with a pool as wide as the machine spin against each other (2 workers on 2 cores
-went from 1.0x to 1.6x the 1-worker rate with this alone; ``benchmarks/dataset_bench.py``), and
+processes each with a pool as wide as the machine spin against each other
+(``benchmarks/dataset_bench.py`` measures the scaling), and
 ends itself when its parent is gone (:func:`exit_with_parent`).
 """
 

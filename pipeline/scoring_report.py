@@ -53,8 +53,8 @@ def _clean(x):
 
 
 #: Frames at the start of a run whose times the histogram leaves out: the first frame pays the
-#: first calls' costs (lazy imports, caches; 29 ms against ~4 ms for the next frames on the
-#: development machine), which would squeeze every other frame into one bin.
+#: first calls' costs (lazy imports, caches: several times a later frame's time), which would
+#: squeeze every other frame into one bin.
 WARMUP_FRAMES = 1
 
 

@@ -142,9 +142,9 @@ class _Connection:
     """One kept-alive HTTP/1.1 connection: a request in one write (Nagle's algorithm off), the
     answer's header parsed here, the answer read into one buffer that the connection keeps.
 
-    ``http.client`` did the same in ~4x the Python (a request's header and body in two writes, the
-    answer's header through the e-mail parser, a new buffered reader per answer): ~0.3 ms of the
-    client's CPU per frame, on the path of every frame. The server is uvicorn, whose answers all
+    ``http.client`` does the same with more Python on the path of every frame (a request's header
+    and body in two writes, the answer's header through the e-mail parser, a new buffered reader
+    per answer). The server is uvicorn, whose answers all
     carry a Content-Length; one without is refused (a chunked answer, as from a proxy in between).
 
     The buffer grows to the largest answer and is read into again by the next one: the kernel
@@ -418,8 +418,7 @@ def request_body(scene: dict, outputs: tuple) -> bytes:
     """The JSON body of a render request: the scene mapping and its ``outputs``.
 
     orjson where it can hold the mapping (plain Python numbers, strings, lists, dicts with string
-    keys: ~10 us against the standard library's ~45 us when the caches are cold, as they are
-    after a frame's render); the standard library otherwise (numpy numbers, other keys), and for
+    keys: the faster writer when the caches are cold, as they are after a frame's render); the standard library otherwise (numpy numbers, other keys), and for
     a mapping with a non-finite number, which it writes as ``NaN``/``Infinity`` for the server to
     refuse by name (orjson would write ``null``).
     """

@@ -41,7 +41,7 @@ AUTH_HEADER = "authorization"
 #: The multipart boundary of every answer whose parts do not contain it (practically all: a random
 #: 128-bit string). One fixed string rather than a fresh one per answer because Python's
 #: ``http.client`` (under urllib and requests) parses an answer's header with the e-mail parser,
-#: which compiles a regular expression per new boundary: ~0.15 ms of every frame of such a client.
+#: which compiles a regular expression per new boundary, on every frame of such a client.
 BOUNDARY = "skynav-3d1f0c9b2a8e47c6b5d4e3f2a1b0c9d8"
 
 
@@ -55,8 +55,7 @@ def answer_chunks(parts: dict) -> tuple[list, str]:
     The fixed boundary is used unless a part holds it. A JSON part (the truth) cannot hold a
     delimiter line (``--`` and the boundary at the start of a line: a JSON text's line breaks are
     whitespace between tokens, and no token starts with ``--``; nor does the text start with
-    one), so only the images are searched: searching the truth's ~235 KB took ~50 us of every
-    frame's answer."""
+    one), so only the images are searched, not the truth's ~235 KB."""
     if len(parts) == 1:
         (name, data), = parts.items()
         return [data], MEDIA_TYPES[name]
@@ -88,8 +87,8 @@ def read_json(body: bytes):
     server reads a request with it to check its envelope, the worker reads the same bytes again
     for the scene (a request goes to the worker as its body, not as a pickled mapping).
 
-    orjson reads it where the two agree (~8 us against the standard library's ~40 us with the
-    caches cold, as they are after a frame's render): not a body orjson refuses (the errors then
+    orjson reads it where the two agree (the faster reader with the caches cold, as they are
+    after a frame's render): not a body orjson refuses (the errors then
     come in the standard library's words; orjson refuses all it does, NaN included, and a lone
     surrogate too), nor one with a run of 19 digits (an integer past 64 bits: the standard
     library's is an int, orjson's a float). Else the two read the same values (the same ints,

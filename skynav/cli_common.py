@@ -90,7 +90,7 @@ class ProgressBar:
         if self.quiet:
             return
         if self._bar is None:
-            # tqdm: ~35 ms to import; every command loads this module, skynav --help too
+            # tqdm is imported when a bar is shown: every command loads this module, skynav --help too
             from tqdm.auto import tqdm
 
             self._bar = tqdm(total=total, unit=self.unit, desc=self.desc)
