@@ -177,6 +177,7 @@ class BodyTruth:
 
     @classmethod
     def from_record(cls, r: dict) -> "BodyTruth":
+        """The body of one ``bodies[]`` record of the truth JSON (degrees converted to radians)."""
         return cls(name=str(r["name"]), xy=_vec(r["xy"], 2), xy_geometric=_vec(r["xy_geometric"], 2),
                    u_icrs=_vec(r["u_icrs"], 3), light_time_s=_num(r["light_time_s"]),
                    distance_km=_num(r["distance_km"]), v_mag=_num(r["v_mag"]),

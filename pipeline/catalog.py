@@ -122,6 +122,7 @@ class OnboardCatalog:
 
     @staticmethod
     def cache_file(*, limiting_v_mag: float = 5.5, max_angle_rad: float) -> Path:
+        """Path of the cached catalogue built with these parameters (``.npz`` in the cache folder)."""
         key = f"{CACHE_VERSION}|{limiting_v_mag!r}|{max_angle_rad!r}|{hip2_path()}"
         return cache_dir() / f"onboard_kvector_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
 

@@ -76,6 +76,7 @@ class BrownConrady:
 
     @property
     def is_identity(self) -> bool:
+        """No distortion: every coefficient is 0."""
         return self.k1 == self.k2 == self.k3 == self.p1 == self.p2 == 0.0
 
     def distort(self, xn, yn):
@@ -375,10 +376,12 @@ class Camera:
 
     @property
     def aperture_diameter_m(self) -> float:
+        """Entrance pupil diameter, m: ``focal_length_mm / f_number``."""
         return self.focal_length_mm * 1e-3 / self.f_number
 
     @property
     def aperture_area_m2(self) -> float:
+        """Entrance pupil area, m^2 (an unobstructed circle)."""
         return math.pi * (0.5 * self.aperture_diameter_m) ** 2
 
     @property

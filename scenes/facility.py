@@ -508,10 +508,12 @@ class Facility:
                                    f"(its edge falls {-d:.0f} screen px inside the camera's image)")
 
     def replace(self, **changes) -> "Facility":
+        """A copy with fields changed (``dataclasses.replace``, checked again)."""
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ file form
     def to_mapping(self) -> dict:
+        """The file form (``skynav.facility/1``, degrees and arcsec); :func:`facility_from_mapping` inverts it."""
         g = self.geometric
         geo = {
             "model": "physical/1",

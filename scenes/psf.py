@@ -448,6 +448,7 @@ class TabulatedPSFModel:
         return float(self.half_size_px(1e-6, camera))
 
     def to_dict(self) -> dict:
+        """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         d = {"model": "tabulated", "oversampling": self.oversampling}
         if self.file is not None:
             d["file"] = self.file
