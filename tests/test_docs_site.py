@@ -74,3 +74,22 @@ def test_every_page_is_in_the_navigation():
     pages = [p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")]
     missing = [p for p in pages if not p.startswith("hooks/") and f" {p}" not in nav]
     assert not missing, f"pages missing from mkdocs.yml's nav: {missing}"
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_api_pages_show_no_sphinx_role(site, package):
+    """The docstrings' ``:func:`x``` roles reach the page as code (docs/hooks/sphinx_roles.py)."""
+    html = (site / "api" / package / "index.html").read_text(encoding="utf-8")
+    left = re.findall(r":(?:func|meth|class|mod|attr|data|exc|obj):", html)
+    assert not left, f"{len(left)} Sphinx roles printed literally in docs/api/{package}.md's page"
+
+
+def test_sphinx_roles_become_code_spans():
+    sys.path.insert(0, str(ROOT / "docs" / "hooks"))
+    try:
+        from sphinx_roles import rewrite
+    finally:
+        sys.path.remove(str(ROOT / "docs" / "hooks"))
+    assert rewrite("see :func:`~skynav.scenes.timescales.to_time` and :class:`Camera`.") == (
+        "see `to_time` and `Camera`.")
+    assert rewrite(":meth:`Camera.replace`, ``:func:`` alone") == "`Camera.replace`, ``:func:`` alone"
