@@ -216,7 +216,9 @@ def draw_cosmic_rays(
         Mean number of hits (``mode="poisson"``) or the exact number (``mode="fixed"``, an
         integer).
     rng : numpy.random.Generator
+        The frame's stream (the count, positions, directions and charges are drawn from it).
     mode : {"poisson", "fixed"}
+        Poisson count of mean ``rate_per_frame``, or exactly that many.
     charge_model : ChargeModel, optional
         Default ``ChargeModel()`` (Moyal, mpv 1600 e-).
     track_prob : float
@@ -227,9 +229,11 @@ def draw_cosmic_rays(
     Returns
     -------
     CosmicRayHits
+        The hits (impact points, px; charges, e-) and the pixels they charge.
 
     Examples
     --------
+    >>> from skynav.renderer import draw_cosmic_rays
     >>> hits = draw_cosmic_rays((64, 64), 1, np.random.default_rng(0), mode="fixed")
     >>> len(hits), hits.pixel_rows.size
     (1, 1)

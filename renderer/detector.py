@@ -271,8 +271,15 @@ class Sensor:
     shape : tuple (H, W)
         Image size, px.
 
+    References
+    ----------
+    EMVA Standard 1288 (release 4.0, 2021), Sect. 2 (the linear sensor model; the chain is in
+    the module's docstring).
+
     Examples
     --------
+    >>> from skynav.renderer import Sensor
+    >>> from skynav.scenes import SensorParams
     >>> sensor = Sensor(SensorParams(bit_depth=12, gain_dn_per_e=0.1), (4, 5))
     >>> dn = sensor.expose(np.full((4, 5), 1000.0), 0.1, np.random.default_rng(1), backend="numpy")
     >>> dn.dtype, dn.shape

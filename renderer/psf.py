@@ -99,6 +99,7 @@ class GaussianPSF:
 
     Examples
     --------
+    >>> from skynav.renderer import GaussianPSF
     >>> psf = GaussianPSF(0.5)
     >>> round(float(psf.integrate_1d(np.array([-0.5, 0.5]))[0]), 6)
     0.682689

@@ -107,6 +107,7 @@ class Ephemeris:
 
     Examples
     --------
+    >>> from skynav.scenes import Ephemeris
     >>> eph = Ephemeris()
     >>> r_km, v_km_s = eph.position_velocity("earth", 0.0)
     >>> bool(1.4e8 < np.linalg.norm(r_km) < 1.5e8)
