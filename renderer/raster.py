@@ -162,7 +162,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
 
     Examples
     --------
-    >>> from skynav.renderer.psf import GaussianPSF
+    >>> from skynav.renderer import GaussianPSF, rasterize
     >>> img = rasterize((16, 16), [[[7.3, 8.1], [7.3, 8.1]]], [1000.0], GaussianPSF(0.5))
     >>> round(float(img.sum()), 3)
     1000.0

@@ -143,7 +143,7 @@ def solve_lambert(r1_km, r2_km, tof_s: float, mu_km3_s2: float, *, prograde: boo
 
     Examples
     --------
-    >>> import numpy as np
+    >>> from skynav.scenes import solve_lambert
     >>> sol = solve_lambert([1.0, 0, 0], [0, 1.0, 0], np.pi / 2, 1.0)  # quarter circular orbit
     >>> np.round(sol.v1_km_s, 12) + 0.0
     array([0., 1., 0.])

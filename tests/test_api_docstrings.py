@@ -145,3 +145,35 @@ def test_the_checker_finds_a_missing_section():
         """
     got = "\n".join(problems("f", f))
     assert "missing ['y']" in got and "not in it ['z']" in got and "no Returns section" in got
+
+
+def _run_alone(qualname: str, obj) -> str | None:
+    """Run the Examples of ``obj``'s docstring with nothing but ``np`` defined (as a reader
+    pastes them): None when they pass, else the doctest report."""
+    import doctest
+    import io
+
+    import numpy as np
+
+    doc = inspect.getdoc(obj) or ""
+    test = doctest.DocTestParser().get_doctest(sections(doc).get("Examples", ""), {"np": np}, qualname, None, 0)
+    out = io.StringIO()
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    with np.printoptions(legacy="1.25"):
+        runner.run(test, out=out.write)
+    return out.getvalue() if runner.failures else None
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_examples_run_on_their_own(package):
+    """Each public name's Examples import what they use: they run in a namespace holding only
+    ``np`` (``tests/test_doctests.py`` runs them in their module's namespace)."""
+    pkg = importlib.import_module(package)
+    failed = []
+    for name in pkg.__all__:
+        if f"{package}.{name}" in NOT_CALLABLE:
+            continue
+        report = _run_alone(f"{package}.{name}", getattr(pkg, name))
+        if report:
+            failed.append(report)
+    assert not failed, "\n".join(failed)[-4000:]
