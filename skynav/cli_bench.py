@@ -15,16 +15,8 @@ from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
 from skynav.pipeline.scoring_report import write_report
 from skynav.scenes.overrides import dataclass_from_overrides
 
-from .cli_common import (
-    COMMAND_HELP,
-    add_quiet,
-    add_set_argument,
-    check_output,
-    float_in,
-    positive_int,
-    say,
-    seed_int,
-)
+from .cli_args import add_dataset_arg, add_limit_arg, add_output_arg, add_quiet, add_seed_arg, add_set_arg, float_in
+from .cli_common import COMMAND_HELP, check_output, say
 
 #: the largest predicted-position sigma: 1e10 km is 67 au, beyond any mission's uncertainty
 MAX_SIGMA_KM = 1e10
@@ -43,10 +35,10 @@ def cmd_ip(args) -> int:
     if any(not (s > 0) for s in args.position_sigma_km):
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
     sigmas = tuple(float(s) for s in args.position_sigma_km)
-    check_output(args.output, [("DIR", args.dir)])
+    check_output(args.output, [("DATASET", args.dataset)])
 
     options = dataclass_from_overrides(ProcessOptions, args.overrides, what="ProcessOptions")
-    rows, info = run_benchmark(args.dir, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
+    rows, info = run_benchmark(args.dataset, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
                                limit=args.limit, peers=args.peers, options=options)
     summary = summarise(rows, frames=info["frames"], sigmas_km=sigmas)
     peer_rows = info.pop("peer_rows")
@@ -61,7 +53,7 @@ def cmd_ip(args) -> int:
         lines += [f"- {name}: not run ({why})" for name, why in notes.items()]
         info["peers_note"] = "\n".join(lines)
         say(args, *lines)
-    out = write_report(args.output, rows, summary, sigmas_km=sigmas, mode=args.mode, seed=args.seed, source=args.dir,
+    out = write_report(args.output, rows, summary, sigmas_km=sigmas, mode=args.mode, seed=args.seed, source=args.dataset,
                        info=info)
     a = summary["attitude"]
     say(args, f"{summary['frames']} frames ({args.mode}): attitude correct {100 * a['correct_rate']:.2f} %, wrong "
@@ -77,23 +69,22 @@ def cmd_ip(args) -> int:
 
 def _add_ip(bsub) -> None:
     p = bsub.add_parser("ip", help="score the image processing (stars, attitude, beacons) on a dataset",
-                        description="Run the image-processing pipeline on every frame of DIR (a skynav dataset or any "
+                        description="Run the image-processing pipeline on every frame of DATASET (a skynav dataset or any "
                         "folder of NNNNNN.png + .json frames in the frame schema) and score it against the truth. "
                         "--set changes a field of the pipeline's options (skynav.pipeline.ProcessOptions: T, inlier_px, "
                         "n_max, min_matches, refine_v_mag, track_window_px, ...), e.g. --set inlier_px=2.5.")
-    p.add_argument("dir", help="dataset folder or folder of frames")
+    add_dataset_arg(p, "dataset folder, or a folder of NNNNNN.png + .json frames")
     p.add_argument("--position-sigma-km", type=float_in(0, MAX_SIGMA_KM, low_open=True, unit="km"), nargs="+",
                    default=[1e4, 1e5, 1e6, 1e7],
                    help=f"predicted-position errors to test, km per axis, in (0, {MAX_SIGMA_KM:g}], at most {MAX_SIGMAS} values "
                         "(default: 1e4 1e5 1e6 1e7)")
     p.add_argument("--mode", default="improved", choices=("paper", "improved"), help="pipeline mode (default: improved)")
     p.add_argument("--peers", action="store_true", help="also run tetra3rs and cedar-solve (if installed)")
-    p.add_argument("--seed", type=seed_int, default=0, help="seed of the predicted-state draws (default 0)")
-    p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
-    p.add_argument("-o", "--output", required=True, help="report folder")
+    add_seed_arg(p, default=0, help="seed of the predicted-state draws (default 0)")
+    add_limit_arg(p)
+    add_output_arg(p, help="report folder")
     add_quiet(p)
-
-    add_set_argument(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")
+    add_set_arg(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")
     p.set_defaults(func=cmd_ip)
 
 

@@ -31,7 +31,17 @@ from skynav.service.loop import (
     run_loop,
 )
 
-from .cli_common import ProgressBar, add_quiet, add_set_argument, positive_int, say, warn
+from .cli_args import (
+    MAX_WORKERS,
+    add_limit_arg,
+    add_output_arg,
+    add_quiet,
+    add_seed_arg,
+    add_set_arg,
+    add_workers_arg,
+    positive_int,
+)
+from .cli_common import ProgressBar, say, warn
 from .cli_dataset import _recipe
 
 
@@ -45,8 +55,6 @@ def cmd_loop(args) -> int:
     if args.sigma_px is not None and args.calibration_stride is not None:
         raise NavInputError("--sigma-px and --calibration-stride: give one or the other (a given sigma is not measured)")
     stride = args.calibration_stride
-    if args.limit is not None and args.limit < 2:
-        raise NavInputError(f"--limit {args.limit}: give at least 2 frames")
     if args.case not in (1, 2, 3, 4, 5):
         raise NavInputError(f"--case {args.case}: give 1, 2, 3, 4 or 5")
     bias = None if args.bias_km in ("0", "none") else args.bias_km
@@ -164,13 +172,13 @@ def add_parser(sub) -> None:
         "how often the target was in the field and centred, the latency, deadline misses with --realtime, and with "
         "--bias-km the same biased start pointed from the truth (as a dataset) and from the estimate.")
     p.add_argument("recipe", help="sequence recipe YAML file or the preset 'sequence'")
-    p.add_argument("-o", "--output", required=True, help="report folder")
+    add_output_arg(p, help="report folder")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs, each its own closed loop (default 1)")
     p.add_argument("--realtime", type=float, default=None, metavar="SCALE",
                    help="run on a wall clock: SCALE simulated seconds per wall second")
     p.add_argument("--service", default=None, metavar="URL", help="use this running skynav serve (default: start one)")
     p.add_argument("--token", default=None, help="the service's token")
-    p.add_argument("--workers", type=int, default=1, help="workers of the server started here (default 1)")
+    add_workers_arg(p, default=1, help=f"workers of the server started here, 1..{MAX_WORKERS} (default 1)")
     p.add_argument("--sigma-px", type=float, default=None,
                    help="centroid noise the filter assumes, px (default: measured as bench nav measures it, on a "
                         "rendering of the cruise pointed from the truth that no run sees)")
@@ -178,12 +186,12 @@ def add_parser(sub) -> None:
                    help="measure the noise on every N-th frame (default: frames // 180, at least 1: about 180 frames; "
                         "each costs a frame from the service and its image processing)")
     p.add_argument("--case", type=int, default=1, help="light-effect case of the measurement model, 1-5 (default 1)")
-    p.add_argument("--seed", type=int, default=0,
-                   help="seed of the initial states (the controller's pointing errors and the image noise come "
+    add_seed_arg(p, default=0,
+                 help="seed of the initial states (the controller's pointing errors and the image noise come "
                         "from the recipe's seed, frame by frame as in its dataset: --set seed=N)")
-    p.add_argument("--limit", type=int, default=None, help="only the first N frames of the plan")
+    add_limit_arg(p, minimum=2, help="only the first N frames of the plan (at least 2)")
     p.add_argument("--bias-km", default="auto", metavar="KM",
                    help="also run a start this far off (auto: 1.5 half-fields at the first target; none: skip)")
     add_quiet(p)
-    add_set_argument(p, "the recipe, e.g. --set sequence.legs=2 --set camera.width=256")
+    add_set_arg(p, "the recipe, e.g. --set sequence.legs=2 --set camera.width=256")
     p.set_defaults(func=cmd_loop)

@@ -31,18 +31,20 @@ from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_repor
 from skynav.pipeline.star_id import star_id_camera_check
 from skynav.scenes.overrides import OverrideError
 
-from .cli_common import (
+from .cli_args import (
     MAX_WORKERS,
+    add_dataset_arg,
+    add_limit_arg,
+    add_output_arg,
     add_quiet,
-    add_set_argument,
-    check_output,
+    add_seed_arg,
+    add_set_arg,
+    add_workers_arg,
     float_in,
     int_in,
     positive_int,
-    say,
-    seed_int,
-    warn,
 )
+from .cli_common import check_output, say, warn
 
 #: most Monte Carlo runs (each run's filter history, frames x 6 states, is kept for the report)
 MAX_RUNS = 100_000
@@ -60,8 +62,6 @@ def cmd_nav(args) -> int:
         raise NavInputError(f"--runs {args.runs}: at least 2 runs are needed for sample statistics")
 
     args.runs = cap_count(args.runs, "--runs", minimum=2)
-    if args.workers < 1:
-        raise NavInputError(f"--workers {args.workers}: give at least 1")
     if args.sigma_px is not None and not args.sigma_px > 0:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     _dynamics(args)  # refuse a bad --set or --gm-sigma before reading the dataset
@@ -184,16 +184,15 @@ def add_parser(bsub) -> None:
                         "--set dynamics.FIELD=VALUE changes the filter's force and noise model; the image processing "
                         "runs with the pipeline's default ProcessOptions (try others on single frames with "
                         "'skynav bench ip --set'; change the images with 'skynav dataset generate --set').")
-    p.add_argument("dataset", help="a 'sequence' dataset folder")
+    add_dataset_arg(p, "a 'sequence' dataset folder")
     p.add_argument("--runs", type=int_in(2, MAX_RUNS, "every run's filter history is kept for the report"), default=50,
                    help=f"Monte Carlo runs, 2..{MAX_RUNS} (default 50; every run's filter history is kept in memory for "
                         "the report)")
     p.add_argument("--case", type=int, nargs="+", default=[1],
                    help="measurement-model cases of Andreis et al. (2024), Sec. 5.2 (1..5; several run in turn; "
                    "the first is plotted)")
-    p.add_argument("--seed", type=seed_int, default=0, help="seed of the initial-error draws (default 0)")
-    p.add_argument("--workers", type=int_in(1, MAX_WORKERS), default=1,
-                   help=f"processes, 1..{MAX_WORKERS}; the runs are split among them (default 1)")
+    add_seed_arg(p, default=0, help="seed of the initial-error draws (default 0)")
+    add_workers_arg(p, default=1, help=f"processes, 1..{MAX_WORKERS}; the runs are split among them (default 1)")
     p.add_argument("--images", default=None, help="folder of NNNNNN.png to use instead of the dataset's images")
     p.add_argument("--realisations", nargs="+", metavar="SEQ", default=None,
                    help="other renderings of the same cruise (skynav dataset generate sequence --seed K): the runs are "
@@ -213,11 +212,10 @@ def add_parser(bsub) -> None:
                    help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 1e-11)")
     p.add_argument("--calibration-stride", type=positive_int, default=1,
                    help="frames between calibration frames (default 1: all)")
-    p.add_argument("--limit", type=positive_int, default=None, help="only the first N frames")
-    p.add_argument("-o", "--output", required=True, help="report folder")
+    add_limit_arg(p)
+    add_output_arg(p, help="report folder")
     add_quiet(p)
-
-    add_set_argument(p, "the filter's dynamics (dynamics." + ", dynamics.".join(DYNAMICS_KEYS)
+    add_set_arg(p, "the filter's dynamics (dynamics." + ", dynamics.".join(DYNAMICS_KEYS)
                      + "; e.g. dynamics.sigma_residual_km_s2=5e-12), applied after --gm-sigma")
     p.set_defaults(func=cmd_nav)
 

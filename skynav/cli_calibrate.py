@@ -15,7 +15,8 @@ from skynav.datasets.plots import figure_png
 from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.infra.count_cap import cap_count
 
-from .cli_common import COMMAND_HELP, ProgressBar, add_quiet, check_output, float_in, int_in, say, seed_int
+from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_seed_arg, float_in, int_in
+from .cli_common import COMMAND_HELP, ProgressBar, check_output, say
 
 
 def _write_figure(fig, path) -> Path:
@@ -99,8 +100,8 @@ def add_parser(sub) -> None:
     c.set_defaults(func=lambda a: (c.print_help(), 2)[1])
 
     p = cs.add_parser("patterns", help="write pattern PNGs and patterns.json")
-    p.add_argument("facility")
-    p.add_argument("-o", "--output", required=True, help="output folder")
+    add_facility_arg(p, required=True, former_positional=True)
+    add_output_arg(p, help="pattern folder")
     p.add_argument("--phases", type=int_in(1, MAX_PHASES, f"{MAX_PHASES}: {MAX_PHASES ** 2} dot grids, each a screen PNG "
                                              "and a capture"), default=3,
                    help=f"grid phases per axis, 1..{MAX_PHASES} (default 3: 9 dot grids; {MAX_PHASES}: {MAX_PHASES ** 2}, "
@@ -109,31 +110,31 @@ def add_parser(sub) -> None:
     p.set_defaults(func=cmd_patterns)
 
     s = cs.add_parser("simulate", help="capture the patterns on a virtual bench (+ power_meter.csv)")
-    s.add_argument("facility")
+    add_facility_arg(s, required=True, former_positional=True)
     s.add_argument("--patterns", required=True, help="pattern folder")
-    s.add_argument("-o", "--output", required=True, help="captures folder")
+    add_output_arg(s, help="captures folder")
     s.add_argument("--scenario", choices=SCENARIO_NAMES, default="realistic", help="the virtual bench's true facility (default realistic)")
     s.add_argument("--frames", type=int_in(1, MAX_FRAMES, "each is a full camera frame of noise"), default=16,
                    help=f"exposures averaged per capture, 1..{MAX_FRAMES} (default 16; each is a full camera frame of "
                         "noise per pattern: time grows with it)")
-    s.add_argument("--seed", type=seed_int, default=0, help="seed of the virtual bench's noise (default 0)")
+    add_seed_arg(s, default=0, help="seed of the virtual bench's noise (default 0)")
     add_quiet(s)
     s.set_defaults(func=cmd_simulate)
 
     g = cs.add_parser("geometric", help="fit the geometric model (and flat field) from captures")
-    g.add_argument("facility")
-    g.add_argument("--patterns", required=True)
-    g.add_argument("--captures", required=True)
-    g.add_argument("-o", "--output", required=True, help="calibrated facility YAML")
+    add_facility_arg(g, required=True, former_positional=True)
+    g.add_argument("--patterns", required=True, help="pattern folder")
+    g.add_argument("--captures", required=True, help="captures folder")
+    add_output_arg(g, help="calibrated facility YAML")
     g.add_argument("--holdout", type=float_in(0, MAX_HOLDOUT, low_open=True), default=0.2,
                    help=f"fraction of dots held out of the fit to measure its error, in (0, {MAX_HOLDOUT:g}] (default 0.2)")
-    g.add_argument("--seed", type=seed_int, default=0, help="seed of the held-out draw (default 0)")
+    add_seed_arg(g, default=0, help="seed of the held-out draw (default 0)")
     add_quiet(g)
     g.set_defaults(func=cmd_geometric)
 
     r = cs.add_parser("radiometric", help="fit the radiometric curve from power-meter readings")
-    r.add_argument("facility")
+    add_facility_arg(r, required=True, former_positional=True)
     r.add_argument("--measurements", required=True, help="CSV: digital_count,lit_pixels,irradiance_w_m2")
-    r.add_argument("-o", "--output", required=True, help="calibrated facility YAML")
+    add_output_arg(r, help="calibrated facility YAML")
     add_quiet(r)
     r.set_defaults(func=cmd_radiometric)

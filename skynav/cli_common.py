@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import errno
 import logging
-import math
 import os
 import re
 import sys
@@ -22,6 +21,8 @@ import warnings
 from pathlib import Path
 
 from skynav.infra.errors import SkynavError, SkynavWarning
+
+from .cli_args import after_parse_checks
 
 #: The one-line help of each ``skynav`` command (``skynav --help`` lists them without importing
 #: the commands' modules; each module's ``add_parser`` uses its line).
@@ -35,12 +36,8 @@ COMMAND_HELP = {
     "serve": "render service: frames by pose over HTTP for flight software and simulators",
 }
 
-__all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "positive_int",
-           "non_negative_int", "int_in", "seed_int", "float_in", "check_output", "PathConflictError", "MAX_SEED", "run_command", "add_set_argument", "parse_set",
-           "add_quiet", "say", "ProgressBar"]
-
-#: most local worker processes a command starts (bench nav's runs, hil export's frames)
-MAX_WORKERS = 256
+__all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "fail", "warn", "check_output",
+           "PathConflictError", "run_command", "say", "ProgressBar"]
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
@@ -56,12 +53,6 @@ def fail(message: str) -> int:
 def warn(message: str) -> None:
     """Print ``skynav: warning: <message>`` (one line) on stderr."""
     print(f"skynav: warning: {' '.join(str(message).split())}", file=sys.stderr)
-
-
-def add_quiet(parser) -> None:
-    """Give ``parser`` the ``-q/--quiet`` flag every long-running sub-command shares."""
-    parser.add_argument("-q", "--quiet", action="store_true",
-                        help="no progress bar and no informational lines (warnings and errors still print)")
 
 
 def say(args, *lines) -> None:
@@ -149,79 +140,6 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"skynav: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
-def _int_type(minimum: int, what: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {what}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{value}: expected {what}")
-        return value
-
-    parse.__name__ = what
-    return parse
-
-
-#: argparse ``type=`` for counts (>= 1); the usage error is one line and exit 2.
-positive_int = _int_type(1, "a positive integer")
-#: argparse ``type=`` for seeds (>= 0).
-non_negative_int = _int_type(0, "a non-negative integer")
-
-#: the largest seed a command takes: seeds are recorded in JSON and read back as int64
-MAX_SEED = 2 ** 63 - 1
-
-
-def int_in(minimum: int, maximum: int, why: str = ""):
-    """argparse ``type=`` for an integer in ``minimum..maximum`` (a count with an upper bound
-    derived from memory or time: ``why`` says which, and the error line and ``--help`` say it).
-
-    >>> int_in(1, 8)("3")
-    3
-    """
-    allowed = f"an integer in {minimum}..{maximum}" + (f" ({why})" if why else "")
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {allowed}") from None
-        if not minimum <= value <= maximum:
-            raise argparse.ArgumentTypeError(f"{value}: expected {allowed}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
-
-
-#: argparse ``type=`` for ``--seed`` (0..2**63-1)
-seed_int = int_in(0, MAX_SEED)
-
-
-def float_in(low: float, high: float, *, low_open: bool = False, high_open: bool = False, unit: str = ""):
-    """argparse ``type=`` for a finite number in ``[low, high]`` (``low_open``/``high_open``: the
-    end itself excluded); NaN and infinities are refused like any value out of range.
-
-    >>> float_in(0, 1, low_open=True)("0.2")
-    0.2
-    """
-    rng = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
-    allowed = f"a finite number in {rng}" + (f" {unit}" if unit else "")
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {allowed}") from None
-        ok = math.isfinite(value) and (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
-        if not ok:
-            raise argparse.ArgumentTypeError(f"{text}: expected {allowed}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
-
-
 class PathConflictError(SkynavError, ValueError):
     """An output path that is, or sits inside, one of the command's inputs (one line, exit 2)."""
 
@@ -268,31 +186,6 @@ def check_output(output, inputs=(), *, flag: str = "-o", kind: str = "folder") -
                                     "(skynav never writes into its inputs)")
 
 
-# ----------------------------------------------------------------------------- --set KEY.SUB=VALUE
-def parse_set(text: str):
-    """argparse ``type=`` of ``--set KEY.SUB=VALUE``: ``(text, path, value)`` of
-    :func:`skynav.scenes.overrides.parse_override`, whose refusal becomes a one-line usage error.
-
-    >>> parse_set("camera.exposure_s=0.2")[1:]
-    (('camera', 'exposure_s'), 0.2)
-    """
-    # lazy: every command loads this module, skynav --help too; the config reader loads with --set
-    from skynav.scenes.overrides import OverrideError, parse_override
-
-    try:
-        return parse_override(text)
-    except OverrideError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def add_set_argument(parser, target: str) -> None:
-    """Add the repeatable ``--set KEY.SUB=VALUE`` option; ``target`` says what KEY addresses."""
-    parser.add_argument("--set", dest="overrides", action="append", default=[], type=parse_set,
-                        metavar="KEY.SUB=VALUE",
-                        help=f"override a key of {target} (repeatable, applied in order; VALUE is YAML: 0.2, "
-                             f"[png, json], true); an unknown key is refused as in the file")
-
-
 def user_path(path) -> str:
     """The path a user gave for one of skynav's hidden temporary files (``DIR/.NAME.XXXXXXXX.tmp``,
     written then renamed onto ``DIR/NAME`` by the atomic writers): ``DIR/NAME``; others unchanged."""
@@ -335,6 +228,7 @@ def run_command(func, args) -> int:
     warnings.showwarning = show
     undo_logging = _log_to_stderr(bool(getattr(args, "quiet", False)))
     try:
+        after_parse_checks(args)
         return int(func(args) or 0)
     except SkynavError as exc:
         return fail(str(exc))

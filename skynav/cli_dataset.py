@@ -11,16 +11,18 @@ from skynav.datasets.recipes import PRESETS, read_recipe_mapping, recipe_yaml
 from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.scenes.overrides import apply_overrides
 
-from .cli_common import (
-    COMMAND_HELP,
-    EXIT_CHECK_FAILED,
-    EXIT_OK,
+from .cli_args import (
+    MAX_WORKERS,
+    add_dask_arg,
+    add_dataset_arg,
+    add_output_arg,
     add_quiet,
-    add_set_argument,
-    non_negative_int,
+    add_seed_arg,
+    add_set_arg,
+    add_workers_arg,
     positive_int,
-    say,
 )
+from .cli_common import COMMAND_HELP, EXIT_CHECK_FAILED, EXIT_OK, say
 
 
 def _recipe(arg: str, count, seed, overrides=()):
@@ -66,7 +68,7 @@ def cmd_recipe(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    report = datasets.verify(args.path, progress=not args.quiet)
+    report = datasets.verify(args.dataset, progress=not args.quiet)
     for line in report.lines():
         print(line)
 
@@ -74,7 +76,7 @@ def cmd_verify(args) -> int:
 
 
 def cmd_info(args) -> int:
-    rows = datasets.info(args.path)["rows"]
+    rows = datasets.info(args.dataset)["rows"]
     width = max(len(k) for k, _ in rows)
     for k, v in rows:
         print(f"{k:<{width}}  {v}")
@@ -91,13 +93,13 @@ def _check_output_png(out: str) -> None:
 
 
 def cmd_preview(args) -> int:
-    datasets.open(args.path)  # a missing or incomplete dataset is named first
-    out = args.output or str(Path(args.path) / "preview.png")
+    datasets.open(args.dataset)  # a missing or incomplete dataset is named first
+    out = args.output or str(Path(args.dataset) / "preview.png")
     _check_output_png(out)
-    path = datasets.preview(args.path, out, count=args.count, columns=args.columns)
+    path = datasets.preview(args.dataset, out, count=args.count, columns=args.columns)
     print(f"contact sheet: {path}")
-    if datasets.open(args.path).manifest["recipe"]["kind"] == "sequence":
-        legs = datasets.leg_plot(args.path, Path(out).with_name(Path(out).stem + "_legs_vmag.png"))
+    if datasets.open(args.dataset).manifest["recipe"]["kind"] == "sequence":
+        legs = datasets.leg_plot(args.dataset, Path(out).with_name(Path(out).stem + "_legs_vmag.png"))
         print(f"planets' V along the legs: {legs}")
     return 0
 
@@ -113,13 +115,13 @@ def add_parser(sub) -> None:
                         "--set render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256; "
                         "'skynav dataset recipe PRESET -o FILE' writes a preset as a commented file to edit.")
     g.add_argument("recipe", help="recipe YAML file or preset name")
-    g.add_argument("-o", "--output", required=True, help="dataset folder")
+    add_output_arg(g, help="dataset folder")
     g.add_argument("--count", type=positive_int, default=None, help="number of frames (overrides the recipe)")
-    g.add_argument("--seed", type=non_negative_int, default=None, help="master seed (overrides the recipe)")
-    g.add_argument("--workers", type=positive_int, default=None, help="local worker processes (default: all cores)")
-    g.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
+    add_seed_arg(g, default=None, help="master seed (overrides the recipe)")
+    add_workers_arg(g, default=None, help=f"local worker processes, 1..{MAX_WORKERS} (default: all cores)")
+    add_dask_arg(g)
     add_quiet(g)
-    add_set_argument(g, "the recipe: kind-independent keys (camera.*, visibility.*, render.*, formats, ...) "
+    add_set_arg(g, "the recipe: kind-independent keys (camera.*, visibility.*, render.*, formats, ...) "
                         "and the kind's section (montecarlo.*, sequence.*, scenes.N.*)")
     g.set_defaults(func=cmd_generate)
     rc = dsub.add_parser("recipe", help="write a preset recipe as a commented YAML file to edit",
@@ -128,23 +130,23 @@ def add_parser(sub) -> None:
                          "'skynav dataset generate FILE -o DIR' reads it back: unedited, it makes the same dataset "
                          "as the preset.")
     rc.add_argument("preset", choices=tuple(PRESETS), help="preset: " + ", ".join(PRESETS))
-    rc.add_argument("-o", "--output", default=None, help="YAML file to write (default: print it)")
+    add_output_arg(rc, required=False, help="YAML file to write (default: print it)")
     rc.add_argument("--force", action="store_true", help="replace an existing file")
     rc.set_defaults(func=cmd_recipe)
     v = dsub.add_parser("verify", help="check checksums, schema and counts", description="Verify a dataset: "
                         "SHA-256 of every file, ground-truth schema, frame counts. Exit code 1 if a problem is found.")
-    v.add_argument("path")
-    v.add_argument("-q", "--quiet", action="store_true")
+    add_dataset_arg(v)
+    add_quiet(v)
     v.set_defaults(func=cmd_verify)
     i = dsub.add_parser("info", help="print a summary table", description="Print a summary of a dataset.")
-    i.add_argument("path")
+    add_dataset_arg(i)
     i.set_defaults(func=cmd_info)
     p = dsub.add_parser("preview", help="write a contact sheet PNG with ground-truth overlays",
                         description="Write a contact sheet PNG of a dataset with star circles and body labels; for a"
                                     " sequence, also the planets' V along the legs, next to the sheet: preview_legs_vmag.png for"
                                     " the default DATASET/preview.png, STEM_legs_vmag.png for -o STEM.png.")
-    p.add_argument("path")
-    p.add_argument("-o", "--output", default=None, help="PNG path (default: DATASET/preview.png)")
+    add_dataset_arg(p)
+    add_output_arg(p, required=False, help="PNG path (default: DATASET/preview.png)")
     p.add_argument("--count", type=positive_int, default=16, help="frames on the sheet (default 16)")
     p.add_argument("--columns", type=positive_int, default=4, help="tiles per row (default 4)")
     p.set_defaults(func=cmd_preview)

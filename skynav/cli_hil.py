@@ -11,17 +11,17 @@ from skynav.scenes.facility import facility_from_mapping
 from skynav.scenes.overrides import apply_overrides
 from skynav.scenes.scene import build_from_spec
 
-from .cli_common import (
-    COMMAND_HELP,
+from .cli_args import (
     MAX_WORKERS,
-    ProgressBar,
+    add_dask_arg,
+    add_dataset_arg,
+    add_facility_arg,
+    add_output_arg,
     add_quiet,
-    add_set_argument,
-    check_output,
-    int_in,
-    say,
-    warn,
+    add_set_arg,
+    add_workers_arg,
 )
+from .cli_common import COMMAND_HELP, ProgressBar, check_output, say, warn
 
 
 def uncalibrated_note(facility, name) -> str | None:
@@ -38,8 +38,8 @@ def uncalibrated_note(facility, name) -> str | None:
 
 
 def cmd_facility(args) -> int:
-    check_output(args.output, [("facility", args.preset)], kind="file")
-    fac = load_facility(args.preset)
+    check_output(args.output, [("facility", args.facility)], kind="file")
+    fac = load_facility(args.facility)
     fac.check_coverage()
     write_facility(fac, args.output)
     sc, cam = fac.screen, fac.camera
@@ -81,8 +81,8 @@ def cmd_export(args) -> int:
 
 
 def render_hil(args, spec, seed) -> int:
-    """``skynav render SCENE --hil FACILITY``: one screen frame."""
-    fac = load_facility(args.hil)
+    """``skynav render SCENE --facility FACILITY``: one screen frame."""
+    fac = load_facility(args.facility)
     scene = build_from_spec(spec)
     if scene.camera != fac.camera:
         raise CalibrationInputError(f"the scene's camera ({scene.camera.width}x{scene.camera.height}, f {scene.camera.focal_length_mm:g} mm) "
@@ -96,7 +96,7 @@ def render_hil(args, spec, seed) -> int:
           f"{on} stars placed, {len(rec['bodies'])} bodies; clipped: {rec['clipped']['too_bright_px']} px too bright, "
           f"{rec['clipped']['too_faint_sources']} sources too faint")
     say(args, f"  {args.output}/frames/{args.name}.png and .json")
-    note = uncalibrated_note(fac, args.hil)
+    note = uncalibrated_note(fac, args.facility)
     if note:  # after the work, as hil export: an error stays one line
         warn(note)
     return 0
@@ -108,8 +108,9 @@ def add_parser(sub) -> None:
     hs = h.add_subparsers(dest="hil_command", metavar="STEP")
     h.set_defaults(func=lambda a: (h.print_help(), 2)[1])
     f = hs.add_parser("facility", help="write a facility file from a preset")
-    f.add_argument("preset", nargs="?", default="screen", help="preset name or facility file (default: screen)")
-    f.add_argument("-o", "--output", required=True)
+    add_facility_arg(f, required=False, default="screen", former_positional=True,
+                     help="the preset (screen, screen_small) or facility file to write out")
+    add_output_arg(f, help="facility YAML file to write")
     add_quiet(f)
     f.set_defaults(func=cmd_facility)
     e = hs.add_parser("export", help="export a dataset as screen frames",
@@ -117,14 +118,13 @@ def add_parser(sub) -> None:
                       "a key of the facility (file or preset, in the form 'skynav hil facility' writes), e.g. "
                       "--set radiometric.parameters.gamma=2.4 or --set screen.bit_depth=8; the dataset itself "
                       "is read as it is (to change what it shows, regenerate it with 'dataset generate --set').")
-    e.add_argument("dataset")
-    e.add_argument("--facility", required=True, help="facility YAML file or preset (screen, screen_small)")
-    e.add_argument("-o", "--output", required=True)
-    e.add_argument("--workers", type=int_in(1, MAX_WORKERS, "each holds a screen frame in memory"), default=1,
-                   help=f"local processes, 1..{MAX_WORKERS} (default 1; each holds a screen frame in memory)")
-    e.add_argument("--dask-scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed cluster")
+    add_dataset_arg(e, "the dataset to export")
+    add_facility_arg(e, required=True)
+    add_output_arg(e, help="screen-frame folder")
+    add_workers_arg(e, default=1, why="each holds a screen frame in memory",
+                    help=f"local processes, 1..{MAX_WORKERS} (default 1; each holds a screen frame in memory)")
+    add_dask_arg(e)
     add_quiet(e)
-
-    add_set_argument(e, "the facility (screen.*, collimator.*, camera.*, geometric.parameters.*, "
+    add_set_arg(e, "the facility (screen.*, collimator.*, camera.*, geometric.parameters.*, "
                         "radiometric.parameters.*; keys as 'skynav hil facility' writes them)")
     e.set_defaults(func=cmd_export)

@@ -17,7 +17,8 @@ from skynav.scenes.frames import unit_to_radec
 from skynav.scenes.overrides import apply_overrides
 from skynav.scenes.scene import build_from_spec
 
-from .cli_common import COMMAND_HELP, add_quiet, add_set_argument, fail, say
+from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_seed_arg, add_set_arg
+from .cli_common import COMMAND_HELP, say
 from .cli_hil import render_hil
 
 
@@ -76,11 +77,9 @@ def cmd_scene(args) -> int:
 def cmd_render(args) -> int:
     spec = _load_spec(args.scene, args.overrides)
     seed = spec.seed if args.seed is None else args.seed
-    if seed < 0:
-        return fail(f"--seed {seed}: expected a non-negative integer")
     check_stem(args.name, what="--name")
     check_output_dir(args.output, what="-o/--output folder")  # before the work, not after
-    if args.hil:
+    if args.facility:
         return render_hil(args, spec, seed)
     t0 = time.perf_counter()
     scene = build_from_spec(spec)
@@ -118,7 +117,7 @@ def add_parser(sub) -> None:
                        description="Compute a scene and print what the camera sees: bodies with magnitude, "
                        "apparent pixel position, light-time and aberration; star counts by magnitude; Sun angle.")
     s.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
-    add_set_argument(s, "the scene file (or preset), e.g. --set camera.fov_deg=10")
+    add_set_arg(s, "the scene file (or preset), e.g. --set camera.fov_deg=10")
     s.set_defaults(func=cmd_scene)
 
     r = sub.add_parser("render", help=COMMAND_HELP["render"],
@@ -127,13 +126,15 @@ def add_parser(sub) -> None:
                        "(or preset) before it is read, e.g. --set camera.exposure_s=0.2 --set "
                        "render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256.")
     r.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
-    r.add_argument("-o", "--output", default="skynav-out", help="output folder (default: skynav-out)")
+    add_output_arg(r, required=False, default="skynav-out", help="output folder (default: skynav-out)")
     r.add_argument("--name", default="frame", help="file stem (default: frame)")
-    r.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's render.seed)")
+    add_seed_arg(r, default=None, help="random seed (default: the scene's render.seed)")
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
     add_quiet(r)
     r.add_argument("--backend", choices=("auto", "llvm", "cuda", "numpy"), default="auto", help="sensor noise backend")
-    r.add_argument("--hil", metavar="FACILITY", default=None, help="render the screen frame of a hardware-in-the-loop FACILITY instead")
-    add_set_argument(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
+    add_facility_arg(r, required=False, former_option="--hil",
+                     help="render the screen frame of this hardware-in-the-loop facility instead (a facility YAML "
+                          "file or preset: screen, screen_small)")
+    add_set_arg(r, "the scene file (or preset): camera.*, observer.*, attitude.*, visibility.*, render.*")
     r.set_defaults(func=cmd_render)

@@ -9,7 +9,8 @@ from skynav.calibration.facility_io import load_facility
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
 
-from .cli_common import COMMAND_HELP, fail, positive_int
+from .cli_args import MAX_WORKERS, add_facility_arg, add_workers_arg, positive_int
+from .cli_common import COMMAND_HELP, fail
 
 
 def cmd_serve(args) -> int:
@@ -59,8 +60,8 @@ def add_parser(sub) -> None:
         f"once and --max-queue (default {MAX_QUEUE}) more wait; the next request gets 503.")
     s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, loopback only)")
     s.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0: any free port, printed)")
-    s.add_argument("--workers", type=positive_int, default=1, help="render processes, frames at once (default 1)")
-    s.add_argument("--facility", default=None, metavar="FILE", help="facility file or preset: enables screen_png")
+    add_workers_arg(s, default=1, help=f"render processes, frames at once, 1..{MAX_WORKERS} (default 1)")
+    add_facility_arg(s, required=False, help="facility YAML file or preset (screen, screen_small): enables screen_png")
     s.add_argument("--token", default=None, help="require 'Authorization: Bearer TOKEN' on /v1/render "
                    "(compared in constant time; at least 16 characters)")
     s.add_argument("--token-env", default=None, metavar="VAR", help="read the token from this environment variable "

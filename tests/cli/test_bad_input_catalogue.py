@@ -309,8 +309,8 @@ def _flag_cases(tmp, good_scene, ds):
         (["dataset", "preview", ds, "--count", "0"], "--count"),
         (["dataset", "preview", ds, "--count", "-2"], "--count"),
         (["dataset", "preview", ds, "--columns", "0"], "--columns"),
-        (["dataset", "verify"], "path"),
-        (["dataset", "info"], "path"),
+        (["dataset", "verify"], "DATASET"),
+        (["dataset", "info"], "DATASET"),
         (["dataset", "explode", ds], "explode"),
     ]]
 

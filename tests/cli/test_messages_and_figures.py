@@ -152,10 +152,10 @@ def test_render_quiet_and_render_hil_warns_once(tmp_path):
     q = _ok(skynav("render", "-o", "r", "-q", "--set", "camera.width=128", "--set", "camera.height=128", cwd=tmp_path))
     assert (q.stdout, q.stderr) == ("", "")
     assert (tmp_path / "r" / "frame.png").is_file()
-    h = _ok(skynav("render", "--hil", "screen", "-o", "s", cwd=tmp_path))
+    h = _ok(skynav("render", "--facility", "screen", "-o", "s", cwd=tmp_path))
     assert "screen frame 2560x2560 10-bit" in h.stdout
     lines = h.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith(WARNING) and "bench was never calibrated" in lines[0], h.stderr
+    assert len(lines) == 1 and lines[0].startswith(WARNING) and "screen was never calibrated" in lines[0], h.stderr
 
 
 def test_hil_export_with_a_calibrated_facility_does_not_warn(work):
