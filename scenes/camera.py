@@ -80,7 +80,18 @@ class BrownConrady:
         return self.k1 == self.k2 == self.k3 == self.p1 == self.p2 == 0.0
 
     def distort(self, xn, yn):
-        """Distorted normalised coordinates of ideal normalised coordinates (arrays)."""
+        """Distorted normalised coordinates of ideal normalised coordinates.
+
+        Parameters
+        ----------
+        xn, yn : numpy.ndarray
+            Ideal normalised coordinates ``x/z``, ``y/z`` (no unit), any shape (broadcast).
+
+        Returns
+        -------
+        xd, yd : numpy.ndarray
+            Distorted normalised coordinates.
+        """
         r2 = xn * xn + yn * yn
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
         xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
@@ -88,7 +99,18 @@ class BrownConrady:
         return xd, yd
 
     def jacobian(self, xn, yn):
-        """``(dxd/dxn, dxd/dyn, dyd/dxn, dyd/dyn)``: the derivatives of :meth:`distort`."""
+        """The derivatives of :meth:`distort`.
+
+        Parameters
+        ----------
+        xn, yn : numpy.ndarray
+            Ideal normalised coordinates (no unit).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(dxd/dxn, dxd/dyn, dyd/dxn, dyd/dyn)``.
+        """
         r2 = xn * xn + yn * yn
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
         dradial_dr2 = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3)
@@ -103,6 +125,20 @@ class BrownConrady:
 
         Converges quadratically from the distorted point as first guess; for the mild
         distortions of navigation cameras 3-5 iterations reach 1e-15.
+
+        Parameters
+        ----------
+        xd, yd : array_like
+            Distorted normalised coordinates (no unit).
+        iterations : int
+            Most Newton steps.
+        tol : float
+            Stop when every point's step ``|dx| + |dy|`` is below this.
+
+        Returns
+        -------
+        x, y : numpy.ndarray
+            Ideal normalised coordinates.
         """
         xd = np.asarray(xd, dtype=float)
         yd = np.asarray(yd, dtype=float)
@@ -312,15 +348,53 @@ class Camera:
     # ----------------------------------------------------------------- constructors
     @classmethod
     def from_fov(cls, *, fov_rad: float, width: int, height: int, pixel_pitch_um: float, **kw) -> "Camera":
-        """Camera whose horizontal field of view (edge to edge of the sensor) is ``fov_rad``."""
+        """Camera whose horizontal field of view (edge to edge of the sensor) is ``fov_rad``.
+
+        Parameters
+        ----------
+        fov_rad : float
+            Horizontal field of view, rad, in (0, pi).
+        width, height : int
+            Image size, px.
+        pixel_pitch_um : float
+            Pixel pitch, um (the focal length follows).
+        **kw
+            Any other field of :class:`Camera`.
+
+        Returns
+        -------
+        Camera
+            ``focal_length_mm = width * pitch / (2 tan(fov / 2))``.
+
+        Examples
+        --------
+        >>> import math
+        >>> from skynav.scenes import Camera
+        >>> cam = Camera.from_fov(fov_rad=math.radians(20.0), width=256, height=256, pixel_pitch_um=55.1)
+        >>> round(cam.focal_length_mm, 2), round(math.degrees(cam.fov_x_rad), 6)
+        (40.0, 20.0)
+        """
         _check(0 < fov_rad < math.pi, "camera.fov_deg", math.degrees(fov_rad), "in (0, 180)")
         focal_mm = 0.5 * width * pixel_pitch_um * 1e-3 / math.tan(0.5 * fov_rad)
         return cls(width=width, height=height, focal_length_mm=focal_mm, pixel_pitch_um=pixel_pitch_um, **kw)
 
     def replace(self, **changes) -> "Camera":
-        """A copy with fields changed (``dataclasses.replace``); a changed size recentres cx, cy
-        unless they are given; a changed ``defocus_sigma_px`` without ``psf`` makes the PSF that
-        Gaussian."""
+        """A copy with fields changed (``dataclasses.replace``, checked again).
+
+        A changed size recentres cx, cy unless they are given (and keeps the pixel pitch, so
+        the field of view changes with the size); a changed ``defocus_sigma_px`` without
+        ``psf`` makes the PSF that Gaussian.
+
+        Parameters
+        ----------
+        **changes
+            Fields of :class:`Camera` and their new values.
+
+        Returns
+        -------
+        Camera
+            The new camera.
+        """
         if "defocus_sigma_px" in changes and "psf" not in changes:
             changes["psf"] = None  # the shorthand: a Gaussian of that sigma
         if ("width" in changes or "height" in changes) and "cx" not in changes and "cy" not in changes:
@@ -391,7 +465,20 @@ class Camera:
 
     # ----------------------------------------------------------------- geometry
     def project(self, v_cam, *, distort: bool = True):
-        """Pixel coordinates (N, 2) of camera-frame directions (N, 3); NaN where z <= 0."""
+        """Pixel coordinates of camera-frame directions (pinhole, then the lens distortion).
+
+        Parameters
+        ----------
+        v_cam : array_like, shape (..., 3)
+            Directions in the camera frame (any length).
+        distort : bool
+            Apply the lens distortion.
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 2)
+            ``(x, y)``, px (centre of the top-left pixel at (0, 0)); NaN where ``z <= 0``.
+        """
         v = np.asarray(v_cam, dtype=float)
         z = v[..., 2]
         # x / z and y / z where z > 0, NaN elsewhere (x / NaN: no division warning)
@@ -402,7 +489,21 @@ class Camera:
         return n * self._f_xy + self._c_xy  # fx xn + cx, fy yn + cy (the same operations)
 
     def back_project(self, xy_px, *, distorted: bool = True):
-        """Unit camera-frame directions (N, 3) of pixel coordinates (N, 2)."""
+        """Unit camera-frame directions of pixel coordinates.
+
+        Parameters
+        ----------
+        xy_px : array_like, shape (..., 2)
+            Pixel coordinates ``(x, y)``, px.
+        distorted : bool
+            The coordinates are distorted (as :meth:`project` gives them): undo the lens
+            distortion first (Newton's method).
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 3)
+            Unit vectors in the camera frame.
+        """
         xy = np.asarray(xy_px, dtype=float)
         v = np.empty(xy.shape[:-1] + (3,))
         v[..., :2] = (xy - self._c_xy) / self._f_xy  # (x - cx) / fx, (y - cy) / fy
@@ -413,12 +514,37 @@ class Camera:
         return v / np.sqrt(np.add.reduce(v * v, axis=-1))[..., None]
 
     def line_of_sight(self, xy_px):
-        """Unit camera-frame directions (N, 3) seen at pixel coordinates (N, 2), through the lens
-        distortion: the :class:`~skynav.scenes.projection.Projection` inverse of :meth:`project`."""
+        """Unit camera-frame directions seen at pixel coordinates, through the lens distortion.
+
+        The :class:`~skynav.scenes.projection.Projection` inverse of :meth:`project`.
+
+        Parameters
+        ----------
+        xy_px : array_like, shape (..., 2)
+            Pixel coordinates ``(x, y)``, px.
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 3)
+            Unit vectors in the camera frame.
+        """
         return self.back_project(xy_px, distorted=True)
 
     def in_image(self, xy_px, margin_px: float = 0.0):
-        """True where pixel coordinates fall on the sensor (pixel edges at -0.5 and W-0.5)."""
+        """True where pixel coordinates fall on the sensor (pixel edges at -0.5 and W-0.5).
+
+        Parameters
+        ----------
+        xy_px : array_like, shape (..., 2)
+            Pixel coordinates ``(x, y)``, px.
+        margin_px : float
+            Widen the sensor by this much on every side, px.
+
+        Returns
+        -------
+        numpy.ndarray of bool, shape (...)
+            On the (widened) sensor.
+        """
         xy = np.asarray(xy_px, dtype=float)
         x, y = xy[..., 0], xy[..., 1]
         return (x >= -0.5 - margin_px) & (x < self.width - 0.5 + margin_px) & (y >= -0.5 - margin_px) & (y < self.height - 0.5 + margin_px)
@@ -429,6 +555,11 @@ class Camera:
 
         ``K`` and ``bit_depth`` are derived copies (docs/conventions.md fixed truth keys);
         ``pixel_pitch_y_um`` appears only for rectangular pixels.
+
+        Returns
+        -------
+        dict
+            The camera's keys, units in their names (``K`` in px).
         """
         d = {
             "K": self.K.tolist(),
@@ -461,6 +592,21 @@ class Camera:
         against the others, not used); for YAML camera sections with presets and ``fov_deg``
         see :func:`skynav.scenes.config.camera_from_mapping`. A key that has moved out of the
         camera (:data:`MOVED_CAMERA_KEYS`) raises :class:`~skynav.scenes.errors.MovedKeyError`.
+
+        Parameters
+        ----------
+        d : dict
+            A camera record (:meth:`to_dict`; a ground truth's ``camera``).
+
+        Returns
+        -------
+        Camera
+            The camera.
+
+        Raises
+        ------
+        ConfigValueError
+            An unknown or missing key, or a value out of its range.
         """
         if not isinstance(d, dict):
             raise ConfigValueError("camera", d, "a mapping (Camera.to_dict())")
