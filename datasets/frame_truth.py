@@ -284,6 +284,11 @@ class FrameTruth:
         source : str
             Name used in error messages (the file).
 
+        Returns
+        -------
+        FrameTruth
+            The typed truth (angles in radians; ``raw`` keeps the dict).
+
         Raises
         ------
         TruthSchemaError
@@ -305,7 +310,23 @@ class FrameTruth:
                    seeds=dict(truth["seeds"]), raw=truth)
 
     def body(self, name: str) -> BodyTruth:
-        """The body called ``name`` (KeyError naming the bodies there are)."""
+        """The body called ``name``.
+
+        Parameters
+        ----------
+        name : str
+            Body name (``mars``, ``moon``, ...).
+
+        Returns
+        -------
+        BodyTruth
+            Its record.
+
+        Raises
+        ------
+        KeyError
+            No such body in the frame (the message names the bodies there are).
+        """
         for b in self.bodies:
             if b.name == name:
                 return b

@@ -297,9 +297,27 @@ class Dataset:
             raise self._truth_error(i, exc) from None
 
     def truth(self, k, *, validate: bool = True):
-        """Typed ground truth of frame ``k`` (for scoring code): a
-        :class:`~skynav.datasets.frame_truth.FrameTruth`, checked against ``frame.schema.json``
-        unless ``validate=False``. ``ds[k].truth`` stays the plain dict."""
+        """Typed ground truth of frame ``k`` (for scoring code).
+
+        ``ds[k].truth`` stays the plain dict.
+
+        Parameters
+        ----------
+        k : int
+            Frame index (negative counts from the end).
+        validate : bool
+            Check the truth against ``frame.schema.json`` first.
+
+        Returns
+        -------
+        skynav.datasets.frame_truth.FrameTruth
+            The frame's truth, typed.
+
+        Raises
+        ------
+        TruthSchemaError
+            A truth that does not follow the schema (the file and the first JSON path).
+        """
         i = self._frame_index(k)
         truth, _, rel = self._read(i, dn=False)
         try:

@@ -98,8 +98,14 @@ class OnboardCatalog:
             Largest pair angle; default: the diagonal field of ``camera`` (2 x half-diagonal),
             else 30 deg.
         camera : skynav.scenes.camera.Camera, optional
+            The camera whose field sets the largest pair angle.
         star_catalog : StarCatalog, optional
             Source catalog (default: the installed Hipparcos).
+
+        Returns
+        -------
+        OnboardCatalog
+            The stars, their pairs sorted by angle (rad) and the k-vector.
         """
         if max_angle_rad is None:
             max_angle_rad = 2.0 * camera.half_diagonal_fov_rad if camera is not None else np.radians(30.0)
@@ -129,7 +135,24 @@ class OnboardCatalog:
     @classmethod
     def load(cls, *, limiting_v_mag: float = 5.5, max_angle_rad: float | None = None, camera=None,
              use_cache: bool = True) -> "OnboardCatalog":
-        """The catalog from the disk cache, building (and caching) it on first use."""
+        """The catalog from the disk cache, building (and caching) it on first use.
+
+        Parameters
+        ----------
+        limiting_v_mag : float
+            Keep stars with ``V < limiting_v_mag``.
+        max_angle_rad : float, optional
+            Largest pair angle, rad; default: the diagonal field of ``camera``, else 30 deg.
+        camera : skynav.scenes.camera.Camera, optional
+            The camera whose field sets the largest pair angle.
+        use_cache : bool
+            Read and write the cache (False: build, cache nothing).
+
+        Returns
+        -------
+        OnboardCatalog
+            The same catalogue as :meth:`build` (a stale or broken cache file is rebuilt).
+        """
         if max_angle_rad is None:
             max_angle_rad = 2.0 * camera.half_diagonal_fov_rad if camera is not None else np.radians(30.0)
         max_angle_rad = float(max_angle_rad)

@@ -147,7 +147,13 @@ class NavFilter:
         return self.x.shape[0]
 
     def propagate(self, t_tdb_s: float) -> None:
-        """Propagate every run to ``t_tdb_s``."""
+        """Propagate every run's state and covariance to ``t_tdb_s`` (in place).
+
+        Parameters
+        ----------
+        t_tdb_s : float
+            The new epoch, TDB s past J2000, within the dynamics' span.
+        """
         self.x, self.P = self.dynamics.propagate(self.t, t_tdb_s, self.x, self.P)
         self.t = float(t_tdb_s)
 
@@ -171,6 +177,16 @@ class NavFilter:
         sun_position_km, planet_radius_km, photocentre : optional
             Aim the model at the planet's Lambert centre of light
             (:func:`skynav.pipeline.measurement.planet_pixel`).
+
+        Returns
+        -------
+        UpdateResult
+            Per run: the innovation (px), its normalised square, and whether the gate accepted
+            it (the state and covariance are updated in place).
+
+        References
+        ----------
+        Andreis et al. (2024), Eqs. 26-42 (the measurement model and its Jacobian).
         """
         n = self.n_runs
         R_all = np.broadcast_to(np.asarray(R_cam_icrs, dtype=float), (n, 3, 3))

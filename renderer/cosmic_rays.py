@@ -80,7 +80,20 @@ class ChargeModel:
             raise ConfigValueError("cosmic_rays.charge_model.width_e", self.width_e, ">= 0 (electrons)")
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` charges, e-, shape (n,)."""
+        """Draw ``n`` charges.
+
+        Parameters
+        ----------
+        n : int
+            Number of charges.
+        rng : numpy.random.Generator
+            The stream to draw from.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            Charges, e- (>= 0).
+        """
         if self.kind == "moyal":
             z = rng.standard_normal(n)
             x = -np.log(z * z)  # Moyal variate: pdf exp(-(x + e^-x)/2) / sqrt(2 pi)

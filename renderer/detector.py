@@ -360,6 +360,24 @@ class Sensor:
         """Like :meth:`expose`, also returning the expected and the collected charge.
 
         Consumes ``rng`` exactly as :meth:`expose` does, and gives the same ``dn``.
+
+        Parameters
+        ----------
+        electrons : array_like, shape (H, W)
+            Expected photo-electrons per pixel (noise-free, before PRNU), e-.
+        exposure_s : float
+            Exposure time (scales the dark current), s.
+        rng : numpy.random.Generator
+            Source of all randomness.
+        backend : {"auto", "llvm", "cuda", "numpy"}
+            The sensor backend (:meth:`expose`).
+        extra_charge_e : array_like, shape (H, W), or PixelCharge, optional
+            Charge added after the shot noise (cosmic rays), e-.
+
+        Returns
+        -------
+        ExposureDetails
+            ``dn``, the expected charge ``mean_e`` and the collected ``charge_e`` (e-), the backend.
         """
         return self._run(electrons, exposure_s, rng, backend, extra_charge_e, details=True)
 

@@ -119,7 +119,18 @@ class Radiometry:
     # ------------------------------------------------------------------ construction
     @classmethod
     def for_camera(cls, camera) -> "Radiometry":
-        """The (cached) radiometry of ``camera``."""
+        """The (cached) radiometry of ``camera``.
+
+        Parameters
+        ----------
+        camera : skynav.scenes.camera.Camera
+            The camera (hashable: one radiometry per camera).
+
+        Returns
+        -------
+        Radiometry
+            The same object for an equal camera.
+        """
         return _for_camera(camera)
 
     def __repr__(self) -> str:
