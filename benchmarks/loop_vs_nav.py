@@ -54,11 +54,13 @@ import numpy as np
 def _recipe(sets, seed):
     from skynav import datasets
     from skynav.datasets.recipes import read_recipe_mapping
-    from skynav.scenes.overrides import apply_overrides, parse_override
+    from skynav.scenes.overrides import apply_overrides, keep_field_of_view, parse_override
 
     r = read_recipe_mapping("sequence")
     if sets:
-        r = apply_overrides(r, [parse_override(s) for s in sets])
+        overrides = [parse_override(s) for s in sets]
+        before, r = r, apply_overrides(r, overrides)
+        keep_field_of_view(before, r, overrides)  # as skynav bench loop --set
     r = datasets.validate_recipe(r)
     r["seed"] = int(seed)
     return r

@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import io
+import logging
 import math
 import re
 
@@ -22,9 +23,14 @@ import yaml
 
 from skynav.infra.errors import SkynavError
 
-from .config import load_yaml
+from .config import camera_from_mapping, load_yaml
 
-__all__ = ["OverrideError", "parse_override", "apply_overrides", "dataclass_from_overrides"]
+__all__ = ["OverrideError", "parse_override", "apply_overrides", "keep_field_of_view", "dataclass_from_overrides"]
+
+_log = logging.getLogger("skynav.scenes.overrides")
+
+#: camera keys that set the scale of the field: given with a size override, they decide it
+_SCALE_KEYS = ("pixel_pitch_um", "pixel_pitch_y_um", "focal_length_mm", "fov_deg", "K")
 
 
 class OverrideError(SkynavError, ValueError):
@@ -153,6 +159,62 @@ def apply_overrides(mapping, overrides, *, known_keys_only: bool = False, what: 
             else:
                 node = node[part]
     return out
+
+
+def keep_field_of_view(before, after: dict, overrides, *, section: str = "camera") -> str | None:
+    """Make a size override keep the camera's field of view; the one line that says what changed.
+
+    ``--set camera.width=256 --set camera.height=256`` on the paper camera (20 deg, 1024 px) asks
+    for a smaller image of the same sky: the pixel pitch follows the width, ``pitch * old / new``
+    (the focal length, so the optics, kept), and the field stays 20 x 20 deg instead of shrinking
+    to 5 x 5 deg. A height given alone keeps the pitch (the image is cropped or extended
+    vertically); a width alone changes the vertical field. The line says the field before and
+    after. Nothing is changed (and None returned) when an
+    override also gives a key that sets the scale (``pixel_pitch_um``, ``pixel_pitch_y_um``,
+    ``focal_length_mm``, ``fov_deg``), replaces the whole ``camera`` mapping, or when the camera
+    before or after is not valid (its own validation names the fault). ``after`` (what
+    :func:`apply_overrides` returned) is changed in place: ``pixel_pitch_um`` (and
+    ``pixel_pitch_y_um`` of rectangular pixels) set, a derived ``K`` dropped.
+
+    Examples
+    --------
+    >>> before = {"camera": {"preset": "paper"}}
+    >>> ov = [parse_override("camera.width=256"), parse_override("camera.height=256")]
+    >>> after = apply_overrides(before, ov)
+    >>> keep_field_of_view(before, after, ov)
+    '--set camera.width=256 camera.height=256: the pixel pitch follows the width (13.78 -> 55.1 um), so the field is 20 x 20 deg (was 20 x 20 deg); give camera.pixel_pitch_um (or focal_length_mm, fov_deg) to set the field yourself'
+    """
+    paths = [path for _, path, _ in overrides if path and path[0] == section]
+    sized = {path[1] for path in paths if len(path) == 2 and path[1] in ("width", "height")}
+    if not sized or any(len(path) == 1 or path[1] in _SCALE_KEYS for path in paths):
+        return None
+    cam = after.get(section)
+    try:
+        old = camera_from_mapping(copy.deepcopy((before or {}).get(section)), section)
+        if "width" in sized and cam.get("width") != old.width:
+            ratio = old.width / cam["width"]
+            cam["pixel_pitch_um"] = old.pixel_pitch_um * ratio
+            if old.pixel_pitch_y_um is not None:
+                cam["pixel_pitch_y_um"] = old.pixel_pitch_y_um * ratio
+            cam.pop("K", None)
+        new = camera_from_mapping(copy.deepcopy(cam), section)
+    except (SkynavError, TypeError, AttributeError, ZeroDivisionError):
+        return None
+    given = " ".join(f"{section}.{k}={cam[k]}" for k in ("width", "height") if k in sized)
+
+    def field(c):
+        return f"{math.degrees(c.fov_x_rad):.4g} x {math.degrees(c.fov_y_rad):.4g} deg"
+
+    if new.pixel_pitch_um != old.pixel_pitch_um:
+        line = (f"--set {given}: the pixel pitch follows the width ({old.pixel_pitch_um:.4g} -> "
+                f"{new.pixel_pitch_um:.4g} um), so the field is {field(new)} (was {field(old)})")
+    elif field(new) != field(old):
+        line = f"--set {given}: the field is {field(new)} (was {field(old)}; the pixel pitch is kept)"
+    else:
+        return None
+    line += f"; give {section}.pixel_pitch_um (or focal_length_mm, fov_deg) to set the field yourself"
+    _log.info(line)
+    return line
 
 
 def _kind(value) -> str:

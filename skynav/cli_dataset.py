@@ -9,7 +9,7 @@ from skynav.datasets.errors import OutputPathError, RecipeError
 from skynav.datasets.frame_files import check_output_dir, check_stem
 from skynav.datasets.recipes import PRESETS, read_recipe_mapping, recipe_yaml
 from skynav.infra.atomic_files import atomic_write_bytes
-from skynav.scenes.overrides import apply_overrides
+from skynav.scenes.overrides import apply_overrides, keep_field_of_view
 
 from .cli_args import (
     MAX_WORKERS,
@@ -31,7 +31,8 @@ def _recipe(arg: str, count, seed, overrides=()):
         raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
     recipe = read_recipe_mapping(arg)
     if overrides:
-        recipe = apply_overrides(recipe, overrides)
+        before, recipe = recipe, apply_overrides(recipe, overrides)
+        keep_field_of_view(before, recipe, overrides)  # a size override keeps the field (one line says so)
     recipe = datasets.validate_recipe(recipe)
     if count is not None:
         recipe["frames"] = count

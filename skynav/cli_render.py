@@ -14,7 +14,7 @@ from skynav.scenes import config, presets
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.errors import SceneFileError
 from skynav.scenes.frames import unit_to_radec
-from skynav.scenes.overrides import apply_overrides
+from skynav.scenes.overrides import apply_overrides, keep_field_of_view
 from skynav.scenes.scene import build_from_spec
 
 from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_seed_arg, add_set_arg
@@ -32,7 +32,8 @@ def _load_spec(arg: str | None, overrides=()):
             raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
         mapping = config.load_scene_mapping(path)
     if overrides:
-        mapping = apply_overrides(mapping, overrides)
+        before, mapping = mapping, apply_overrides(mapping, overrides)
+        keep_field_of_view(before, mapping, overrides)  # a size override keeps the field (one line says so)
     return config.scene_spec_from_mapping(mapping)
 
 

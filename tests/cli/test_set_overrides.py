@@ -6,6 +6,7 @@ Real renders at 128 x 128 px and real files; bad overrides give one line and exi
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -105,7 +106,11 @@ def tiny_dataset(tmp_path_factory):
 def test_dataset_generate_set(tiny_dataset):
     m = json.loads((tiny_dataset / "manifest.json").read_text())
     assert m["recipe"]["render"] == {"cosmic_rays_per_frame": 0.0}
-    assert m["recipe"]["camera"] == {"preset": "paper", "width": 128, "height": 128}
+    from skynav.scenes.camera import paper_camera
+
+    # the size override keeps the paper camera's 20 deg field: the pitch follows, 1024 / 128 = 8 times
+    pitch = paper_camera().pixel_pitch_um * 8.0
+    assert m["recipe"]["camera"] == {"preset": "paper", "width": 128, "height": 128, "pixel_pitch_um": pitch}
     assert m["master_seed"] == 3
     assert json.loads((tiny_dataset / "frames" / "000000.json").read_text())["cosmic_rays"] == []
 
@@ -124,9 +129,9 @@ def test_hil_export_set_addresses_the_facility(tiny_dataset, tmp_path, capsys):
     out = tmp_path / "hx"
     from skynav.scenes.camera import paper_camera
 
-    # the dataset's camera (128 px, the paper camera's pitch) set on the facility: export refuses another
+    # the dataset's camera (128 px, the paper camera's 20 deg field) set on the facility: export refuses another
     cam = ["--set", "camera.width=128", "--set", "camera.height=128", "--set",
-           f"camera.pixel_pitch_um={paper_camera().pixel_pitch_um!r}"]
+           f"camera.pixel_pitch_um={paper_camera().pixel_pitch_um * 8.0!r}"]
     assert main(["hil", "export", str(tiny_dataset), "--facility", "screen_small", "-o", str(out), "-q",
                  "--set", "screen.bit_depth=8", *cam]) == 0
     assert json.loads((out / "frames" / "000000.json").read_text())["facility"]["screen"]["bit_depth"] == 8
@@ -179,3 +184,46 @@ def test_scene_set_changes_what_is_printed(capsys):
     assert main(["scene", "--set", "camera.fov_deg=10", "--set", "camera.exposure_s=0.25"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert "FOV 10.00 deg, 250 ms" in first, first
+
+
+# ----------------------------------------------------------------------------- size overrides keep the field
+def _fov_deg(camera: dict, size_key: str = "width") -> float:
+    """Edge-to-edge field from a truth record's size, pitch and focal length (pinhole geometry)."""
+    half = 0.5 * camera[size_key] * camera["pixel_pitch_um"] * 1e-3 / camera["focal_length_mm"]
+    return 2.0 * math.degrees(math.atan(half))
+
+
+def test_a_size_override_keeps_the_20_deg_field_and_says_so(tmp_path, capsys):
+    """The example of ``skynav render --help``: the paper camera at 256 x 256 px still sees 20 deg
+    (it saw 5 deg when the pitch stayed), and one line on stderr says what changed."""
+    out = tmp_path / "r"
+    assert main(["render", "-o", str(out), "--no-noise", *NO_RAYS, "--set", "camera.width=256",
+                 "--set", "camera.height=256"]) == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if "pixel pitch" in line]
+    assert len(note) == 1 and note[0].startswith("skynav: --set camera.width=256 camera.height=256: the pixel pitch"), note
+    assert "so the field is 20 x 20 deg" in note[0]
+    cam = json.loads((out / "frame.json").read_text())["camera"]
+    assert (cam["width"], cam["height"]) == (256, 256)
+    assert _fov_deg(cam) == pytest.approx(20.0, abs=1e-9) and _fov_deg(cam, "height") == pytest.approx(20.0, abs=1e-9)
+
+
+def test_a_size_override_with_the_pitch_keeps_the_pitch_and_quiet_says_nothing(tmp_path, capsys):
+    from skynav.scenes.camera import paper_camera
+
+    pitch = paper_camera().pixel_pitch_um
+    assert main(["scene", "--set", "camera.width=256", "--set", "camera.height=256",
+                 "--set", f"camera.pixel_pitch_um={pitch!r}"]) == 0
+    got = capsys.readouterr()
+    assert "FOV 5.05 deg" in got.out and "pixel pitch" not in got.err  # what was asked: the centre of the field
+    assert main(["render", "-q", "-o", str(tmp_path / "q"), "--no-noise", *NO_RAYS, "--set", "camera.width=64",
+                 "--set", "camera.height=64"]) == 0
+    got = capsys.readouterr()
+    assert got.err == "" and got.out == ""
+    assert _fov_deg(json.loads((tmp_path / "q" / "frame.json").read_text())["camera"]) == pytest.approx(20.0, abs=1e-9)
+
+
+def test_a_height_alone_keeps_the_pitch_and_says_the_new_field(capsys):
+    assert main(["scene", "--set", "camera.height=512"]) == 0
+    got = capsys.readouterr()
+    assert "camera 1024x512, FOV 20.00 deg" in got.out
+    assert "skynav: --set camera.height=512: the field is 20 x 10.08 deg (was 20 x 20 deg; the pixel pitch is kept)" in got.err
