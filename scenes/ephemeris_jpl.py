@@ -200,29 +200,78 @@ class Ephemeris:
         return self._states(body, t_tdb_s, offset_s, velocity=True)
 
     def position(self, body: str, t_tdb_s, *, offset_s=0.0):
-        """Barycentric ICRS position, km; shape (3,) or (N, 3). See :meth:`position_velocity`.
+        """Barycentric ICRS position of a body, km (:meth:`position_velocity` without the velocity).
 
-        Evaluates the Chebyshev series only (no derivative): about half the cost, the same bits
-        as ``position_velocity(...)[0]``.
+        Evaluates the Chebyshev series only (no derivative): the same bits as
+        ``position_velocity(...)[0]``.
+
+        Parameters
+        ----------
+        body : str
+            One of :data:`BODIES` (case-insensitive).
+        t_tdb_s : float or array_like, shape (N,)
+            Epochs, TDB seconds past J2000.
+        offset_s : float or array_like
+            Added to ``t_tdb_s`` in two parts (a light-time offset kept exact), s.
+
+        Returns
+        -------
+        numpy.ndarray, shape (3,) or (N, 3)
+            Position, km.
         """
         return self._states(body, t_tdb_s, offset_s, velocity=False)
 
     def states_at(self, t_tdb_s: float, bodies=BODIES) -> dict:
-        """Position and velocity of several bodies at one epoch: ``{body: (r_km (3,), v_km_s (3,))}``,
-        each :meth:`position_velocity` ``(body, t_tdb_s)``."""
+        """Position and velocity of several bodies at one epoch.
+
+        Parameters
+        ----------
+        t_tdb_s : float
+            Epoch, TDB seconds past J2000.
+        bodies : sequence of str
+            Body names (default: all of :data:`BODIES`).
+
+        Returns
+        -------
+        dict
+            ``{body: (r_km (3,), v_km_s (3,))}``, each :meth:`position_velocity` ``(body, t_tdb_s)``.
+        """
         return {b: self.position_velocity(b, float(t_tdb_s)) for b in bodies}
 
     def epoch_states(self, t_tdb_s: float, bodies=BODIES) -> "EpochStates":
-        """The positions and velocities of several bodies at one epoch (:meth:`states_at`) as an
-        :class:`EpochStates`."""
+        """The positions and velocities of several bodies at one epoch, as an :class:`EpochStates`.
+
+        Parameters
+        ----------
+        t_tdb_s : float
+            Epoch, TDB seconds past J2000.
+        bodies : sequence of str
+            Body names (default: all of :data:`BODIES`).
+
+        Returns
+        -------
+        EpochStates
+            Positions (km) and velocities (km/s) as rows, one per body (:meth:`states_at`).
+        """
         bodies = tuple(bodies)
         states = [self.position_velocity(b, float(t_tdb_s)) for b in bodies]
         return EpochStates(bodies, np.array([r for r, _ in states]).reshape(-1, 3),
                            np.array([v for _, v in states]).reshape(-1, 3))
 
     def positions_at(self, t_tdb_s, bodies=BODIES) -> np.ndarray:
-        """Positions of several bodies at several epochs, km, shape (N, len(bodies), 3): each
-        :meth:`position` ``(body, t_tdb_s)``.
+        """Positions of several bodies at several epochs: each :meth:`position` ``(body, t_tdb_s)``.
+
+        Parameters
+        ----------
+        t_tdb_s : array_like, shape (N,)
+            Epochs, TDB seconds past J2000.
+        bodies : sequence of str
+            Body names (default: all of :data:`BODIES`).
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, len(bodies), 3)
+            Positions, km.
 
         Raises
         ------
