@@ -185,8 +185,20 @@ class OnboardCatalog:
         return cat
 
     def deep_stars(self, deep_v_mag: float = 9.0):
-        """The full Hipparcos catalog to ``deep_v_mag`` (loaded once per process, cached on the
-        object): the improved beacon mode uses it to tell faint stars from beacons."""
+        """The full Hipparcos catalog to ``deep_v_mag`` (loaded once, cached on the object).
+
+        The improved beacon mode uses it to tell faint stars from beacons.
+
+        Parameters
+        ----------
+        deep_v_mag : float
+            Keep the stars with ``V < deep_v_mag``, mag.
+
+        Returns
+        -------
+        skynav.scenes.catalog_hipparcos.StarCatalog
+            The stars, at the catalogue epoch.
+        """
         cache = self.deep_cache
         if deep_v_mag not in cache:
             full = load_catalog()
@@ -195,6 +207,21 @@ class OnboardCatalog:
 
     # ------------------------------------------------------------------ queries
     def pairs_in_range(self, lo_rad: float, hi_rad: float):
-        """(I, J) star indices of every pair whose angle is in ``[lo_rad, hi_rad]``."""
+        """Star indices of every pair whose angle is in ``[lo_rad, hi_rad]`` (a k-vector search).
+
+        Parameters
+        ----------
+        lo_rad, hi_rad : float
+            The angle range, rad.
+
+        Returns
+        -------
+        I, J : numpy.ndarray of int32
+            Indices into :attr:`u_icrs` of the pairs' two stars.
+
+        References
+        ----------
+        Andreis et al. (2023a), Sec. III.A.2.
+        """
         s = self.kvector.range(lo_rad, hi_rad)
         return self.pair_i[s], self.pair_j[s]

@@ -122,7 +122,15 @@ class FilterDynamics:
         return 1.0 / self.correlation_time_s
 
     def process_noise_psd(self) -> np.ndarray:
-        """Q of Andreis et al. (2023b), Eq. 7, shape (12, 12), dimensional PSDs."""
+        """The process noise Q of Andreis et al. (2023b), Eq. 7.
+
+        Returns
+        -------
+        numpy.ndarray, shape (12, 12)
+            Diagonal power spectral densities: km^2/s^5 on the two Gauss-Markov accelerations
+            (``2 xi sigma^2``), ``(q_R + q_SRP) / (2 xi)`` on the velocity (read as km^2/s^3:
+            module notes), 0 on the position.
+        """
         xi = self.xi_per_s
         q_r = 2.0 * xi * self.sigma_residual_km_s2**2
         q_s = 2.0 * xi * self.sigma_srp_km_s2**2
@@ -133,7 +141,22 @@ class FilterDynamics:
         return np.diag(q)
 
     def bind(self, ephemeris, t0_tdb_s: float, t1_tdb_s: float, table_step_s: float = 10800.0) -> "BoundDynamics":
-        """The model bound to body-state tables over a span (TDB s past J2000)."""
+        """The model bound to body-state tables over a span.
+
+        Parameters
+        ----------
+        ephemeris : Ephemeris
+            Where the body states come from (``skynav.scenes.ephemeris_jpl``).
+        t0_tdb_s, t1_tdb_s : float
+            The span, TDB seconds past J2000.
+        table_step_s : float
+            Step of the body-state tables (cubic Hermite between), s.
+
+        Returns
+        -------
+        BoundDynamics
+            Batched derivative, Jacobian and propagation over the span (:class:`NavFilter`'s).
+        """
         return BoundDynamics(self, BodyTable(ephemeris, self.bodies, t0_tdb_s, t1_tdb_s, table_step_s))
 
 

@@ -388,9 +388,19 @@ class Sensor:
         ``floor(K mean_e + offset + 0.5)`` clipped to ``[0, 2^bits - 1]``. Fixed patterns are
         included (they are not noise from frame to frame).
 
+        Parameters
+        ----------
+        electrons : array_like, shape (H, W)
+            Expected photo-electrons per pixel (before PRNU), e-.
+        exposure_s : float
+            Exposure time (scales the dark current), s.
+        extra_charge_e : array_like, shape (H, W), or PixelCharge, optional
+            Charge added to the mean, e-.
+
         Returns
         -------
         ndarray, shape (H, W), uint8 (bit depth <= 8) or uint16
+            Digital counts, DN.
         """
         e, t, x = self._check_inputs(electrons, exposure_s, extra_charge_e)
         if isinstance(x, PixelCharge):

@@ -275,15 +275,38 @@ class Radiometry:
         return self._body_v0(body)[1] * self._mag_factor(v_mag)
 
     def body_irradiance_w_m2(self, body, v_mag) -> np.ndarray:
-        """In-band irradiance at the pupil of a body (over ``band_nm``), W m^-2."""
+        """In-band irradiance at the pupil of a body (over ``band_nm``).
+
+        Parameters
+        ----------
+        body : str
+            Body name (its reflectance shape; unknown names are grey).
+        v_mag : array_like
+            V magnitude, mag.
+
+        Returns
+        -------
+        numpy.ndarray, shape of ``v_mag``
+            Irradiance, W/m^2.
+        """
         return self._body_v0(body)[2] * self._mag_factor(v_mag)
 
     def body_spectral_irradiance_w_m2_nm(self, body, v_mag, wavelengths_nm=None) -> np.ndarray:
         """Spectral irradiance at the pupil of a body normalised to ``v_mag``.
 
+        Parameters
+        ----------
+        body : str
+            Body name (its reflectance shape; unknown names are grey).
+        v_mag : float
+            V magnitude, mag.
+        wavelengths_nm : array_like, shape (M,), optional
+            Wavelengths, nm (default: the shared fine grid over ``band_nm``).
+
         Returns
         -------
-        ndarray, shape (M,), W m^-2 nm^-1, on ``wavelengths_nm`` (default the shared grid)
+        numpy.ndarray, shape (M,)
+            Spectral irradiance, W m^-2 nm^-1, on ``wavelengths_nm``.
         """
         wl = spectra.WAVELENGTHS_NM if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
         scale = self._body_v0(body)[0]
