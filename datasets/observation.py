@@ -94,8 +94,15 @@ class CalibrationErrorModel:
             raise ConfigValueError("calibration_error.seed", self.seed, "an integer >= 0")
 
     def draw(self) -> CalibrationOffsets:
-        """The offsets of this model: four standard normals from ``default_rng(seed)``, in the
-        order focal length, cx, cy, k1, each times its sigma."""
+        """The offsets of this model, drawn from ``default_rng(seed)`` (the same every call).
+
+        Four standard normals in the order focal length, cx, cy, k1, each times its sigma.
+
+        Returns
+        -------
+        CalibrationOffsets
+            ``focal_length_rel`` (no unit), ``cx_px``, ``cy_px`` (px), ``k1`` (no unit).
+        """
         z = np.random.default_rng(int(self.seed)).standard_normal(4)
         return CalibrationOffsets(focal_length_rel=float(z[0] * self.focal_length_rel_sigma),
                                   cx_px=float(z[1] * self.principal_point_sigma_px),

@@ -130,7 +130,22 @@ class BRDF:
 
     @classmethod
     def for_geometric_albedo(cls, kind: str, geometric_albedo: float, **kw) -> "BRDF":
-        """The law ``kind`` scaled so that its sphere has geometric albedo ``geometric_albedo``."""
+        """The law ``kind`` scaled so that its sphere has geometric albedo ``geometric_albedo``.
+
+        Parameters
+        ----------
+        kind : str
+            One of :data:`KINDS`.
+        geometric_albedo : float
+            V-band geometric albedo of the sphere, no unit.
+        **kw
+            Other fields (``roughness_rad``).
+
+        Returns
+        -------
+        BRDF
+            The scaled law.
+        """
         unit = cls(kind=kind, reflectance_550=1.0, **kw)
         return cls(kind=kind, reflectance_550=float(geometric_albedo) / sphere_geometric_albedo(unit), **kw)
 

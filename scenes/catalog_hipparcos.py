@@ -361,7 +361,18 @@ class StarCatalog:
         return tables
 
     def subset(self, idx) -> "StarCatalog":
-        """A catalog of the stars ``idx`` (in that order; cone queries still work)."""
+        """A catalog of the stars ``idx`` (in that order; cone queries still work).
+
+        Parameters
+        ----------
+        idx : array_like of int, shape (M,)
+            Indices into this catalog.
+
+        Returns
+        -------
+        StarCatalog
+            The M stars, same epoch.
+        """
         idx = np.asarray(idx, dtype=np.intp)
         return StarCatalog(
             **{name: getattr(self, name)[idx] for name in _ARRAY_FIELDS},
@@ -369,7 +380,23 @@ class StarCatalog:
         )
 
     def index_of_hip(self, hip) -> np.ndarray:
-        """Indices of Hipparcos numbers ``hip`` (int or array); raises ``KeyError`` if absent."""
+        """Indices of Hipparcos numbers.
+
+        Parameters
+        ----------
+        hip : int or array_like of int
+            Hipparcos numbers.
+
+        Returns
+        -------
+        numpy.ndarray of intp, shape (M,)
+            Their indices into this catalog.
+
+        Raises
+        ------
+        KeyError
+            A number not in the catalog (named).
+        """
         hip = np.atleast_1d(np.asarray(hip))
         order = np.argsort(self.hip, kind="stable")
         pos = np.searchsorted(self.hip, hip, sorter=order)

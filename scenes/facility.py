@@ -458,6 +458,11 @@ class Facility:
 
         ``A_pupil * int S(l) QE(l) l/(h c) dl / int S(l) R(l) dl`` with S the screen's relative
         emission, R the meter's relative responsivity, QE the camera's QE x T (1 nm grid).
+
+        Returns
+        -------
+        float
+            e-/s per W/m^2.
         """
         wl = np.arange(300.0, 1200.0, 1.0)
         S = np.interp(wl, *self.screen_spectrum, left=0.0, right=0.0)
@@ -483,8 +488,18 @@ class Facility:
                "a responsivity overlapping the screen's emission (between 300 and 1200 nm)")
 
     def coverage(self, n: int = 64) -> float:
-        """Smallest distance (screen px, negative = outside) from the camera's image border,
-        seen through the collimator, to the screen's edge."""
+        """Smallest distance from the camera's image border, seen through the collimator, to the screen's edge.
+
+        Parameters
+        ----------
+        n : int
+            Points sampled along each side of the camera's image.
+
+        Returns
+        -------
+        float
+            Screen px; negative where the camera sees beyond the screen.
+        """
         W, H = self.camera.width, self.camera.height
         s = np.linspace(-0.5, 1.0, n)
         xs = np.linspace(-0.5, W - 0.5, n)

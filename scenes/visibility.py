@@ -92,12 +92,34 @@ class VisibilityCriteria:
         return np.isfinite(v) & (v <= self.limiting_v_mag) & self.outside_sun_exclusion(elongation_rad)
 
     def to_dict(self) -> dict:
-        """Plain dict for JSON/YAML (the ``visibility`` section of a scene file); degrees."""
+        """Plain dict for JSON/YAML (the ``visibility`` section of a scene file).
+
+        Returns
+        -------
+        dict
+            ``limiting_v_mag`` (mag) and ``sun_exclusion_deg`` (deg).
+        """
         return {"limiting_v_mag": self.limiting_v_mag, "sun_exclusion_deg": math.degrees(self.sun_exclusion_rad)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "VisibilityCriteria":
-        """Inverse of :meth:`to_dict`; missing keys take the defaults."""
+        """Inverse of :meth:`to_dict`; missing keys take the defaults.
+
+        Parameters
+        ----------
+        d : dict
+            ``limiting_v_mag`` (mag) and/or ``sun_exclusion_deg`` (deg).
+
+        Returns
+        -------
+        VisibilityCriteria
+            The rule, the angle in radians.
+
+        Raises
+        ------
+        ConfigValueError
+            An unknown key or a value that is not a finite number in range.
+        """
         if not isinstance(d, dict):
             raise ConfigValueError("visibility", d, "a mapping with limiting_v_mag and sun_exclusion_deg")
         allowed = {"limiting_v_mag", "sun_exclusion_deg"}
