@@ -133,32 +133,11 @@ def _clipped_median(a, valid, *, nsigma=3.0, floor=0.0, iterations=3, return_kep
     return (med, np.isfinite(a)) if return_kept else med
 
 
-def _fit_windows(sig, cyx, r_blob, h, noise):
-    """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``
-    (pixels beyond the image left out); NaN where the fit fails or the blob is not a dot."""
-    H, W = sig.shape
-    n = len(cyx)
-    out = np.full((n, 2), np.nan)
-    flux = np.zeros(n)
-    cy0, cx0 = np.round(cyx[:, 0]).astype(int), np.round(cyx[:, 1]).astype(int)
-    # a window may cross the image edge (its pixels there are left out), its centre may not
-    idx = np.flatnonzero((cy0 >= 0) & (cx0 >= 0) & (cy0 < H) & (cx0 < W))
-    if not idx.size:
-        return out, flux
-    N = idx.size
-    cy0, cx0, r_blob = cy0[idx], cx0[idx], r_blob[idx]
-    # the window's pixels as a flat list of offsets from its centre pixel: windows (N, P)
-    d = np.arange(-h, h + 1)
-    oyi, oxi = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
-    oy, ox = oyi.astype(float), oxi.astype(float)
-    win = np.pad(sig, h, constant_values=np.nan)[cy0[:, None] + oyi + h, cx0[:, None] + oxi + h]
-    valid = np.isfinite(win)
-    win = np.where(valid, win, 0.0)
-    span = min(1.0, h / (r_blob.max() + FIT_MARGIN_PX + ANNULUS_PX))  # a window fixed by the caller
-    r_fit = (r_blob + FIT_MARGIN_PX * span)[:, None]
-    r_out = (r_blob + (FIT_MARGIN_PX + ANNULUS_PX) * span)[:, None]
-
-    # first moment inside the fit region, re-centred twice: the fit's start
+def _start_centres(win, ox, oy, r_fit) -> tuple:
+    """``(x, y)`` (N,), the fit's start: the first moment of each window ``win`` (N, P) inside
+    its fit region (radius ``r_fit`` (N, 1) less a pixel, about the offsets ``ox``, ``oy``
+    (P,) from the window's centre pixel), re-centred twice, within a pixel of the centre."""
+    N = len(win)
     x = np.zeros(N)
     y = np.zeros(N)
     for _ in range(3):
@@ -167,13 +146,15 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
         good = tot > 0
         x = np.clip(np.where(good, s @ ox / np.where(good, tot, 1.0), x), -1.0, 1.0)
         y = np.clip(np.where(good, s @ oy / np.where(good, tot, 1.0), y), -1.0, 1.0)
-    rr = np.hypot(ox - x[:, None], oy - y[:, None])
+    return x, y
 
-    # local background: the sigma-clipped median of the annulus, and its slope (a plane through
-    # the kept annulus pixels: stray light, a gradient under the dot)
-    b, kept = _clipped_median(win, valid & (rr > r_fit) & (rr <= r_out), floor=0.5 * noise, return_kept=True)
+
+def _local_background(win, annulus, u, v, noise: float):
+    """Each window's local background (N, P): the sigma-clipped median of its ``annulus`` pixels
+    (a mask (N, P)) and its slope, a plane through the kept annulus pixels (stray light, a
+    gradient under the dot) in the offsets ``u``, ``v`` (N, P) from the start centre."""
+    b, kept = _clipped_median(win, annulus, floor=0.5 * noise, return_kept=True)
     b = np.where(np.isfinite(b), b, 0.0)
-    u, v = ox - x[:, None], oy - y[:, None]
     k = kept.astype(float)
     G = np.stack([np.stack([(k * u * u).sum(1), (k * u * v).sum(1)], -1),
                   np.stack([(k * u * v).sum(1), (k * v * v).sum(1)], -1)], -2)
@@ -181,15 +162,17 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
     ok = np.linalg.det(G) > 1e-6 * np.maximum(np.einsum("nii->n", G), 1.0) ** 2
     G = np.where(ok[:, None, None], G, np.eye(2))
     slope = np.where(ok[:, None], np.linalg.solve(G, rhs[..., None])[..., 0], 0.0)
-    back = b[:, None] + slope[:, :1] * u + slope[:, 1:] * v
+    return b[:, None] + slope[:, :1] * u + slope[:, 1:] * v
 
-    # the fit sees only the pixels that can fall in a fit region
-    keep = np.flatnonzero(np.hypot(ox, oy) <= float(r_fit.max()) + 1.5)
-    ox, oy = ox[keep], oy[keep]
-    data = win[:, keep] - back[:, keep]
-    fitm = ((rr[:, keep] <= r_fit) & valid[:, keep]).astype(float)
 
-    # blurred-disc fit, all dots at once: Levenberg-Marquardt steps with per-dot acceptance
+def _fit_discs(data, fitm, ox, oy, x, y, r_blob, h: int, noise: float) -> tuple:
+    """The blurred-disc fit of every window at once: ``(q, c, wgt)``, the parameters (N, 5)
+    ``(x, y, A, R, s)`` (centre offset, amplitude, disc radius, blur), the weighted sum of
+    squared residuals (N,) and the weights (N, P) that outliers (a hot pixel, a cosmic ray)
+    left. Levenberg-Marquardt steps with per-dot acceptance from ``(x, y)``, on the
+    background-subtracted ``data`` (N, P) over the fit region ``fitm`` (N, P), at the offsets
+    ``ox``, ``oy`` (P,); the radius is kept within the window's half-size ``h``."""
+    N = len(data)
     a0 = np.mean(np.sort(np.where(fitm > 0, data, -np.inf), axis=1)[:, -5:], axis=1)
     q = np.stack([x, y, np.maximum(a0, noise), r_blob, np.full(N, 0.6)], -1)  # x, y, A, R, s
     sq2 = math.sqrt(2.0)
@@ -236,6 +219,43 @@ def _fit_windows(sig, cyx, r_blob, h, noise):
         res = np.where(better[:, None], resn, res)
         parts = tuple(np.where(better[:, None], p1, p0) for p0, p1 in zip(parts, partsn))
         lam = np.where(better, lam * 0.3, lam * 10.0)
+    return q, c, wgt
+
+
+def _fit_windows(sig, cyx, r_blob, h, noise):
+    """Centres (x, y) and fluxes of the dots near ``cyx`` (rows, cols), windows of half-size ``h``
+    (pixels beyond the image left out); NaN where the fit fails or the blob is not a dot."""
+    H, W = sig.shape
+    n = len(cyx)
+    out = np.full((n, 2), np.nan)
+    flux = np.zeros(n)
+    cy0, cx0 = np.round(cyx[:, 0]).astype(int), np.round(cyx[:, 1]).astype(int)
+    # a window may cross the image edge (its pixels there are left out), its centre may not
+    idx = np.flatnonzero((cy0 >= 0) & (cx0 >= 0) & (cy0 < H) & (cx0 < W))
+    if not idx.size:
+        return out, flux
+    cy0, cx0, r_blob = cy0[idx], cx0[idx], r_blob[idx]
+    # the window's pixels as a flat list of offsets from its centre pixel: windows (N, P)
+    d = np.arange(-h, h + 1)
+    oyi, oxi = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
+    oy, ox = oyi.astype(float), oxi.astype(float)
+    win = np.pad(sig, h, constant_values=np.nan)[cy0[:, None] + oyi + h, cx0[:, None] + oxi + h]
+    valid = np.isfinite(win)
+    win = np.where(valid, win, 0.0)
+    span = min(1.0, h / (r_blob.max() + FIT_MARGIN_PX + ANNULUS_PX))  # a window fixed by the caller
+    r_fit = (r_blob + FIT_MARGIN_PX * span)[:, None]
+    r_out = (r_blob + (FIT_MARGIN_PX + ANNULUS_PX) * span)[:, None]
+
+    x, y = _start_centres(win, ox, oy, r_fit)
+    rr = np.hypot(ox - x[:, None], oy - y[:, None])
+    back = _local_background(win, valid & (rr > r_fit) & (rr <= r_out), ox - x[:, None], oy - y[:, None], noise)
+
+    # the fit sees only the pixels that can fall in a fit region
+    keep = np.flatnonzero(np.hypot(ox, oy) <= float(r_fit.max()) + 1.5)
+    data = win[:, keep] - back[:, keep]
+    fitm = ((rr[:, keep] <= r_fit) & valid[:, keep]).astype(float)
+    q, c, wgt = _fit_discs(data, fitm, ox[keep], oy[keep], x, y, r_blob, h, noise)
+
     # not a dot: a cosmic-ray track or a merged blob the disc model cannot describe (most of its
     # pixels masked, or a residual far above the other dots')
     n_fit = fitm.sum(axis=1)

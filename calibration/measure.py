@@ -140,6 +140,71 @@ def _fit_windows(img, sat, ci, cj, b, h, read_noise_e, iterations):
     return _fit(win, wt, q0, grid, iterations)
 
 
+def _annulus_background(big, r_in_px: float, r_out_px: float):
+    """Each source's background (N,), e-: the 3-sigma-clipped mean of the annulus ``r_in_px`` to
+    ``r_out_px`` about the centre of its cut-out ``big`` (N, 2R+1, 2R+1)."""
+    R = big.shape[1] // 2
+    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    rr = np.hypot(xx, yy)
+    ann = (rr >= r_in_px) & (rr <= r_out_px)
+    vals = big[:, ann]
+    keep = np.ones(vals.shape, bool)
+    for _ in range(3):
+        mu = np.array([v[k].mean() for v, k in zip(vals, keep)])
+        sd = np.array([v[k].std() for v, k in zip(vals, keep)])
+        keep = np.abs(vals - mu[:, None]) <= 3.0 * np.maximum(sd[:, None], 1e-9)
+    return np.array([v[k].mean() for v, k in zip(vals, keep)])
+
+
+def _refit_saturated(img, sat, ci, cj, b, q, good, h: int, R: int, read_noise_e: float, iterations: int) -> None:
+    """A failed fit of a saturated source (a plateau wider than the window leaves too few wing
+    pixels), once more in a window twice as large centred on the plateau's centre; where that
+    fails too, the background-subtracted first moment of the window (a plateau too wide for a
+    Gaussian: a source spread over many screen pixels; unbiased for a symmetric spot). Updates
+    the window centres ``ci``, ``cj``, the fits ``q`` and their flags ``good`` in place."""
+    retry = np.flatnonzero(~good & np.array([sat[i - 2:i + 3, j - 2:j + 3].any() for i, j in zip(ci, cj)], dtype=bool))
+    if not len(retry):
+        return
+    h2 = min(2 * h, R)
+    for k in retry:
+        lab, _ = ndimage.label(sat[ci[k] - R:ci[k] + R + 1, cj[k] - R:cj[k] + R + 1])
+        core = lab[R - 2:R + 3, R - 2:R + 3]
+        sy, sx = np.nonzero(lab == np.bincount(core[core > 0]).argmax())
+        ci[k] += int(np.clip(np.round(sy.mean()) - R, -2, 2))
+        cj[k] += int(np.clip(np.round(sx.mean()) - R, -2, 2))
+    q2 = _fit_windows(img, sat, ci[retry], cj[retry], b[retry], h2, read_noise_e, 2 * iterations)
+    ok2 = (np.abs(q2[:, 0]) < h2 - 1) & (np.abs(q2[:, 1]) < h2 - 1) & (q2[:, 2] > 0) & np.all(np.isfinite(q2), axis=1)
+    for n, k in enumerate(retry):
+        if not ok2[n]:
+            w = img[ci[k] - h2:ci[k] + h2 + 1, cj[k] - h2:cj[k] + h2 + 1] - b[k]
+            w = np.where(w > 0, w, 0.0)
+            g = np.arange(-h2, h2 + 1, dtype=float)
+            if w.sum() > 0:
+                q2[n, :2] = (w.sum(axis=0) @ g) / w.sum(), (w.sum(axis=1) @ g) / w.sum()
+                q2[n, 2] = w.sum()
+                ok2[n] = bool(np.all(np.abs(q2[n, :2]) < h2 - 1))
+    q[retry], good[retry] = q2, ok2
+
+
+def _aperture_photometry(img, sat, fx, fy, good, b, r_ap_px: float) -> tuple:
+    """``(flux, saturated)`` (N,) of the sources centred at ``fx``, ``fy`` (px) whose fit is
+    ``good`` (NaN and False elsewhere): the sum within ``r_ap_px`` of the centre less the
+    background ``b`` a pixel, e-, and whether a saturated pixel is in the aperture."""
+    flux = np.full(len(fx), np.nan)
+    satf = np.zeros(len(fx), bool)
+    ra = int(np.ceil(r_ap_px)) + 1
+    ay, ax = np.mgrid[-ra:ra + 1, -ra:ra + 1]
+    for k, (x, y) in enumerate(zip(fx, fy)):
+        if not good[k]:
+            continue
+        i0, j0 = int(np.round(y)), int(np.round(x))
+        inap = np.hypot(j0 + ax - x, i0 + ay - y) <= r_ap_px
+        patch = img[i0 - ra:i0 + ra + 1, j0 - ra:j0 + ra + 1]
+        flux[k] = float(np.sum(patch[inap] - b[k]))
+        satf[k] = bool(sat[i0 - ra:i0 + ra + 1, j0 - ra:j0 + ra + 1][inap].any())
+    return flux, satf
+
+
 def measure_sources(image_e, guess_xy_px, *, saturated=None, read_noise_e: float = 10.0, half_window_px: int = 5,
                     r_ap_px: float = 3.5, r_in_px: float = 6.0, r_out_px: float = 10.0, iterations: int = 25) -> SourceMeasurements:
     """Centroid and aperture photometry of point sources (see the module docstring).
@@ -194,61 +259,17 @@ def measure_sources(image_e, guess_xy_px, *, saturated=None, read_noise_e: float
     idx = np.flatnonzero(inside)
     if len(idx) == 0:
         return SourceMeasurements(xy_px=out_xy, flux_e=flux, background_e=bg, sigma_px=sig, saturated=satf, ok=ok)
-    # annulus background around the prediction: 3-sigma-clipped mean
-    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
-    rr = np.hypot(xx, yy)
-    ann = (rr >= r_in_px) & (rr <= r_out_px)
     big = np.stack([img[i - R:i + R + 1, j - R:j + R + 1] for i, j in zip(gi[idx], gj[idx])])
-    vals = big[:, ann]
-    keep = np.ones(vals.shape, bool)
-    for _ in range(3):
-        mu = np.array([v[k].mean() for v, k in zip(vals, keep)])
-        sd = np.array([v[k].std() for v, k in zip(vals, keep)])
-        keep = np.abs(vals - mu[:, None]) <= 3.0 * np.maximum(sd[:, None], 1e-9)
-    b = np.array([v[k].mean() for v, k in zip(vals, keep)])
+    b = _annulus_background(big, r_in_px, r_out_px)
     # recentre on the brightest pixel within 2 px of the prediction
     c = big[:, R - 2:R + 3, R - 2:R + 3].reshape(len(idx), -1).argmax(axis=1)
     ci = gi[idx] + c // 5 - 2
     cj = gj[idx] + c % 5 - 2
     q = _fit_windows(img, sat, ci, cj, b, h, read_noise_e, iterations)
     good = (np.abs(q[:, 0]) < h - 1) & (np.abs(q[:, 1]) < h - 1) & (q[:, 2] > 0) & np.all(np.isfinite(q), axis=1)
-    # a failed fit of a saturated source (a plateau wider than the window leaves too few wing pixels):
-    # once more in a window twice as large, centred on the plateau's centre
-    retry = np.flatnonzero(~good & np.array([sat[i - 2:i + 3, j - 2:j + 3].any() for i, j in zip(ci, cj)], dtype=bool))
-    if len(retry):
-        h2 = min(2 * h, R)
-        for k in retry:
-            lab, _ = ndimage.label(sat[ci[k] - R:ci[k] + R + 1, cj[k] - R:cj[k] + R + 1])
-            core = lab[R - 2:R + 3, R - 2:R + 3]
-            sy, sx = np.nonzero(lab == np.bincount(core[core > 0]).argmax())
-            ci[k] += int(np.clip(np.round(sy.mean()) - R, -2, 2))
-            cj[k] += int(np.clip(np.round(sx.mean()) - R, -2, 2))
-        q2 = _fit_windows(img, sat, ci[retry], cj[retry], b[retry], h2, read_noise_e, 2 * iterations)
-        ok2 = (np.abs(q2[:, 0]) < h2 - 1) & (np.abs(q2[:, 1]) < h2 - 1) & (q2[:, 2] > 0) & np.all(np.isfinite(q2), axis=1)
-        # a plateau too wide for a Gaussian (a source spread over many screen pixels): the
-        # background-subtracted first moment of the window, unbiased for a symmetric spot
-        for n, k in enumerate(retry):
-            if not ok2[n]:
-                w = img[ci[k] - h2:ci[k] + h2 + 1, cj[k] - h2:cj[k] + h2 + 1] - b[k]
-                w = np.where(w > 0, w, 0.0)
-                g = np.arange(-h2, h2 + 1, dtype=float)
-                if w.sum() > 0:
-                    q2[n, :2] = (w.sum(axis=0) @ g) / w.sum(), (w.sum(axis=1) @ g) / w.sum()
-                    q2[n, 2] = w.sum()
-                    ok2[n] = bool(np.all(np.abs(q2[n, :2]) < h2 - 1))
-        q[retry], good[retry] = q2, ok2
+    _refit_saturated(img, sat, ci, cj, b, q, good, h, R, read_noise_e, iterations)
     fx, fy = cj + q[:, 0], ci + q[:, 1]
-    # aperture photometry about the fitted centre, background from the annulus
-    ra = int(np.ceil(r_ap_px)) + 1
-    ay, ax = np.mgrid[-ra:ra + 1, -ra:ra + 1]
-    for k, (x, y) in enumerate(zip(fx, fy)):
-        if not good[k]:
-            continue
-        i0, j0 = int(np.round(y)), int(np.round(x))
-        inap = np.hypot(j0 + ax - x, i0 + ay - y) <= r_ap_px
-        patch = img[i0 - ra:i0 + ra + 1, j0 - ra:j0 + ra + 1]
-        flux[idx[k]] = float(np.sum(patch[inap] - b[k]))
-        satf[idx[k]] = bool(sat[i0 - ra:i0 + ra + 1, j0 - ra:j0 + ra + 1][inap].any())
+    flux[idx], satf[idx] = _aperture_photometry(img, sat, fx, fy, good, b, r_ap_px)
     out_xy[idx] = np.where(good[:, None], np.stack([fx, fy], -1), np.nan)
     bg[idx] = b
     sig[idx] = q[:, 4]

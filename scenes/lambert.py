@@ -105,6 +105,82 @@ def _tof_derivatives(x: float, t: float, y: float, lam: float):
     return dt, ddt, dddt
 
 
+@dataclass(frozen=True)
+class _TransferGeometry:
+    """The transfer's geometry, Izzo (2015) Sec. 2: the norms of ``r1``, ``r2`` and the chord
+    ``c``, the semi-perimeter ``s``, lambda (signed by the transfer angle and the direction),
+    and the radial and tangential unit vectors at both ends."""
+
+    r1_n: float
+    r2_n: float
+    c_n: float
+    s: float
+    lam: float
+    ir1: np.ndarray
+    ir2: np.ndarray
+    it1: np.ndarray
+    it2: np.ndarray
+
+    @classmethod
+    def of(cls, r1, r2, prograde: bool) -> "_TransferGeometry":
+        c_n = float(np.linalg.norm(r2 - r1))
+        r1_n = float(np.linalg.norm(r1))
+        r2_n = float(np.linalg.norm(r2))
+        s = 0.5 * (r1_n + r2_n + c_n)
+        ir1 = r1 / r1_n
+        ir2 = r2 / r2_n
+        h = np.cross(ir1, ir2)
+        h_n = float(np.linalg.norm(h))
+        if h_n < 1e-12:
+            raise LambertError("r1 and r2 are collinear: the transfer plane is undefined")
+        ih = h / h_n
+        lam = math.sqrt(max(0.0, 1.0 - c_n / s))
+        if ih[2] < 0.0:  # transfer angle > pi for a prograde arc
+            lam = -lam
+            it1 = np.cross(ir1, ih)
+            it2 = np.cross(ir2, ih)
+        else:
+            it1 = np.cross(ih, ir1)
+            it2 = np.cross(ih, ir2)
+        if not prograde:
+            lam = -lam
+            it1 = -it1
+            it2 = -it2
+        return cls(r1_n=r1_n, r2_n=r2_n, c_n=c_n, s=s, lam=lam, ir1=ir1, ir2=ir2, it1=it1, it2=it2)
+
+
+def _initial_x(lam: float, t_target: float) -> float:
+    """The starting ``x`` of the iterations for the non-dimensional time ``t_target``, Izzo
+    (2015) Eq. 30 (M = 0)."""
+    t00 = math.acos(lam) + lam * math.sqrt(1.0 - lam * lam)
+    t1 = 2.0 / 3.0 * (1.0 - lam**3)
+    if t_target >= t00:
+        return (t00 / t_target) ** (2.0 / 3.0) - 1.0
+    if t_target < t1:
+        return 2.5 * t1 / t_target * (t1 - t_target) / (1.0 - lam**5) + 1.0
+    return (t00 / t_target) ** math.log2(t1 / t00) - 1.0
+
+
+def _householder(x: float, lam: float, t_target: float, rtol: float, max_iterations: int, tof_s: float) -> tuple:
+    """``(x, iterations)``: Householder's third-order iterations from ``x`` until the
+    non-dimensional time of flight is ``t_target``, Izzo (2015) Sec. 3; LambertError when they
+    diverge or do not converge."""
+    for it in range(1, max_iterations + 1):
+        y = math.sqrt(1.0 - lam * lam * (1.0 - x * x))
+        t = _tof(x, y, lam)
+        f = t - t_target
+        dt, ddt, dddt = _tof_derivatives(x, t, y, lam)
+        dt2 = dt * dt
+        x_new = x - f * (dt2 - 0.5 * f * ddt) / (dt * (dt2 - f * ddt) + dddt * f * f / 6.0)
+        if not math.isfinite(x_new) or x_new <= -1.0:
+            raise LambertError(f"Lambert iterations diverged (x = {x_new!r}) for tof = {tof_s} s")
+        done = abs(x_new - x) < rtol * max(1.0, abs(x))
+        x = x_new
+        if done:
+            return x, it
+    raise LambertError(f"Lambert solver did not converge in {max_iterations} iterations")
+
+
 def solve_lambert(r1_km, r2_km, tof_s: float, mu_km3_s2: float, *, prograde: bool = True,
                   revolutions: int = 0, rtol: float = 1e-13, max_iterations: int = 50) -> LambertSolution:
     """Velocities of the conic arc from ``r1_km`` to ``r2_km`` in ``tof_s`` seconds.
@@ -156,67 +232,19 @@ def solve_lambert(r1_km, r2_km, tof_s: float, mu_km3_s2: float, *, prograde: boo
         raise LambertError(f"mu = {mu_km3_s2!r} km^3/s^2; expected > 0")
     r1 = np.asarray(r1_km, dtype=float)
     r2 = np.asarray(r2_km, dtype=float)
-    c = r2 - r1
-    c_n = float(np.linalg.norm(c))
-    r1_n = float(np.linalg.norm(r1))
-    r2_n = float(np.linalg.norm(r2))
-    s = 0.5 * (r1_n + r2_n + c_n)
-    ir1 = r1 / r1_n
-    ir2 = r2 / r2_n
-    h = np.cross(ir1, ir2)
-    h_n = float(np.linalg.norm(h))
-    if h_n < 1e-12:
-        raise LambertError("r1 and r2 are collinear: the transfer plane is undefined")
-    ih = h / h_n
-    lam = math.sqrt(max(0.0, 1.0 - c_n / s))
-    if ih[2] < 0.0:  # transfer angle > pi for a prograde arc
-        lam = -lam
-        it1 = np.cross(ir1, ih)
-        it2 = np.cross(ir2, ih)
-    else:
-        it1 = np.cross(ih, ir1)
-        it2 = np.cross(ih, ir2)
-    if not prograde:
-        lam = -lam
-        it1 = -it1
-        it2 = -it2
-    t_target = math.sqrt(2.0 * mu_km3_s2 / s**3) * tof_s
-
-    # initial guess, Izzo (2015) Eq. 30 (M = 0)
-    t00 = math.acos(lam) + lam * math.sqrt(1.0 - lam * lam)
-    t1 = 2.0 / 3.0 * (1.0 - lam**3)
-    if t_target >= t00:
-        x = (t00 / t_target) ** (2.0 / 3.0) - 1.0
-    elif t_target < t1:
-        x = 2.5 * t1 / t_target * (t1 - t_target) / (1.0 - lam**5) + 1.0
-    else:
-        x = (t00 / t_target) ** math.log2(t1 / t00) - 1.0
-
-    # Householder iterations
-    for it in range(1, max_iterations + 1):
-        y = math.sqrt(1.0 - lam * lam * (1.0 - x * x))
-        t = _tof(x, y, lam)
-        f = t - t_target
-        dt, ddt, dddt = _tof_derivatives(x, t, y, lam)
-        dt2 = dt * dt
-        x_new = x - f * (dt2 - 0.5 * f * ddt) / (dt * (dt2 - f * ddt) + dddt * f * f / 6.0)
-        if not math.isfinite(x_new) or x_new <= -1.0:
-            raise LambertError(f"Lambert iterations diverged (x = {x_new!r}) for tof = {tof_s} s")
-        done = abs(x_new - x) < rtol * max(1.0, abs(x))
-        x = x_new
-        if done:
-            break
-    else:
-        raise LambertError(f"Lambert solver did not converge in {max_iterations} iterations")
+    g = _TransferGeometry.of(r1, r2, prograde)
+    t_target = math.sqrt(2.0 * mu_km3_s2 / g.s**3) * tof_s
+    x, it = _householder(_initial_x(g.lam, t_target), g.lam, t_target, rtol, max_iterations, tof_s)
 
     # velocities, Izzo (2015) Algorithm 1 last lines
+    lam, r1_n, r2_n = g.lam, g.r1_n, g.r2_n
     y = math.sqrt(1.0 - lam * lam * (1.0 - x * x))
-    gamma = math.sqrt(0.5 * mu_km3_s2 * s)
-    rho = (r1_n - r2_n) / c_n
+    gamma = math.sqrt(0.5 * mu_km3_s2 * g.s)
+    rho = (r1_n - r2_n) / g.c_n
     sigma = math.sqrt(max(0.0, 1.0 - rho * rho))
     vr1 = gamma * ((lam * y - x) - rho * (lam * y + x)) / r1_n
     vr2 = -gamma * ((lam * y - x) + rho * (lam * y + x)) / r2_n
     vt = gamma * sigma * (y + lam * x)
-    v1 = vr1 * ir1 + (vt / r1_n) * it1
-    v2 = vr2 * ir2 + (vt / r2_n) * it2
+    v1 = vr1 * g.ir1 + (vt / r1_n) * g.it1
+    v2 = vr2 * g.ir2 + (vt / r2_n) * g.it2
     return LambertSolution(v1_km_s=v1, v2_km_s=v2, x=float(x), iterations=it)
