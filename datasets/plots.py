@@ -22,7 +22,7 @@ import numpy as np
 
 from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.scenes.constants import SECONDS_PER_DAY
-from skynav.scenes.scene import sky_bodies
+from skynav.scenes.sky import sky_bodies
 
 __all__ = ["plot_lines_png", "lines_figure", "leg_magnitudes", "leg_magnitudes_figure", "plot_leg_magnitudes",
            "figure_png", "new_figure"]

@@ -32,7 +32,8 @@ from skynav.scenes.config import scene_spec_from_mapping
 from skynav.scenes.constants import AU_KM, GM_KM3_S2, OBLIQUITY_J2000_RAD
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import ObserverInsideBodyError
-from skynav.scenes.scene import SCENE_BODIES, resolve_spec, sky_bodies, sky_bodies_and_sun
+from skynav.scenes.scene import resolve_spec
+from skynav.scenes.sky import SCENE_BODIES, sky_bodies, sky_bodies_and_sun
 from skynav.scenes.timescales import tdb_seconds
 
 from .errors import SceneSamplingError

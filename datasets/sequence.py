@@ -41,7 +41,7 @@ from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import LambertError
 from skynav.scenes.lambert import solve_lambert
-from skynav.scenes.scene import sky_bodies
+from skynav.scenes.sky import sky_bodies
 from skynav.scenes.timescales import tdb_seconds
 
 from .errors import RecipeError, SceneSamplingError

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skynav.scenes.constants import AU_KM
-from skynav.scenes.scene import sky_bodies
+from skynav.scenes.sky import sky_bodies
 
 __all__ = ["PairCandidate", "PairChoice", "figure_of_merit", "optimal_pair", "candidates_from_state", "PLANETS"]
 

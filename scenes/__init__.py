@@ -23,8 +23,8 @@ import importlib as _importlib
 # the package, which would hide the entry.
 _LAZY = {
     # the scene
-    "Scene": "scene", "SkyBody": "scene", "StarsInView": "scene", "BodyInView": "scene",
-    "build_scene": "scene", "build_from_spec": "scene", "resolve_spec": "scene", "sky_bodies": "scene",
+    "Scene": "scene", "SkyBody": "sky", "StarsInView": "scene", "BodyInView": "scene",
+    "build_scene": "scene", "build_from_spec": "scene", "resolve_spec": "scene", "sky_bodies": "sky",
     "SceneSpec": "config", "AttitudeSpec": "config", "load_scene_file": "config", "read_scene_file": "config",
     "OverrideError": "overrides", "parse_override": "overrides", "apply_overrides": "overrides",
     "dataclass_from_overrides": "overrides",

@@ -14,14 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skynav.infra.errors import ConfigValueError
-
-from . import apparent, frames, photometry
+from . import apparent, frames
 from .camera import Camera
 from .catalog_hipparcos import load_catalog
 from .constants import ARCSEC_RAD
-from .ephemeris_jpl import BODY_RADII_KM, default_ephemeris
-from .errors import ObserverInsideBodyError
+from .ephemeris_jpl import default_ephemeris
+from .sky import brightest_visible_body, sky_bodies
 from .timescales import tdb_seconds
 from .visibility import VisibilityCriteria
 
@@ -216,180 +214,74 @@ class Scene:
 # Building a scene
 # --------------------------------------------------------------------------------------------
 
-#: Bodies considered in every scene (the Sun is the illuminator, handled apart).
-SCENE_BODIES = ("mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus", "neptune")
-
 #: Default angular diameter above which a body is ray-traced rather than drawn as a point, px.
 RESOLVED_THRESHOLD_PX = 2.0
 
 
-@dataclass(frozen=True, kw_only=True)
-class SkyBody:
-    """A body's apparent geometry and brightness from the observer, before any pointing.
-
-    Attributes
-    ----------
-    name : str
-        Body name.
-    directions : BodyDirections
-        Geometric, light-time and apparent directions and distances
-        (:func:`~skynav.scenes.apparent.apparent_bodies`).
-    radius_km : float
-        Mean radius, km.
-    v_mag : float
-        Apparent V magnitude (NaN outside the phase law's range).
-    phase_angle_rad : float
-        Sun-body-observer angle, rad.
-    elongation_rad : float
-        Sun-spacecraft-body angle, rad.
-    angular_diameter_rad : float
-        Apparent diameter, rad.
-
-    Examples
-    --------
-    See :func:`sky_bodies`.
-
-    >>> from skynav.scenes import SkyBody, default_ephemeris, sky_bodies
-    >>> r, v = default_ephemeris().position_velocity("earth", 0.0)
-    >>> bodies, _ = sky_bodies(0.0, r + [0.0, 0.0, 1e6], v, names=("mars",))
-    >>> isinstance(bodies[0], SkyBody), bodies[0].name
-    (True, 'mars')
-    """
-
-    name: str
-    directions: object  # apparent.BodyDirections
-    radius_km: float
-    v_mag: float
-    phase_angle_rad: float
-    elongation_rad: float    # angle Sun-spacecraft-body
-    angular_diameter_rad: float
-
-
-def sky_bodies(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES, sun=None):
-    """Apparent directions, magnitudes and angles of solar-system bodies seen from the observer.
-
-    Parameters
-    ----------
-    t_tdb_s : float
-        Epoch (reception), TDB seconds past J2000.
-    position_km, velocity_km_s : array_like, shape (3,)
-        Observer barycentric ICRS state, km and km/s.
-    ephemeris : Ephemeris, optional
-        Default: DE421 (:func:`~skynav.scenes.ephemeris_jpl.default_ephemeris`).
-    names : sequence of str
-        The bodies (default: the eight planets and the Moon).
-    sun : BodyDirections, optional
-        The Sun's directions for this epoch and observer when the caller has them
-        (:func:`sky_bodies_and_sun`; a caller asking for the bodies in two parts), else
-        computed with the bodies.
-
-    Returns
-    -------
-    bodies : tuple of SkyBody
-        One per name, in order.
-    sun_u_icrs : numpy.ndarray, shape (3,)
-        Apparent unit vector of the Sun, ICRS.
-
-    Raises
-    ------
-    ObserverInsideBodyError
-        When the observer is inside one of the bodies (geometric distance <= radius).
-
-    References
-    ----------
-    Mallama & Hilton (2018) for the magnitudes (:func:`~skynav.scenes.photometry.planet_v_mag`);
-    the apparent directions as :func:`~skynav.scenes.apparent.apparent_bodies`.
-
-    Examples
-    --------
-    >>> from skynav.scenes import resolve_spec, default_scene_spec, sky_bodies
-    >>> t, r, v, _, _ = resolve_spec(default_scene_spec())   # 2027-02-01, Earth-Mars cruise
-    >>> bodies, sun_u = sky_bodies(t, r, v)
-    >>> [(b.name, round(b.v_mag, 2)) for b in bodies[:3]], sun_u.shape
-    ([('mercury', -0.29), ('venus', -3.74), ('earth', -2.34)], (3,))
-    """
-    bodies, sun = sky_bodies_and_sun(t_tdb_s, position_km, velocity_km_s, ephemeris=ephemeris, names=names, sun=sun)
-    return bodies, np.asarray(sun.u_icrs, dtype=float)
-
-
-def sky_bodies_and_sun(t_tdb_s: float, position_km, velocity_km_s, *, ephemeris=None, names=SCENE_BODIES, sun=None):
-    """:func:`sky_bodies`, with the Sun's :class:`~skynav.scenes.apparent.BodyDirections` in
-    place of its unit vector: ``(tuple of SkyBody, sun)``. Without ``sun``, the Sun is computed
-    together with the bodies (one :func:`~skynav.scenes.apparent.apparent_bodies` call); with
-    it, only the bodies (the second part of a caller asking for the bodies in two parts).
-
-    Raises
-    ------
-    ObserverInsideBodyError
-        When the observer is inside the Sun or one of the bodies (geometric distance <= radius).
-    """
-    eph = ephemeris or default_ephemeris()
-    r = np.asarray(position_km, dtype=float)
-    v = np.asarray(velocity_km_s, dtype=float)
-    names = tuple(names)
-    try:
-        # at a body's centre the light-time step divides by zero before the error below names
-        # the body: numpy's floating-point warnings are silenced here (a NaN still fails later)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            if sun is None:
-                sun, *dirs = apparent.apparent_bodies(eph, ("sun",) + names, r, v, t_tdb_s)
-            else:
-                dirs = apparent.apparent_bodies(eph, names, r, v, t_tdb_s) if names else ()
-            if sun.geometric_distance_km <= BODY_RADII_KM["sun"]:
-                raise ObserverInsideBodyError("sun", sun.geometric_distance_km, BODY_RADII_KM["sun"], r)
-            return _sky_bodies(r, sun, names, dirs), sun
-    except ObserverInsideBodyError:
-        raise
-    except Exception:
-        _name_the_body(eph, t_tdb_s, r, ("sun",) + names)
-        raise
-
-
-def _name_the_body(eph, t_tdb_s, r, names) -> None:
-    """Inside a body (at its centre, say) the light-time iteration has no solution and fails
-    with a message that blames something else (the epoch): name the body instead (raises
-    ObserverInsideBodyError; returns when the observer is inside none). Called only on failure,
-    so a good frame pays no extra ephemeris look-ups."""
-    for name in names:
-        rb, _ = eph.position_velocity(name, t_tdb_s)
-        dist = float(np.linalg.norm(np.asarray(rb, dtype=float) - r))
-        if dist <= BODY_RADII_KM[name]:
-            raise ObserverInsideBodyError(name, dist, BODY_RADII_KM[name], r) from None
-
-
-def _sky_bodies(r, sun, names, dirs):
-    """The :class:`SkyBody` of each body from its directions (its magnitude, phase, elongation
-    and size), the bodies as rows of arrays."""
-    if not names:
-        return ()
-    radii = np.array([BODY_RADII_KM[n] for n in names])
-    for name, d, radius in zip(names, dirs, radii.tolist()):
-        if d.geometric_distance_km <= radius:
-            raise ObserverInsideBodyError(name, d.geometric_distance_km, radius, r)
-    pos = np.array([d.position_km for d in dirs])
-    sun_pos = np.array([d.sun_position_km for d in dirs])
-    dist = np.array([d.distance_km for d in dirs])
-    phase = photometry.phase_angle_rad(pos, sun_pos, r).tolist()
-    sun_dist = np.linalg.norm(pos - sun_pos, axis=-1).tolist()
-    u = np.array([d.u_icrs for d in dirs])
-    elong = np.arccos(np.clip(u @ np.asarray(sun.u_icrs, dtype=float), -1.0, 1.0)).tolist()
-    diam = photometry.angular_diameter_rad(radii, dist).tolist()
-    return tuple(SkyBody(name=name, directions=d, radius_km=float(radius), phase_angle_rad=ph, elongation_rad=el,
-                         v_mag=float(photometry.planet_v_mag(name, sd, d.distance_km, ph)), angular_diameter_rad=di)
-                 for name, d, radius, ph, sd, el, di in zip(names, dirs, radii.tolist(), phase, sun_dist, elong, diam))
-
-
-def brightest_visible_body(bodies, visibility: VisibilityCriteria) -> "SkyBody":
-    """The brightest body outside the Sun exclusion angle of ``visibility``, whatever its
-    magnitude (for ``point_at: auto``)."""
-    candidates = [b for b in bodies if visibility.outside_sun_exclusion(b.elongation_rad) and np.isfinite(b.v_mag)]
-    if not candidates:
-        raise ConfigValueError("attitude.point_at", "auto", "a scene with at least one planet outside the Sun exclusion angle")
-    return min(candidates, key=lambda b: b.v_mag)
-
-
 def _tup(a):
     return tuple(np.asarray(a, dtype=float).ravel().tolist())
+
+
+def _stars_in_view(cat, camera: Camera, t: float, r, v, attitudes: tuple, w, limiting_v_mag: float, sun_pos) -> StarsInView:
+    """The catalogue's stars near the image (within the PSF's reach of it at mid-exposure, its
+    start or its end), their apparent directions and pixel positions: ``attitudes`` is ``(R,
+    R_start, R_end)``, ``w`` the body rate (rad/s), ``sun_pos`` the Sun's barycentric position
+    (km) at ``t``."""
+    R, R_start, R_end = attitudes
+    still = not w.any()  # no rate: R_start and R_end are R
+    # a cone around the boresight wide enough for the whole exposure's sweep
+    sweep = float(np.linalg.norm(w)) * (0.5 * camera.exposure_s)
+    margin = sweep + np.radians(0.2) + 8.0 * camera.ifov_rad
+    idx = cat.cone(R[2], camera.half_diagonal_fov_rad + margin, limiting_v_mag=limiting_v_mag)
+    u_astro = cat.directions(idx, t, r)
+    u_star = apparent.apparent_star_directions(u_astro, r, v, sun_pos)
+    xy = camera.project(u_star @ R.T)
+    pad = 8.0 + camera.psf.reach_px(camera)  # the PSF's reach (6 sigma for a Gaussian)
+    if still:
+        xy0 = xy1 = xy
+        near = camera.in_image(xy, pad)
+    else:
+        xy0 = camera.project(u_star @ R_start.T)
+        xy1 = camera.project(u_star @ R_end.T)
+        near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
+    keep = np.flatnonzero(near)
+    return StarsInView(
+        hip=np.asarray(cat.hip)[idx][keep], v_mag=np.asarray(cat.v_mag)[idx][keep],
+        b_v=np.asarray(cat.b_v)[idx][keep], teff_k=np.asarray(cat.teff_k)[idx][keep],
+        u_icrs=u_star[keep], xy=xy[keep], xy_start=xy0[keep], xy_end=xy1[keep],
+        in_fov=camera.in_image(xy[keep]),
+    )
+
+
+def _bodies_in_view(sky_list, camera: Camera, attitudes: tuple, vis: VisibilityCriteria,
+                    resolved_threshold_px: float) -> list:
+    """A :class:`BodyInView` of each body of ``sky_list`` (``sky_bodies``'s), ``attitudes``
+    ``(R, R_start, R_end)``: its directions, pixel positions, size and flags."""
+    R, R_start, R_end = attitudes
+    # each body's five camera-frame directions (apparent, geometric, light-time; apparent at the
+    # exposure's start and end), projected in one call (project is elementwise)
+    xys = camera.project(np.array([[R @ b.directions.u_icrs, R @ b.directions.u_geometric,
+                                    R @ b.directions.u_light_time, R_start @ b.directions.u_icrs,
+                                    R_end @ b.directions.u_icrs] for b in sky_list]).reshape(-1, 3)).reshape(-1, 5, 2)
+    bodies = []
+    for b, (p, p_geo, p_lt, p_start, p_end) in zip(sky_list, xys):
+        d = b.directions
+        in_fov = bool(camera.in_image(p[None])[0])
+        diam_px = b.angular_diameter_rad * camera.focal_length_px
+        bodies.append(BodyInView(
+            name=b.name,
+            u_icrs=_tup(d.u_icrs), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
+            xy=_tup(p), xy_geometric=_tup(p_geo), xy_light_time=_tup(p_lt), xy_start=_tup(p_start), xy_end=_tup(p_end),
+            light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
+            position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
+            radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
+            elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
+            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) / ARCSEC_RAD),
+            in_fov=in_fov,
+            visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
+            resolved=bool(diam_px > resolved_threshold_px),
+        ))
+    return bodies
 
 
 def build_scene(
@@ -461,57 +353,11 @@ def build_scene(
     R_start = R if still else frames.propagate_attitude(R, w, -half)
     R_end = R if still else frames.propagate_attitude(R, w, half)
 
-    # --- stars: cone around the boresight wide enough for the whole exposure's sweep
-    sweep = float(np.linalg.norm(w)) * half
-    margin = sweep + np.radians(0.2) + 8.0 * camera.ifov_rad
-    idx = cat.cone(R[2], camera.half_diagonal_fov_rad + margin, limiting_v_mag=catalog_limiting_v_mag)
-    sun_pos = eph.position("sun", t)
-    u_astro = cat.directions(idx, t, r)
-    u_star = apparent.apparent_star_directions(u_astro, r, v, sun_pos)
-    xy = camera.project(u_star @ R.T)
-    pad = 8.0 + camera.psf.reach_px(camera)  # the PSF's reach (6 sigma for a Gaussian)
-    if still:
-        xy0 = xy1 = xy
-        near = camera.in_image(xy, pad)
-    else:
-        xy0 = camera.project(u_star @ R_start.T)
-        xy1 = camera.project(u_star @ R_end.T)
-        near = camera.in_image(xy, pad) | camera.in_image(xy0, pad) | camera.in_image(xy1, pad)
-    keep = np.flatnonzero(near)
-    stars = StarsInView(
-        hip=np.asarray(cat.hip)[idx][keep], v_mag=np.asarray(cat.v_mag)[idx][keep],
-        b_v=np.asarray(cat.b_v)[idx][keep], teff_k=np.asarray(cat.teff_k)[idx][keep],
-        u_icrs=u_star[keep], xy=xy[keep], xy_start=xy0[keep], xy_end=xy1[keep],
-        in_fov=camera.in_image(xy[keep]),
-    )
-
-    # --- bodies
+    stars = _stars_in_view(cat, camera, t, r, v, (R, R_start, R_end), w, catalog_limiting_v_mag, eph.position("sun", t))
     if sky is None:
         sky = sky_bodies(t, r, v, ephemeris=eph)
     sky_list, sun_u = sky
-    # each body's five camera-frame directions (apparent, geometric, light-time; apparent at the
-    # exposure's start and end), projected in one call (project is elementwise)
-    xys = camera.project(np.array([[R @ b.directions.u_icrs, R @ b.directions.u_geometric,
-                                    R @ b.directions.u_light_time, R_start @ b.directions.u_icrs,
-                                    R_end @ b.directions.u_icrs] for b in sky_list]).reshape(-1, 3)).reshape(-1, 5, 2)
-    bodies = []
-    for b, (p, p_geo, p_lt, p_start, p_end) in zip(sky_list, xys):
-        d = b.directions
-        in_fov = bool(camera.in_image(p[None])[0])
-        diam_px = b.angular_diameter_rad * camera.focal_length_px
-        bodies.append(BodyInView(
-            name=b.name,
-            u_icrs=_tup(d.u_icrs), u_geometric=_tup(d.u_geometric), u_light_time=_tup(d.u_light_time),
-            xy=_tup(p), xy_geometric=_tup(p_geo), xy_light_time=_tup(p_lt), xy_start=_tup(p_start), xy_end=_tup(p_end),
-            light_time_s=float(d.light_time_s), distance_km=float(d.distance_km),
-            position_km=_tup(d.position_km), sun_position_km=_tup(d.sun_position_km),
-            radius_km=float(b.radius_km), v_mag=float(b.v_mag), phase_angle_rad=float(b.phase_angle_rad),
-            elongation_rad=float(b.elongation_rad), angular_diameter_px=float(diam_px),
-            aberration_arcsec=float(np.arccos(np.clip(np.dot(d.u_light_time, d.u_icrs), -1, 1)) / ARCSEC_RAD),
-            in_fov=in_fov,
-            visible=bool(in_fov and vis.body_visible(v_mag=b.v_mag, elongation_rad=b.elongation_rad)),
-            resolved=bool(diam_px > resolved_threshold_px),
-        ))
+    bodies = _bodies_in_view(sky_list, camera, (R, R_start, R_end), vis, resolved_threshold_px)
     return Scene(epoch_tdb_s=t, position_km=r, velocity_km_s=v, R_cam_icrs=R, angular_velocity_rad_s=w,
                  camera=camera, stars=stars, bodies=tuple(bodies), sun_u_icrs=np.asarray(sun_u),
                  catalog_limiting_v_mag=float(catalog_limiting_v_mag), visibility=vis)

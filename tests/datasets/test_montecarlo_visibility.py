@@ -23,7 +23,7 @@ def _independent_fraction(n: int, seed: int, camera) -> float:
 
     from skynav.scenes.ephemeris_jpl import default_ephemeris
     from skynav.scenes.frames import radec_twist_to_dcm
-    from skynav.scenes.scene import SCENE_BODIES
+    from skynav.scenes.sky import SCENE_BODIES
     from skynav.scenes.timescales import tdb_seconds
 
     # ecliptic -> ICRS rotation from astropy (independent of the sampler's obliquity constant)

@@ -122,7 +122,7 @@ def test_montecarlo_keep_decision_equals_brute_force_on_all_bodies():
     # sky_bodies of every drawn pose (no candidate pre-selection). The sampler must keep the same
     # draw, with the same facts and the same sky.
     from skynav.datasets.samplers import keep_filters_pass
-    from skynav.scenes.scene import sky_bodies
+    from skynav.scenes.sky import sky_bodies
 
     rec = validate_recipe(dict(preset_recipe("montecarlo"), frames=12))
     plan = make_plan(rec)

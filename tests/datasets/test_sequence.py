@@ -14,7 +14,7 @@ from skynav.datasets import preset_recipe, validate_recipe
 from skynav.datasets.samplers import frame_rng, make_plan
 from skynav.scenes.constants import GM_KM3_S2
 from skynav.scenes.ephemeris_jpl import default_ephemeris
-from skynav.scenes.scene import sky_bodies
+from skynav.scenes.sky import sky_bodies
 from skynav.scenes.timescales import tdb_seconds
 
 DAY = 86400.0

@@ -9,7 +9,8 @@ import pytest
 from skynav.infra.errors import ConfigValueError
 from skynav.scenes import config, presets
 from skynav.scenes.errors import MovedKeyError, ObserverInsideBodyError
-from skynav.scenes.scene import build_from_spec, sky_bodies
+from skynav.scenes.scene import build_from_spec
+from skynav.scenes.sky import sky_bodies
 from skynav.scenes.visibility import VisibilityCriteria
 
 DEG = math.pi / 180.0

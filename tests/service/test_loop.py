@@ -168,12 +168,12 @@ def test_bad_loop_arguments_are_one_line(tmp_path, args, words):
 def test_the_command_points_at_the_apparent_direction():
     """point_at puts the planet's apparent direction (light time and the observer's aberration) on
     the boresight, where a dataset points: checked against the scene model's iterated light time,
-    deflection and exact aberration (skynav.scenes.scene.sky_bodies) to 0.05 arcsec (the first-order
+    deflection and exact aberration (skynav.scenes.sky.sky_bodies) to 0.05 arcsec (the first-order
     light time and the Sun's deflection, mas). Without the aberration it is ~20 arcsec off, 0.3 px."""
     from skynav import datasets
     from skynav.datasets.recipes import read_recipe_mapping
     from skynav.scenes.ephemeris_jpl import default_ephemeris
-    from skynav.scenes.scene import sky_bodies
+    from skynav.scenes.sky import sky_bodies
     from skynav.service.loop import Simulator, point_at
 
     sim = Simulator(datasets.validate_recipe(read_recipe_mapping("sequence")))
