@@ -320,7 +320,8 @@ class Client:
         Returns
         -------
         dict
-            The parsed JSON (``status``, the workers, the package version; docs/service.md).
+            The parsed JSON: ``status`` (``"ok"``), ``api``, ``workers``, ``busy``,
+            ``waiting``, the ``outputs`` it serves and its ``facility`` (docs/service.md).
 
         Raises
         ------
