@@ -45,7 +45,8 @@ from .cli_common import ProgressBar, say, warn
 from .cli_dataset import _recipe
 
 
-def cmd_loop(args) -> int:
+def _bias_km(args):
+    """Check the flags no argparse type checks; the ``--bias-km`` start: None, ``"auto"`` or km."""
     if args.runs < 1:
         raise NavInputError(f"--runs {args.runs}: give at least 1")
     if args.realtime is not None and not args.realtime > 0:
@@ -54,7 +55,6 @@ def cmd_loop(args) -> int:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     if args.sigma_px is not None and args.calibration_stride is not None:
         raise NavInputError("--sigma-px and --calibration-stride: give one or the other (a given sigma is not measured)")
-    stride = args.calibration_stride
     if args.case not in (1, 2, 3, 4, 5):
         raise NavInputError(f"--case {args.case}: give 1, 2, 3, 4 or 5")
     bias = None if args.bias_km in ("0", "none") else args.bias_km
@@ -65,82 +65,68 @@ def cmd_loop(args) -> int:
             bias = -1.0
         if not bias > 0:
             raise NavInputError(f"--bias-km {args.bias_km}: give auto, none or a positive number of km")
-    recipe = _recipe(args.recipe, None, None, args.overrides)
-    t0 = time.perf_counter()
-    sim = Simulator(recipe, limit=args.limit)
+    return bias
 
-    camera = recipe_camera(recipe)
-    error, warning = star_id_camera_check(camera)
-    if error:
-        raise NavInputError(error)
-    if warning:
-        warn(warning)
+
+def _noise(args, sim, client):
+    """The centroid noise the filter assumes: ``--sigma-px``, or measured through the service."""
+    if args.sigma_px is not None:
+        return centroid_noise(args.sigma_px)
+    stride = args.calibration_stride or max(1, sim.frames // CALIBRATION_FRAMES)
+    with ProgressBar("noise calibration", "frame", quiet=args.quiet) as bar:
+        n_cal, done_cal = len(range(0, sim.frames, stride)), [0]
+
+        def tick_cal(n):
+            done_cal[0] += n
+            bar(done_cal[0], n_cal)
+
+        return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal)
+
+
+def _fly(args, sim, client, noise, bias):
+    """The Monte Carlo runs, then (with a bias) the biased start pointed from the truth and from
+    the estimate: ``(runs, {pointing: run}, bias km or None)``."""
     P0 = initial_covariance()
     rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (Andreis et al. (2024), Eq. 45)
     r0, v0 = sim.state(sim.schedule()[0][0])
     nominal = np.concatenate([r0, v0, np.zeros(6)])
     x0s = nominal + rng.standard_normal((args.runs, 12)) * np.sqrt(np.diag(P0))
-    server = contextlib.nullcontext(args.service) if args.service else LocalServer(workers=args.workers)
-    frames = sim.frames
-    biased = {}
-    with server as url:
-        client = Client(url, token=args.token)
-        client.wait_ready(60)
-        if args.sigma_px is None:
-            stride = stride or max(1, frames // CALIBRATION_FRAMES)
-            with ProgressBar("noise calibration", "frame", quiet=args.quiet) as bar:
-                n_cal, done_cal = len(range(0, frames, stride)), [0]
+    extra = 2 if bias is not None else 0
+    biased, b_km = {}, None
+    with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
+        done = [0]
 
-                def tick_cal(n):
-                    done_cal[0] += n
-                    bar(done_cal[0], n_cal)
+        def tick(n):
+            done[0] += n
+            bar(done[0], sim.frames * (args.runs + extra))
 
-                noise = calibrate_loop_noise(sim, client, stride=stride, seed=args.seed,
-                                             progress=tick_cal)
-        else:
-            noise = centroid_noise(args.sigma_px)
-        setup_s = time.perf_counter() - t0
-        extra = 2 if bias is not None else 0
-        with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
-            done = [0]
+        # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations
+        runs = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
+                         rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
+        if bias is not None:
+            b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
+            xb = nominal.copy()
+            xb[:3] += perpendicular_bias(sim, b_km)
+            Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
+            for pointing in ("truth", "estimate"):
+                biased[pointing] = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case,
+                                            pointing=pointing, progress=tick)
+    return runs, biased, b_km
 
-            def tick(n):
-                done[0] += n
-                bar(done[0], frames * (args.runs + extra))
 
-            # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations
-            runs = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
-                             rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
-            if bias is not None:
-                b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
-                xb = nominal.copy()
-                xb[:3] += perpendicular_bias(sim, b_km)
-                Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
-                for pointing in ("truth", "estimate"):
-                    r = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case, pointing=pointing,
-                                 progress=tick)
-                    biased[pointing] = r
-        client.close()
-    total = time.perf_counter() - t0
-    plan = nav_plan(sim, runs)
-    res = campaign_result(runs, plan, noise=noise, case=args.case)
-    summary = summarise({args.case: res}, primary=args.case, time_s=total, plan=plan)
-    loop = loop_summary(runs, camera, realtime=args.realtime)
-    if biased:
-        loop["biased_initial_state"] = {"bias_km": b_km, "initial_position_sigma_km": b_km, **{
-            ("open_loop" if p == "truth" else "closed_loop"): {
-                **{k: v for k, v in loop_summary([r], camera, realtime=None).items()
-                   if k in ("target_in_field_fraction", "target_centred_fraction", "first_frame_lost")},
-                "final_position_error_km": float(np.linalg.norm(r.error[-1, :3])),
-                "final_velocity_error_m_s": 1e3 * float(np.linalg.norm(r.error[-1, 3:])),
-                "measurements_accepted": int(r.accepted.sum())}
-            for p, r in biased.items()}}
-    summary["closed_loop"] = loop
-    info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
-            "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": noise.describe(),
-            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s}
-    out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info)
-    Path(out, "loop.json").write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
+def _biased_summary(biased, b_km, camera) -> dict:
+    """``loop.json``'s ``biased_initial_state``: the same biased start open and closed loop."""
+    return {"bias_km": b_km, "initial_position_sigma_km": b_km, **{
+        ("open_loop" if p == "truth" else "closed_loop"): {
+            **{k: v for k, v in loop_summary([r], camera, realtime=None).items()
+               if k in ("target_in_field_fraction", "target_centred_fraction", "first_frame_lost")},
+            "final_position_error_km": float(np.linalg.norm(r.error[-1, :3])),
+            "final_velocity_error_m_s": 1e3 * float(np.linalg.norm(r.error[-1, 3:])),
+            "measurements_accepted": int(r.accepted.sum())}
+        for p, r in biased.items()}}
+
+
+def _say_summary(args, summary, loop, noise, res, total, setup_s, out) -> None:
     f = summary["final"]
     say(args, f"{summary['runs']} closed-loop runs x {summary['frames']} frames, case {args.case}: final 3-sigma "
               f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
@@ -150,7 +136,7 @@ def cmd_loop(args) -> int:
         f"{1e3 * loop['latency_s']['median']:.0f} ms, p99 {1e3 * loop['latency_s']['p99']:.0f} ms"
         + (f"; {loop['deadline_misses']} deadline misses at {args.realtime:g}x real time" if args.realtime else ""),
         f"  R: {noise.describe()}")
-    if biased:
+    if "biased_initial_state" in loop:
         b = loop["biased_initial_state"]
         for key, name in (("open_loop", "open loop (pointed from the truth, as a dataset)"),
                           ("closed_loop", "closed loop (pointed from the estimate)")):
@@ -159,6 +145,41 @@ def cmd_loop(args) -> int:
                       f"{100 * v['target_in_field_fraction']:.0f} %, final error {v['final_position_error_km']:.0f} km")
     say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {res.ip_time_s:.1f}, "
               f"filter and commands {res.filter_time_s:.1f})", f"report: {out}/report.html")
+
+
+def cmd_loop(args) -> int:
+    bias = _bias_km(args)
+    recipe = _recipe(args.recipe, None, None, args.overrides)
+    t0 = time.perf_counter()
+    sim = Simulator(recipe, limit=args.limit)
+    camera = recipe_camera(recipe)
+    error, warning = star_id_camera_check(camera)
+    if error:
+        raise NavInputError(error)
+    if warning:
+        warn(warning)
+    server = contextlib.nullcontext(args.service) if args.service else LocalServer(workers=args.workers)
+    with server as url:
+        client = Client(url, token=args.token)
+        client.wait_ready(60)
+        noise = _noise(args, sim, client)
+        setup_s = time.perf_counter() - t0
+        runs, biased, b_km = _fly(args, sim, client, noise, bias)
+        client.close()
+    total = time.perf_counter() - t0
+    plan = nav_plan(sim, runs)
+    res = campaign_result(runs, plan, noise=noise, case=args.case)
+    summary = summarise({args.case: res}, primary=args.case, time_s=total, plan=plan)
+    loop = loop_summary(runs, camera, realtime=args.realtime)
+    if biased:
+        loop["biased_initial_state"] = _biased_summary(biased, b_km, camera)
+    summary["closed_loop"] = loop
+    info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
+            "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": noise.describe(),
+            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s}
+    out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info)
+    Path(out, "loop.json").write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
+    _say_summary(args, summary, loop, noise, res, total, setup_s, out)
     return 0
 
 
