@@ -9,10 +9,10 @@ order in which frames ran (docs/conventions.md "Randomness"). The executors diff
 - :func:`run_in_process` (``workers=1``): in this process, in order; frame k's files are written on
   a writer thread while frame k + 1 is rendered and encoded (:func:`make_frame`,
   :func:`commit_frame`).
-- :func:`run_process_pool` (``workers=N``): skynav's one process pool,
-  :func:`skynav.infra.pool.process_pool_map` (spawned workers, ``cores // N`` threads each; its
-  module docstring says why), one job per run of up to :data:`POOL_CHUNK` consecutive frames,
-  made in the worker as in :func:`run_in_process`. The plan travels pickled.
+- :func:`run_process_pool` (``workers=N``): this process and ``N - 1`` spawned helpers share the
+  frames (:func:`skynav.infra.pool.share_jobs`: ``cores // N`` threads each; each process takes
+  the next frame when it is ready for one), each making its frames as :func:`run_in_process`
+  does. The plan travels pickled once per helper.
 - :func:`run_dask`: one Dask task per run of frames (``pure=False``); the workers must see the
   dataset folder on a shared file system.
 
@@ -35,7 +35,7 @@ import numpy as np
 
 from skynav.infra.atomic_files import atomic_write_many
 from skynav.infra.heap import LargeArraysOnHeap, WarmHeap
-from skynav.infra.pool import process_pool_map
+from skynav.infra.pool import share_jobs
 from skynav.renderer.render import RenderOptions, render
 from skynav.scenes.scene import build_scene
 
@@ -283,7 +283,7 @@ def _produce_chunk(jobs) -> list:
     return out
 
 
-#: Consecutive frames per process-pool job or Dask task (fewer when there are few frames for the
+#: Consecutive frames per Dask task (fewer when there are few frames for the
 #: workers): within one the writes overlap the next frame's work, and its last write does not.
 POOL_CHUNK = 8
 
@@ -308,18 +308,17 @@ def run_in_process(plan, accept) -> tuple:
 
 
 def run_process_pool(plan, accept, n_workers: int) -> tuple:
-    """Make the plan's frames in ``n_workers`` spawned processes. Returns ``(workers, executor name)``.
+    """Make the plan's frames in this process and ``n_workers - 1`` spawned helpers. Returns
+    ``(workers, executor name)``.
 
-    Each job is up to :data:`POOL_CHUNK` consecutive frames, made with their writes overlapped
-    as in :func:`run_in_process`; ``accept`` sees each frame once its job is done."""
+    The processes share the frames (:func:`skynav.infra.pool.share_jobs`): each takes the next
+    frame nobody has taken when it is ready for one and makes its frames with their writes
+    overlapped, as :func:`run_in_process` does. This process starts at once; a helper joins once
+    it has imported the renderer and loaded its tables, and one that finds no frame left is
+    stopped, so no number of workers makes a dataset slower than one worker. The plan travels
+    pickled once per helper; ``accept`` sees each frame once its record is written."""
     _, jobs = _jobs(plan)
-    chunks = _chunks(jobs, n_workers)
-
-    def accept_all(results):
-        for r in results:
-            accept(r)
-
-    process_pool_map(_produce_chunk, chunks, n_workers, accept=accept_all)
+    share_jobs(_made_and_written, jobs, n_workers, accept)
     return n_workers, "processes (spawn)"
 
 

@@ -1,6 +1,9 @@
 """One process pool for every parallel job of skynav: dataset frames, bench exports, benchmarks.
 
-:func:`process_pool_map` runs ``fn(job)`` for each job in ``n_workers`` **spawned** processes
+:func:`share_jobs` runs a loop over jobs in this process and in ``n_workers - 1`` spawned helpers
+that take the jobs one at a time as each is ready for one: this process starts at once, and a
+helper adds its work once it has loaded what it needs, so more workers never make a run slower
+than one (a helper that finds no job left is stopped). :func:`process_pool_map` runs ``fn(job)`` for each job in ``n_workers`` **spawned** processes
 (Dr.Jit/LLVM start threads and JIT state in a process; a fork of a parent that already used them
 inherits locked mutexes and a half-copied JIT, so children are spawned fresh and load the
 package themselves). Each worker gets ``cores // n_workers`` threads for the libraries that start
@@ -15,11 +18,14 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
+import queue
+import signal
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-__all__ = ["THREAD_VARS", "WorkerThreads", "exit_with_parent", "process_pool_map"]
+__all__ = ["THREAD_VARS", "WorkerThreads", "exit_with_parent", "process_pool_map", "share_jobs"]
 
 THREAD_VARS = ("SKYNAV_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -87,3 +93,119 @@ def process_pool_map(fn, jobs, n_workers: int, *, accept=None) -> list:
                 f.cancel()
             raise
     return out
+
+
+class _Claims:
+    """The jobs this process takes, one at a time, from a list shared through ``counter`` (the
+    index of the next job nobody has taken); ``between()`` runs before each take."""
+
+    def __init__(self, jobs, counter, between=None, first=None):
+        self.jobs, self.counter, self.between, self.first = jobs, counter, between, first
+
+    def __iter__(self):
+        while True:
+            if self.between is not None:
+                self.between()
+            with self.counter.get_lock():
+                k = self.counter.value
+                if k >= len(self.jobs):
+                    return
+                self.counter.value = k + 1
+            if self.first is not None:
+                self.first()
+                self.first = None
+            yield self.jobs[k]
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """``exc`` if it survives pickling, else a RuntimeError with its type and message."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:  # noqa: BLE001 - any exception that does not travel becomes its message
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+
+
+def _helper(loop, jobs, counter, results, parent_pid: int, me: int) -> None:
+    """A spawned helper of :func:`share_jobs`: ``loop`` over the jobs it takes, each result sent
+    back as it comes. Ctrl-C is the parent's to handle (it stops the helpers)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent_pid)
+    try:
+        loop(_Claims(jobs, counter, first=lambda: results.put(("took", me))), lambda r: results.put(("result", r)))
+    except BaseException as exc:
+        with counter.get_lock():
+            counter.value = len(jobs)  # nobody takes another job
+        results.put(("error", _portable(exc)))
+    else:
+        results.put(("done", me))
+
+
+def share_jobs(loop, jobs, n_workers: int, accept) -> None:
+    """Run ``loop(claims, emit)`` in this process and in ``n_workers - 1`` spawned helpers, which
+    share ``jobs``: each process takes the next job nobody has taken whenever it is ready for one.
+
+    ``loop`` is a module-level function (it travels pickled, with the jobs, once per helper);
+    ``claims`` iterates over the jobs its process takes and ``emit(result)`` reports a result.
+    Every result reaches ``accept`` in this process (this process's own at once, the helpers'
+    between two of its jobs and at the end). This process starts on the jobs at once, in the
+    thread budget of one of ``n_workers`` workers (:class:`WorkerThreads`); a helper adds its work
+    once it has started (imports, caches), and a helper that has taken no job when the last
+    result arrives is stopped, so a run with helpers is not slower than one without. A helper's
+    exception is raised here (the others take no further job); so is this process's, after the
+    helpers are stopped.
+    """
+    jobs = list(jobs)
+    if n_workers <= 1 or len(jobs) <= 1:
+        loop(iter(jobs), accept)
+        return
+    ctx = multiprocessing.get_context("spawn")
+    counter, results = ctx.Value("q", 0), ctx.Queue()
+    state = {"received": 0, "took": set(), "ended": set()}
+
+    def take(block: bool) -> None:
+        try:
+            kind, value = results.get(block=block, timeout=0.2 if block else None)
+        except queue.Empty:
+            return
+        if kind == "result":
+            state["received"] += 1
+            accept(value)
+        elif kind == "took":
+            state["took"].add(value)
+        elif kind == "done":
+            state["ended"].add(value)
+        else:
+            raise value
+
+    def drain() -> None:
+        while not results.empty():
+            take(block=False)
+
+    def emit(result) -> None:
+        state["received"] += 1
+        accept(result)
+
+    with WorkerThreads(n_workers):
+        helpers = [ctx.Process(target=_helper, args=(loop, jobs, counter, results, os.getpid(), i), daemon=True,
+                               name=f"skynav-helper-{i}") for i in range(n_workers - 1)]
+        for p in helpers:
+            p.start()
+        try:
+            loop(_Claims(jobs, counter, between=drain), emit)
+            while state["received"] < len(jobs):
+                take(block=True)
+                lost = [p for i, p in enumerate(helpers) if p.exitcode is not None and i not in state["ended"]]
+                if lost and results.empty():
+                    raise RuntimeError(f"a worker process ended unexpectedly (exit code {lost[0].exitcode})")
+        except BaseException:
+            with counter.get_lock():
+                counter.value = len(jobs)
+            for p in helpers:
+                p.terminate()
+            raise
+        finally:
+            for i, p in enumerate(helpers):
+                if i not in state["took"]:
+                    p.terminate()  # still starting: it would find no job left
+                p.join()

@@ -1,14 +1,17 @@
 """skynav's one process pool: results in job order, every result accepted as it arrives, a
-worker's error raised in the caller; the thread-count variables its workers inherit."""
+worker's error raised in the caller; jobs shared between this process and helpers that join when
+ready; the thread-count variables the workers inherit."""
 
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
+import time
 
 import pytest
 
-from skynav.infra.pool import process_pool_map
+from skynav.infra.pool import process_pool_map, share_jobs
 
 
 def test_results_in_job_order_and_each_accepted():
@@ -37,3 +40,34 @@ def test_worker_thread_variables_are_set_for_the_pool_and_restored(monkeypatch):
         assert os.environ["OMP_NUM_THREADS"] == "7"
     assert "SKYNAV_THREADS" not in os.environ and "OPENBLAS_NUM_THREADS" not in os.environ
     assert os.environ["OMP_NUM_THREADS"] == "7"
+
+
+def _loop(claims, emit):
+    """A share_jobs loop: the calling process (named in each job) is slow, a helper is quick."""
+    for parent_pid, k, fail_at in claims:
+        if k == fail_at:
+            raise ValueError(f"job {k} failed")
+        if os.getpid() == parent_pid:
+            time.sleep(0.1)
+        emit((k, k * k, os.getpid()))
+
+
+def test_shared_jobs_each_give_one_result_and_a_helper_takes_part():
+    got = []
+    share_jobs(_loop, [(os.getpid(), k, None) for k in range(60)], 2, got.append)
+    assert sorted(r[:2] for r in got) == [(k, k * k) for k in range(60)]
+    assert {r[2] for r in got} - {os.getpid()}, "the helper made none of the jobs"
+    assert multiprocessing.active_children() == []
+
+
+def test_a_helpers_error_is_raised_here_and_no_helper_is_left():
+    with pytest.raises(ValueError, match="job 30 failed"):
+        share_jobs(_loop, [(os.getpid(), k, 30) for k in range(60)], 2, lambda r: None)
+    assert multiprocessing.active_children() == []
+
+
+def test_a_helper_still_starting_when_the_jobs_are_done_is_stopped():
+    got = []
+    share_jobs(_loop, [(-1, k, None) for k in range(3)], 3, got.append)  # quick jobs: done before any helper starts
+    assert sorted(r[0] for r in got) == [0, 1, 2]
+    assert multiprocessing.active_children() == []
