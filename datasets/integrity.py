@@ -119,26 +119,13 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
     >>> tmp.cleanup()
     """
     root = Path(path)
-    problems: list = []
     try:
         m = layout.read_manifest(root)
     except DatasetError as exc:
         return VerifyReport(path=str(root), ok=False, problems=[str(exc)])
-    if check_schema:
-        bad = validate_manifest(m)
-        if bad:
-            more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
-            problems.append(f"{layout.MANIFEST_NAME}: does not follow {layout.MANIFEST_SCHEMA}: {bad[0]}{more}")
-    if m.get("complete") is not True:
-        c = m.get("counts", {})
-        problems.append(f"{layout.MANIFEST_NAME}: not complete ({c.get('frames_done')} of {c.get('frames')} frames)")
-    files = m.get("files", {})
-    formats = m.get("formats", [])
+    problems = _manifest_problems(m, check_schema)
+    files, formats = m.get("files", {}), m.get("formats", [])
     n = int(m.get("counts", {}).get("frames", 0))
-    recipe = m.get("recipe", {})
-    if recipe.get("kind") == "montecarlo" and recipe.get("frames") != n:
-        problems.append(f"{layout.MANIFEST_NAME}: counts.frames = {n} but the recipe asks for {recipe.get('frames')}")
-
     # datasets made since per-frame checksum records exist list them in the manifest
     has_records = any(rel.endswith("." + RECORD_EXT) for rel in files)
     expected = set()
@@ -152,65 +139,94 @@ def verify(path, *, check_schema: bool = True, progress=False) -> VerifyReport:
             problems.append(f"{rel}: not recorded in the manifest")
         else:
             missing.setdefault(rel.rsplit(".", 1)[0], []).append(rel)
-    names = sorted(files)
-    it = names
-    if progress:
-        it = tqdm(names, unit="file", desc="verify")
     checked = 0
-    for rel in it:
-        p = root / rel
-        if not p.is_file():
+    for rel in (tqdm(sorted(files), unit="file", desc="verify") if progress else sorted(files)):
+        if not (root / rel).is_file():
             missing.setdefault(rel.rsplit(".", 1)[0], []).append(rel)
             continue
         checked += 1
-        sha_ok = sha256_file(p) == files[rel]
-        if rel.endswith(".json"):
-            # JSON first: a truncated file is named as such (its checksum differs too)
-            why = decode_problem(p)
-            if why is not None:
-                problems.append(f"{rel}: {why}")
-                continue
-            if check_schema:
-                truth = json.loads(p.read_bytes().decode("utf-8"))
-                bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
-                if bad:
-                    more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
-                    problems.append(f"{rel}: does not follow {FRAME_SCHEMA}: {bad[0]}{more}")
-                    continue
-        if not sha_ok:
-            problems.append(f"{rel}: SHA-256 mismatch (file altered or corrupt)")
-            continue
-        # an image whose damaged bytes were checksummed (a disk that filled, a node that died
-        # before per-frame records existed) still fails to decode: decode every image
-        if not rel.endswith((".json", "." + RECORD_EXT)):
-            why = decode_problem(p)
-            if why is not None:
-                problems.append(f"{rel}: {why}")
+        why = _file_problem(root / rel, rel, files[rel], check_schema)
+        if why is not None:
+            problems.append(f"{rel}: {why}")
+    problems += _missing_lines(missing, formats)
+    problems += _stray_and_index_lines(root, expected, n, m.get("complete") is True)
+    return VerifyReport(path=str(root), ok=not problems, problems=problems, files_checked=checked, frames=n)
+
+
+def _manifest_problems(m: dict, check_schema: bool) -> list:
+    """The manifest's own problems: its schema, completeness, and its frame count against the recipe."""
+    problems = []
+    if check_schema:
+        bad = validate_manifest(m)
+        if bad:
+            more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
+            problems.append(f"{layout.MANIFEST_NAME}: does not follow {layout.MANIFEST_SCHEMA}: {bad[0]}{more}")
+    if m.get("complete") is not True:
+        c = m.get("counts", {})
+        problems.append(f"{layout.MANIFEST_NAME}: not complete ({c.get('frames_done')} of {c.get('frames')} frames)")
+    n = int(m.get("counts", {}).get("frames", 0))
+    recipe = m.get("recipe", {})
+    if recipe.get("kind") == "montecarlo" and recipe.get("frames") != n:
+        problems.append(f"{layout.MANIFEST_NAME}: counts.frames = {n} but the recipe asks for {recipe.get('frames')}")
+    return problems
+
+
+def _file_problem(p: Path, rel: str, sha: str, check_schema: bool):
+    """What is wrong with one recorded file (its checksum ``sha``), or None."""
+    sha_ok = sha256_file(p) == sha
+    if rel.endswith(".json"):
+        # JSON first: a truncated file is named as such (its checksum differs too)
+        why = decode_problem(p)
+        if why is not None:
+            return why
+        if check_schema:
+            truth = json.loads(p.read_bytes().decode("utf-8"))
+            bad = schema_problems(truth, FRAME_SCHEMA)  # plain JSON already: no conversion
+            if bad:
+                more = f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""
+                return f"does not follow {FRAME_SCHEMA}: {bad[0]}{more}"
+    if not sha_ok:
+        return "SHA-256 mismatch (file altered or corrupt)"
+    # an image whose damaged bytes were checksummed (a disk that filled, a node that died
+    # before per-frame records existed) still fails to decode: decode every image
+    if not rel.endswith((".json", "." + RECORD_EXT)):
+        return decode_problem(p)
+    return None
+
+
+def _missing_lines(missing: dict, formats) -> list:
+    """One line per frame with missing files (``frame missing`` when all are), one per other file."""
+    out = []
     for stem, rels in sorted(missing.items()):
         if stem.startswith(layout.FRAMES_DIR + "/"):
             k = int(stem.split("/")[-1])
             data = [r for r in rels if not r.endswith("." + RECORD_EXT)]
             what = "frame missing" if len(data) == len(formats) else "missing " + ", ".join(r.rsplit("/", 1)[-1] for r in rels)
-            problems.append(f"frame {k} ({stem}.*): {what}")
+            out.append(f"frame {k} ({stem}.*): {what}")
         else:
-            problems.extend(f"{r}: missing" for r in rels)
-    # stray frame files (e.g. from a different run) are reported, not fatal
+            out.extend(f"{r}: missing" for r in rels)
+    return out
+
+
+def _stray_and_index_lines(root: Path, expected: set, n: int, complete: bool) -> list:
+    """Stray frame files (e.g. from a different run: reported, not fatal) and the index's rows."""
+    out = []
     fdir = root / layout.FRAMES_DIR
     if fdir.is_dir():
         for p in sorted(fdir.iterdir()):
             rel = f"{layout.FRAMES_DIR}/{p.name}"
             if rel not in expected and not p.name.startswith("."):
-                problems.append(f"{rel}: unexpected file (not part of the dataset)")
+                out.append(f"{rel}: unexpected file (not part of the dataset)")
     if (root / layout.INDEX_NAME).is_file():
         try:
             rows = layout.read_index(root)
             if len(rows) != n:
-                problems.append(f"{layout.INDEX_NAME}: {len(rows)} rows, expected {n}")
+                out.append(f"{layout.INDEX_NAME}: {len(rows)} rows, expected {n}")
         except Exception as exc:  # noqa: BLE001 - any parse failure is a problem line
-            problems.append(f"{layout.INDEX_NAME}: unreadable ({exc.__class__.__name__})")
-    elif m.get("complete") is True:
-        problems.append(f"{layout.INDEX_NAME}: missing")
-    return VerifyReport(path=str(root), ok=not problems, problems=problems, files_checked=checked, frames=n)
+            out.append(f"{layout.INDEX_NAME}: unreadable ({exc.__class__.__name__})")
+    elif complete:
+        out.append(f"{layout.INDEX_NAME}: missing")
+    return out
 
 
 def info(path) -> dict:

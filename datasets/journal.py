@@ -21,7 +21,8 @@ from pathlib import Path
 from skynav.infra.atomic_files import atomic_write_bytes, sha256_file
 
 from . import layout
-from .frame_files import read_exr, read_fits, read_png
+from .fits_files import read_fits
+from .frame_files import read_exr, read_png
 
 __all__ = ["RECORD_EXT", "record_relpath", "record_bytes", "write_record", "read_record", "decode_problem", "frame_problem",
            "check_frame"]

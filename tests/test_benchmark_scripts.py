@@ -49,6 +49,14 @@ def test_dataset_bench_scaling_prints_each_ratio_with_the_machines_ceiling(tmp_p
     assert "folders byte-identical: True" in out, out
 
 
+def test_encoder_bench_prints_each_fast_paths_share_of_a_frame():
+    out = _run("encoder_bench.py", "--small", "--frames", "2", "--warmup", "1")
+    for name in ("PNG (zlib-ng Z_RLE, unfiltered) against Pillow", "EXR (sparse RLE) against OpenEXR's RLE"):
+        line = re.search(rf"{re.escape(name)}: [0-9.]+ against [0-9.]+ ms; saves (-?[0-9.]+) % of the frame", out)
+        assert line, out
+    assert "decoded pixels identical: True" in out, out
+
+
 def test_render_bench_prints_both_paths_against_numpys_variates():
     out = _run("render_bench.py", "--repeat", "2")
     for path in ("llvm ", "numpy"):

@@ -1,5 +1,5 @@
-"""The sparse RLE encoder of EXR files (``datasets/frame_files.py``, :func:`_exr_rle_file`):
-a lossless round trip (OpenEXR reads back the very words written), and the header is the one
+"""The sparse RLE encoder of EXR files (``datasets/exr_rle.py``) against OpenEXR's own: a lossless
+round trip (OpenEXR reads back the very words written), and the header is the one
 OpenEXR writes itself, for mostly-zero frames, dense noise, long runs and long literals (the
 127-byte literal and 128-byte run limits), rows that do not shrink (stored raw) and uint32
 channels."""
@@ -11,7 +11,8 @@ import io
 import numpy as np
 import pytest
 
-from skynav.datasets.frame_files import _exr_bytes, _exr_rle_file, read_exr, read_exr_header
+from skynav.datasets.exr_rle import rle_file
+from skynav.datasets.frame_files import _exr_bytes, read_exr, read_exr_header
 
 
 def _equal_words(a, b) -> bool:
@@ -63,7 +64,7 @@ def test_long_runs_literals_and_raw_rows(rng):
 
 
 def _reference_rle_file(head: bytes, channels) -> bytes:
-    """The file :func:`_exr_rle_file` writes, one scanline at a time in plain code: OpenEXR's RLE
+    """The file :func:`rle_file` writes, one scanline at a time in plain code: OpenEXR's RLE
     (internal_rle.c: the bytes split even/odd, d[0] = t[0], d[j] = t[j] - t[j-1] + 128 mod 256,
     literals (-count, bytes) of up to 127 bytes, runs (count - 1, byte) of up to 128), cut where the
     encoder cuts: a literal covers each half's bytes of an island of dirty 4-byte words (word 0,
@@ -120,4 +121,4 @@ def test_bytes_equal_those_of_a_plain_per_scanline_encoder(rng):
                 a = int(rng.integers(0, w))
                 keep[:, a:a + int(rng.integers(60, 200))] = True
             channels.append(np.where(keep, values, values.dtype.type(0)).view("<u4"))
-        assert _exr_rle_file(head, channels) == _reference_rle_file(head, channels), trial
+        assert rle_file(head, channels) == _reference_rle_file(head, channels), trial

@@ -15,7 +15,7 @@ from skynav.cli import main
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    from skynav.datasets.frame_files import read_fits
+    from skynav.datasets.fits_files import read_fits
     from skynav.datasets.truth_schema import read_truth_json
 
     out = tmp_path_factory.mktemp("fits")

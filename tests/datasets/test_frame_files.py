@@ -15,15 +15,13 @@ import numpy as np
 import pytest
 from astropy.wcs import WCS
 
+from skynav.datasets.fits_files import read_fits, tan_wcs_header, write_fits
 from skynav.datasets.frame_files import (
     OutputFormatError,
     read_exr,
     read_exr_header,
-    read_fits,
     read_png,
-    tan_wcs_header,
     write_exr,
-    write_fits,
     write_png,
 )
 from skynav.datasets.truth_schema import (
