@@ -140,22 +140,43 @@ def centroid_variance_px2(residual_px, flux_dn, design=None):
     return np.maximum(var, 0.01 * float(np.median(var)))
 
 
-def weighted_attitude_result(b_matched, u_icrs, flux_dn, A, *, ifov_rad, min_sigma_rad, iterations=2):
+def _variance_px2(residual_px, flux_dn, design, apart):
+    """:func:`centroid_variance_px2` of the stars, where the stars of the mask ``apart`` (measured
+    by another method) get at least their own group's mean ``|r|^2 / 2``, and are left out of the
+    flux fit when the others are enough for it."""
+    if apart is None or not apart.any():
+        return centroid_variance_px2(residual_px, flux_dn, design)
+    main = ~apart
+    if main.sum() < MIN_STARS_VARIANCE_FIT:
+        return centroid_variance_px2(residual_px, flux_dn, design)
+    var = np.empty(len(residual_px))
+    var[main] = centroid_variance_px2(residual_px[main], flux_dn[main])
+    own = float(np.mean(residual_px[apart] ** 2 / 2.0))
+    var[apart] = np.maximum(centroid_variance_px2(residual_px, flux_dn, design)[apart], own)
+    return var
+
+
+def weighted_attitude_result(b_matched, u_icrs, flux_dn, A, *, ifov_rad, min_sigma_rad, iterations=2, apart=None):
     """``(AttitudeResult, residual_rad)``: Wahba weighted by ``1 / sigma_i^2`` of each star's
     centroid variance (:func:`centroid_variance_px2`, refitted on each pass's residuals), and the
     covariance of those sigmas (:func:`attitude_covariance`), the per-star sigma floored at
-    ``min_sigma_rad``. ``A``: the unweighted solution the residuals start from."""
+    ``min_sigma_rad``. ``A``: the unweighted solution the residuals start from. ``apart`` (N,)
+    bool, optional: stars whose centroids come from another method (a saturated star the PSF fit
+    leaves to Eq. 7-8): their variance is fitted apart (no less than their own mean squared
+    residual), so that a bright star's flux does not lend them the fitted stars' precision."""
     b = np.asarray(b_matched, float)
     u = np.asarray(u_icrs, float)
+    flux_dn = np.asarray(flux_dn, float)
+    apart = None if apart is None else np.asarray(apart, bool)
     Xs = flux_design(flux_dn) if len(b) >= MIN_STARS_VARIANCE_FIT else None
     for _ in range(iterations):
         res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
-        var = centroid_variance_px2(res / ifov_rad, flux_dn, Xs)
+        var = _variance_px2(res / ifov_rad, flux_dn, Xs, apart)
         A = wahba_svd(b, u, 1.0 / var)
     res = np.arccos(np.clip(np.einsum("ij,ij->i", u @ A.T, b), -1.0, 1.0))
     n = len(b)
     # the fit takes 3 degrees of freedom from 2 n residual components
-    sigma = np.maximum(np.sqrt(centroid_variance_px2(res / ifov_rad, flux_dn, Xs) * n / max(n - 1.5, 1.0)) * ifov_rad,
+    sigma = np.maximum(np.sqrt(_variance_px2(res / ifov_rad, flux_dn, Xs, apart) * n / max(n - 1.5, 1.0)) * ifov_rad,
                        min_sigma_rad)
     P = attitude_covariance(b, sigma)
     return AttitudeResult(R_cam_icrs=A, covariance_rad2=P, n_stars=n,

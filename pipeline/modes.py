@@ -22,10 +22,11 @@ import abc
 
 import numpy as np
 
-from .attitude import attitude_result, weighted_attitude_result
+from .attitude import MIN_STARS_VARIANCE_FIT, attitude_result, weighted_attitude_result
 from .beacon_id import identify_closest, identify_joint
 from .centroids import Spots, detect_spots
 from .levels import detect_robust
+from .psf_fit import fit_gaussian_xy, frame_psf_sigma_px
 from .star_id import C_KM_S, StarMatch, refine
 from .tracking import clip_outliers
 
@@ -69,10 +70,15 @@ class Mode(abc.ABC):
         """The final association: ``(match, source)``, ``source`` None for the ID catalog."""
 
     @abc.abstractmethod
-    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+    def final_centroids(self, img, spots: Spots, match, *, max_dn, opt):
+        """``(xy (N, 2), apart (N,) bool or None)``: the matched spots' centroids the final
+        attitude uses, and those measured otherwise than the rest (their variance fitted apart)."""
+
+    @abc.abstractmethod
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov, apart=None):
         """``(AttitudeResult, match)`` of the final association; ``b_matched``: the matched spots'
         lines of sight, ``flux_dn`` their fluxes, ``source`` the stars' source (None: the ID
-        catalog)."""
+        catalog), ``apart`` the stars of :meth:`final_centroids` measured otherwise."""
 
     @abc.abstractmethod
     def identify_beacons(self, preds, cam, A, spots, match, catalog, opt, ref_vmag):
@@ -116,7 +122,11 @@ class PaperMode(Mode):
         ``source`` None for the ID catalog."""
         return match, None
 
-    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+    def final_centroids(self, img, spots: Spots, match, *, max_dn, opt):
+        """Eq. 7-8's centroids, as detected."""
+        return spots.xy_px[match.spot_index], None
+
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov, apart=None):
         """The paper's attitude (Eq. 10-12, equal weights) and its covariance from the residuals' RMS."""
         return attitude_result(match, b_matched, floor_rad=opt.inlier_px * ifov / 2, min_sigma_rad=0.05 * ifov), match
 
@@ -179,7 +189,25 @@ class ImprovedMode(Mode):
                           residual_rad=m2.residual_rad)
         return clip_outliers(match, b, deep, star_dirs, half_fov), deep
 
-    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov):
+    def final_centroids(self, img, spots: Spots, match, *, max_dn, opt):
+        """Each matched star measured again by a least-squares fit of a pixel-integrated Gaussian of
+        the frame's own width (:mod:`~skynav.pipeline.psf_fit`); Eq. 7-8's centroid where the fit
+        does not hold (a saturated or clipped stamp: those are ``apart``). Eq. 7-8's ``I^2``
+        weights pull a centroid towards its pixel's centre when the PSF is narrow (~0.05-0.1 px on
+        a 0.5 px Gaussian or a 1 px Airy, whatever the star's flux); from a width of
+        ``psf_fit_max_sigma_px`` (1 px) on, a Gaussian's power at one cycle per pixel,
+        ``exp(-2 pi^2 sigma^2)`` < 3e-9, leaves them no pull to remove, and Eq. 7-8's centroids
+        are kept (on a 1.5 px Gaussian under a bright sky they gave the better attitudes)."""
+        xy = spots.xy_px[match.spot_index]
+        if not opt.psf_fit or len(xy) < MIN_STARS_VARIANCE_FIT:
+            return xy, None
+        sigma = frame_psf_sigma_px(img, xy, spots.flux_dn[match.spot_index], max_dn=max_dn)
+        if not sigma < opt.psf_fit_max_sigma_px:
+            return xy, None
+        xy_fit, fitted = fit_gaussian_xy(img, xy, sigma_px=sigma, max_dn=max_dn)
+        return xy_fit, (~fitted if fitted.any() else None)
+
+    def final_attitude(self, match, b_matched, flux_dn, star_dirs, source, *, half_fov, opt, ifov, apart=None):
         """Wahba weighted by each star's centroid variance, fitted on the frame's own residuals
         against the flux (:func:`~skynav.pipeline.attitude.weighted_attitude_result`): a bright
         star's centroid is ~10x better than a faint one's, and equal weights let the faint stars
@@ -190,7 +218,7 @@ class ImprovedMode(Mode):
         pos = {s: k for k, s in enumerate(idx.tolist())}
         u = u_all.take([pos[s] for s in np.asarray(match.star_index).tolist()], axis=0)
         att, res = weighted_attitude_result(b_matched, u, flux_dn, match.R_cam_icrs, ifov_rad=ifov,
-                                            min_sigma_rad=0.01 * ifov)
+                                            min_sigma_rad=0.01 * ifov, apart=apart)
         return att, StarMatch(R_cam_icrs=att.R_cam_icrs, spot_index=match.spot_index, star_index=match.star_index,
                               residual_rad=res)
 

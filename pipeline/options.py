@@ -102,6 +102,8 @@ class ProcessOptions:
     refine_px: float = 1.5              # improved: association radius of the final attitude, px
     refine_max_spots: int = 400         # improved: brightest spots offered to the final association
     variance_weights: bool = True       # improved: the final Wahba weighted by each star's centroid variance
+    psf_fit: bool = True                # improved: the matched stars' final centroids by a fitted pixel-integrated Gaussian
+    psf_fit_max_sigma_px: float = 1.0   # ... on frames whose fitted Gaussian width is below this (wider: Eq. 7-8 has no pull)
     blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
     # tracking, improved mode: spots only in windows around the stars (to refine_v_mag) and beacons
     # predicted from previous_attitude; window half-size = track_window_px (covers a prior

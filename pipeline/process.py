@@ -210,10 +210,12 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         match, source = how.deepen(match, b, spots, catalog, star_dirs, half_fov=half_fov, opt=opt, ifov=ifov)
         ref = catalog if source is None else source
     ref_hip, ref_vmag = np.asarray(ref.hip), np.asarray(ref.v_mag)
-    # windowed tracking: b holds the star spots' lines of sight already (row by row the same)
-    bm = b[match.spot_index] if windowed_source is not None else cam.line_of_sight(spots.xy_px[match.spot_index])
-    att, match = how.final_attitude(match, bm, spots.flux_dn[match.spot_index], star_dirs, source, half_fov=half_fov,
-                                    opt=opt, ifov=ifov)
+    # the matched stars' final centroids (improved: measured again by a PSF fit) and their lines of sight
+    xy_matched, apart = how.final_centroids(img, spots, match, max_dn=max_dn, opt=opt)
+    att, match = how.final_attitude(match, cam.line_of_sight(xy_matched), spots.flux_dn[match.spot_index], star_dirs,
+                                    source, half_fov=half_fov, opt=opt, ifov=ifov, apart=apart)
+    centroids = spots.xy_px.copy()
+    centroids[match.spot_index] = xy_matched
     A = match.R_cam_icrs
     P = att.covariance_rad2
     timings["attitude"] = (time.perf_counter() - ta0) * 1e3
@@ -230,6 +232,6 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         beacons = how.identify_beacons(preds, cam, A, spots, match, catalog, opt, ref_vmag)
     timings["beacons"] = (time.perf_counter() - tb0) * 1e3
     timings["total"] = (time.perf_counter() - t0) * 1e3
-    return FrameResult(status="ok", attitude=att, centroids_xy_px=spots.xy_px, beacons=beacons, timings_ms=timings,
+    return FrameResult(status="ok", attitude=att, centroids_xy_px=centroids, beacons=beacons, timings_ms=timings,
                        mode=mode, star_id_method=method, matched_star_ids=ref_hip[match.star_index],
                        matched_spot_index=np.asarray(match.spot_index))
