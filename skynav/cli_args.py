@@ -5,6 +5,7 @@ overrides or ``-q`` adds it with the builder here, so the same thing has the sam
 everywhere and is refused with the same one line:
 
 - ``DATASET``, a positional (``dataset verify|info|preview``, ``bench ip|nav``, ``hil export``);
+  ``SCENE`` (``scene``, ``render``) and ``RECIPE`` (``dataset generate``, ``bench loop``) likewise;
 - ``--facility FACILITY`` (a facility file or preset: ``render``, ``hil facility|export``,
   ``calibrate *``, ``serve``); the former spellings ``render --hil FACILITY`` and the facility as a
   positional of ``calibrate`` and ``hil facility`` are still read (documented commands use them);
@@ -158,6 +159,17 @@ def after_parse_checks(args) -> None:
     """
     for check in getattr(args, "after_parse", None) or ():
         check(args)
+
+
+def add_scene_arg(parser) -> None:
+    """The optional ``SCENE`` positional (``args.scene``): a scene YAML file or preset, default the built-in one."""
+    parser.add_argument("scene", nargs="?", metavar="SCENE",
+                        help="scene YAML file or preset name (default: the built-in 'default')")
+
+
+def add_recipe_arg(parser, help: str = "recipe YAML file or preset name") -> None:
+    """The ``RECIPE`` positional (``args.recipe``): a dataset recipe YAML file or preset."""
+    parser.add_argument("recipe", metavar="RECIPE", help=help)
 
 
 def add_dataset_arg(parser, help: str = "dataset folder") -> None:

@@ -36,6 +36,7 @@ from .cli_args import (
     add_limit_arg,
     add_output_arg,
     add_quiet,
+    add_recipe_arg,
     add_seed_arg,
     add_set_arg,
     add_workers_arg,
@@ -192,7 +193,7 @@ def add_parser(sub) -> None:
         "state, the flight software processes it and updates the filter. The report is bench nav's plus loop.json: "
         "how often the target was in the field and centred, the latency, deadline misses with --realtime, and with "
         "--bias-km the same biased start pointed from the truth (as a dataset) and from the estimate.")
-    p.add_argument("recipe", help="sequence recipe YAML file or the preset 'sequence'")
+    add_recipe_arg(p, "sequence recipe YAML file or the preset 'sequence'")
     add_output_arg(p, help="report folder")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs, each its own closed loop (default 1)")
     p.add_argument("--realtime", type=float, default=None, metavar="SCALE",

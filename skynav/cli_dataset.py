@@ -17,6 +17,7 @@ from .cli_args import (
     add_dataset_arg,
     add_output_arg,
     add_quiet,
+    add_recipe_arg,
     add_seed_arg,
     add_set_arg,
     add_workers_arg,
@@ -115,7 +116,7 @@ def add_parser(sub) -> None:
                         "missing. --set changes any key of the recipe before it is read, e.g. "
                         "--set render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256; "
                         "'skynav dataset recipe PRESET -o FILE' writes a preset as a commented file to edit.")
-    g.add_argument("recipe", help="recipe YAML file or preset name")
+    add_recipe_arg(g)
     add_output_arg(g, help="dataset folder")
     g.add_argument("--count", type=positive_int, default=None, help="number of frames (overrides the recipe)")
     add_seed_arg(g, default=None, help="master seed (overrides the recipe)")

@@ -17,7 +17,7 @@ from skynav.scenes.frames import unit_to_radec
 from skynav.scenes.overrides import apply_overrides, keep_field_of_view
 from skynav.scenes.scene import build_from_spec
 
-from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_seed_arg, add_set_arg
+from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_scene_arg, add_seed_arg, add_set_arg
 from .cli_common import COMMAND_HELP, say
 from .cli_hil import render_hil
 
@@ -117,7 +117,7 @@ def add_parser(sub) -> None:
     s = sub.add_parser("scene", help=COMMAND_HELP["scene"],
                        description="Compute a scene and print what the camera sees: bodies with magnitude, "
                        "apparent pixel position, light-time and aberration; star counts by magnitude; Sun angle.")
-    s.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
+    add_scene_arg(s)
     add_set_arg(s, "the scene file (or preset), e.g. --set camera.fov_deg=10")
     s.set_defaults(func=cmd_scene)
 
@@ -126,7 +126,7 @@ def add_parser(sub) -> None:
                        "ground-truth JSON; optional FITS with a TAN WCS. --set changes any key of the scene file "
                        "(or preset) before it is read, e.g. --set camera.exposure_s=0.2 --set "
                        "render.cosmic_rays_per_frame=0 --set camera.width=256 --set camera.height=256.")
-    r.add_argument("scene", nargs="?", help="scene YAML file or preset name (default: the built-in 'default')")
+    add_scene_arg(r)
     add_output_arg(r, required=False, default="skynav-out", help="output folder (default: skynav-out)")
     r.add_argument("--name", default="frame", help="file stem (default: frame)")
     add_seed_arg(r, default=None, help="random seed (default: the scene's render.seed)")
