@@ -43,7 +43,7 @@ from .cli_args import (
     positive_int,
 )
 from .cli_common import ProgressBar, say, warn
-from .cli_dataset import _recipe
+from .cli_dataset import recipe_from_args
 
 
 def _bias_km(args):
@@ -150,7 +150,7 @@ def _say_summary(args, summary, loop, noise, res, total, setup_s, out) -> None:
 
 def cmd_loop(args) -> int:
     bias = _bias_km(args)
-    recipe = _recipe(args.recipe, None, None, args.overrides)
+    recipe = recipe_from_args(args.recipe, None, None, args.overrides)
     t0 = time.perf_counter()
     sim = Simulator(recipe, limit=args.limit)
     camera = recipe_camera(recipe)

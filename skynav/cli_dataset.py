@@ -26,7 +26,7 @@ from .cli_args import (
 from .cli_common import COMMAND_HELP, EXIT_CHECK_FAILED, EXIT_OK, say
 
 
-def _recipe(arg: str, count, seed, overrides=()):
+def recipe_from_args(arg: str, count, seed, overrides=()):
     """The recipe of a file or preset with the ``--set`` overrides, then ``--count`` and ``--seed``."""
     if arg not in datasets.PRESETS and not Path(arg).is_file():
         raise RecipeError("recipe", arg, "a recipe YAML file or a preset: " + ", ".join(datasets.PRESETS))
@@ -43,7 +43,7 @@ def _recipe(arg: str, count, seed, overrides=()):
 
 
 def cmd_generate(args) -> int:
-    recipe = _recipe(args.recipe, args.count, args.seed, args.overrides)
+    recipe = recipe_from_args(args.recipe, args.count, args.seed, args.overrides)
     summary = datasets.generate(recipe, args.output, workers=args.workers, dask_scheduler=args.dask_scheduler,
                                 progress=not args.quiet)
 
