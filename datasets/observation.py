@@ -194,7 +194,7 @@ class Observation:
 
 
 def make_observation(truth: dict, dn: np.ndarray, *, index: int,
-                     calibration_error: CalibrationErrorModel | None = None) -> Observation:
+                     calibration_error: CalibrationErrorModel | None = None, camera=None) -> Observation:
     """Build the observation of a frame from its file contents; keeps nothing of the truth.
 
     Parameters
@@ -207,8 +207,12 @@ def make_observation(truth: dict, dn: np.ndarray, *, index: int,
         Frame number.
     calibration_error : CalibrationErrorModel, optional
         Perturb the camera by this model.
+    camera : skynav.scenes.camera.Camera, optional
+        The true camera, when the caller has read it already (default:
+        ``Camera.from_dict(truth["camera"])``).
     """
-    camera = Camera.from_dict(truth["camera"])
+    if camera is None:
+        camera = Camera.from_dict(truth["camera"])
     if calibration_error is not None:
         camera = calibration_error.apply(camera)
     dn = np.asarray(dn)

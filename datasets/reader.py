@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from skynav.infra.errors import SkynavError
-from skynav.scenes.camera import Camera
 
 from . import layout
+from .data_keys import camera_from_record, note_unknown_keys, unknown_keys
 from .errors import (
     DatasetError,
     FrameIndexError,
@@ -38,7 +38,7 @@ from .frame_files import read_exr, read_png
 from .frame_truth import FrameTruth
 from .journal import decode_problem
 from .observation import make_observation
-from .truth_schema import FRAME_SCHEMA, read_truth_json, schema_problems
+from .truth_schema import FRAME_SCHEMA, MANIFEST_SCHEMA, read_truth_json, schema_problems
 
 __all__ = ["Dataset", "FrameRecord", "open_dataset", "read_image_dn", "read_frame_pair"]
 
@@ -83,7 +83,9 @@ def read_frame_pair(png_path, json_path, *, index: int):
     if isinstance(cam, dict) and "sensor" not in cam and "bit_depth" in cam:
         truth = dict(truth, camera=dict(cam, sensor={"bit_depth": cam["bit_depth"]}))
     try:
-        obs = make_observation(truth, dn, index=index)
+        camera, extra = camera_from_record(truth["camera"]) if isinstance(truth, dict) else (None, [])
+        note_unknown_keys(json_path, extra, "the frame's camera")
+        obs = make_observation(truth, dn, index=index, camera=camera)
     except SkynavError as exc:
         raise DatasetError(f"{json_path}: {exc}") from None
     except (KeyError, TypeError, ValueError) as exc:
@@ -155,12 +157,17 @@ class FrameRecord:
 
     def _channels(self):
         if self._exr is None and self._exr_path is not None:
-            ch = read_exr(self._exr_path)
-            for a in ch.values():
-                if isinstance(a, np.ndarray):
-                    a.setflags(write=False)
-            object.__setattr__(self, "_exr", ch)
+            object.__setattr__(self, "_exr", read_frame_exr(self._exr_path, self._shape(), index=self.index))
         return self._exr
+
+    def _shape(self):
+        """(H, W) the frame's images have: the DN's, else the truth camera's (None if neither says)."""
+        if self.dn is not None:
+            return tuple(self.dn.shape)
+        cam = self.truth.get("camera") if isinstance(self.truth, dict) else None
+        h, w = (cam.get("height"), cam.get("width")) if isinstance(cam, dict) else (None, None)
+        ok = all(isinstance(v, int) and not isinstance(v, bool) for v in (h, w))
+        return (h, w) if ok else None
 
     @property
     def electrons(self):
@@ -178,7 +185,38 @@ class FrameRecord:
         return iter((self.dn, self.truth))
 
     def __repr__(self) -> str:
-        return f"FrameRecord(index={self.index}, dn={self.dn.dtype}{self.dn.shape}, epoch={self.truth['epoch']['tdb_iso']!r})"
+        epoch = self.truth.get("epoch") if isinstance(self.truth, dict) else None
+        iso = epoch.get("tdb_iso") if isinstance(epoch, dict) else None
+        dn = "None" if self.dn is None else f"{self.dn.dtype}{self.dn.shape}"
+        return f"FrameRecord(index={self.index}, dn={dn}, epoch={iso!r})"
+
+
+def read_frame_exr(path, shape, *, index: int) -> dict:
+    """Channels of a frame's EXR, read-only, checked: an ``electrons`` channel, every channel a
+    2-D array of numbers of the frame's ``shape`` (H, W). :class:`DatasetError` naming the file
+    for anything else (an unreadable file, one with no parts or no ``electrons``, a deep image)."""
+    path = Path(path)
+    try:
+        channels = read_exr(path)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: frame {index}'s EXR is missing; run `skynav dataset verify`") from None
+    except Exception as exc:  # noqa: BLE001 - OpenEXR raises RuntimeError, ValueError, IndexError for damaged files
+        raise DatasetError(f"{path}: frame {index}'s EXR is not readable ({exc.__class__.__name__}: "
+                           f"{' '.join(str(exc).split())[:100]}); run `skynav dataset verify`") from None
+    if "electrons" not in channels:
+        have = ", ".join(sorted(channels)) or "none"
+        raise DatasetError(f"{path}: frame {index}'s EXR has no electrons channel (channels: {have}); "
+                           "run `skynav dataset verify`")
+    for name, a in channels.items():
+        a = np.asarray(a)
+        if a.dtype.kind not in "fiu" or a.ndim != 2 or (shape is not None and a.shape != tuple(shape)):
+            got = f"{a.dtype.kind == 'O' and 'deep ' or ''}{'x'.join(map(str, a.shape[::-1])) or 'no'} px of {a.dtype}"
+            want = f"{shape[1]}x{shape[0]} px" if shape is not None else "a 2-D image"
+            raise DatasetError(f"{path}: frame {index}'s EXR channel {name} holds {got}; the frame is {want} of "
+                               "numbers; run `skynav dataset verify`")
+        a.setflags(write=False)
+        channels[name] = a
+    return channels
 
 
 class Dataset:
@@ -235,6 +273,7 @@ class Dataset:
         self.formats = tuple(manifest["formats"])
         self._n = int(manifest["counts"]["frames"])
         self._index = None
+        self._noted = set()  # what unknown frame keys were said of (once per dataset each)
 
     def __len__(self) -> int:
         return self._n
@@ -261,6 +300,11 @@ class Dataset:
             bad = next((r for r in rel.values() if decode_problem(self.root / r) is not None), rel.get("png", rel["json"]))
             raise DatasetError(f"{self.root / bad}: frame {i} is damaged ({exc.__class__.__name__}); "
                                f"run `skynav dataset verify`") from None
+        if "truth" not in self._noted:
+            extra = unknown_keys(truth, FRAME_SCHEMA)
+            if extra:
+                self._noted.add("truth")
+                note_unknown_keys(self.root, extra, f"frame {i}'s truth")
         return truth, image, rel
 
     def __getitem__(self, k) -> FrameRecord:
@@ -292,7 +336,11 @@ class Dataset:
         if dn is None:
             raise DatasetError(f"{self.root}: frame {i} has no DN image (formats: {', '.join(self.formats)})")
         try:
-            return make_observation(truth, dn, index=i, calibration_error=calibration_error)
+            camera, extra = camera_from_record(truth["camera"])
+            if extra and "camera" not in self._noted:
+                self._noted.add("camera")
+                note_unknown_keys(self.root, extra, f"frame {i}'s camera")
+            return make_observation(truth, dn, index=i, calibration_error=calibration_error, camera=camera)
         except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
             raise self._truth_error(i, exc) from None
 
@@ -351,8 +399,12 @@ class Dataset:
 
     @property
     def camera(self):
-        """The dataset's camera (:class:`~skynav.scenes.camera.Camera`, from the manifest)."""
-        return Camera.from_dict(self.manifest["camera"])
+        """The dataset's camera (the manifest's ``camera``; keys this skynav does not know left out)."""
+        try:
+            camera, _ = camera_from_record(self.manifest["camera"])
+        except SkynavError as exc:
+            raise DatasetError(f"{self.root / layout.MANIFEST_NAME}: {exc}") from None
+        return camera
 
     def __repr__(self) -> str:
         return f"Dataset({str(self.root)!r}, kind={self.recipe['kind']!r}, frames={self._n})"
@@ -404,7 +456,31 @@ def open_dataset(path) -> Dataset:
         raise IncompleteDatasetError(
             f"{root} is an incomplete dataset ({done} of {total} frames written, manifest not complete); "
             "finish it by running generate again on the same folder", path=str(root), done=done, total=total)
-    for key in ("recipe", "formats", "counts", "files"):
-        if key not in m:
-            raise DatasetError(f"{root / layout.MANIFEST_NAME}: missing key {key!r}")
+    check_manifest(m, root / layout.MANIFEST_NAME)
+    note_unknown_keys(root, unknown_keys(m, MANIFEST_SCHEMA), layout.MANIFEST_NAME)
     return Dataset(root, m)
+
+
+def check_manifest(m: dict, where) -> None:
+    """Refuse a complete manifest the reader cannot trust, in one line naming ``where``: one that
+    does not follow ``manifest.schema.json`` (a key missing, a count that is not an integer >= 0, a
+    number where a list belongs), has no ``json`` among its formats, or whose counts disagree with
+    each other or with its file table. The file table's entries are checked by ``verify``
+    (checksums), not here: opening a dataset of a million files stays cheap."""
+    files = m.get("files")
+    problems = schema_problems(dict(m, files={}) if isinstance(files, dict) else m, MANIFEST_SCHEMA)
+    if problems:
+        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise DatasetError(f"{where}: does not follow {MANIFEST_SCHEMA}: {problems[0]}{more}; "
+                           "run `skynav dataset verify`")
+    counts = m["counts"]
+    if "json" not in m["formats"]:
+        raise DatasetError(f"{where}: formats {m['formats']} hold no json; a dataset's frames each have a "
+                           "ground-truth JSON")
+    if counts["frames_done"] != counts["frames"]:
+        raise DatasetError(f"{where}: says complete with {counts['frames_done']} of {counts['frames']} frames done; "
+                           "run `skynav dataset verify`")
+    listed = sum(1 for rel in files if rel.startswith(f"{layout.FRAMES_DIR}/") and rel.endswith(".json"))
+    if listed != counts["frames"]:
+        raise DatasetError(f"{where}: counts.frames is {counts['frames']} but its file table lists {listed} frame "
+                           "JSON files; run `skynav dataset verify`")
