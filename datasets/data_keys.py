@@ -4,7 +4,7 @@ Core module (no files). A dataset's ``manifest.json`` and its frames' JSON may c
 skynav or from another program: docs/conventions.md "Files" fixes the required keys (checked with
 their types against the published schemas, :mod:`skynav.datasets.truth_schema`) and welcomes more.
 A reader keeps every key it does not know in the dict it returns and says so once per dataset
-(:func:`note_unknown_keys`, a :class:`~skynav.scenes.errors.SkynavWarning`); it never refuses a
+(:func:`note_unknown_keys`, a :class:`~skynav.infra.errors.SkynavWarning`); it never refuses a
 file for them. Configuration files (scenes, recipes, facilities) stay strict: that is their
 readers' business, not this module's.
 
@@ -57,7 +57,7 @@ def camera_from_record(record, *, max_unknown: int = 64):
     Keys :meth:`Camera.from_dict` does not know (``camera.lens_serial``,
     ``camera.sensor.temperature_c``) are left out, and returned as dotted names; every known key
     is checked as :meth:`Camera.from_dict` checks it (a wrong value or type raises its
-    :class:`~skynav.scenes.errors.ConfigValueError`, naming the key).
+    :class:`~skynav.infra.errors.ConfigValueError`, naming the key).
     """
     rec, dropped = record, []
     for _ in range(max_unknown + 1):

@@ -50,7 +50,7 @@ from .errors import DatasetError, DatasetMismatchError, OutputFormatError, Outpu
 from .frame_files import PNG_SCALING, png_bytes
 from .frame_truth import epoch_tdb_seconds
 from .journal import frame_problem, write_record
-from .layout import MANIFEST_NAME, frame_relpaths, package_version
+from .layout import MANIFEST_NAME, clean_stale_temp_files, frame_relpaths, package_version
 from .lock import dataset_lock
 from .runner import connect_dask
 from .truth_schema import FRAME_SCHEMA, read_truth_json, schema_problems
@@ -266,6 +266,7 @@ def export_dataset(facility, dataset_path, out_dir, *, workers: int = 1, dask_sc
              "png_scaling": PNG_SCALING, "significant_bits": int(facility.screen.bit_depth),
              "skynav_version": package_version()}
     with dataset_lock(out):
+        clean_stale_temp_files(out)  # a run stopped mid-write (killed, Ctrl-C) left its temporary files
         mpath = out / EXPORT_MANIFEST
         proven = False  # the frames already there are of this dataset and facility
         if mpath.is_file():

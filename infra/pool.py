@@ -16,6 +16,7 @@ ends itself when its parent is gone (:func:`exit_with_parent`).
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import pickle
@@ -25,7 +26,8 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-__all__ = ["THREAD_VARS", "WorkerThreads", "exit_with_parent", "process_pool_map", "share_jobs"]
+__all__ = ["THREAD_VARS", "WorkerThreads", "end_workers", "exit_with_parent", "interrupts_to_this_process", "process_pool_map",
+           "share_jobs"]
 
 THREAD_VARS = ("SKYNAV_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -70,24 +72,75 @@ def exit_with_parent(parent_pid: int, poll_s: float = 0.5) -> None:
     threading.Thread(target=watch, name="skynav-exit-with-parent", daemon=True).start()
 
 
+@contextlib.contextmanager
+def interrupts_to_this_process():
+    """Context: the processes started inside it never see SIGINT (Ctrl-C); this one still does.
+
+    A terminal's Ctrl-C goes to every process of its foreground group, so without this each
+    spawned worker would raise ``KeyboardInterrupt`` wherever it was (importing numpy, drawing a
+    frame) and print its own traceback, and a pool whose workers die that way can leave its
+    manager thread waiting forever. SIGINT is blocked while the processes start: a blocked signal
+    stays blocked across ``fork`` and ``exec`` and Python does not unblock it, so the workers never
+    receive it; here it is unblocked on exit, and a Ctrl-C pressed meanwhile is delivered then
+    (it is held, not lost). This process alone decides what an interrupt does (see
+    :func:`process_pool_map`). Outside the main thread, or where signals cannot be masked, it
+    does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def end_workers(executor) -> None:
+    """Stop a ``ProcessPoolExecutor``'s workers now (SIGTERM, then wait for each), so that its
+    shutdown does not wait for the frames in flight. Their futures end as ``BrokenProcessPool``;
+    files they were writing stay temporary files (:mod:`skynav.infra.atomic_files`), which the
+    next run removes. The executor keeps its workers in ``_processes`` (CPython 3.9 to 3.13; 3.14
+    has ``terminate_workers()``)."""
+    stop = getattr(executor, "terminate_workers", None)
+    if stop is not None:
+        stop()
+        return
+    procs = list((getattr(executor, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(timeout=10)
+
+
 def process_pool_map(fn, jobs, n_workers: int, *, accept=None) -> list:
     """``[fn(j) for j in jobs]`` in ``n_workers`` spawned processes, in the order of ``jobs``.
 
     ``fn`` must be a module-level function (it travels pickled, as do the jobs and results).
     ``accept(result)``, if given, is called in this process as each result arrives (in completion
     order). A worker's exception is raised here and the jobs not started are cancelled.
+
+    Ctrl-C reaches this process only (:func:`interrupts_to_this_process`): it stops the workers
+    at once (:func:`end_workers`) and raises ``KeyboardInterrupt`` here, which the command line
+    prints as one line; the finished jobs' results have been passed to ``accept``.
     """
     jobs = list(jobs)
     out = [None] * len(jobs)
     with WorkerThreads(n_workers), \
             ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
                                 initializer=exit_with_parent, initargs=(os.getpid(),)) as ex:
-        futs = {ex.submit(fn, j): k for k, j in enumerate(jobs)}
+        with interrupts_to_this_process():  # the workers start at the submits
+            futs = {ex.submit(fn, j): k for k, j in enumerate(jobs)}
         try:
             for fut in as_completed(futs):
                 out[futs[fut]] = fut.result()
                 if accept is not None:
                     accept(out[futs[fut]])
+        except KeyboardInterrupt:
+            end_workers(ex)  # its futures end broken; cancelling them as well trips CPython 3.11's pool
+            raise
         except BaseException:
             for f in futs:
                 f.cancel()
@@ -189,8 +242,9 @@ def share_jobs(loop, jobs, n_workers: int, accept) -> None:
     with WorkerThreads(n_workers):
         helpers = [ctx.Process(target=_helper, args=(loop, jobs, counter, results, os.getpid(), i), daemon=True,
                                name=f"skynav-helper-{i}") for i in range(n_workers - 1)]
-        for p in helpers:
-            p.start()
+        with interrupts_to_this_process():  # Ctrl-C while a helper imports would be its traceback
+            for p in helpers:
+                p.start()
         try:
             loop(_Claims(jobs, counter, between=drain), emit)
             while state["received"] < len(jobs):

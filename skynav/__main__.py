@@ -2,11 +2,17 @@
 
 import sys
 
-from .cli import main as cli_main
-
 
 def main(argv=None) -> int:
-    return cli_main(argv)
+    """Run ``skynav ARGS``; Ctrl-C anywhere (importing the libraries takes seconds) prints one line."""
+    try:
+        from .cli import main as cli_main
+
+        return cli_main(argv)
+    except KeyboardInterrupt:
+        from .cli_common import interrupted
+
+        return interrupted()
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@ translation of exceptions into one line and an exit code happens once, in :func:
 
 Exit codes: 0 success; 1 a check that ran and found a problem (``dataset verify``); 2 bad input
 (any :class:`~skynav.infra.errors.SkynavError`, an argparse usage error, an output path the
-system refuses, a frame too large for memory); a traceback only for a bug.
+system refuses, a frame too large for memory); 130 interrupted (Ctrl-C, SIGINT: the shell's 128 + 2),
+with the one line :data:`INTERRUPTED`; a traceback only for a bug.
 """
 
 from __future__ import annotations
@@ -42,6 +43,16 @@ __all__ = ["OneLineParser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "f
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+#: What Ctrl-C prints, wherever it lands (importing, parsing, working, cleaning up).
+INTERRUPTED = ("interrupted; files finished before it are kept, and dataset generate and hil export go on "
+               "from there when run again")
+
+
+def interrupted() -> int:
+    """Print the one line :data:`INTERRUPTED` on stderr; returns :data:`EXIT_INTERRUPTED`."""
+    print(f"skynav: error: {INTERRUPTED}", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def fail(message: str) -> int:
@@ -244,7 +255,7 @@ def run_command(func, args) -> int:
             return EXIT_OK
         return fail(_os_error_line(exc))
     except KeyboardInterrupt:
-        return fail("interrupted")
+        return interrupted()
     finally:
         warnings.showwarning = _default_show
         undo_logging()
