@@ -70,10 +70,13 @@ def scene_from_truth(truth: dict):
                        angular_velocity_rad_s=truth["attitude"]["angular_velocity_rad_s"], **kw)
 
 
-def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, seed: int = 0, options=None) -> dict:
-    """Render and write one screen frame; returns its JSON record."""
+def write_screen_frame(facility, scene, out_dir, name: str, *, source: dict, seed: int = 0, options=None,
+                       subfolder: str = "frames") -> dict:
+    """Render and write one screen frame, ``out_dir/subfolder/name.png`` and ``.json`` (an export's
+    layout; ``skynav render --hil`` passes ``subfolder=""``: its one frame beside nothing else, as
+    ``render`` writes a camera frame); returns its JSON record."""
     png, rec = screen_frame_bytes(facility, scene, source=source, seed=seed, options=options)
-    frames = Path(out_dir) / "frames"
+    frames = Path(out_dir) / subfolder
     frames.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(frames / f"{name}.png", png)
     atomic_write_bytes(frames / f"{name}.json", json.dumps(rec, indent=1).encode())

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from pathlib import Path
 
 from skynav.calibration.errors import CalibrationInputError
 from skynav.calibration.facility_io import load_facility, write_facility
 from skynav.datasets.hil_export import export_dataset, write_screen_frame
+from skynav.scenes.facility import PRESETS as FACILITY_PRESETS
 from skynav.scenes.facility import facility_from_mapping
 from skynav.scenes.overrides import apply_overrides
 from skynav.scenes.scene import build_from_spec
@@ -80,26 +83,68 @@ def cmd_export(args) -> int:
     return 0
 
 
-def render_hil(args, spec, seed) -> int:
-    """``skynav render SCENE --facility FACILITY``: one screen frame."""
-    fac = load_facility(args.facility)
+def render_facility(args):
+    """The facility of ``skynav render --facility FACILITY`` (or its former spelling ``--hil``),
+    checked with the other flags before any work; the error names the spelling given."""
+    option = (getattr(args, "_facility_given", None) or ("--facility",))[0]
+    if not args.facility.strip():
+        raise CalibrationInputError(f"{option} {args.facility!r}: expected a facility YAML file or a preset "
+                                    f"({', '.join(FACILITY_PRESETS)})")
+    if args.fits:
+        raise CalibrationInputError(f"--fits with {option}: a screen frame has no sky WCS to write as FITS (FITS is the "
+                                    f"camera frame's format); drop --fits, or render the camera frame without {option}")
+    return load_facility(args.facility)
+
+
+def camera_differences(a, b, prefix: str = "camera") -> list:
+    """``[(dotted key, value in a, value in b)]`` where two cameras differ (nested records too)."""
+    out = []
+    for f in dataclasses.fields(a):
+        va, vb = getattr(a, f.name), getattr(b, f.name)
+        if va == vb:
+            continue
+        if dataclasses.is_dataclass(va) and type(va) is type(vb):
+            out += camera_differences(va, vb, f"{prefix}.{f.name}")
+        else:
+            out.append((f"{prefix}.{f.name}", va, vb))
+    return out
+
+
+def render_hil(args, fac, spec, seed) -> int:
+    """``skynav render [SCENE] --facility FACILITY``: one screen frame, ``OUT/NAME.png`` and ``.json``."""
     scene = build_from_spec(spec)
     if scene.camera != fac.camera:
-        raise CalibrationInputError(f"the scene's camera ({scene.camera.width}x{scene.camera.height}, f {scene.camera.focal_length_mm:g} mm) "
-                                    f"is not the facility's ({fac.camera.width}x{fac.camera.height}, f {fac.camera.focal_length_mm:g} mm)")
+        diff = camera_differences(scene.camera, fac.camera)
+        key, mine, theirs = diff[0] if diff else ("camera", scene.camera, fac.camera)
+        others = [k for k, _, _ in diff[1:]]
+        more = f" (also {', '.join(others[:4])}{', ...' if len(others) > 4 else ''})" if others else ""
+        raise CalibrationInputError(
+            f"the scene's camera is not the facility's: {key} is {_short(mine)} in the scene, {_short(theirs)} in the "
+            f"facility{more}; a screen frame is made for the facility's camera: give the scene that camera, or no "
+            "scene file (the default scene is then seen by the facility's camera)")
+    if args.scene is None:
+        say(args, f"no scene file: the default scene, seen by the facility's camera ({fac.camera.width}x{fac.camera.height} px, "
+                  f"f {fac.camera.focal_length_mm:g} mm, {fac.camera.pixel_pitch_um:.4g} um pixels)")
     fac.check_coverage()
     t0 = time.perf_counter()
-    rec = write_screen_frame(fac, scene, args.output, args.name, source={"scene": args.scene or "default", "seed": seed}, seed=seed)
+    rec = write_screen_frame(fac, scene, args.output, args.name, source={"scene": args.scene or "default", "seed": seed},
+                             seed=seed, subfolder="")
     seconds = time.perf_counter() - t0  # timed here: the frame's JSON holds no timing (same bytes on every run)
     on = sum(s["on_screen"] for s in rec["stars"])
     say(args, f"screen frame {fac.screen.width_px}x{fac.screen.height_px} {fac.screen.bit_depth}-bit in {seconds:.2f} s: "
-          f"{on} stars placed, {len(rec['bodies'])} bodies; clipped: {rec['clipped']['too_bright_px']} px too bright, "
-          f"{rec['clipped']['too_faint_sources']} sources too faint")
-    say(args, f"  {args.output}/frames/{args.name}.png and .json")
+          f"{on} stars placed on the screen, {len(rec['bodies'])} {'body' if len(rec['bodies']) == 1 else 'bodies'}; clipped: {rec['clipped']['too_bright_px']} "
+          f"screen px brighter than the screen's full scale, {rec['clipped']['too_faint_sources']} sources fainter "
+          "than its first DN step")
+    say(args, f"  png   {Path(args.output) / (args.name + '.png')}", f"  json  {Path(args.output) / (args.name + '.json')}")
     note = uncalibrated_note(fac, args.facility)
     if note:  # after the work, as hil export: an error stays one line
         warn(note)
     return 0
+
+
+def _short(value) -> str:
+    text = f"{value:g}" if isinstance(value, float) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def add_parser(sub) -> None:

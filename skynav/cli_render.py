@@ -19,13 +19,17 @@ from skynav.scenes.scene import build_from_spec
 
 from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_scene_arg, add_seed_arg, add_set_arg
 from .cli_common import COMMAND_HELP, say
-from .cli_hil import render_hil
+from .cli_hil import render_facility, render_hil
 
 
-def _load_spec(arg: str | None, overrides=()):
-    """The scene of a file or preset, with the ``--set`` overrides applied to its mapping."""
+def _load_spec(arg: str | None, overrides=(), camera=None):
+    """The scene of a file or preset, with the ``--set`` overrides applied to its mapping;
+    ``camera`` (a Camera) replaces the default scene's camera when no file or preset is given."""
     if arg is None or arg in presets.PRESETS:
         mapping = presets.preset_mapping(arg or "default")
+        if arg is None and camera is not None:
+            # the facility's camera as a scene file writes it (K and bit_depth follow from the rest)
+            mapping["camera"] = {k: v for k, v in camera.to_dict().items() if k not in ("K", "bit_depth")}
     else:
         path = Path(arg)
         if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
@@ -76,12 +80,13 @@ def cmd_scene(args) -> int:
 
 # ----------------------------------------------------------------------------- render
 def cmd_render(args) -> int:
-    spec = _load_spec(args.scene, args.overrides)
+    facility = render_facility(args) if args.facility is not None else None
+    spec = _load_spec(args.scene, args.overrides, camera=facility.camera if facility is not None else None)
     seed = spec.seed if args.seed is None else args.seed
     check_stem(args.name, what="--name")
     check_output_dir(args.output, what="-o/--output folder")  # before the work, not after
-    if args.facility:
-        return render_hil(args, spec, seed)
+    if facility is not None:
+        return render_hil(args, facility, spec, seed)
     t0 = time.perf_counter()
     scene = build_from_spec(spec)
     options = RenderOptions(noise=not args.no_noise, backend=args.backend,

@@ -600,7 +600,7 @@ def test_render_hil_documented_paths_run_on_the_command_line(world, facility, ca
     code, stdout, err = _run(["render", "--hil", fac, "-o", str(dest), *SMALL_CAMERA], capsys)
     assert code == 0, err
     assert "screen frame 640x640 10-bit" in stdout and "Traceback" not in err
-    rec = json.loads((dest / "frames" / "frame.json").read_text())
+    rec = json.loads((dest / "frame.json").read_text())  # render writes OUT/NAME.*, with or without --hil
     assert rec["facility"]["screen"] == {"width_px": 640, "height_px": 640, "bit_depth": 10}
     assert (rec["facility"]["geometric_fit"] is not None) == (facility == "calibrated")
     assert _sha_tree(inp) == before

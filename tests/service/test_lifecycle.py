@@ -56,7 +56,7 @@ def test_screen_png_is_the_bytes_of_render_hil(tmp_path):
         run = subprocess.run([sys.executable, "-m", "skynav", "render", "--hil", "screen", "-o", str(tmp_path / "hil")],
                              capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, run.stderr
-        assert screen == (tmp_path / "hil" / "frames" / "frame.png").read_bytes()
+        assert screen == (tmp_path / "hil" / "frame.png").read_bytes()
         with pytest.raises(ServiceError) as e:     # a camera that is not the facility's
             good.render(small_scene(size=64), outputs=("screen_png",))
         assert e.value.status == 400 and "facility" in str(e.value)
