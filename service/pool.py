@@ -164,10 +164,16 @@ class WorkerPool:
         # the exchange is a task of its own, shielded from this request's cancellation: the worker
         # goes back to the idle queue only once its answer has been read, so that the next request
         # never reads this one's frame
-        task = asyncio.ensure_future(self._exchange(worker, (bytes(body), outputs, self.limits.max_camera_pixels)))
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+        task = self._keep(self._exchange(worker, (bytes(body), outputs, self.limits.max_camera_pixels)))
         return await asyncio.shield(task), queue_s
+
+    def _keep(self, coro) -> asyncio.Task:
+        """``coro`` as a task held until it is done (the loop keeps only weak references), its
+        outcome read then (a request that went away leaves its WorkerDied to no one)."""
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(lambda t: (self._tasks.discard(t), t.cancelled() or t.exception()))
+        return task
 
     async def _exchange(self, worker: _Worker, request: tuple) -> tuple:
         died = False
@@ -180,9 +186,7 @@ class WorkerPool:
         finally:
             self.busy -= 1
             if died:   # a fresh worker takes its place when warm (the requests meanwhile wait for it)
-                task = asyncio.ensure_future(self._replace(worker))
-                self._tasks.add(task)
-                task.add_done_callback(self._tasks.discard)
+                self._keep(self._replace(worker))
             else:
                 self._idle.put_nowait(worker)
 
