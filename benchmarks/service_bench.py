@@ -234,7 +234,7 @@ def part_throughput(frames: int, repeats: int = 3) -> None:
     - the ceiling: two plain processes rendering the same frame with the same thread budget. Two
       renders that stream through memory slow each other down (shared L3 and memory bandwidth);
       their ratio is what the machine allows, the service's can only be lower;
-    - renders in flight: the sum of the workers' render times (``Skynav-Render-Seconds``) over the
+    - renders in flight: the sum of the workers' render times (``render`` of each answer's ``Server-Timing``) over the
       wall time. Two clients on two parallel workers keep ~2 in flight; 1 would mean the renders
       were serialised (a lock, one worker);
     - cores obtained: the workers' CPU seconds over the wall time. The ratio of frames/s cannot
