@@ -12,7 +12,8 @@ order in which frames ran (docs/conventions.md "Randomness"). The executors diff
 - :func:`run_process_pool` (``workers=N``): this process and ``N - 1`` spawned helpers share the
   frames (:func:`skynav.infra.pool.share_jobs`: ``cores // N`` threads each; each process takes
   the next frame when it is ready for one), each making its frames as :func:`run_in_process`
-  does. The plan travels pickled once per helper.
+  does; the helpers start only once the frames left are worth their start-up
+  (:class:`HelpersPay`). The plan travels pickled once per helper.
 - :func:`run_dask`: one Dask task per run of frames (``pure=False``); the workers must see the
   dataset folder on a shared file system.
 
@@ -307,18 +308,47 @@ def run_in_process(plan, accept) -> tuple:
     return 1, "in-process"
 
 
+class HelpersPay:
+    """Whether starting the helpers of a dataset run pays, asked before each of this process's
+    frames (the ``pays`` of :func:`skynav.infra.pool.share_jobs`).
+
+    A helper pays its own start-up before it makes a frame: the imports, the catalogue, the
+    radiometry tables and the first kernels, about what this process paid for its first frame
+    (``first_s``, measured here) plus ``imports_s``. It pays once the frames left would keep this
+    process busy for more than ``factor`` times that start-up at its own pace (the wall-clock time
+    a frame has taken it since its first): then a helper that joins after its start-up still
+    takes a good share of them. On a small dataset no helper is started and ``--workers N``
+    runs as ``--workers 1``.
+    """
+
+    def __init__(self, *, imports_s: float = 1.0, factor: float = 3.0):
+        self.imports_s, self.factor = imports_s, factor
+        self.first_s = None
+
+    def __call__(self, made: int, left: int, seconds: float) -> bool:
+        if made == 0:
+            return False
+        if self.first_s is None:
+            self.first_s = seconds
+        if made < 3:  # the pace of two frames after the first
+            return False
+        pace = (seconds - self.first_s) / (made - 1)
+        return left * pace > self.factor * (self.first_s + self.imports_s)
+
+
 def run_process_pool(plan, accept, n_workers: int) -> tuple:
-    """Make the plan's frames in this process and ``n_workers - 1`` spawned helpers. Returns
-    ``(workers, executor name)``.
+    """Make the plan's frames in this process and up to ``n_workers - 1`` spawned helpers.
+    Returns ``(workers, executor name)``.
 
     The processes share the frames (:func:`skynav.infra.pool.share_jobs`): each takes the next
     frame nobody has taken when it is ready for one and makes its frames with their writes
-    overlapped, as :func:`run_in_process` does. This process starts at once; a helper joins once
+    overlapped, as :func:`run_in_process` does. This process starts at once; the helpers are
+    started once the frames left are worth their start-up (:class:`HelpersPay`), each joins once
     it has imported the renderer and loaded its tables, and one that finds no frame left is
     stopped, so no number of workers makes a dataset slower than one worker. The plan travels
     pickled once per helper; ``accept`` sees each frame once its record is written."""
     _, jobs = _jobs(plan)
-    share_jobs(_made_and_written, jobs, n_workers, accept)
+    share_jobs(_made_and_written, jobs, n_workers, accept, pays=HelpersPay())
     return n_workers, "processes (spawn)"
 
 

@@ -1,17 +1,18 @@
 """One process pool for every parallel job of skynav: dataset frames, bench exports, benchmarks.
 
 :func:`share_jobs` runs a loop over jobs in this process and in ``n_workers - 1`` spawned helpers
-that take the jobs one at a time as each is ready for one: this process starts at once, and a
-helper adds its work once it has loaded what it needs, so more workers never make a run slower
-than one (a helper that finds no job left is stopped). :func:`process_pool_map` runs ``fn(job)`` for each job in ``n_workers`` **spawned** processes
-(Dr.Jit/LLVM start threads and JIT state in a process; a fork of a parent that already used them
-inherits locked mutexes and a half-copied JIT, so children are spawned fresh and load the
-package themselves). Each worker gets ``cores // n_workers`` threads for the libraries that start
-thread pools (:class:`WorkerThreads`: Dr.Jit and OpenEXR via ``SKYNAV_THREADS``,
-OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a variable the user set is left alone): N
-processes each with a pool as wide as the machine spin against each other
-(``benchmarks/dataset_bench.py`` measures the scaling), and
-ends itself when its parent is gone (:func:`exit_with_parent`).
+that take the jobs one at a time as each is ready for one: this process starts at once, a helper
+is started only where the jobs left are worth its start-up and adds its work once it has loaded
+what it needs, so more workers never make a run slower than one (a helper that finds no job
+left is stopped). :func:`process_pool_map` runs ``fn(job)`` for each job in ``n_workers``
+**spawned** processes. Children are spawned, never forked: Dr.Jit/LLVM start threads and JIT
+state in a process, and a fork of a parent that already used them inherits locked mutexes and a
+half-copied JIT, so children start fresh and load the package themselves. Each worker gets
+``cores // n_workers`` threads for the libraries that start thread pools (:class:`WorkerThreads`:
+Dr.Jit and OpenEXR via ``SKYNAV_THREADS``, OpenBLAS/OpenMP/MKL via their ``*_NUM_THREADS``; a
+variable the user set is left alone): N processes each with a pool as wide as the machine spin
+against each other (``benchmarks/dataset_bench.py`` measures the scaling). A worker ends itself
+when its parent is gone (:func:`exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -194,72 +195,107 @@ def _helper(loop, jobs, counter, results, parent_pid: int, me: int) -> None:
         results.put(("done", me))
 
 
-def share_jobs(loop, jobs, n_workers: int, accept) -> None:
+class _Sharing:
+    """This process's side of :func:`share_jobs`: the helpers, the results queue, what came back."""
+
+    def __init__(self, loop, jobs: list, n_workers: int, accept, pays):
+        self.loop, self.jobs, self.n_helpers, self.accept, self.pays = loop, jobs, n_workers - 1, accept, pays
+        self.ctx = multiprocessing.get_context("spawn")
+        self.counter, self.results = self.ctx.Value("q", 0), self.ctx.Queue()
+        self.helpers: list = []
+        self.threads = WorkerThreads(n_workers)
+        self.received, self.mine, self.took, self.ended = 0, 0, set(), set()
+        self.t0 = time.perf_counter()
+
+    def start_helpers(self) -> None:
+        """Spawn the helpers; from now on this process and each of them has the thread budget of
+        one of the workers (the variables stay set here until :meth:`stop`)."""
+        self.threads.__enter__()
+        self.helpers = [self.ctx.Process(target=_helper, daemon=True, name=f"skynav-helper-{i}",
+                                         args=(self.loop, self.jobs, self.counter, self.results, os.getpid(), i))
+                        for i in range(self.n_helpers)]
+        with interrupts_to_this_process():  # Ctrl-C while a helper imports would be its traceback
+            for p in self.helpers:
+                p.start()
+
+    def take(self, block: bool) -> None:
+        """One message of a helper, if one comes (within 0.2 s when ``block``)."""
+        try:
+            kind, value = self.results.get(block=block, timeout=0.2 if block else None)
+        except queue.Empty:
+            return
+        if kind == "result":
+            self.received += 1
+            self.accept(value)
+        elif kind == "took":
+            self.took.add(value)
+        elif kind == "done":
+            self.ended.add(value)
+        else:
+            raise value
+
+    def between(self) -> None:
+        """Before each of this process's jobs: start the helpers once they pay; take what came back."""
+        if not self.helpers and (self.pays is None or self.pays(self.mine, len(self.jobs) - self.counter.value,
+                                                                time.perf_counter() - self.t0)):
+            self.start_helpers()
+        self.mine += 1
+        while not self.results.empty():
+            self.take(block=False)
+
+    def emit(self, result) -> None:
+        self.received += 1
+        self.accept(result)
+
+    def wait_for_the_helpers(self) -> None:
+        """Take the helpers' results until every job's has come; a helper that ended without a
+        word is an error."""
+        while self.received < len(self.jobs):
+            self.take(block=True)
+            lost = [p for i, p in enumerate(self.helpers) if p.exitcode is not None and i not in self.ended]
+            if lost and self.results.empty():
+                raise RuntimeError(f"a worker process ended unexpectedly (exit code {lost[0].exitcode})")
+
+    def stop(self, failed: bool) -> None:
+        """End the helpers: all of them after a failure (no job is taken any more), else those
+        still starting (they would find no job left); wait for the others to end."""
+        if failed:
+            with self.counter.get_lock():
+                self.counter.value = len(self.jobs)
+        for i, p in enumerate(self.helpers):
+            if failed or i not in self.took:
+                p.terminate()
+            p.join()
+        if self.helpers:
+            self.threads.__exit__(None, None, None)
+
+
+def share_jobs(loop, jobs, n_workers: int, accept, *, pays=None) -> None:
     """Run ``loop(claims, emit)`` in this process and in ``n_workers - 1`` spawned helpers, which
     share ``jobs``: each process takes the next job nobody has taken whenever it is ready for one.
 
     ``loop`` is a module-level function (it travels pickled, with the jobs, once per helper);
     ``claims`` iterates over the jobs its process takes and ``emit(result)`` reports a result.
     Every result reaches ``accept`` in this process (this process's own at once, the helpers'
-    between two of its jobs and at the end). This process starts on the jobs at once, in the
-    thread budget of one of ``n_workers`` workers (:class:`WorkerThreads`); a helper adds its work
-    once it has started (imports, caches), and a helper that has taken no job when the last
-    result arrives is stopped, so a run with helpers is not slower than one without. A helper's
-    exception is raised here (the others take no further job); so is this process's, after the
-    helpers are stopped.
+    between two of its jobs and at the end). This process starts on the jobs at once. The helpers
+    are started before its first job, or, with ``pays``, before the first of its jobs for which
+    ``pays(jobs this process has taken, jobs nobody has taken, seconds since the start)`` is
+    true: a helper's start-up (imports, caches) is then paid only where the jobs left are worth
+    it. From then on every process has the thread budget of one of ``n_workers`` workers
+    (:class:`WorkerThreads`). A helper adds its work once it has started, and one that has taken
+    no job when the last result arrives is stopped, so a run with helpers is not slower than one
+    without. A helper's exception is raised here (the others take no further job); so is this
+    process's, after the helpers are stopped.
     """
     jobs = list(jobs)
     if n_workers <= 1 or len(jobs) <= 1:
         loop(iter(jobs), accept)
         return
-    ctx = multiprocessing.get_context("spawn")
-    counter, results = ctx.Value("q", 0), ctx.Queue()
-    state = {"received": 0, "took": set(), "ended": set()}
-
-    def take(block: bool) -> None:
-        try:
-            kind, value = results.get(block=block, timeout=0.2 if block else None)
-        except queue.Empty:
-            return
-        if kind == "result":
-            state["received"] += 1
-            accept(value)
-        elif kind == "took":
-            state["took"].add(value)
-        elif kind == "done":
-            state["ended"].add(value)
-        else:
-            raise value
-
-    def drain() -> None:
-        while not results.empty():
-            take(block=False)
-
-    def emit(result) -> None:
-        state["received"] += 1
-        accept(result)
-
-    with WorkerThreads(n_workers):
-        helpers = [ctx.Process(target=_helper, args=(loop, jobs, counter, results, os.getpid(), i), daemon=True,
-                               name=f"skynav-helper-{i}") for i in range(n_workers - 1)]
-        with interrupts_to_this_process():  # Ctrl-C while a helper imports would be its traceback
-            for p in helpers:
-                p.start()
-        try:
-            loop(_Claims(jobs, counter, between=drain), emit)
-            while state["received"] < len(jobs):
-                take(block=True)
-                lost = [p for i, p in enumerate(helpers) if p.exitcode is not None and i not in state["ended"]]
-                if lost and results.empty():
-                    raise RuntimeError(f"a worker process ended unexpectedly (exit code {lost[0].exitcode})")
-        except BaseException:
-            with counter.get_lock():
-                counter.value = len(jobs)
-            for p in helpers:
-                p.terminate()
-            raise
-        finally:
-            for i, p in enumerate(helpers):
-                if i not in state["took"]:
-                    p.terminate()  # still starting: it would find no job left
-                p.join()
+    sharing = _Sharing(loop, jobs, n_workers, accept, pays)
+    try:
+        loop(_Claims(jobs, sharing.counter, between=sharing.between), sharing.emit)
+        sharing.wait_for_the_helpers()
+    except BaseException:
+        sharing.stop(failed=True)
+        raise
+    sharing.stop(failed=False)

@@ -39,11 +39,28 @@ def test_reference_is_complete_and_verifies(reference_dataset):
     assert all(m["files"][k] == shas[k] for k in m["files"])
 
 
-def test_two_worker_processes_identical(reference_dataset, tmp_path):
+def test_two_worker_processes_identical(reference_dataset, tmp_path, monkeypatch):
+    from skynav.datasets import execute
+
     out, _, ref = reference_dataset
-    s = generate(small_recipe(), tmp_path / "ds", workers=2, progress=False)
+    s = generate(small_recipe(), tmp_path / "ds", workers=2, progress=False)  # too few frames for a helper
     assert s.workers == 2 and s.executor.startswith("processes")
     assert tree_sha256(tmp_path / "ds") == ref
+    monkeypatch.setattr(execute.HelpersPay, "__call__", lambda self, made, left, seconds: True)  # a helper at once
+    s = generate(small_recipe(), tmp_path / "ds2", workers=2, progress=False)
+    assert tree_sha256(tmp_path / "ds2") == ref
+
+
+def test_a_helper_starts_only_once_the_frames_left_pay_its_start_up():
+    from skynav.datasets.execute import HelpersPay
+
+    pays = HelpersPay(imports_s=1.0, factor=3.0)
+    assert not pays(0, 400, 0.0)
+    assert not pays(1, 399, 2.0) and not pays(2, 398, 2.05)  # the first frame took 2 s: the start-up
+    assert pays(3, 397, 2.1)  # 397 frames at 50 ms = 20 s > 3 x (2 + 1) s
+    pays = HelpersPay(imports_s=1.0, factor=3.0)
+    pays(1, 59, 2.0)
+    assert not pays(3, 57, 2.1)  # 57 frames at 50 ms = 2.9 s: the helper would not pay
 
 
 def test_dask_local_cluster_identical(reference_dataset, tmp_path):
@@ -204,6 +221,19 @@ def _children(pid: int) -> list:
     return kids
 
 
+def _helpers(pid: int) -> list:
+    """The spawned helpers of process ``pid`` alive now (not multiprocessing's resource tracker)."""
+    out = []
+    for k in _children(pid):
+        try:
+            cmd = Path(f"/proc/{k}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"spawn_main" in cmd and _alive(k):
+            out.append(k)
+    return out
+
+
 def _alive(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -216,11 +246,12 @@ def test_pool_workers_end_when_the_generator_is_killed(tmp_path):
     """SIGKILL to ``dataset generate``'s process leaves no worker behind (they used to wait for work
     forever, holding a Mitsuba process's memory each)."""
     out = tmp_path / "ds"
-    proc = _spawn_generator(small_recipe(200), out, "workers=2, progress=False")
+    # frames enough for the helper to pay its start-up: it starts after the parent's third frame
+    proc = _spawn_generator(small_recipe(5000), out, "workers=2, progress=False")
     try:
-        _wait_until(proc, lambda: _count_json(out / "frames") >= 2, poll_s=0.05)
+        _wait_until(proc, lambda: len(_helpers(proc.pid)) >= 1 and _count_json(out / "frames") >= 2, poll_s=0.05)
         kids = [k for k in _children(proc.pid) if _alive(k)]
-        assert len(kids) >= 2, kids
+        assert _helpers(proc.pid), kids
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(30)

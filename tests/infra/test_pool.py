@@ -71,3 +71,17 @@ def test_a_helper_still_starting_when_the_jobs_are_done_is_stopped():
     share_jobs(_loop, [(-1, k, None) for k in range(3)], 3, got.append)  # quick jobs: done before any helper starts
     assert sorted(r[0] for r in got) == [0, 1, 2]
     assert multiprocessing.active_children() == []
+
+
+def test_helpers_start_only_once_they_pay():
+    asked = []
+
+    def pays(mine, left, seconds):
+        asked.append((mine, left))
+        return False
+
+    got = []
+    share_jobs(_loop, [(-1, k, None) for k in range(5)], 2, got.append, pays=pays)
+    assert sorted(r[0] for r in got) == list(range(5)) and {r[2] for r in got} == {os.getpid()}
+    assert asked[:2] == [(0, 5), (1, 4)]  # asked before each job, with the jobs nobody has taken
+    assert multiprocessing.active_children() == []
