@@ -54,6 +54,12 @@ class ProcessOptions:
         Improved: brightest spots offered to the final association.
     variance_weights : bool
         Improved: the final Wahba problem weighted by each star's centroid variance.
+    psf_fit : bool
+        Improved: the matched stars' final centroids by a least-squares fit of a pixel-integrated
+        Gaussian of the frame's own width (:mod:`~skynav.pipeline.psf_fit`); False: Eq. 7-8's.
+    psf_fit_max_sigma_px : float
+        Improved: the fit is used on frames whose fitted Gaussian width is below this, px (wider
+        PSFs leave Eq. 7-8 no pull towards the pixel centre).
     blend_px : float
         Improved: beacons predicted closer than this may share a spot, px.
     track_window_px : float
