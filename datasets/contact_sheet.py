@@ -1,8 +1,8 @@
 """Contact sheet of a dataset with ground-truth overlays: :func:`preview`.
 
-Driver module (``skynav dataset preview``). Each tile is a frame's DN, stretched for display
-(``asinh`` of the DN above the median, so faint stars show next to saturated planets), resized
-to ``tile_px``; stars in the field get a circle (scikit-image ``circle_perimeter``), bodies in the
+Driver module (``skynav dataset preview``). Each tile is a frame's quick look
+(:func:`skynav.datasets.quicklook.quicklook_u8`: zscale limits and an asinh stretch, so the sky is
+a dark grey and faint stars show next to saturated planets), resized to ``tile_px``; stars in the field get a circle (scikit-image ``circle_perimeter``), bodies in the
 field a square and a label (Pillow), and each tile its frame number and epoch. Written as an 8-bit
 RGB PNG, atomically.
 """
@@ -22,6 +22,7 @@ from skynav.infra.atomic_files import atomic_write_bytes
 from . import layout
 from .errors import DatasetError
 from .plots import plot_leg_magnitudes
+from .quicklook import quicklook_u8
 from .reader import open_dataset
 from .samplers import make_plan
 
@@ -32,20 +33,11 @@ _BODY_RGB = (255, 170, 40)
 _TEXT_RGB = (255, 255, 255)
 
 
-def _stretch(dn: np.ndarray, max_dn: int) -> np.ndarray:
-    d = dn.astype(np.float64)
-    base = float(np.median(d))
-    span = max(float(max_dn) - base, 1.0)
-    x = np.clip((d - base) / span, 0.0, 1.0)
-    y = np.arcsinh(200.0 * x) / np.arcsinh(200.0)
-    return (255.0 * y + 0.5).astype(np.uint8)
-
-
 def _tile(record, tile_px: int, label: str, star_v_max: float = 7.0):
     truth = record.truth
     cam = truth["camera"]
     h, w = int(cam["height"]), int(cam["width"])
-    img = _stretch(np.asarray(record.dn), (1 << int(cam["bit_depth"])) - 1)
+    img = quicklook_u8(np.asarray(record.dn))
     small = np.asarray(Image.fromarray(img).resize((tile_px, tile_px), Image.BILINEAR))
     rgb = np.repeat(small[:, :, None], 3, axis=2)
     sx, sy = tile_px / w, tile_px / h

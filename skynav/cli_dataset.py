@@ -99,7 +99,8 @@ def cmd_preview(args) -> int:
     out = args.output or str(Path(args.dataset) / "preview.png")
     _check_output_png(out)
     path = datasets.preview(args.dataset, out, count=args.count, columns=args.columns)
-    print(f"contact sheet: {path}")
+    print(f"contact sheet: {path} (a quick look of each frame: zscale limits and an asinh stretch, for the eye; "
+          "circles: stars brighter than V 7, squares: the bodies in view, with their V magnitude)")
     if datasets.open(args.dataset).manifest["recipe"]["kind"] == "sequence":
         legs = datasets.leg_plot(args.dataset, Path(out).with_name(Path(out).stem + "_legs_vmag.png"))
         print(f"planets' V along the legs: {legs}")

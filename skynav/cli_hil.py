@@ -8,7 +8,10 @@ from pathlib import Path
 
 from skynav.calibration.errors import CalibrationInputError
 from skynav.calibration.facility_io import load_facility, write_facility
+from skynav.datasets.frame_files import png_bytes, read_png
 from skynav.datasets.hil_export import export_dataset, write_screen_frame
+from skynav.datasets.quicklook import quicklook_u8
+from skynav.infra.atomic_files import atomic_write_bytes
 from skynav.scenes.facility import PRESETS as FACILITY_PRESETS
 from skynav.scenes.facility import facility_from_mapping
 from skynav.scenes.overrides import apply_overrides
@@ -136,10 +139,20 @@ def render_hil(args, fac, spec, seed) -> int:
           f"screen px brighter than the screen's full scale, {rec['clipped']['too_faint_sources']} sources fainter "
           "than its first DN step")
     say(args, f"  png   {Path(args.output) / (args.name + '.png')}", f"  json  {Path(args.output) / (args.name + '.json')}")
+    if args.preview:  # the screen's DN back from its PNG (scaled to the PNG's full range there)
+        say(args, f"  preview {write_preview(read_png(Path(args.output) / (args.name + '.png')), args.output, args.name)}")
     note = uncalibrated_note(fac, args.facility)
     if note:  # after the work, as hil export: an error stays one line
         warn(note)
     return 0
+
+
+def write_preview(dn, out, name: str) -> Path:
+    """``OUT/NAME_preview.png``: the 8-bit quick look of a frame's DN for the eye (zscale limits,
+    asinh stretch: :func:`skynav.datasets.quicklook.quicklook_u8`), beside its physical PNG."""
+    path = Path(out) / f"{name}_preview.png"
+    atomic_write_bytes(path, png_bytes(quicklook_u8(dn)))
+    return path
 
 
 def _short(value) -> str:

@@ -19,7 +19,7 @@ from skynav.scenes.scene import build_from_spec
 
 from .cli_args import add_facility_arg, add_output_arg, add_quiet, add_scene_arg, add_seed_arg, add_set_arg
 from .cli_common import COMMAND_HELP, say
-from .cli_hil import render_facility, render_hil
+from .cli_hil import render_facility, render_hil, write_preview
 
 
 def _load_spec(arg: str | None, overrides=(), camera=None):
@@ -96,6 +96,8 @@ def cmd_render(args) -> int:
     out = Path(args.output)
     formats = ("png", "exr", "json") + (("fits",) if args.fits else ())
     files = write_frame(frame, out, args.name, formats=formats)
+    if args.preview:
+        files["preview"] = write_preview(frame.dn, out, args.name)
     t2 = time.perf_counter()
     truth = frame.truth
     stars = truth["stars"]
@@ -137,6 +139,9 @@ def add_parser(sub) -> None:
     add_seed_arg(r, default=None, help="random seed (default: the scene's render.seed)")
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
     r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
+    r.add_argument("--preview", action="store_true",
+                   help="also write NAME_preview.png, an 8-bit quick look for the eye (zscale limits, asinh stretch; "
+                        "the PNG beside it keeps the physical DN, which a viewer shows nearly black)")
     add_quiet(r)
     r.add_argument("--backend", choices=("auto", "llvm", "cuda", "numpy"), default="auto", help="sensor noise backend")
     add_facility_arg(r, required=False, former_option="--hil",
