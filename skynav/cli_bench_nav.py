@@ -138,9 +138,12 @@ def cmd_nav(args) -> int:
               f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
               f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); {NAVIGATION.cite}: "
               f"{PAPER_002['position_3sigma_km']:.0f} km, {PAPER_002['velocity_3sigma_m_s']:.2f} m/s")
-    say(args, f"  NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, {100 * n['fraction_inside']:.0f} % of "
-          f"frames inside; band of the {n['independent_sequences']} independent image sequence(s) "
-          f"{n['band_sequences_low']:.2f}..{n['band_sequences_high']:.2f}); R: {noise.describe()}")
+    say(args, f"  NEES (normalised estimation error squared: the squared error over the filter's own covariance; a "
+          f"consistent filter stays in the band) mean {n['mean']:.2f} (band {n['band_low']:.2f}..{n['band_high']:.2f}, "
+          f"{100 * n['fraction_inside']:.0f} % of frames inside; band of the {n['independent_sequences']} independent "
+          f"image sequence(s) {n['band_sequences_low']:.2f}..{n['band_sequences_high']:.2f})",
+          f"  R, the filter's measurement noise (sigma: the standard deviation of a planet's measured centre, "
+          f"D: its predicted apparent diameter in px): {noise.describe()}")
     for c, v in summary["cases"].items():
         say(args, f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
     say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})",
