@@ -60,9 +60,16 @@ _LAZY = {
 __all__ = sorted(_LAZY)
 
 
+#: names that were renamed: the old one is refused naming the new ("bench" is the benchmark commands)
+_RENAMED = {"bench_preset": "screen_preset", "bench_small_preset": "screen_small_preset"}
+
+
 def __getattr__(name):
     module = _LAZY.get(name)
     if module is None:
+        if name in _RENAMED:
+            raise AttributeError(f"skynav.scenes.{name} is now {_RENAMED[name]} (the facility presets are screen and "
+                                 "screen_small; 'bench' means only the benchmark commands)")
         raise AttributeError(f"module 'skynav.scenes' has no attribute {name!r}")
     value = getattr(_importlib.import_module(module if module.startswith("skynav.") else f".{module}", __name__), name)
     globals()[name] = value

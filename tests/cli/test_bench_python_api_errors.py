@@ -120,3 +120,7 @@ def test_a_former_facility_preset_name_is_refused_naming_the_new_one():
         with pytest.raises(FacilityFileError, match=f"now named {new} .*; give {new}$"):
             load_facility(old)
         assert load_facility(new).name == new
+    import skynav.scenes as S
+
+    with pytest.raises(AttributeError, match="skynav.scenes.bench_small_preset is now screen_small_preset"):
+        S.bench_small_preset  # noqa: B018 - the attribute access is the test
