@@ -134,6 +134,8 @@ PRESETS = {
         ],
     },
 }
+"""The built-in recipes by kind (``montecarlo``, ``sequence``, ``scenes``): the mappings
+:func:`preset_recipe` copies (units in the key names, angles in degrees, epochs in TDB)."""
 
 
 def preset_recipe(kind: str) -> dict:

@@ -133,7 +133,6 @@ class LightCorrections:
             raise ValueError("aberration is either in the model or removed from the measurement, not both")
 
 
-#: Andreis et al. (2024), Sec. 5.2 cases.
 CASES = {
     1: LightCorrections(light_time=True, aberration=True),
     2: LightCorrections(light_time=True, aberration=False, deaberrate_measurement=True),
@@ -141,6 +140,8 @@ CASES = {
     4: LightCorrections(light_time=False, aberration=True),
     5: LightCorrections(light_time=True, aberration=False),
 }
+"""The measurement-model cases of Andreis et al. (2024), Sec. 5.2: case number ->
+:class:`LightCorrections` (1: light-time and aberration modelled, the default)."""
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -13,12 +13,14 @@ underlines):
 - exceptions: a summary and ``Examples`` (where the error comes from).
 
 Every ``Examples`` section has at least one ``>>>`` line; ``tests/test_doctests.py`` runs them.
-Names that are not callables (a dict of presets) cannot carry a docstring of their own; they are
-listed in ``NOT_CALLABLE`` and their module's docstring describes them.
+Names that are not callables (a dict of presets) carry the docstring of an assignment (a string
+right after it, which the API reference shows); they are listed in ``NOT_CALLABLE`` with their
+module, whose source is read for it.
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
 import inspect
 import re
@@ -27,8 +29,9 @@ import pytest
 
 PACKAGES = ("skynav.scenes", "skynav.renderer", "skynav.datasets", "skynav.pipeline", "skynav.service")
 
-# Constants in ``__all__``: a dict has no ``__doc__`` of its own to check.
-NOT_CALLABLE = {"skynav.datasets.PRESETS", "skynav.pipeline.CASES"}
+# Constants in ``__all__`` -> the module that assigns them: a dict has no ``__doc__`` of its own.
+NOT_CALLABLE = {"skynav.datasets.PRESETS": "skynav.datasets.recipes",
+                "skynav.pipeline.CASES": "skynav.pipeline.measurement"}
 
 _SECTION = re.compile(r"^(\w[\w ]*)\n-{3,}$", re.M)
 
@@ -177,3 +180,23 @@ def test_examples_run_on_their_own(package):
         if report:
             failed.append(report)
     assert not failed, "\n".join(failed)[-4000:]
+
+
+def assignment_docstring(module_name: str, name: str) -> str:
+    """The string literal right after ``name = ...`` at the top level of a module's source."""
+    tree = ast.parse(inspect.getsource(importlib.import_module(module_name)))
+    body = tree.body
+    for node, after in zip(body, body[1:]):
+        targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+                return after.value.value
+    return ""
+
+
+@pytest.mark.parametrize("qualname", sorted(NOT_CALLABLE))
+def test_constants_have_an_assignment_docstring(qualname):
+    package, name = qualname.rsplit(".", 1)
+    assert name in importlib.import_module(package).__all__, qualname
+    doc = assignment_docstring(NOT_CALLABLE[qualname], name)
+    assert doc.strip().endswith("."), f"{qualname}: no docstring after its assignment in {NOT_CALLABLE[qualname]}"
