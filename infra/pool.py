@@ -171,6 +171,33 @@ class _Claims:
             yield self.jobs[k]
 
 
+class _Counter:
+    """The index of the next job nobody has taken: a plain int in this process until helpers
+    share it (:meth:`share`), then a ``multiprocessing.Value`` (so that a run without helpers
+    starts no process at all, not even multiprocessing's resource tracker)."""
+
+    def __init__(self):
+        self.local, self.shared = 0, None
+
+    def share(self, ctx):
+        self.shared = ctx.Value("q", self.local)
+        return self.shared
+
+    def get_lock(self):
+        return self.shared.get_lock() if self.shared is not None else contextlib.nullcontext()
+
+    @property
+    def value(self) -> int:
+        return self.shared.value if self.shared is not None else self.local
+
+    @value.setter
+    def value(self, v: int) -> None:
+        if self.shared is not None:
+            self.shared.value = v
+        else:
+            self.local = v
+
+
 def _portable(exc: BaseException) -> BaseException:
     """``exc`` if it survives pickling, else a RuntimeError with its type and message."""
     try:
@@ -201,7 +228,7 @@ class _Sharing:
     def __init__(self, loop, jobs: list, n_workers: int, accept, pays):
         self.loop, self.jobs, self.n_helpers, self.accept, self.pays = loop, jobs, n_workers - 1, accept, pays
         self.ctx = multiprocessing.get_context("spawn")
-        self.counter, self.results = self.ctx.Value("q", 0), self.ctx.Queue()
+        self.counter, self.results = _Counter(), None
         self.helpers: list = []
         self.threads = WorkerThreads(n_workers)
         self.received, self.mine, self.took, self.ended = 0, 0, set(), set()
@@ -211,8 +238,9 @@ class _Sharing:
         """Spawn the helpers; from now on this process and each of them has the thread budget of
         one of the workers (the variables stay set here until :meth:`stop`)."""
         self.threads.__enter__()
+        shared, self.results = self.counter.share(self.ctx), self.ctx.Queue()
         self.helpers = [self.ctx.Process(target=_helper, daemon=True, name=f"skynav-helper-{i}",
-                                         args=(self.loop, self.jobs, self.counter, self.results, os.getpid(), i))
+                                         args=(self.loop, self.jobs, shared, self.results, os.getpid(), i))
                         for i in range(self.n_helpers)]
         with interrupts_to_this_process():  # Ctrl-C while a helper imports would be its traceback
             for p in self.helpers:
@@ -240,7 +268,7 @@ class _Sharing:
                                                                 time.perf_counter() - self.t0)):
             self.start_helpers()
         self.mine += 1
-        while not self.results.empty():
+        while self.results is not None and not self.results.empty():
             self.take(block=False)
 
     def emit(self, result) -> None:
