@@ -56,11 +56,17 @@ class ScreenFrame:
 
     Examples
     --------
-    See :func:`screen_frame`.
-
-    >>> from skynav.renderer import ScreenFrame
-    >>> sorted(ScreenFrame.__dataclass_fields__)[:3]
-    ['black_pedestal_e_per_camera_px', 'bodies', 'clipped_bright_px']
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, screen_frame
+    >>> from skynav.scenes import build_from_spec, default_scene_spec, screen_small_preset
+    >>> bench = screen_small_preset()
+    >>> scene = build_from_spec(dataclasses.replace(default_scene_spec(), camera=bench.camera))
+    >>> sf = screen_frame(scene, bench, rng=np.random.default_rng(1), options=RenderOptions(backend="numpy"))
+    >>> mars = sf.bodies[0]
+    >>> mars["name"], [round(c, 1) for c in mars["xy"]]   # the screen's centre, screen px
+    ('mars', [319.5, 319.5])
+    >>> int(sf.dn.max()) <= bench.screen.max_dn, len(sf.stars_xy) == len(sf.stars_electrons)
+    (True, True)
     """
 
     dn: np.ndarray
