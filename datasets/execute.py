@@ -317,11 +317,12 @@ class HelpersPay:
     (``first_s``, measured here) plus ``imports_s``. It pays once the frames left would keep this
     process busy for more than ``factor`` times that start-up at its own pace (the wall-clock time
     a frame has taken it since its first): then a helper that joins after its start-up still
-    takes a good share of them. On a small dataset no helper is started and ``--workers N``
-    runs as ``--workers 1``.
+    takes a good share of them (a helper gains half of what is left once it has joined, so it
+    pays from ``factor`` = 1; the margin covers a start-up longer than this estimate). On a
+    small dataset no helper is started and ``--workers N`` runs as ``--workers 1``.
     """
 
-    def __init__(self, *, imports_s: float = 1.0, factor: float = 3.0):
+    def __init__(self, *, imports_s: float = 1.0, factor: float = 1.5):
         self.imports_s, self.factor = imports_s, factor
         self.first_s = None
 

@@ -54,13 +54,13 @@ def test_two_worker_processes_identical(reference_dataset, tmp_path, monkeypatch
 def test_a_helper_starts_only_once_the_frames_left_pay_its_start_up():
     from skynav.datasets.execute import HelpersPay
 
-    pays = HelpersPay(imports_s=1.0, factor=3.0)
+    pays = HelpersPay(imports_s=1.0, factor=1.5)
     assert not pays(0, 400, 0.0)
-    assert not pays(1, 399, 2.0) and not pays(2, 398, 2.05)  # the first frame took 2 s: the start-up
-    assert pays(3, 397, 2.1)  # 397 frames at 50 ms = 20 s > 3 x (2 + 1) s
-    pays = HelpersPay(imports_s=1.0, factor=3.0)
+    assert not pays(1, 399, 2.0) and not pays(2, 398, 2.025)  # the first frame took 2 s: the start-up
+    assert pays(3, 397, 2.05)  # 397 frames at 25 ms = 9.9 s > 1.5 x (2 + 1) s
+    pays = HelpersPay(imports_s=1.0, factor=1.5)
     pays(1, 59, 2.0)
-    assert not pays(3, 57, 2.1)  # 57 frames at 50 ms = 2.9 s: the helper would not pay
+    assert not pays(3, 57, 2.05)  # 57 frames at 25 ms = 1.4 s: the helper would not pay
 
 
 def test_dask_local_cluster_identical(reference_dataset, tmp_path):
