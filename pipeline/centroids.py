@@ -132,17 +132,9 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     if img.ndim != 2 or img.size == 0:
         raise ValueError(f"image must be a non-empty 2-D array, got shape {img.shape}")
     H, W = img.shape
-    if threshold_dn is not None and background_dn is not None:
-        mu = sd = float("nan")
-        thr = float(threshold_dn)
-    else:
-        sub = img[::stats_stride, ::stats_stride].astype(np.float64)
-        mu = float(sub.mean())
-        sd = float(sub.std())
-        thr = mu + T * sd if threshold_dn is None else float(threshold_dn)
-        if not np.isfinite(thr) or (threshold_dn is None and sd == 0.0):
-            return Spots.empty(thr)
-    if not np.isfinite(thr):
+    thr, bg = _threshold_and_background(img, T=T, threshold_dn=threshold_dn, background_dn=background_dn,
+                                        stats_stride=stats_stride, background=background)
+    if not np.isfinite(thr) or bg is None:
         return Spots.empty(thr)
     flat_img = img.ravel()
     if windows_xy is None:
@@ -154,8 +146,44 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
         return Spots.empty(thr)
     if P > 200_000:  # not a star field (a blinded or flat frame): one region per pixel is pointless
         return Spots.empty(thr)
+    n, lab = _label_regions(f, W)
+    npix = np.bincount(lab, minlength=n)
+    flux, xc, yc, elong, i00 = _roi_moments(flat_img, f, lab, n, H, W, bg)
+    elong = np.where(npix >= 3, elong, 1.0)
+    peak = np.zeros(n)
+    np.maximum.at(peak, lab, flat_img[f].astype(np.float64))
+    size = _region_size(f, lab, n, H, W)
+    keep = np.flatnonzero((npix >= min_pixels) & (i00 > 0))
+    keep = keep[np.argsort(-flux[keep], kind="stable")][:max_regions]
+    sat = peak[keep] >= max_dn if max_dn is not None else np.zeros(len(keep), bool)
+    return Spots(xy_px=np.stack([xc[keep], yc[keep]], -1), flux_dn=flux[keep], peak_dn=peak[keep],
+                 n_pixels=npix[keep], saturated=sat, elongation=elong[keep], size_px=size[keep].astype(float),
+                 threshold_dn=thr)
+
+
+def _threshold_and_background(img, *, T, threshold_dn, background_dn, stats_stride, background):
+    """``(threshold, background)`` DN of :func:`detect_spots`: Eq. 6 (``mean + T std`` of every
+    ``stats_stride``-th row and column) unless ``threshold_dn`` is given; the background is
+    ``background_dn``, else that sample's mean or median. ``background`` None: no spot can be found
+    (a non-finite threshold, or a flat frame under Eq. 6)."""
+    if threshold_dn is not None and background_dn is not None:
+        return float(threshold_dn), float(background_dn)
+    sub = img[::stats_stride, ::stats_stride].astype(np.float64)
+    mu = float(sub.mean())
+    sd = float(sub.std())
+    thr = mu + T * sd if threshold_dn is None else float(threshold_dn)
+    if not np.isfinite(thr) or (threshold_dn is None and sd == 0.0):
+        return thr, None
+    if background_dn is not None:
+        return thr, float(background_dn)
+    return thr, (mu if background == "mean" else float(np.median(sub)))
+
+
+def _label_regions(f, W):
+    """``(n, labels)``: the 8-connected regions of the pixels at the sorted flat indices ``f`` of
+    an image ``W`` wide (links to the right and to the next row, found by searching ``f``)."""
+    P = len(f)
     col = f % W
-    # 8-neighbour links to the right and to the next row (the sorted flat indices are searched)
     src, dst = [np.arange(P)], [np.arange(P)]
     for off, ok in ((1, col < W - 1), (W - 1, col > 0), (W, np.ones(P, bool)), (W + 1, col < W - 1)):
         g = f + off
@@ -166,15 +194,15 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
         dst.append(pos_c[hit])
     src, dst = np.concatenate(src), np.concatenate(dst)
     graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(P, P))
-    n, lab = connected_components(graph, directed=False)
-    npix = np.bincount(lab, minlength=n)
-    if background_dn is not None:
-        bg = float(background_dn)
-    else:
-        bg = mu if background == "mean" else float(np.median(sub))
-    # ROI: the region's pixels plus their 8-neighbours (first label wins where two margins meet)
-    rows = f // W
-    offs_r = np.repeat(np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1]), 1)
+    return connected_components(graph, directed=False)
+
+
+def _roi_moments(flat_img, f, lab, n, H, W, bg):
+    """``(flux, xc, yc, elongation, i00)`` per region: Eq. 7-8 over its ROI, the region's pixels
+    plus their 8-neighbours (the first label wins where two margins meet), intensities above
+    ``bg``; the elongation from the ``I^2``-weighted second moments (nan where ``i00`` is 0)."""
+    rows, col = f // W, f % W
+    offs_r = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])
     offs_c = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1])
     rr = (rows[None, :] + offs_r[:, None]).ravel()
     cc = (col[None, :] + offs_c[:, None]).ravel()
@@ -191,9 +219,6 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
     i10 = np.bincount(ll, I2 * cc, minlength=n)
     i01 = np.bincount(ll, I2 * rr, minlength=n)
     flux = np.bincount(ll, I, minlength=n)
-    peak = np.zeros(n)
-    np.maximum.at(peak, lab, flat_img[f].astype(np.float64))
-    good = (npix >= min_pixels) & (i00 > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         xc = i10 / i00
         yc = i01 / i00
@@ -203,17 +228,21 @@ def detect_spots(image, *, T: float = 5.0, max_dn: float | None = None, min_pixe
         tr, det = cxx + cyy, cxx * cyy - cxy * cxy
         disc = np.sqrt(np.clip(tr * tr / 4 - det, 0.0, None))
         elong = np.sqrt((tr / 2 + disc) / np.clip(tr / 2 - disc, 1e-6, None))
-    elong = np.where(npix >= 3, elong, 1.0)
-    rmin = np.full(n, H); rmax = np.zeros(n, int); cmin = np.full(n, W); cmax = np.zeros(n, int)
-    np.minimum.at(rmin, lab, rows); np.maximum.at(rmax, lab, rows)
-    np.minimum.at(cmin, lab, col); np.maximum.at(cmax, lab, col)
-    size = np.maximum(rmax - rmin, cmax - cmin) + 1
-    keep = np.flatnonzero(good)
-    keep = keep[np.argsort(-flux[keep], kind="stable")][:max_regions]
-    sat = peak[keep] >= max_dn if max_dn is not None else np.zeros(len(keep), bool)
-    return Spots(xy_px=np.stack([xc[keep], yc[keep]], -1), flux_dn=flux[keep], peak_dn=peak[keep],
-                 n_pixels=npix[keep], saturated=sat, elongation=elong[keep], size_px=size[keep].astype(float),
-                 threshold_dn=thr)
+    return flux, xc, yc, elong, i00
+
+
+def _region_size(f, lab, n, H, W):
+    """The largest side of each region's bounding box, px."""
+    rows, col = f // W, f % W
+    rmin = np.full(n, H)
+    rmax = np.zeros(n, int)
+    cmin = np.full(n, W)
+    cmax = np.zeros(n, int)
+    np.minimum.at(rmin, lab, rows)
+    np.maximum.at(rmax, lab, rows)
+    np.minimum.at(cmin, lab, col)
+    np.maximum.at(cmax, lab, col)
+    return np.maximum(rmax - rmin, cmax - cmin) + 1
 
 
 def _window_pixels(xy, half, H, W, flat_img, thr) -> np.ndarray:

@@ -116,26 +116,9 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
         return FrameResult(status=status, attitude=AttitudeResult(), timings_ms=timings, mode=mode,
                            centroids_xy_px=np.asarray(spots_xy, float).reshape(-1, 2))
 
-    cam = observation.camera
-    img = _readable_image(observation.dn, cam)
-    if img is None:
-        return fail("bad_image")
-    max_dn = float(2 ** cam.sensor.bit_depth - 1)
-    # the saturated fraction from every 8th row and column (a 1024^2 frame: 16384 pixels, +-0.4 %
-    # at 1 sigma near the 50 % limit)
-    levels = Levels(img, histogram=how.histogram_levels)
-    if levels.count_at_least(max_dn) > opt.saturated_fraction * levels.sub.size:
-        return fail("saturated")
-
-    v_km_s = None if predicted_state is None else np.asarray(predicted_state.velocity_km_s, float)
-    r_km = np.zeros(3) if predicted_state is None else np.asarray(predicted_state.position_km, float)
-    if predicted_state is not None and body_states is None:
-        body_states = BodyStates(default_ephemeris() if ephemeris is None else ephemeris, observation.epoch_tdb_s)
-    star_dirs = StarDirections(catalog, lambda src, idx: how.star_directions(catalog, src, idx,
-                                                                          observation.epoch_tdb_s, r_km, v_km_s))
-    fr = _Frame(observation=observation, img=img, max_dn=max_dn, levels=levels, catalog=catalog, star_dirs=star_dirs,
-                predicted_state=predicted_state, v_km_s=v_km_s, body_states=body_states, how=how, opt=opt)
-
+    fr = _frame(observation, catalog, predicted_state, how, opt, ephemeris, body_states)
+    if isinstance(fr, str):
+        return fail(fr)
     found = _identify(fr, previous_attitude, timings)
     if found.match is None:
         return fail(found.status, found.spots.xy_px)
@@ -145,14 +128,36 @@ def process_frame(observation, *, catalog, predicted_state=None, previous_attitu
     timings["attitude"] = (time.perf_counter() - ta0) * 1e3
 
     tb0 = time.perf_counter()
-    beacons = ()
-    if predicted_state is not None:
-        beacons = _beacons(fr, found, att, match, mode, np.asarray(ref.v_mag))
+    beacons = () if predicted_state is None else _beacons(fr, found, att, match, mode, np.asarray(ref.v_mag))
     timings["beacons"] = (time.perf_counter() - tb0) * 1e3
     timings["total"] = (time.perf_counter() - t0) * 1e3
     return FrameResult(status="ok", attitude=att, centroids_xy_px=centroids, beacons=beacons, timings_ms=timings,
                        mode=mode, star_id_method=found.method, matched_star_ids=np.asarray(ref.hip)[match.star_index],
                        matched_spot_index=np.asarray(match.spot_index))
+
+
+def _frame(observation, catalog, predicted_state, how, opt, ephemeris, body_states):
+    """The :class:`_Frame` of one call, or the status of a frame that cannot be processed
+    (``"bad_image"``, ``"saturated"``)."""
+    cam = observation.camera
+    img = _readable_image(observation.dn, cam)
+    if img is None:
+        return "bad_image"
+    max_dn = float(2 ** cam.sensor.bit_depth - 1)
+    # the saturated fraction from every 8th row and column (a 1024^2 frame: 16384 pixels, +-0.4 %
+    # at 1 sigma near the 50 % limit)
+    levels = Levels(img, histogram=how.histogram_levels)
+    if levels.count_at_least(max_dn) > opt.saturated_fraction * levels.sub.size:
+        return "saturated"
+    v_km_s = None if predicted_state is None else np.asarray(predicted_state.velocity_km_s, float)
+    r_km = np.zeros(3) if predicted_state is None else np.asarray(predicted_state.position_km, float)
+    if predicted_state is not None and body_states is None:
+        body_states = BodyStates(default_ephemeris() if ephemeris is None else ephemeris, observation.epoch_tdb_s)
+    star_dirs = StarDirections(catalog, lambda src, idx: how.star_directions(catalog, src, idx,
+                                                                          observation.epoch_tdb_s, r_km, v_km_s))
+    return _Frame(observation=observation, img=img, max_dn=max_dn, levels=levels, catalog=catalog,
+                  star_dirs=star_dirs, predicted_state=predicted_state, v_km_s=v_km_s, body_states=body_states,
+                  how=how, opt=opt)
 
 
 def _readable_image(dn, cam):

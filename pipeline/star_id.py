@@ -113,25 +113,13 @@ def lost_in_space(b_cam, cat, *, eps_rad, rel_eps=2.5e-4, n_max=12, top_k=3, max
     n = len(b)
     if n < 3:
         return None
-    ncat = len(cat.hip)
     ii, jj, ang, eps, pair_of, I, J = _pair_candidates(cat, b, eps_rad, rel_eps)
     if len(I) == 0:
         return None
-    a_spot, b_spot = ii[pair_of], jj[pair_of]
-    # each catalog pair votes for both its stars at both its spots (reference-star method)
-    flat = np.concatenate([a_spot * ncat + I, a_spot * ncat + J, b_spot * ncat + I, b_spot * ncat + J])
-    votes = np.bincount(flat, minlength=n * ncat).reshape(n, ncat)
-    top = np.argpartition(-votes, top_k, axis=1)[:, :top_k]
-    hyp_spot = np.repeat(np.arange(n), top_k)
-    hyp_star = top.ravel()
-    hyp_votes = votes[hyp_spot, hyp_star]
-    ok = hyp_votes >= 2
-    hyp_spot, hyp_star, hyp_votes = hyp_spot[ok], hyp_star[ok], hyp_votes[ok]
-    if len(np.unique(hyp_spot)) < 3:
+    hyp = _vote(n, len(cat.hip), ii[pair_of], jj[pair_of], I, J, top_k)
+    if hyp is None:
         return None
-    order = np.argsort(-hyp_votes, kind="stable")
-    hyp_spot, hyp_star, hyp_votes = hyp_spot[order], hyp_star[order], hyp_votes[order]
-    m = len(hyp_spot)
+    hyp_spot, hyp_star = hyp
     r_h = cat.u_icrs[hyp_star]
     b_h = b[hyp_spot]
     cos_in = np.cos(inlier_rad)
@@ -140,38 +128,14 @@ def lost_in_space(b_cam, cat, *, eps_rad, rel_eps=2.5e-4, n_max=12, top_k=3, max
     pair_eps = np.zeros((n, n))
     pair_ang[ii, jj] = pair_ang[jj, ii] = ang
     pair_eps[ii, jj] = pair_eps[jj, ii] = eps
-
-    def triples():
-        if random_triples:
-            rng_ = np.random.default_rng(rng)
-            for _ in range(max_triples):
-                yield tuple(rng_.choice(m, 3, replace=False))
-        else:
-            count = 0
-            lim = min(m, 12)
-            for c in range(2, lim):
-                for bb in range(1, c):
-                    for a in range(bb):
-                        yield (a, bb, c)
-                        count += 1
-                        if count >= max_triples:
-                            return
-
     best = None
     best_score = 2
-    for t in triples():
+    for t in _triples(len(hyp_spot), random_triples=random_triples, rng=rng, max_triples=max_triples):
         s = hyp_spot[list(t)]
         st = hyp_star[list(t)]
         if len(set(s.tolist())) < 3 or len(set(st.tolist())) < 3:
             continue
-        # triangle check: the three catalog angles match the measured ones
-        good = True
-        for p, q in ((0, 1), (0, 2), (1, 2)):
-            ca = np.arccos(np.clip(r_h[t[p]] @ r_h[t[q]], -1.0, 1.0))
-            if abs(ca - pair_ang[s[p], s[q]]) > pair_eps[s[p], s[q]]:
-                good = False
-                break
-        if not good:
+        if not _triangle_agrees(r_h[list(t)], s, pair_ang, pair_eps):
             continue
         A = wahba_svd(b_h[list(t)], r_h[list(t)])
         agree = np.einsum("ij,ij->i", (r_h @ A.T), b_h) > cos_in
@@ -188,6 +152,52 @@ def lost_in_space(b_cam, cat, *, eps_rad, rel_eps=2.5e-4, n_max=12, top_k=3, max
             if score >= min(n, 8) and not random_triples:
                 break
     return best
+
+
+def _vote(n, ncat, a_spot, b_spot, I, J, top_k):
+    """Reference-star votes: each candidate catalog pair votes for both its stars at both its
+    spots; ``(hyp_spot, hyp_star)``, the ``top_k`` stars of each spot with at least 2 votes, most
+    votes first, or None when fewer than 3 spots hold one."""
+    flat = np.concatenate([a_spot * ncat + I, a_spot * ncat + J, b_spot * ncat + I, b_spot * ncat + J])
+    votes = np.bincount(flat, minlength=n * ncat).reshape(n, ncat)
+    top = np.argpartition(-votes, top_k, axis=1)[:, :top_k]
+    hyp_spot = np.repeat(np.arange(n), top_k)
+    hyp_star = top.ravel()
+    hyp_votes = votes[hyp_spot, hyp_star]
+    ok = hyp_votes >= 2
+    hyp_spot, hyp_star, hyp_votes = hyp_spot[ok], hyp_star[ok], hyp_votes[ok]
+    if len(np.unique(hyp_spot)) < 3:
+        return None
+    order = np.argsort(-hyp_votes, kind="stable")
+    return hyp_spot[order], hyp_star[order]
+
+
+def _triples(m, *, random_triples, rng, max_triples):
+    """Index triples of the ``m`` hypotheses to try: ``max_triples`` random ones (paper mode), or
+    those of the 12 best-voted in order (``a < b < c``, growing ``c``), at most ``max_triples``."""
+    if random_triples:
+        rng_ = np.random.default_rng(rng)
+        for _ in range(max_triples):
+            yield tuple(rng_.choice(m, 3, replace=False))
+        return
+    count = 0
+    for c in range(2, min(m, 12)):
+        for bb in range(1, c):
+            for a in range(bb):
+                yield (a, bb, c)
+                count += 1
+                if count >= max_triples:
+                    return
+
+
+def _triangle_agrees(r3, s, pair_ang, pair_eps) -> bool:
+    """The three catalog angles of the stars ``r3`` (3, 3) match the measured angles of their spots
+    ``s`` within the pair tolerances."""
+    for p, q in ((0, 1), (0, 2), (1, 2)):
+        ca = np.arccos(np.clip(r3[p] @ r3[q], -1.0, 1.0))
+        if abs(ca - pair_ang[s[p], s[q]]) > pair_eps[s[p], s[q]]:
+            return False
+    return True
 
 
 def associate(A, b_cam, star_u_icrs, star_index, *, tol_rad):

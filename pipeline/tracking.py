@@ -41,7 +41,6 @@ def track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state
     """
     cam = observation.camera
     half_fov = cam.half_diagonal_fov_rad
-    ifov = cam.ifov_rad
     hw = int(np.ceil(opt.track_window_px))
     source = catalog.deep_stars(opt.refine_v_mag) if opt.refine_v_mag > catalog.limiting_v_mag else catalog.stars
     idx, u = star_dirs(R_prev[2], half_fov, source)
@@ -49,9 +48,34 @@ def track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state
         return None
     vmag = np.asarray(source.v_mag).take(idx)
     med, thr = robust_level(img, opt.T) if level is None else level
+    A = _coarse_attitude(img, cam, u, vmag, R_prev, catalog.limiting_v_mag, opt, hw, med, thr)
+    if A is None:
+        return None
+    fine = _fine_stars(img, cam, u, A, opt, med, thr, max_dn)
+    if fine is None:
+        return None
+    star_spots, star_rows, b, A, keep = fine
+    beacons = _beacon_windows(img, observation, predicted_state, A, opt, hw, med, thr, max_dn, body_states)
+    if beacons is None:
+        return None
+    beacon_spots, preds = beacons
+    spots = concat_spots(star_spots, beacon_spots)
+    sp = keep.nonzero()[0]
+    rows = star_rows.take(sp)
+    st = idx.take(rows)
+    residual = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", u.take(rows, axis=0) @ A.T, b.take(sp, axis=0)),
+                                               -1.0), 1.0))
+    match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
+    return spots, b, match, source, preds
 
-    # pass 1: bright stars, wide search
-    sel = (vmag <= catalog.limiting_v_mag).nonzero()[0]
+
+def _coarse_attitude(img, cam, u, vmag, R_prev, id_limit_v_mag, opt, hw, med, thr):
+    """Pass 1: the attitude from the brightest ID-catalog stars (``vmag`` <= ``id_limit_v_mag``)
+    predicted from ``R_prev``, located by :func:`~skynav.pipeline.windows.window_peaks`, with one
+    residual clip; None unless ``min_matches`` stars agree and the solution lies within the
+    windows' capture range of the prior."""
+    ifov = cam.ifov_rad
+    sel = (vmag <= id_limit_v_mag).nonzero()[0]
     xy = cam.project(u.take(sel, axis=0) @ R_prev.T)
     inside = cam.in_image(xy, -float(hw))  # NaN (behind the camera) compares False: not inside
     sel, xy = sel.compress(inside), xy.compress(inside, axis=0)
@@ -70,29 +94,22 @@ def track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state
     dR = A @ R_prev.T
     if math.acos(min(max((dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0) / 2.0, -1.0), 1.0)) > max(hw - 4.0, 1.0) * ifov:
         return None
+    return A
 
-    # pass 2: every catalog star to refine_v_mag, from the pass-1 attitude
+
+def _fine_stars(img, cam, u, A, opt, med, thr, max_dn):
+    """Pass 2: every catalog star to ``refine_v_mag`` predicted from the pass-1 attitude ``A``,
+    measured within 1 px (:func:`~skynav.pipeline.windows.window_centroids`), kept within
+    ``refine_px``, one spot per star; Wahba with the residual clip. ``(star_spots, star_rows, b,
+    A, keep)`` (``star_rows``: the stars' rows of ``u``; ``b``: their spots' lines of sight), or
+    None with fewer than ``min_matches`` stars."""
     ua = u @ A.T
     xy = cam.project(ua)
     inside = cam.in_image(xy, -2.0).nonzero()[0]
     w2 = window_centroids(img, xy.take(inside, axis=0), threshold_dn=thr, background_dn=med, search_half_px=1)
     b2 = cam.line_of_sight(np.where(w2.valid[:, None], w2.xy_px, 0.0))
     res = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", ua.take(inside, axis=0), b2), -1.0), 1.0))
-    got = w2.valid & (res <= opt.refine_px * ifov)
-    # one spot per star and one star per spot: two predictions landing on the same peak
-    # (a close pair) both drop
-    got_i = got.nonzero()[0]
-    if len(got_i) > 1:
-        pk = np.rint(w2.xy_px.take(got_i, axis=0)).astype(np.intp)
-        key = pk[:, 1] * cam.width + pk[:, 0]
-        order = np.argsort(key, kind="stable")
-        same = key[order[1:]] == key[order[:-1]]  # neighbours in sorted order sharing a pixel
-        if same.any():
-            dup = np.zeros(len(key), dtype=bool)
-            dup[order[1:][same]] = True
-            dup[order[:-1][same]] = True
-            got[got_i[dup]] = False
-            got_i = got.nonzero()[0]
+    got_i = _one_spot_per_star(w2.valid & (res <= opt.refine_px * cam.ifov_rad), w2.xy_px, cam.width)
     if len(got_i) < opt.min_matches:
         return None
     star_rows = inside.take(got_i)
@@ -107,34 +124,52 @@ def track_windowed(img, observation, catalog, R_prev, star_dirs, predicted_state
     star_spots = Spots(xy_px=w2.xy_px.take(got_i, axis=0), flux_dn=w2.flux_dn.take(got_i), peak_dn=peak,
                        n_pixels=npx, saturated=peak >= max_dn, elongation=np.ones(n_st),
                        size_px=np.sqrt(np.maximum(npx, 1.0)), threshold_dn=thr)
+    return star_spots, star_rows, b, A, keep
 
-    # pass 3: the beacons' windows
-    beacon_spots = Spots.empty(thr)
-    preds = None
-    if predicted_state is not None:
-        try:
-            preds = predict_beacons(observation.epoch_tdb_s, predicted_state, A, cam, mode="improved",
-                                    sigma_qv=opt.sigma_qv, body_states=body_states)
-        except Exception:  # noqa: BLE001 - no ephemeris: the full-frame path decides
+
+def _one_spot_per_star(got, xy_px, width):
+    """The indices where ``got`` holds, less the predictions landing on the same peak pixel as
+    another (a close pair: both drop), so that each spot has one star and each star one spot."""
+    got_i = got.nonzero()[0]
+    if len(got_i) > 1:
+        pk = np.rint(xy_px.take(got_i, axis=0)).astype(np.intp)
+        key = pk[:, 1] * width + pk[:, 0]
+        order = np.argsort(key, kind="stable")
+        same = key[order[1:]] == key[order[:-1]]  # neighbours in sorted order sharing a pixel
+        if same.any():
+            dup = np.zeros(len(key), dtype=bool)
+            dup[order[1:][same]] = True
+            dup[order[:-1][same]] = True
+            got = got.copy()
+            got[got_i[dup]] = False
+            got_i = got.nonzero()[0]
+    return got_i
+
+
+def _beacon_windows(img, observation, predicted_state, A, opt, hw, med, thr, max_dn, body_states):
+    """Pass 3: ``(beacon_spots, predictions)``: the beacons predicted with ``A`` and their windows
+    (``track_window_px`` + the 3-sigma reach) through
+    :func:`~skynav.pipeline.windows.spots_in_boxes`; no predicted state: no beacons. None when a
+    window would pass ``track_window_max_px`` or no ephemeris answers (the full frame decides)."""
+    if predicted_state is None:
+        return Spots.empty(thr), None
+    cam = observation.camera
+    try:
+        preds = predict_beacons(observation.epoch_tdb_s, predicted_state, A, cam, mode="improved",
+                                sigma_qv=opt.sigma_qv, body_states=body_states)
+    except Exception:  # noqa: BLE001 - no ephemeris: the full-frame path decides
+        return None
+    win, half = [], []
+    for p in preds:
+        reach = math.sqrt(CHI2_2DOF_3SIGMA * max(max_eig_2x2(p.cov_px2), 0.0))
+        if reach + hw > opt.track_window_max_px:
             return None
-        win, half = [], []
-        for p in preds:
-            reach = math.sqrt(CHI2_2DOF_3SIGMA * max(max_eig_2x2(p.cov_px2), 0.0))
-            if reach + hw > opt.track_window_max_px:
-                return None
-            win.append(p.xy_px)
-            half.append(reach + hw)
-        if win:
-            beacon_spots = spots_in_boxes(img, np.asarray(win), np.asarray(half), threshold_dn=thr, background_dn=med,
-                                          max_dn=max_dn)
-    spots = concat_spots(star_spots, beacon_spots)
-    sp = keep.nonzero()[0]
-    rows = star_rows.take(sp)
-    st = idx.take(rows)
-    residual = np.arccos(np.minimum(np.maximum(np.einsum("ij,ij->i", u.take(rows, axis=0) @ A.T, b.take(sp, axis=0)),
-                                               -1.0), 1.0))
-    match = StarMatch(R_cam_icrs=A, spot_index=sp, star_index=st, residual_rad=residual)
-    return spots, b, match, source, preds
+        win.append(p.xy_px)
+        half.append(reach + hw)
+    if not win:
+        return Spots.empty(thr), preds
+    return spots_in_boxes(img, np.asarray(win), np.asarray(half), threshold_dn=thr, background_dn=med,
+                          max_dn=max_dn), preds
 
 
 def clip_residuals(b, u, A, *, floor_rad):
