@@ -9,11 +9,47 @@ from skynav.calibration.facility_io import load_facility
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
 
-from .cli_args import MAX_WORKERS, add_facility_arg, add_workers_arg, positive_int
+from .cli_args import MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_arg, int_in, positive_int
 from .cli_common import COMMAND_HELP, fail
 
 
+def cmd_serve_vizard(args) -> int:
+    """``skynav serve --vizard``: the Vizard-compatible image endpoint (skynav.service.vizard)."""
+    # lazy: the endpoint loads zmq, protobuf and the renderer; skynav --help loads none of them
+    from skynav.scenes.config import load_scene_mapping
+    from skynav.scenes.overrides import apply_overrides
+    from skynav.service.vizard import BASE_SECTIONS, VizardEndpoint, VizardStartError, serve_vizard
+
+    if not is_loopback(args.host) and not args.insecure:
+        return fail(f"--host {args.host}: the Vizard endpoint has no token; binding an address other than "
+                    "loopback needs --insecure (anyone who reaches it may make it render)")
+    base = {}
+    if args.camera is not None:
+        section = load_scene_mapping(args.camera)
+        base["camera"] = section["camera"] if isinstance(section.get("camera"), dict) else section
+    if args.overrides:
+        base = apply_overrides(base, args.overrides)
+    if args.truth_dir is not None:
+        try:
+            os.makedirs(args.truth_dir, exist_ok=True)
+        except OSError as exc:
+            return fail(f"--truth-dir {args.truth_dir}: cannot make the folder ({exc.strerror or exc})")
+    unknown = sorted(set(base) - set(BASE_SECTIONS))
+    if unknown:
+        return fail(f"--set {unknown[0]}.*: the endpoint takes {', '.join(BASE_SECTIONS)} "
+                    "(the rest of the scene comes from Basilisk)")
+    endpoint = VizardEndpoint(base, truth_dir=args.truth_dir)
+    try:
+        serve_vizard(endpoint, host=args.host, port=args.vizard_port, ready=lambda line: print(line, flush=True))
+    except VizardStartError as exc:
+        return fail(str(exc))
+    print(f"skynav serve: stopped ({endpoint.frames} frames)", file=sys.stderr)
+    return 0
+
+
 def cmd_serve(args) -> int:
+    if args.vizard:
+        return cmd_serve_vizard(args)
     if args.port < 0 or args.port > 65535:
         return fail(f"--port {args.port}: expected 0..65535 (0: any free port)")
     token = args.token
@@ -71,4 +107,15 @@ def add_parser(sub) -> None:
     s.add_argument("--max-camera-pixels", type=positive_int, default=MAX_CAMERA_PIXELS, help="largest frame, width x height")
     s.add_argument("--max-queue", type=positive_int, default=MAX_QUEUE, help="requests that may wait for a worker")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
+    v = s.add_argument_group("Vizard endpoint", "Basilisk's vizInterface (noDisplay) gets skynav frames "
+                             "(docs/service.md); serves instead of HTTP")
+    v.add_argument("--vizard", action="store_true", help="serve Basilisk's vizInterface as Vizard would: a "
+                   "ZeroMQ REP socket on --host:--vizard-port answering PING, SIM_UPDATE and REQUEST_IMAGE_<id>")
+    v.add_argument("--vizard-port", type=int_in(0, 65535, "0: any free port"), default=5556, metavar="PORT",
+                   help="the endpoint's TCP port (default 5556, vizInterface's reqPortNumber; 0: any free port)")
+    v.add_argument("--camera", default=None, metavar="FILE", help="camera YAML (a scene file's camera: section): "
+                   "optics and sensor; its width, height and fov_deg, if given, must be Basilisk's")
+    add_set_arg(v, "the endpoint's camera.*, render.*, visibility.* (e.g. --set camera.exposure_s=0.001)")
+    v.add_argument("--truth-dir", default=None, metavar="DIR", help="keep each frame's PNG, truth JSON and "
+                   "scene file here (NNNNNN.png, .json, .scene.yaml)")
     s.set_defaults(func=cmd_serve)
