@@ -178,11 +178,14 @@ def add_dataset_arg(parser, help: str = "dataset folder") -> None:
 
 
 class _Facility(argparse.Action):
-    """Stores a facility; the same facility given twice under two spellings must agree."""
+    """Stores a facility; the same facility given twice under two spellings must agree, and an
+    empty one is refused (it would name the current folder)."""
 
     def __call__(self, parser, namespace, value, option_string=None):
         given = getattr(namespace, "_facility_given", None)
         spelling = option_string or "FACILITY"
+        if value is not None and not str(value).strip():
+            parser.error(f"{spelling} {value!r}: expected a facility YAML file or a preset (screen, screen_small)")
         if given is not None and given[1] != value:
             parser.error(f"{given[0]} {given[1]} and {spelling} {value}: give the facility once, as --facility")
         setattr(namespace, "_facility_given", (spelling, value))

@@ -241,6 +241,12 @@ def test_render_hil_with_an_empty_facility_is_refused(tmp_path, option, capsys):
     assert not (tmp_path / "r").exists()
 
 
+def test_an_empty_facility_is_refused_by_hil_export_too(small_ds, tmp_path, capsys):
+    """'' would name the current folder: the output was said to be 'inside the input facility folder'."""
+    line = _one_error_line(*_cli(["hil", "export", str(small_ds), "--facility", "", "-o", str(tmp_path / "e")], capsys))
+    assert line.startswith("--facility '': ") and SMALL in line
+
+
 @pytest.mark.parametrize("option", ["--hil", "--facility"])
 def test_render_hil_with_fits_is_refused(tmp_path, option, capsys):
     line = _one_error_line(*_cli(["render", option, SMALL, "--fits", "-o", str(tmp_path / "r")], capsys))
