@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import os
 import warnings
 
 from skynav.infra.errors import ConfigValueError, SkynavWarning
@@ -38,17 +39,27 @@ def unknown_keys(record, schema: str) -> list:
     return sorted(k for k in record if k not in known_keys(schema)) if isinstance(record, dict) else []
 
 
-def note_unknown_keys(where, keys, what: str) -> None:
+def note_unknown_keys(where, keys, what: str, *, kind: str | None = None) -> None:
     """One warning naming the keys a reader kept and ignored (nothing when there are none).
 
-    ``where`` names the dataset or file, so Python's warning registry prints it once per dataset
-    and call site; the command line prints it as one ``skynav: warning:`` line.
+    Said once per process for each ``where`` (a dataset folder or a file) and ``kind`` of record
+    (default ``what``): a dataset opened again, by another reader or from another call site, is
+    not said again. The command line prints it as one ``skynav: warning:`` line.
     """
     keys = sorted(set(keys))
-    if keys:
-        shown = ", ".join(keys[:8]) + (f" (+{len(keys) - 8} more)" if len(keys) > 8 else "")
-        warnings.warn(f"{where}: {what} has keys this skynav does not know ({shown}); kept and ignored",
-                      SkynavWarning, stacklevel=3)
+    if not keys:
+        return
+    said = (os.path.realpath(os.fspath(where)), kind or what)
+    if said in _SAID:
+        return
+    _SAID.add(said)
+    shown = ", ".join(keys[:8]) + (f" (+{len(keys) - 8} more)" if len(keys) > 8 else "")
+    warnings.warn(f"{where}: {what} has keys this skynav does not know ({shown}); kept and ignored",
+                  SkynavWarning, stacklevel=3)
+
+
+#: (dataset or file, kind of record) already said by :func:`note_unknown_keys` in this process
+_SAID: set = set()
 
 
 def camera_from_record(record, *, max_unknown: int = 64):

@@ -217,7 +217,7 @@ def check_dataset_cameras(ds, facility, dataset_path) -> None:
         if key not in seen:
             try:
                 seen[key], extra = camera_from_record(cam_d)
-                note_unknown_keys(dataset_path, extra, f"frame {k}'s camera")
+                note_unknown_keys(dataset_path, extra, f"frame {k}'s camera", kind="camera")
             except (SkynavError, KeyError, TypeError, ValueError) as exc:
                 raise TruthSchemaError(f"{where}: frame {k}'s camera cannot be read ({exc.__class__.__name__}: "
                                        f"{' '.join(str(exc).split())[:120]})", []) from None

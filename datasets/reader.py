@@ -304,7 +304,7 @@ class Dataset:
             extra = unknown_keys(truth, FRAME_SCHEMA)
             if extra:
                 self._noted.add("truth")
-                note_unknown_keys(self.root, extra, f"frame {i}'s truth")
+                note_unknown_keys(self.root, extra, f"frame {i}'s truth", kind="truth")
         return truth, image, rel
 
     def __getitem__(self, k) -> FrameRecord:
@@ -339,7 +339,7 @@ class Dataset:
             camera, extra = camera_from_record(truth["camera"])
             if extra and "camera" not in self._noted:
                 self._noted.add("camera")
-                note_unknown_keys(self.root, extra, f"frame {i}'s camera")
+                note_unknown_keys(self.root, extra, f"frame {i}'s camera", kind="camera")
             return make_observation(truth, dn, index=i, calibration_error=calibration_error, camera=camera)
         except (SkynavError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
             raise self._truth_error(i, exc) from None
