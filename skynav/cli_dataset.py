@@ -96,7 +96,8 @@ def _check_output_png(out: str) -> None:
 
 def cmd_preview(args) -> int:
     datasets.open(args.dataset)  # a missing or incomplete dataset is named first
-    out = args.output or str(Path(args.dataset) / "preview.png")
+    # by default in the current folder, named after the dataset: never a write into the input
+    out = args.output or f"{Path(args.dataset).resolve().name or 'dataset'}_preview.png"
     _check_output_png(out)
     path = datasets.preview(args.dataset, out, count=args.count, columns=args.columns)
     print(f"contact sheet: {path} (a quick look of each frame: zscale limits and an asinh stretch, for the eye; "
@@ -146,10 +147,11 @@ def add_parser(sub) -> None:
     i.set_defaults(func=cmd_info)
     p = dsub.add_parser("preview", help="write a contact sheet PNG with ground-truth overlays",
                         description="Write a contact sheet PNG of a dataset with star circles and body labels; for a"
-                                    " sequence, also the planets' V along the legs, next to the sheet: preview_legs_vmag.png for"
-                                    " the default DATASET/preview.png, STEM_legs_vmag.png for -o STEM.png.")
+                                    " sequence, also the planets' V along the legs, next to the sheet: STEM_legs_vmag.png for"
+                                    " -o STEM.png. The dataset is read only: the default sheet is NAME_preview.png in the"
+                                    " current folder, NAME the dataset folder's.")
     add_dataset_arg(p)
-    add_output_arg(p, required=False, help="PNG path (default: DATASET/preview.png)")
+    add_output_arg(p, required=False, help="PNG path (default: NAME_preview.png here, NAME the dataset folder's)")
     p.add_argument("--count", type=positive_int, default=16, help="frames on the sheet (default 16)")
     p.add_argument("--columns", type=positive_int, default=4, help="tiles per row (default 4)")
     p.set_defaults(func=cmd_preview)

@@ -83,3 +83,21 @@ def test_a_flat_image_is_black_and_a_quantised_sky_is_dark_grey():
     dn[10, 10], dn[20, 20], dn[30, 30] = 3, 5, 200
     q = quicklook_u8(dn)
     assert 20 < np.median(q) < q[10, 10] < q[20, 20] < q[30, 30] == 255
+
+
+def test_dataset_preview_never_writes_into_the_dataset(tmp_path, monkeypatch, capsys):
+    import hashlib
+
+    recipe = datasets.preset_recipe("montecarlo")
+    recipe.update(frames=1, formats=["png", "json"], camera={"preset": "paper", "width": 64, "height": 64})
+    datasets.generate(recipe, tmp_path / "mc", workers=1, progress=False)
+
+    def tree():
+        return {p.relative_to(tmp_path / "mc").as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted((tmp_path / "mc").rglob("*")) if p.is_file()}
+
+    before = tree()
+    monkeypatch.chdir(tmp_path)
+    assert main(["dataset", "preview", "mc"]) == 0
+    assert "mc_preview.png" in capsys.readouterr().out
+    assert (tmp_path / "mc_preview.png").is_file() and tree() == before
