@@ -2,7 +2,7 @@
 
 Reads only files: the facility (nominal model and camera), ``patterns.json`` and the captures.
 Dots are detected (:mod:`.detect`) and identified (:mod:`.identify`) per capture; the physical
-model of :class:`~skynav.scenes.facility.GeometricModel` is fitted by Levenberg-Marquardt
+model of :class:`~skynav.scenes.screen.GeometricModel` is fitted by Levenberg-Marquardt
 minimising the line-of-sight error (chord between unit vectors ~ angle, rad), then a smooth
 residual field (least-squares bicubic spline) absorbs what the physical model misses. A random
 20 % of the dots (by dot, over all phases) are held out of both fits and give the honest residuals
@@ -21,7 +21,8 @@ from scipy.interpolate import LSQBivariateSpline
 from scipy.optimize import least_squares
 
 from skynav.scenes.constants import ARCSEC_RAD
-from skynav.scenes.facility import Facility, FlatField, GeometricModel, ResidualField
+from skynav.scenes.facility import Facility, FlatField
+from skynav.scenes.screen import GeometricModel, ResidualField
 
 from .detect import detect_dots, relative_response
 from .errors import CalibrationInputError, CaptureMismatchError, IdentificationError

@@ -35,8 +35,9 @@ from scipy.signal import fftconvolve
 from skynav.renderer.detector import Sensor
 from skynav.renderer.optics import is_polychromatic, kernel_for
 from skynav.scenes.constants import ARCSEC_RAD
-from skynav.scenes.facility import Facility, GeometricModel, RadiometricModel, ResidualField
+from skynav.scenes.facility import Facility, RadiometricModel
 from skynav.scenes.psf import GaussianPSFModel
+from skynav.scenes.screen import GeometricModel, ResidualField
 
 from .patterns import design
 

@@ -3,7 +3,7 @@ pixels, mapped to the screen digital counts that make the real camera collect th
 rendered source would give it.
 
 - Geometry at the line-of-sight level: :func:`~skynav.renderer.render.expected_image` draws
-  through the facility's :class:`~skynav.scenes.facility.ScreenProjection` (``own_size``), so
+  through the facility's :class:`~skynav.scenes.screen.ScreenProjection` (``own_size``), so
   every point source (and its streak) lands at the screen position whose calibrated line of
   sight is its apparent direction, and resolved bodies are ray-traced by Mitsuba along the
   screen pixels' lines of sight. Nothing is resampled from a camera image.

@@ -32,7 +32,7 @@ _LAZY = {
     # camera and facility
     "Camera": "camera", "SensorParams": "camera", "BrownConrady": "camera", "paper_camera": "camera",
     "Projection": "projection", "VisibilityCriteria": "visibility",
-    "Facility": "facility", "Screen": "facility", "facility_from_mapping": "facility", "screen_preset": "facility",
+    "Facility": "facility", "Screen": "screen", "facility_from_mapping": "facility", "screen_preset": "facility",
     "screen_small_preset": "facility",
     "GaussianPSFModel": "psf", "AiryPSFModel": "psf", "OpticalPSFModel": "psf", "TabulatedPSFModel": "psf",
     "psf_from_dict": "psf",

@@ -7,15 +7,8 @@ import pytest
 
 from skynav.infra.errors import ConfigValueError
 from skynav.scenes.constants import ARCSEC_RAD
-from skynav.scenes.facility import (
-    FlatField,
-    GeometricModel,
-    ResidualField,
-    ScreenProjection,
-    screen_preset,
-    screen_small_preset,
-    facility_from_mapping,
-)
+from skynav.scenes.facility import FlatField, facility_from_mapping, screen_preset, screen_small_preset
+from skynav.scenes.screen import GeometricModel, ResidualField, ScreenProjection
 from skynav.scenes.projection import Projection
 
 

@@ -169,7 +169,8 @@ def test_screen_projection_disk_photocentre_where_the_bench_puts_it(mitsuba_vari
     within 1e-3 (tolerances as above: sampling noise ~0.003 px, ~1e-4)."""
     import dataclasses
 
-    from skynav.scenes.facility import GeometricModel, screen_small_preset
+    from skynav.scenes.facility import screen_small_preset
+    from skynav.scenes.screen import GeometricModel
 
     fac = screen_small_preset()
     geo = GeometricModel(focal_length_mm=50.0, decentre_x_mm=0.3, decentre_y_mm=-0.2, tilt_x_rad=0.01, tilt_y_rad=-0.02,
