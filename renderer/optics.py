@@ -23,9 +23,9 @@ Method
      of their own spectrum (:func:`source_kernel`, also the reference the blend is tested
      against);
    - optical: ``|F(pupil exp(2 pi i W))|^2`` with ``W = sum_j a_j Z_j`` (Noll 1976
-     normalisation, waves RMS), the pupil 256 samples across, anti-aliased (each sample's area
-     fraction inside the annulus from 8 x 8 sub-samples), ``F`` a matrix Fourier transform
-     straight onto the fine focal grid;
+     normalisation, waves RMS), the pupil 512 samples across, each the mean field of 4 x 4
+     sub-samples inside the annulus, ``F`` a matrix Fourier transform straight onto the fine
+     focal grid;
    - tabulated: the measured image (normalised to a sum of 1) at its own ``oversampling``,
      re-centred by a Fourier shift when its size is even, and resampled by zero-padding its
      spectrum to at least 16 samples per pixel.
@@ -48,12 +48,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import j1
 
-from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel
+from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel, noll_to_nm, zernike
 
 from . import spectra
 from .psf import GaussianPSF, TablePSF
 
-__all__ = ["noll_to_nm", "zernike", "airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
+__all__ = ["airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
            "optical_table", "tabulated_tables", "electron_spectrum", "effective_wavelength_nm", "SpectralNodes",
            "spectral_nodes", "kernel_for", "source_kernel", "SPECTRAL_TOLERANCE"]
 
@@ -69,52 +69,26 @@ SPECTRAL_TOLERANCE = 5e-4
 #: a source beyond them takes the end node's table.
 SPECTRAL_TEFF_RANGE_K = (2000.0, 50000.0)
 
-#: Fine samples per pixel of the tables (at least 2 per lambda F: Nyquist of diffraction).
+#: Fewest fine samples per pixel of the tables.
 DEFAULT_OVERSAMPLING = 16
+
+#: Fine samples per lambda F the tables are raised to: a stamp reads its table bilinearly
+#: between samples, which errs by about ``0.5 / (n lf)^2`` of the peak (measured against GalSim's
+#: pixel-convolved Airy: 1.9e-3 at lambda F = 1 px and 16 samples per px, 4.8e-4 at 2.55 px);
+#: 48 per lambda F keeps it near 2e-4, a fifth of the 1e-3 of the peak the GalSim comparison
+#: allows.
+SAMPLES_PER_LAMBDA_F = 48
+
+#: Most fine samples per pixel (a pattern much narrower than a pixel is read less accurately
+#: between samples: docs/optics.md gives the figures).
+MAX_OVERSAMPLING = 64
 
 
 def fine_sampling(lf_px: float, oversampling: int = DEFAULT_OVERSAMPLING) -> int:
-    """Fine samples per pixel: ``oversampling``, raised to Nyquist (``2 / lf``) if needed."""
-    return int(max(oversampling, math.ceil(2.0 / lf_px)))
-
-
-def noll_to_nm(j: int) -> tuple:
-    """Radial degree n and azimuthal frequency m (signed: m < 0 is a sine term) of Noll index j.
-
-    Examples
-    --------
-    >>> [noll_to_nm(j) for j in (1, 2, 3, 4, 7, 8, 11)]
-    [(0, 0), (1, 1), (1, -1), (2, 0), (3, -1), (3, 1), (4, 0)]
-    """
-    ns, ms = [0, 0], [0, 0]  # index j directly (GalSim's noll_to_zern ordering)
-    while len(ns) <= j:
-        n = ns[-1] + 1
-        ns.extend([n] * (n + 1))
-        if n % 2 == 0:
-            ms.append(0)
-            m = 2
-        else:
-            m = 1
-        pm = 1 if (n // 2) % 2 == 0 else -1
-        while m <= n:
-            ms.extend([pm * m, -pm * m])
-            m += 2
-    return ns[j], ms[j]
-
-
-def zernike(j: int, rho, theta) -> np.ndarray:
-    """Noll-normalised Zernike ``Z_j`` (RMS 1 over the unit disk) at polar pupil coordinates."""
-    n, m = noll_to_nm(j)
-    am = abs(m)
-    r = np.zeros_like(np.asarray(rho, dtype=float))
-    for s in range((n - am) // 2 + 1):
-        c = (-1) ** s * math.factorial(n - s) / (math.factorial(s) * math.factorial((n + am) // 2 - s)
-                                                 * math.factorial((n - am) // 2 - s))
-        r = r + c * rho ** (n - 2 * s)
-    if m == 0:
-        return math.sqrt(n + 1) * r
-    ang = np.cos(am * theta) if m > 0 else np.sin(am * theta)
-    return math.sqrt(2 * (n + 1)) * r * ang
+    """Fine samples per pixel: ``oversampling``, raised to :data:`SAMPLES_PER_LAMBDA_F` per
+    lambda F, at most :data:`MAX_OVERSAMPLING` (and never below Nyquist, ``2 / lf``)."""
+    want = min(MAX_OVERSAMPLING, math.ceil(SAMPLES_PER_LAMBDA_F / lf_px))
+    return int(max(oversampling, want, math.ceil(2.0 / lf_px)))
 
 
 def airy_intensity(r_px, lf_px: float, obscuration: float = 0.0) -> np.ndarray:
@@ -188,27 +162,31 @@ def airy_table(lf_px, weights, obscuration: float, half: int, n: int) -> np.ndar
     return pixel_integrate(img, n)
 
 
-def _pupil(n_p: int, obscuration: float, zernikes, sub: int = 8):
+def _pupil(n_p: int, obscuration: float, zernikes, sub: int = 4):
     """Complex pupil sampled ``n_p`` x ``n_p`` across the aperture diameter (coordinates in
-    units of D, sample centres at ``(k + 0.5) / n_p - 0.5``), anti-aliased (area fraction of
-    each sample inside the annulus from ``sub`` x ``sub`` sub-samples), times ``exp(2 pi i W)``."""
+    units of D, sample centres at ``(k + 0.5) / n_p - 0.5``): each sample the mean, over its
+    ``sub`` x ``sub`` sub-samples, of ``exp(2 pi i W)`` inside the annulus (0 outside), so the
+    grey edge and the wavefront's change across a sample both enter (taking ``W`` at the
+    sample's centre left 2e-3 of the peak at one wave of defocus and 256 samples)."""
     xc = (np.arange(n_p) + 0.5) / n_p - 0.5
     off = ((np.arange(sub) + 0.5) / sub - 0.5) / n_p
     x = (xc[:, None] + off[None, :]).ravel() * 2.0  # unit-radius coordinates of the sub-samples
-    rho = np.hypot(x[None, :], x[:, None])
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    rho = np.hypot(xx, yy)
     inside = (rho <= 1.0) & (rho >= obscuration)
-    area = inside.reshape(n_p, sub, n_p, sub).mean(axis=(1, 3))
-    yc2, xc2 = np.meshgrid(2.0 * xc, 2.0 * xc, indexing="ij")
-    rc, tc = np.hypot(xc2, yc2), np.arctan2(yc2, xc2)
-    wf = np.zeros_like(rc)
-    for j, a in zernikes:
-        wf += a * zernike(j, rc, tc)
-    return xc, area * np.exp(2j * np.pi * wf)
+    wf = np.zeros_like(rho)
+    if zernikes:
+        theta = np.arctan2(yy, xx)
+        for j, a in zernikes:
+            wf += a * zernike(j, rho, theta)
+    field = np.where(inside, np.exp(2j * np.pi * wf), 0.0)
+    return xc, field.reshape(n_p, sub, n_p, sub).mean(axis=(1, 3))
 
 
-#: Pupil samples across the aperture diameter of the optical model (the wavefront of Zernikes
-#: up to index 36 varies over >= 10 samples per cycle; the focal grid is set apart, by MFT).
-PUPIL_SAMPLES = 256
+#: Pupil samples across the aperture diameter of the optical model, each the mean of 4 x 4
+#: sub-samples (against 1024 samples: 1.3e-4 of the peak at 0.4 waves of defocus, 5.5e-4 at one
+#: wave; the focal grid is set apart, by MFT).
+PUPIL_SAMPLES = 512
 
 
 def optical_table(lf_px: float, obscuration: float, zernikes, half: int, n: int) -> np.ndarray:
@@ -217,8 +195,12 @@ def optical_table(lf_px: float, obscuration: float, zernikes, half: int, n: int)
     The focal-plane field on the fine grid is a matrix Fourier transform of the pupil
     (Soummer et al. 2007, Opt. Express 15, 15935): ``E = A_y P A_x^T`` with
     ``A[u, x] = exp(2 pi i x u / lf)`` (x in units of the diameter, u in px), so the pupil's
-    sampling and the table's are independent; ``I = |E|^2 / (lf^2 sum |P|^2 dx^2)`` (Parseval)
-    has integral 1 over the whole plane.
+    sampling and the table's are independent; ``I = |E|^2 / (lf^2 A)``, ``A = pi (1 - e^2) / 4``
+    the annulus' area in units of D^2, has integral 1 over the whole plane (Parseval for the
+    continuous pupil: its whole flux is ``lf^2 A``). The anti-aliased samples are not used for
+    the normalisation: the grey edge samples' ``sum |P|^2 dx^2`` falls short of the area (by
+    3e-3 at 256 samples), the difference being light their aliases put hundreds of px away, and
+    dividing by it made the core that much too bright.
     """
     length = 2 * half + 4
     u = _grid(n, length)
@@ -226,7 +208,8 @@ def optical_table(lf_px: float, obscuration: float, zernikes, half: int, n: int)
     dx = 1.0 / PUPIL_SAMPLES
     a = np.exp(2j * np.pi * np.outer(u, xc) / lf_px)  # (n L, n_p), the same matrix for both axes
     e = (a @ p @ a.T) * (dx * dx)
-    img = (e.real**2 + e.imag**2) / (lf_px * lf_px * float(np.sum(np.abs(p) ** 2)) * dx * dx)
+    area = math.pi * (1.0 - obscuration * obscuration) / 4.0
+    img = (e.real**2 + e.imag**2) / (lf_px * lf_px * area)
     return pixel_integrate(img, n)
 
 

@@ -7,7 +7,8 @@ contains it, ``(floor(x + 0.5), floor(y + 0.5))``, and spans ``2 h + 1`` pixels 
 A kernel implements the :class:`PSF` protocol; :class:`GaussianPSF` is separable and computes
 its stamps as outer products of 1-D erf differences; :class:`TablePSF` reads them out of fine
 tables of the pixel-integrated PSF (:mod:`skynav.renderer.optics`: Airy, pupil FFT, measured
-images, a field grid of them), normalised so that every stamp holds the point's whole flux.
+images, a field grid of them) as they are: a stamp holds the light the PSF puts in its pixels,
+the light beyond it is not drawn (nor folded back into the core).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from scipy.ndimage import map_coordinates
+from scipy.ndimage import convolve1d, map_coordinates
+from scipy.signal import fftconvolve
 from scipy.special import erf, erfinv
 
 from skynav.infra.errors import ConfigValueError
@@ -28,12 +30,11 @@ __all__ = ["PSF", "GaussianPSF", "TablePSF", "CutPSF", "stamp_origin", "STAMP_NO
 
 #: Largest change of any pixel, in units of its noise (the read noise and the point's own shot
 #: noise), that drawing a faint point with a stamp smaller than its kernel's table may make
-#: (:meth:`TablePSF.half_sizes_px`): the light beyond the smaller stamp is folded back into it,
-#: its flux kept.
+#: (:meth:`TablePSF.half_sizes_px`): the light beyond the smaller stamp is not drawn.
 STAMP_NOISE_FRACTION = 0.1
 
 #: Largest move of a point's centre of light, px, that drawing it with a smaller stamp than its
-#: kernel's table may make (the fold-back of an asymmetric wing moves it): half the 1e-3 px
+#: kernel's table may make (leaving out an asymmetric wing moves it): half the 1e-3 px
 #: the truth's centre of light is checked to (tests/renderer/test_psf_models.py), the other
 #: half left to phases between the 1/16 px grid the limit is found on.
 STAMP_CENTRE_TOLERANCE_PX = 5e-4
@@ -206,6 +207,27 @@ class GaussianPSF:
         differs by < 1.1e-5 of the source's flux in any pixel."""
         return min(max(1.5 * self.sigma_px, 0.01), 0.75)
 
+    #: Its stamps hold all but the render's ``flux_fraction_lost`` (no fraction drawn to record).
+    truncated = False
+
+    def half_sizes_px(self, flux_e, flux_fraction_lost: float = 1e-6) -> np.ndarray:
+        """Every point's stamp half size: :meth:`half_size_px` (a Gaussian's stamps are small)."""
+        n = np.size(flux_e)
+        return np.full(n, self.half_size_px(flux_fraction_lost), dtype=np.int64)
+
+    def blur_crop(self, crop: np.ndarray, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
+        """A pixel-binned crop convolved with the pixel-integrated Gaussian (separable: erf
+        differences over ``2h + 1`` px, ``h`` from ``flux_fraction_lost``, normalised to 1, so
+        the crop's total is kept), padded by ``h``; returns (blurred crop, h)."""
+        if self.sigma_px <= 0.0:
+            return crop, 0
+        h = int(self.half_size_px(flux_fraction_lost))
+        k = np.asarray(self.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
+        k /= k.sum()
+        padded = np.pad(np.asarray(crop, dtype=float), h)
+        out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
+        return out, h
+
 
 class TablePSF:
     """A PSF given as fine tables of its pixel-integrated image (see :mod:`.optics`).
@@ -213,9 +235,9 @@ class TablePSF:
     ``tables[k][iy, ix]`` is the fraction of the flux of a point in the pixel whose centre is
     offset ``((ix - c) / n, (iy - c) / n)`` px from the point, ``c = shape // 2``. A stamp reads
     the table at the integer pixel offsets minus the point's sub-pixel phase, bilinearly
-    between fine samples, and is normalised to a sum of 1 (flux conserved: the wings beyond the
-    stamp, at most the ``flux_fraction_lost`` it was sized for or the cap
-    :data:`~skynav.scenes.psf.MAX_HALF_SIZE_PX`, are folded back in proportion).
+    between fine samples, and is not normalised: its sum is the share of the point's light
+    inside it (all but the ``flux_fraction_lost`` it was sized for, or less where the model's
+    half size is capped at ``max_half_px``: diffraction's far wings).
 
     With a field grid (``grid = (xs, ys, index[iy][ix])``) a point's stamp is the bilinear blend
     in ``(x, y)`` of the stamps of the four grid tables around it (clamped at the grid's edge):
@@ -300,27 +322,42 @@ class TablePSF:
         least a pixel wide; see ``tests/renderer/test_psf_models.py`` for the convergence)."""
         return 0.35
 
+    #: Its stamps hold the PSF as it is: the light beyond them (the model's half size is capped
+    #: at ``max_half_px``) is not drawn, and the truth records the fraction drawn per source.
+    truncated = True
+
+    def blur_crop(self, crop: np.ndarray, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
+        """A pixel-binned crop convolved, by FFT, with the stamp of a point at the centre of the
+        pixel ``at_xy`` (px; the body's pixel, for a field grid; default (0, 0)), as it is: the
+        crop's light beyond the stamp is not drawn, as for a point. Padded by :attr:`half`;
+        returns (blurred crop, half)."""
+        h = self.half
+        at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
+        k = self.stamp(at, h, wavelength_nm)
+        return np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0), h  # FFT ringing < 0
+
     def _blocks(self, k_table: int, h: int) -> tuple:
         """The table as phase blocks ``B[my, mx] = P[c + ky n + my, c + kx n + mx]`` for
-        ``ky, kx`` in ``-h..h`` (cached per table and h): a stamp then reads 4 contiguous
-        blocks, not 4 (2h+1)^2 scattered elements."""
-        key = (k_table, h)
-        got = self._block_cache.get(key)
+        ``ky, kx`` in ``-h..h``: a stamp then reads 4 contiguous blocks, not 4 (2h+1)^2 scattered
+        elements. Built once per table at :attr:`half`; a smaller ``h`` is a view of its middle."""
+        got = self._block_cache.get(k_table)
         if got is None:
-            n, table = self.n, self.tables[k_table]
+            n, table, big = self.n, self.tables[k_table], self.half
             c = table.shape[0] // 2
             m_lo = int(np.floor(-n / 2.0))
             m = np.arange(m_lo, m_lo + n + 3)
-            k = np.arange(-h, h + 1)
-            idx = c + k[None, :] * n + m[:, None]  # (n + 3, 2h + 1)
-            blocks = table[idx[:, None, :, None], idx[None, :, None, :]]  # (my, mx, ky, kx)
-            got = (blocks, m_lo, blocks.sum(axis=(2, 3)))  # + each block's sum, (my, mx)
-            self._block_cache[key] = got
-        return got
+            k = np.arange(-big, big + 1)
+            idx = c + k[None, :] * n + m[:, None]  # (n + 3, 2 half + 1)
+            got = (table[idx[:, None, :, None], idx[None, :, None, :]], m_lo)  # (my, mx, ky, kx)
+            self._block_cache[k_table] = got
+        blocks, m_lo = got
+        d = self.half - int(h)
+        return (blocks if d == 0 else blocks[:, :, d:blocks.shape[2] - d, d:blocks.shape[3] - d]), m_lo
 
     def _stamps_one(self, k_table, f, h):
-        """Unnormalised stamps and their sums (the same bilinear blend of the blocks' sums)."""
-        blocks, m_lo, sums = self._blocks(k_table, h)
+        """Stamps of table ``k_table`` at phases ``f`` (M, 2) (x, y): the bilinear read of its
+        phase blocks, the table's values as they are (their sum is the light inside the stamp)."""
+        blocks, m_lo = self._blocks(k_table, h)
         q = -f * self.n  # fine-sample offset of the phase, (M, 2) (x, y)
         m0 = np.floor(q).astype(np.int64)
         t = q - m0
@@ -335,24 +372,22 @@ class TablePSF:
         bottom -= top
         bottom *= ty
         top += bottom
-        tx, ty = tx[:, 0, 0], ty[:, 0, 0]
-        s_top = sums[iy, ix] + tx * (sums[iy, ix + 1] - sums[iy, ix])
-        s_bot = sums[iy + 1, ix] + tx * (sums[iy + 1, ix + 1] - sums[iy + 1, ix])
-        return top, s_top + ty * (s_bot - s_top)
+        return top
 
     def _noise_limits(self) -> np.ndarray:
         """``F_max[h]``, e-: the largest charge of a point that may be drawn with its stamp cut
-        to ``h`` < :attr:`half` (the light beyond folded back in proportion, as :meth:`stamps`
-        does), from every table alone at every phase on a grid of 1/16 px:
+        to ``h`` < :attr:`half` (the light beyond the cut not drawn), from every table alone at
+        every phase on a grid of 1/16 px:
 
         - no pixel of the full stamp changes by more than ``kappa`` =
           :data:`STAMP_NOISE_FRACTION` of its noise ``sqrt(sigma^2 + F s)`` (``sigma``
           :attr:`noise_floor_e`, ``s`` the full stamp's fraction there: the point's own shot
-          noise); the pixels beyond the cut count with their whole value. Per pixel changed by
-          ``|d|``, ``F |d| <= kappa sqrt(sigma^2 + F s)`` holds up to
-          ``F = (kappa^2 s + sqrt(kappa^4 s^2 + 4 d^2 kappa^2 sigma^2)) / (2 d^2)``;
-        - the centre of light moves by at most :data:`STAMP_CENTRE_TOLERANCE_PX` (else 0:
-          never cut to ``h``; a coma's asymmetric wings move it most).
+          noise); the pixels beyond the cut lose their whole value ``d = s``, those inside keep
+          theirs. Per pixel, ``F s <= kappa sqrt(sigma^2 + F s)`` holds up to
+          ``F = (kappa^2 s + sqrt(kappa^4 s^2 + 4 s^2 kappa^2 sigma^2)) / (2 s^2)``;
+        - the centre of light (the first moment over the stamp's own light) moves by at most
+          :data:`STAMP_CENTRE_TOLERANCE_PX` (else 0: never cut to ``h``; a coma's asymmetric
+          wings move it most).
         """
         if self._limits is None:
             kap, sig = STAMP_NOISE_FRACTION, self.noise_floor_e
@@ -362,33 +397,31 @@ class TablePSF:
             lim = np.full(big + 1, np.inf)
             lim[0] = 0.0
             for k in range(len(self.tables)):
-                full, tot = self._stamps_one(k, f, big)
-                full = full / tot[:, None, None]
+                full = self._stamps_one(k, f, big)
+                tot = full.sum(axis=(1, 2))
                 kb = np.arange(-big, big + 1, dtype=float)
+                centre_full = [full.sum(axis=1) @ kb / tot, full.sum(axis=2) @ kb / tot]
                 for h in range(1, big):
-                    cut, ct = self._stamps_one(k, f, h)
-                    cut = cut / ct[:, None, None]
-                    kk = np.arange(-h, h + 1, dtype=float)
                     inner = full[:, big - h:big + h + 1, big - h:big + h + 1]
-                    moved = max(float(np.max(np.abs(cut.sum(axis=1) @ kk - full.sum(axis=1) @ kb))),
-                                float(np.max(np.abs(cut.sum(axis=2) @ kk - full.sum(axis=2) @ kb))))
+                    it = inner.sum(axis=(1, 2))
+                    kk = np.arange(-h, h + 1, dtype=float)
+                    moved = max(float(np.max(np.abs(inner.sum(axis=1) @ kk / it - centre_full[0]))),
+                                float(np.max(np.abs(inner.sum(axis=2) @ kk / it - centre_full[1]))))
                     if moved > STAMP_CENTRE_TOLERANCE_PX:
                         lim[h] = 0.0
                         continue
                     d = full.copy()
-                    d[:, big - h:big + h + 1, big - h:big + h + 1] = cut - inner
-                    d = np.abs(d).reshape(-1)
-                    s = full.reshape(-1)
-                    ok = d > 0
-                    d, s = d[ok], s[ok]
-                    root = (kap * kap * s + np.sqrt((kap * kap * s) ** 2 + 4.0 * d * d * kap * kap * sig * sig)) / (2.0 * d * d)
+                    d[:, big - h:big + h + 1, big - h:big + h + 1] = 0.0
+                    d = d.reshape(-1)
+                    d = d[d > 0]
+                    root = (kap * kap * d + np.sqrt((kap * kap * d) ** 2 + 4.0 * d * d * kap * kap * sig * sig)) / (2.0 * d * d)
                     lim[h] = min(lim[h], float(root.min()) if root.size else np.inf)
             self._limits = lim
         return self._limits
 
     def half_sizes_px(self, flux_e, flux_fraction_lost: float = 1e-6) -> np.ndarray:
         """Stamp half size of each point of charge ``flux_e`` (N,), e-: the smallest ``h`` whose
-        cut stamp (:meth:`stamps` at ``h`` < :attr:`half`, flux kept) changes no pixel by more
+        cut stamp (:meth:`stamps` at ``h`` < :attr:`half`, the light beyond not drawn) changes no pixel by more
         than ``kappa`` of its noise nor its centre of light by more than
         :data:`STAMP_CENTRE_TOLERANCE_PX` (:meth:`_noise_limits`); :attr:`half` for
         every point without a :attr:`noise_floor_e`."""
@@ -469,10 +502,11 @@ class TablePSF:
         columns the images of this grid's x and y steps), e.g. screen pixels per camera pixel
         of a bench's collimator; sample ``[i, j]`` of the result is the table at offset
         ``J^-1 (j - c, i - c)`` px (``c`` the middle sample), bilinear between fine samples,
-        zero beyond the stamps' reach (offsets over ``half + 0.5`` px in x or y: the light a
-        stamp holds, as :meth:`stamps` cuts and normalises it). Convolving an image on the other
-        grid with it and reading the result at a pixel's point there draws what this PSF draws
-        in that pixel.
+        zero beyond the stamps' reach (offsets over ``half + 0.5`` px in x or y: the pixels a
+        stamp covers), normalised to a sum of 1 (a bench camera keeps a dot's whole light,
+        where :meth:`stamps` draws the share inside the stamp). Convolving an image on the other
+        grid with it and reading the result at a pixel's point there draws, up to that
+        normalisation, what this PSF draws in that pixel.
         """
         J = np.asarray(jacobian, dtype=float).reshape(2, 2)
         table = self.tables[k_table]
@@ -489,12 +523,12 @@ class TablePSF:
         return g / g.sum()
 
     def stamps(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
-        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to 1;
-        ``wavelength_nm`` (M,) or scalar, nm: the points' effective wavelengths (required by a
-        polychromatic kernel, ignored by others).
+        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to the share
+        of the PSF's light inside it; ``wavelength_nm`` (M,) or scalar, nm: the points' effective
+        wavelengths (required by a polychromatic kernel, ignored by others).
 
-        A stamp smaller than the table's (``half_size`` < :attr:`half`) holds the flux beyond it
-        folded back in proportion, as the table's own stamp holds the light beyond the table.
+        A stamp smaller than the table's (``half_size`` < :attr:`half`) is the middle of the full
+        one: the light beyond it is not drawn.
 
         Read-only: the last call's result per half size is kept and returned again for the same
         points (the irradiance pass of a frame repeats the electrons' pass)."""
@@ -518,34 +552,27 @@ class TablePSF:
         h = int(half_size)
         f = xy - np.floor(xy + 0.5)  # phase in [-0.5, 0.5)
         if len(self.tables) == 1:
-            s, tot = self._stamps_one(0, f, h)
-        elif self.wavelengths_nm is not None:  # two neighbouring nodes per point: one write each
+            return self._stamps_one(0, f, h)
+        if self.wavelengths_nm is not None:  # two neighbouring nodes per point: one write each
             i, t = self._spectral_pair(lam, xy.shape[0])
             s = np.empty((xy.shape[0], 2 * h + 1, 2 * h + 1))
-            tot = np.empty(xy.shape[0])
             for k in np.unique(i):
                 sel = np.flatnonzero(i == k)
-                sa, ta = self._stamps_one(k, f[sel], h)
+                sa = self._stamps_one(k, f[sel], h)
                 tk = t[sel]
                 if np.any(tk > 0.0):
-                    sb, tb = self._stamps_one(k + 1, f[sel], h)
+                    sb = self._stamps_one(k + 1, f[sel], h)
                     sb -= sa
                     sb *= tk[:, None, None]
                     sa += sb
-                    ta = ta + tk * (tb - ta)
                 s[sel] = sa
-                tot[sel] = ta
-        else:
-            w = self.weights(xy, lam)
-            s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
-            tot = np.zeros(xy.shape[0])
-            for k in range(len(self.tables)):
-                sel = np.flatnonzero(w[:, k] > 0.0)
-                if sel.size:
-                    sk, tk = self._stamps_one(k, f[sel], h)
-                    s[sel] += w[sel, k][:, None, None] * sk
-                    tot[sel] += w[sel, k] * tk
-        s *= (1.0 / np.where(tot > 0, tot, 1.0))[:, None, None]  # the blend's sum is the blend of the sums
+            return s
+        w = self.weights(xy, lam)
+        s = np.zeros((xy.shape[0], 2 * h + 1, 2 * h + 1))
+        for k in range(len(self.tables)):
+            sel = np.flatnonzero(w[:, k] > 0.0)
+            if sel.size:
+                s[sel] += w[sel, k][:, None, None] * self._stamps_one(k, f[sel], h)
         return s
 
     def stamp(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
@@ -576,6 +603,8 @@ class CutPSF:
 
     def quadrature_step_px(self) -> float:
         return self.psf.quadrature_step_px()
+
+    truncated = True
 
     def stamps(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
         return self.psf.stamps(xy, half_size, wavelength_nm)

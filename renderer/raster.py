@@ -114,7 +114,7 @@ def _accumulate(images, flat, weights, support=None) -> None:
 def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
               support: list | None = None, centre_of_light: np.ndarray | None = None,
               out: np.ndarray | None = None, wavelength_nm=None, also: tuple | None = None,
-              stamp_e=None) -> np.ndarray:
+              stamp_e=None, drawn_e: np.ndarray | None = None) -> np.ndarray:
     """Noise-free image (e-) of point sources moving along sampled paths.
 
     Parameters
@@ -153,8 +153,12 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     stamp_e : ndarray, shape (N,), e-, optional
         Each source's charge, to size its stamps by (a kernel with ``half_sizes_px``, e.g. a
         :class:`~skynav.renderer.psf.TablePSF`, draws faint sources with smaller stamps, their
-        flux kept); None: every stamp the kernel's full size. Pass the electrons for the
+        light beyond not drawn); None: every stamp the kernel's full size. Pass the electrons for the
         irradiance image too, so that both are drawn with the same stamps.
+    drawn_e : ndarray, shape (N,), optional
+        Filled with the charge each source's stamps hold, e- (the parts off the image included;
+        0 for a source not drawn): its electrons times the fraction of the PSF's light its stamps
+        hold (a table kernel's stamps hold the PSF as it is, the light beyond them not drawn).
 
     Returns
     -------
@@ -194,27 +198,35 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
             rasterize(shape, p, e2, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, out=out2,
                       wavelength_nm=wavelength_nm, stamp_e=stamp_e, support=support)
             return rasterize(shape, p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, support=support,
-                             centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm, stamp_e=stamp_e)
+                             centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm, stamp_e=stamp_e,
+                             drawn_e=drawn_e)
         image2 = out2.reshape(-1)
     if centre_of_light is not None:
         centre_of_light[...] = np.nan
+    if drawn_e is not None:
+        drawn_e[...] = 0.0
     if p.shape[0] == 0:
         return image.reshape(h_img, w_img)
 
-    if stamp_e is not None and hasattr(psf, "half_sizes_px"):  # one call per stamp size
+    sizes = None
+    if stamp_e is not None:
         if np.shape(stamp_e) != e.shape:
             raise ConfigValueError("raster.stamp_e", np.shape(stamp_e), f"shape ({p.shape[0]},) to match paths_xy")
         sizes = psf.half_sizes_px(stamp_e, flux_fraction_lost)
+    if sizes is not None and np.any(sizes != psf.half_size_px(flux_fraction_lost)):  # one call per stamp size
         lam_all = None if wavelength_nm is None else np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)
         for h in np.unique(sizes):
             sel = np.flatnonzero(sizes == h)
             c = None if centre_of_light is None else np.empty((sel.size, 2))
+            d = None if drawn_e is None else np.empty(sel.size)
             rasterize(shape, p[sel], e[sel], psf.cut(h), flux_fraction_lost=flux_fraction_lost, step_px=step_px,
                       support=support, centre_of_light=c, out=image.reshape(h_img, w_img),
                       wavelength_nm=None if lam_all is None else lam_all[sel],
-                      also=None if also is None else (e2[sel], out2))
+                      also=None if also is None else (e2[sel], out2), drawn_e=d)
             if c is not None:
                 centre_of_light[sel] = c
+            if d is not None:
+                drawn_e[sel] = d
         return image.reshape(h_img, w_img)
     half = int(psf.half_size_px(flux_fraction_lost))
     # drop sources that cannot touch the image (their whole path plus the stamp is outside)
@@ -227,7 +239,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     if not np.any(ok):
         return image.reshape(h_img, w_img)
     if step_px is None:
-        step_px = psf.quadrature_step_px() if hasattr(psf, "quadrature_step_px") else 0.05
+        step_px = psf.quadrature_step_px()
     xy, flux, source = streak_subsamples(p[ok], e[ok], float(step_px))
     lam = None
     if wavelength_nm is not None:
@@ -237,7 +249,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     if also is not None:
         images.append(image2)
         fluxes.append(streak_subsamples(p[ok], e2[ok], float(step_px))[1])
-    if centre_of_light is not None:
+    moments = centre_of_light is not None or drawn_e is not None
+    if moments:
         n_ok = int(np.count_nonzero(ok))
         m0 = np.zeros(n_ok)
         m1 = np.zeros((n_ok, 2))
@@ -253,7 +266,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         ws = [(st * f[a : a + chunk, None, None]).reshape(pts.shape[0], per_point) for f in fluxes]
         w = ws[0]
         origin = stamp_origin(pts, half)
-        if centre_of_light is not None:  # first moments of the stamps, per source
+        if moments:  # zeroth and first moments of the stamps, per source
             w3 = w.reshape(pts.shape[0], n_side, n_side)
             wx, wy = w3.sum(axis=1), w3.sum(axis=2)
             sw = wx.sum(axis=1)
@@ -276,4 +289,6 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
     if centre_of_light is not None:
         with np.errstate(invalid="ignore", divide="ignore"):
             centre_of_light[np.flatnonzero(ok)] = m1 / m0[:, None]
+    if drawn_e is not None:
+        drawn_e[np.flatnonzero(ok)] = m0
     return image.reshape(h_img, w_img)

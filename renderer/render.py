@@ -31,8 +31,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import convolve1d
-from scipy.signal import fftconvolve
 
 from skynav.infra.errors import ConfigValueError
 from skynav.scenes import frames
@@ -197,6 +195,14 @@ class ExpectedImage:
         with a background), so that a dark image is converted to float32 without a full pass
         (:func:`float32_image`). A caller who draws more into the images must drop it
         (``dataclasses.replace(expected, support=None)``) before :func:`detect`.
+    star_fraction_drawn : ndarray, shape (N,), or None
+        The fraction of each star's electrons its stamps hold (a truncated kernel's: every model
+        but the Gaussian draws its PSF as it is, the light beyond the stamps not drawn); NaN for
+        a star without light; None for the Gaussian, whose stamps hold all but
+        ``flux_fraction_lost``.
+    body_fraction_drawn : dict of str -> float, or None
+        The same for each drawn body (a resolved one: its blurred crop's total over its
+        electrons).
 
     Examples
     --------
@@ -226,6 +232,8 @@ class ExpectedImage:
     star_centre_of_light: np.ndarray | None = None
     body_centre_of_light: dict | None = None
     support: np.ndarray | None = None
+    star_fraction_drawn: np.ndarray | None = None
+    body_fraction_drawn: dict | None = None
 
 
 def float32_image(image: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
@@ -450,27 +458,34 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             paths[len(star_e) + j] += off
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
+    drawn = np.zeros(len(e_pts)) if psf.truncated else None  # the charge each source's stamps hold
     if zeros is not None:
         electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
     else:
         electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
     if not poly:
         rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre, out=electrons,
-                  also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts)
+                  also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts, drawn_e=drawn)
     else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
         n_s = len(star_e)
         lam = star_effective_wavelengths_nm(cam, stars.teff_k)
         rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support, out=electrons,
-                  centre_of_light=centre[:n_s], wavelength_nm=lam, stamp_e=e_pts[:n_s],
+                  centre_of_light=centre[:n_s], wavelength_nm=lam, stamp_e=e_pts[:n_s], drawn_e=drawn[:n_s],
                   also=(irr_pts[:n_s], irradiance) if with_irradiance else None)
         for j, b in enumerate(points):
             kern = kernel_for(cam, ("body", b.name), ffl)
             sel = slice(n_s + j, n_s + j + 1)
             rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
-                      centre_of_light=centre[sel], out=electrons, stamp_e=e_pts[sel],
+                      centre_of_light=centre[sel], out=electrons, stamp_e=e_pts[sel], drawn_e=drawn[sel],
                       also=(irr_pts[sel], irradiance) if with_irradiance else None)
     star_centre = centre[: len(star_e)]
     body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
+    star_fraction = body_fraction = None
+    if drawn is not None:  # a truncated kernel: what its stamps hold of each source's light
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fraction = np.where(e_pts > 0, drawn / e_pts, np.nan)
+        star_fraction = fraction[: len(star_e)]
+        body_fraction = {b.name: float(fraction[len(star_e) + j]) for j, b in enumerate(points)}
 
     # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
     resolved = {}
@@ -492,6 +507,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             if irradiance is not None:
                 _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
             body_e[b.name] = float(img.electrons_total)
+            if body_fraction is not None and body_e[b.name] > 0:
+                body_fraction[b.name] = tot / body_e[b.name]
             resolved[b.name] = img
             variant = img.variant
 
@@ -503,7 +520,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
                          mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
-                         body_centre_of_light=body_centre,
+                         body_centre_of_light=body_centre, star_fraction_drawn=star_fraction,
+                         body_fraction_drawn=body_fraction,
                          support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
 
 
@@ -666,33 +684,13 @@ _ZERO_IMAGES: dict = {}
 
 
 def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
-    """Convolve a pixel-binned crop with the PSF, padded so no flux is lost.
-
-    The kernel is the PSF integrated over one pixel centred on each integer offset, normalised
-    to 1 so the crop's total is conserved: for a Gaussian separable (erf differences), for any
-    other kernel its stamp of a point at a pixel centre (:meth:`PSF.stamp`), by FFT; ``at_xy``
-    (px) picks the pixel, for a PSF that varies across the field (default: (0, 0));
-    ``wavelength_nm`` the body's effective wavelength, for a polychromatic PSF.
-    Returns (blurred crop, pad in px).
+    """Convolve a pixel-binned crop with the PSF kernel, padded so that no drawn light is cut:
+    :meth:`blur_crop` of the kernel (the Gaussian's separable erf kernel, normalised to 1; a
+    table kernel's stamp of a point at a pixel centre, as it is, by FFT). ``at_xy`` (px) picks
+    the pixel, for a PSF that varies across the field (default: (0, 0)); ``wavelength_nm`` the
+    body's effective wavelength, for a polychromatic PSF. Returns (blurred crop, pad in px).
     """
-    if hasattr(psf, "sigma_px"):  # the Gaussian: separable, as it always was
-        sigma = float(psf.sigma_px)
-        if sigma <= 0.0:
-            return crop, 0
-        h = int(psf.half_size_px(flux_fraction_lost))
-        k = np.asarray(psf.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
-        k /= k.sum()
-        padded = np.pad(np.asarray(crop, dtype=float), h)
-
-        out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
-        return out, h
-
-    h = int(psf.half_size_px(flux_fraction_lost))
-    at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
-    k = psf.stamp(at, h) if wavelength_nm is None else psf.stamp(at, h, wavelength_nm)
-    k = k / k.sum()
-    out = np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0)  # FFT ringing < 0
-    return out, h
+    return psf.blur_crop(crop, flux_fraction_lost, at_xy=at_xy, wavelength_nm=wavelength_nm)
 
 
 def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:

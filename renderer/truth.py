@@ -105,6 +105,9 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
         for i in np.flatnonzero(~np.isfinite(col_sel).all(axis=1)):  # a star not drawn: null, not NaN
             rows[i] = [v if math.isfinite(v) else None for v in rows[i]]
         cols["centre_of_light_xy"] = rows
+    frac = getattr(expected, "star_fraction_drawn", None)
+    if frac is not None:  # a truncated kernel: the share of each star's electrons its stamps hold
+        cols["flux_fraction_drawn"] = [v if math.isfinite(v) else None for v in np.asarray(frac, dtype=float)[sel].tolist()]
     names = tuple(cols)
     star_list = [dict(zip(names, row)) for row in zip(*cols.values())]
     body_list = []
@@ -136,6 +139,9 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
         bcol = (getattr(expected, "body_centre_of_light", None) or {}).get(b.name)
         if bcol is not None and np.all(np.isfinite(bcol)):
             d["centre_of_light_xy"] = [float(bcol[0]), float(bcol[1])]
+        bfrac = (getattr(expected, "body_fraction_drawn", None) or {}).get(b.name)
+        if bfrac is not None and math.isfinite(bfrac):
+            d["flux_fraction_drawn"] = bfrac
         img = resolved.get(b.name)
         if img is not None:
             d["rendered_as"] = "mitsuba"

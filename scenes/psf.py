@@ -27,6 +27,7 @@ pixel at ``(0, 0)``. Tables are indexed ``[row, column]`` = ``[y, x]``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import os
@@ -37,14 +38,17 @@ import numpy as np
 from skynav.infra.errors import ConfigValueError
 
 __all__ = ["PSFModel", "GaussianPSFModel", "AiryPSFModel", "OpticalPSFModel", "TabulatedPSFModel", "FieldPSF",
-           "psf_from_dict", "resolve_psf_files", "PSF_MODELS", "MAX_HALF_SIZE_PX"]
+           "psf_from_dict", "resolve_psf_files", "PSF_MODELS", "MAX_HALF_SIZE_PX", "noll_to_nm", "zernike",
+           "FWHM_PER_SIGMA"]
 
 #: Default largest stamp half size of the diffraction and measured models, px (the key
 #: ``max_half_px`` changes it): the slow 1/r^3 wings of diffraction leave 2 lambda F / (pi^2 r)
 #: of the flux beyond radius r (1.1e-3 beyond 16 px for the paper camera at 550 nm, 7e-4
-#: beyond 24 px); stamps are cut there and normalised to the whole flux. The stamp's size sets
-#: most of a frame's cost; a faint source's is cut further by the renderer
-#: (``TablePSF.half_sizes_px``; benchmarks/psf_bench.py measures the cost, docs/performance.md).
+#: beyond 24 px; 3 % beyond 16 px at lambda F = 2.55 px); the stamps hold the PSF as it is and
+#: the light beyond them is not drawn (the truth records each source's ``flux_fraction_drawn``).
+#: The stamp's size sets most of a frame's cost; a faint source's is cut further by the
+#: renderer (``TableKernel.half_sizes_px``; benchmarks/psf_bench.py measures the cost,
+#: docs/performance.md).
 MAX_HALF_SIZE_PX = 16
 
 
@@ -64,6 +68,83 @@ def _num(value, key, *, lo=None, hi=None, allowed="a finite number"):
     if (lo is not None and v < lo) or (hi is not None and v > hi):
         raise ConfigValueError(key, value, allowed)
     return v
+
+
+def noll_to_nm(j: int) -> tuple:
+    """Radial degree n and azimuthal frequency m (signed: m < 0 is a sine term) of Noll index j.
+
+    Examples
+    --------
+    >>> [noll_to_nm(j) for j in (1, 2, 3, 4, 7, 8, 11)]
+    [(0, 0), (1, 1), (1, -1), (2, 0), (3, -1), (3, 1), (4, 0)]
+    """
+    ns, ms = [0, 0], [0, 0]  # index j directly (GalSim's noll_to_zern ordering)
+    while len(ns) <= j:
+        n = ns[-1] + 1
+        ns.extend([n] * (n + 1))
+        if n % 2 == 0:
+            ms.append(0)
+            m = 2
+        else:
+            m = 1
+        pm = 1 if (n // 2) % 2 == 0 else -1
+        while m <= n:
+            ms.extend([pm * m, -pm * m])
+            m += 2
+    return ns[j], ms[j]
+
+
+def zernike(j: int, rho, theta) -> np.ndarray:
+    """Noll-normalised Zernike ``Z_j`` (RMS 1 over the unit disk) at polar pupil coordinates."""
+    n, m = noll_to_nm(j)
+    am = abs(m)
+    r = np.zeros_like(np.asarray(rho, dtype=float))
+    for s in range((n - am) // 2 + 1):
+        c = (-1) ** s * math.factorial(n - s) / (math.factorial(s) * math.factorial((n + am) // 2 - s)
+                                                 * math.factorial((n - am) // 2 - s))
+        r = r + c * rho ** (n - 2 * s)
+    if m == 0:
+        return math.sqrt(n + 1) * r
+    ang = np.cos(am * theta) if m > 0 else np.sin(am * theta)
+    return math.sqrt(2 * (n + 1)) * r * ang
+
+
+# ----------------------------------------------------------------------------- widths
+#: FWHM / sigma of a Gaussian: the equivalent sigma of a model is its FWHM over this.
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+
+
+def _airy_half_width_lf(obscuration: float) -> float:
+    """Radius of half maximum of the annular Airy pattern, in units of lambda F (0.5145 for a
+    clear aperture): the root of ``a(v)^2 = 1/2`` below the first zero, ``a`` the amplitude
+    normalised at the centre, ``v = pi r / (lambda F)``."""
+    from scipy.optimize import brentq  # scipy: only a width asks for it
+    from scipy.special import j1
+
+    e = float(obscuration)
+
+    def amp(v):
+        a = 2.0 * j1(v) / v
+        if e > 0:
+            a -= e * e * 2.0 * j1(e * v) / (e * v)
+        return a / (1.0 - e * e)
+
+    return brentq(lambda v: amp(v) ** 2 - 0.5, 1e-6, 3.0) / math.pi
+
+
+def _mean_wavelength_nm(camera) -> float:
+    """The response-weighted mean wavelength of the camera's band, nm (a flat spectrum's)."""
+    wl = np.asarray(camera.response_wavelengths_nm, dtype=float)
+    q = np.asarray(camera.response_qe_t, dtype=float)
+    return float(np.sum(q * wl) / np.sum(q))
+
+
+def _half_max_fwhm(image: np.ndarray, step_px: float) -> float:
+    """Equivalent FWHM of an image sampled every ``step_px``: the diameter of the disc whose
+    area is the area above half the peak (a circular profile's FWHM; any shape's core width)."""
+    area = float(np.count_nonzero(image >= 0.5 * image.max())) * step_px * step_px
+    return 2.0 * math.sqrt(area / math.pi)
+
 
 
 def _lambda_f_px(camera, wavelength_nm: float) -> float:
@@ -125,6 +206,14 @@ class GaussianPSFModel:
         6 sigma."""
         return 6.0 * self.sigma_px
 
+    def fwhm_px(self, camera=None) -> float:
+        """Full width at half maximum, px: ``2 sqrt(2 ln 2) sigma``."""
+        return FWHM_PER_SIGMA * self.sigma_px
+
+    def equivalent_sigma_px(self, camera=None) -> float:
+        """The sigma of the Gaussian of the same FWHM, px: ``sigma_px`` itself."""
+        return self.sigma_px
+
     def to_dict(self) -> dict:
         """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         return {"model": "gaussian", "sigma_px": self.sigma_px}
@@ -182,6 +271,18 @@ class AiryPSFModel:
     def reach_px(self, camera) -> float:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
         return float(self.half_size_px(1e-6, camera))
+
+    def fwhm_px(self, camera) -> float:
+        """Full width at half maximum of the pattern (before pixel integration), px: 1.029
+        lambda F for a clear aperture, narrower with an obscuration; polychromatic: at the
+        response-weighted mean wavelength of the camera's band."""
+        wl = self.wavelength_nm if self.wavelength_nm is not None else _mean_wavelength_nm(camera)
+        return 2.0 * _airy_half_width_lf(self.obscuration) * _lambda_f_px(camera, wl)
+
+    def equivalent_sigma_px(self, camera) -> float:
+        """The sigma of the Gaussian of the same FWHM, px (what a detector's matched window or a
+        width threshold needs; the Airy's wings are not Gaussian)."""
+        return self.fwhm_px(camera) / FWHM_PER_SIGMA
 
     def to_dict(self) -> dict:
         """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
@@ -264,6 +365,17 @@ class OpticalPSFModel:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
         return float(self.half_size_px(1e-6, camera))
 
+    def fwhm_px(self, camera) -> float:
+        """Equivalent full width at half maximum (before pixel integration), px: the diameter
+        of the disc whose area is the pattern's area above half its peak (an aberrated pattern
+        is not round; the Airy's FWHM without aberrations, to 1 %). The pattern: a 64-sample
+        pupil's Fourier transform every lambda F / 32."""
+        return _optical_fwhm_px(self, camera)
+
+    def equivalent_sigma_px(self, camera) -> float:
+        """The sigma of the Gaussian of the same (equivalent) FWHM, px."""
+        return self.fwhm_px(camera) / FWHM_PER_SIGMA
+
     def to_dict(self) -> dict:
         """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""
         d = {"model": "optical", "obscuration": self.obscuration, "wavelength_nm": self.wavelength_nm,
@@ -271,6 +383,24 @@ class OpticalPSFModel:
         if self.max_half_px != MAX_HALF_SIZE_PX:
             d["max_half_px"] = self.max_half_px
         return d
+
+
+@functools.lru_cache(maxsize=16)
+def _optical_fwhm_px(model, camera) -> float:
+    """:meth:`OpticalPSFModel.fwhm_px` (cached per model and camera: ~0.1 s)."""
+    lf = _lambda_f_px(camera, model.wavelength_nm)
+    waves = math.sqrt(sum(w * w for _, w in model.zernike_waves))
+    n_p, step = 64, 1.0 / 32.0  # pupil samples; focal step in lambda F
+    half = int(math.ceil((3.0 + 8.0 * waves) / step))
+    xc = ((np.arange(n_p) + 0.5) / n_p - 0.5) * 2.0  # unit-radius pupil coordinates
+    yy, xx = np.meshgrid(xc, xc, indexing="ij")
+    rho, theta = np.hypot(xx, yy), np.arctan2(yy, xx)
+    wf = sum(a * zernike(j, rho, theta) for j, a in model.zernike_waves) if model.zernike_waves else 0.0
+    pupil = np.where((rho <= 1.0) & (rho >= model.obscuration), np.exp(2j * np.pi * wf), 0.0)
+    u = np.arange(-half, half + 1) * step  # lambda F
+    a = np.exp(np.pi * 1j * np.outer(u, xc))  # x in units of D / 2: exp(2 pi i (x/2) u)
+    image = np.abs(a @ pupil @ a.T) ** 2
+    return _half_max_fwhm(image, step * lf)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -446,6 +576,16 @@ class TabulatedPSFModel:
     def reach_px(self, camera=None) -> float:
         """How far from a source its light reaches, px: the stamp half size at 1e-6."""
         return float(self.half_size_px(1e-6, camera))
+
+    def fwhm_px(self, camera=None) -> float:
+        """Equivalent full width at half maximum of the widest image of the grid, px: the
+        diameter of the disc whose area is the image's area above half its peak (counted in
+        samples of ``1 / oversampling`` px: coarse for an image of 1 sample per px)."""
+        return max(_half_max_fwhm(t, 1.0 / self.oversampling) for t in self._tables)
+
+    def equivalent_sigma_px(self, camera=None) -> float:
+        """The sigma of the Gaussian of the same (equivalent) FWHM, px."""
+        return self.fwhm_px(camera) / FWHM_PER_SIGMA
 
     def to_dict(self) -> dict:
         """The model's mapping (a scene file's ``camera.psf``; :func:`psf_from_dict` inverts it)."""

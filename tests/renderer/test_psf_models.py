@@ -30,6 +30,13 @@ def _airy_image(path, oversampling, half_px=12, shift=(0.0, 0.0)):
     return str(path)
 
 
+def _read_fits(path):
+    from astropy.io import fits
+
+    with fits.open(path) as hdul:
+        return np.asarray(hdul[0].data, dtype=float)
+
+
 MODELS = {
     "gaussian": {"model": "gaussian", "sigma_px": 0.7},
     "airy": {"model": "airy", "obscuration": 0.3, "wavelength_nm": WL_NM},
@@ -40,8 +47,13 @@ MODELS = {
 
 @pytest.mark.parametrize("name", list(MODELS) + ["tabulated", "field"])
 def test_flux_is_conserved_for_points_and_streaks(name, tmp_path):
-    """Every model, static points and 25 px streaks (straight and curved) wholly on the image:
-    the image holds the sources' electrons to 1e-4 (measured ~1e-12: stamps sum to 1)."""
+    """Every model, static points and 25 px streaks (straight and curved) wholly on the image: the
+    image holds what the stamps hold (``drawn_e``, to 1e-12), the sources' electrons times the
+    fraction of the PSF's light inside the stamps: all but 2e-6 for the Gaussian (its stamps are
+    sized for 1e-6 per point), and for a table kernel the same fraction for a point and a streak
+    to 1e-2 (the stamp's edge moves through the wing with the sub-pixel phase: 5e-3 for the
+    coma): 0.97 for the Airy here (lambda F = 2.2 px, 33 x 33 px), 0.89 for the coma (the fraction
+    itself is checked against GalSim in ``test_psf_models_against_galsim.py``)."""
     if name == "tabulated":
         psf = {"model": "tabulated", "file": _airy_image(tmp_path / "a.npy", 4), "oversampling": 4}
     elif name == "field":
@@ -58,35 +70,45 @@ def test_flux_is_conserved_for_points_and_streaks(name, tmp_path):
                       [[30.2, 30.9], [55.2, 34.0]]])     # straight 25 px streak
     curved = np.column_stack([70.0 + 20.0 * t, 80.0 + 8.0 * np.sin(3.0 * t)])[None]  # sampled arc
     e = np.array([1000.0, 2500.0])
-    img = rasterize((128, 128), paths, e, k, flux_fraction_lost=1e-6, **lam)
-    img2 = rasterize((128, 128), curved, [4000.0], k, flux_fraction_lost=1e-6, **{k_: v[:1] for k_, v in lam.items()})
-    tol = 1e-4
+    d, d2 = np.zeros(2), np.zeros(1)
+    img = rasterize((128, 128), paths, e, k, flux_fraction_lost=1e-6, drawn_e=d, **lam)
+    img2 = rasterize((128, 128), curved, [4000.0], k, flux_fraction_lost=1e-6, drawn_e=d2,
+                     **{k_: v[:1] for k_, v in lam.items()})
+    assert abs(img.sum() - d.sum()) < 1e-12 * e.sum() and abs(img2.sum() - d2.sum()) < 1e-12 * 4000.0
+    frac = np.concatenate([d / e, d2 / 4000.0])
     if name == "gaussian":  # the Gaussian's stamps are cut, not normalised: 1e-6 may be missing
-        tol = 2e-6
-    assert abs(img.sum() / e.sum() - 1.0) < tol
-    assert abs(img2.sum() / 4000.0 - 1.0) < tol
+        assert np.all(np.abs(frac - 1.0) < 2e-6)
+    else:
+        assert np.all((frac > 0.85) & (frac < 1.0 + 1e-4)), frac  # a measured image holds its whole light
+        same = frac if name != "airy-poly" else frac[[0, 2]]  # airy-poly: the straight streak at 700 nm
+        assert np.ptp(same) < 1e-2
 
 
 def test_tabulated_image_reproduces_the_analytic_airy(tmp_path):
     """A measured image that IS an Airy pattern (sampled 4 per px, in .npy and in .fits) gives the
     Airy model's stamps to 2e-4 of the peak on a 21 x 21 stamp (independent paths: a table sampled from the
     formula and pixel-integrated by FFT, versus the model's own table); even-sized images are
-    re-centred by half a sample."""
+    re-centred by half a sample. Not normalised on the stamp: a measured image is the whole PSF
+    (normalised to a sum of 1 on load), so the tabulated stamps are the Airy's divided by the
+    light the image holds of it (its samples' sum / 16: 0.96 within its 12 px)."""
     airy = kernel_for(_camera({"model": "airy", "obscuration": 0.0, "wavelength_nm": WL_NM}), None, 1e-6)
     for fname in ("a.npy", "a.fits"):
-        tab = kernel_for(_camera({"model": "tabulated", "file": _airy_image(tmp_path / fname, 4), "oversampling": 4}), None, 1e-6)
-        h = 10  # inside the measured image's 12 px, so both are normalised on the same pixels
+        path = _airy_image(tmp_path / fname, 4)
+        held = float(np.sum(np.load(path) if fname.endswith(".npy") else _read_fits(path))) / 16.0
+        tab = kernel_for(_camera({"model": "tabulated", "file": path, "oversampling": 4}), None, 1e-6)
+        h = 10  # inside the measured image's 12 px
         for xy in ([20.0, 20.0], [20.3, 19.8]):
             a, b = airy.stamp(xy, h), tab.stamp(xy, h)
-            assert np.max(np.abs(a / a.sum() - b / b.sum())) < 2e-4 * a.max()
+            assert np.max(np.abs(a / held - b)) < 2e-4 * a.max()
     # an even-sized image whose centre falls between samples
     n = 96
     u = (np.arange(n) - (n - 1) / 2) / 4.0
     np.save(tmp_path / "even.npy", airy_intensity(np.hypot(u[None, :], u[:, None]), LF_PX, 0.0))
     tab = kernel_for(_camera({"model": "tabulated", "file": str(tmp_path / "even.npy"), "oversampling": 4}), None, 1e-6)
     h = 10
+    held = float(np.sum(np.load(tmp_path / "even.npy"))) / 16.0
     a, b = airy.stamp([20.1, 20.2], h), tab.stamp([20.1, 20.2], h)
-    assert np.max(np.abs(a / a.sum() - b / b.sum())) < 2e-3 * a.max()
+    assert np.max(np.abs(a / held - b)) < 2e-3 * a.max()
 
 
 def test_field_grid_reproduces_each_grid_psf_and_varies_smoothly(tmp_path):
@@ -112,9 +134,7 @@ def test_field_grid_reproduces_each_grid_psf_and_varies_smoothly(tmp_path):
     mid = np.array([50.0, 40.0])
     blend = sum(s.stamp(mid, h) for s in singles.values()) / 4.0
     got = grid.stamp(mid, h)
-    # the grid blends the four stamps before normalising the sum, the reference after: the
-    # tables' sums on the stamp differ by ~1e-7, hence the tolerance
-    assert np.max(np.abs(got - blend / blend.sum())) < 1e-6 * got.max()
+    assert np.max(np.abs(got - blend)) < 1e-12 * got.max()
     # smooth: a small move gives a small change (no jumps between cells)
     xs = np.linspace(45.0, 55.0, 1001)
     st = grid.stamps(np.column_stack([xs, np.full_like(xs, 40.0)]), h)
@@ -212,8 +232,8 @@ def _paper_camera(psf):
 @pytest.mark.parametrize("name", ["airy-paper", "airy-paper-poly", "airy", "optical", "field"])
 def test_a_faint_star_s_smaller_stamp_keeps_its_flux_and_centre_of_light(name, tmp_path):
     """Stars of 100 e- to 1e6 e- at random sub-pixel phases (static and 6 px streaks), drawn with
-    stamps sized by their charge (``stamp_e``) and with the kernel's full stamps: each image holds
-    its flux to 1e-4 (the stamps are normalised: ~1e-12), each source's centre of light is the
+    stamps sized by their charge (``stamp_e``) and with the kernel's full stamps: each cut image
+    holds no more than the full one (the light beyond the cut is not drawn), each source's centre of light is the
     full stamp's to 1e-3 px (the cut is refused where it would move more than 5e-4 px: the other
     half for phases off the 1/16 px grid the limit is found on), and a static star changes no
     pixel by more than 1.25 x 0.1 of its noise (read noise and its own shot noise; 0.1 on the
@@ -244,7 +264,7 @@ def test_a_faint_star_s_smaller_stamp_keeps_its_flux_and_centre_of_light(name, t
             c_full, c_cut = np.zeros((1, 2)), np.zeros((1, 2))
             full = rasterize((128, 128), paths[i:i + 1], e[i:i + 1], k, centre_of_light=c_full, **one)
             cut = rasterize((128, 128), paths[i:i + 1], e[i:i + 1], k, centre_of_light=c_cut, stamp_e=e[i:i + 1], **one)
-            assert abs(cut.sum() / e[i] - 1.0) < 1e-4
+            assert cut.sum() <= full.sum() * (1.0 + 1e-12)
             assert np.max(np.abs(c_cut - c_full)) < 1e-3
             if paths is static:
                 assert np.all(np.abs(cut - full) <= 1.25 * STAMP_NOISE_FRACTION * np.sqrt(sigma**2 + full))
