@@ -2,7 +2,7 @@
 
 For each model prints the one-off table build (once per camera, cached; not in the frame time),
 the stamp half size (a table kernel's, and in brackets the median star's: a faint star's stamp
-is sized by its charge, ``TablePSF.half_sizes_px``), and the median wall and CPU time of ``render`` with the ratio to the
+is sized by its charge, ``TableKernel.half_sizes_px``), and the median wall and CPU time of ``render`` with the ratio to the
 Gaussian frame measured in the same run. One thread (``DRJIT_NUM_THREADS=1``), as
 ``render_bench.py``. The tabulated models read PSF images this script writes to a temporary
 folder (a coma PSF at 4 samples/px; a 3 x 3 field grid of them with the coma growing outwards).

@@ -28,13 +28,13 @@ def _median_time(fn, repeats):
 
 def main() -> None:
     warnings.simplefilter("ignore")
-    from skynav.renderer.psf import GaussianPSF
+    from skynav.renderer.kernels import GaussianKernel
     from skynav.renderer.radiometry import Radiometry
     from skynav.renderer.raster import rasterize
     from skynav.scenes.camera import paper_camera
 
     cam = paper_camera()
-    psf = GaussianPSF(cam.defocus_sigma_px)
+    psf = GaussianKernel(cam.defocus_sigma_px)
     shape = (cam.height, cam.width)
     rng = np.random.default_rng(2024)
     n = 4000

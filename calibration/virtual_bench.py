@@ -18,7 +18,7 @@ this module and see only the files it writes (captures PNG, ``power_meter.csv``)
   bench's calibration accuracy was measured with); any other model by the renderer's own kernel
   (:func:`skynav.renderer.optics.kernel_for`: its pixel-integrated table, resampled onto the
   screen through the collimator's local Jacobian by
-  :meth:`~skynav.renderer.psf.TablePSF.on_grid`; a field grid blended per camera pixel as the
+  :meth:`~skynav.renderer.kernels.TableKernel.on_grid`; a field grid blended per camera pixel as the
   renderer blends it; a polychromatic Airy with the table of the screen's own spectrum).
 """
 
@@ -36,7 +36,6 @@ from skynav.renderer.detector import Sensor
 from skynav.renderer.optics import is_polychromatic, kernel_for
 from skynav.scenes.constants import ARCSEC_RAD
 from skynav.scenes.facility import Facility, RadiometricModel
-from skynav.scenes.psf import GaussianPSFModel
 from skynav.scenes.screen import GeometricModel, ResidualField
 
 from .patterns import design
@@ -174,7 +173,7 @@ class VirtualBench:
         the share of each in every camera pixel (one kernel: all ones); None for the Gaussian,
         which blurs by :func:`scipy.ndimage.gaussian_filter`. Built once per bench."""
         cam = self.facility.camera
-        if isinstance(cam.psf, GaussianPSFModel):
+        if cam.psf.model == "gaussian":
             return None
         if self._kernels is None:
             xy, _ = self.camera_map()
@@ -237,7 +236,7 @@ class VirtualBench:
         rate = self.emission_w_m2(screen_dn) * k  # e- per screen pixel
         if self.psf_kernels() is None:  # the Gaussian: defocus and pixel footprint as one Gaussian, in screen px
             scale = float(np.sqrt(np.median(area)))
-            sigma = math.hypot(cam.defocus_sigma_px * scale, scale / math.sqrt(12.0))
+            sigma = math.hypot(cam.psf.equivalent_sigma_px(cam) * scale, scale / math.sqrt(12.0))
             blurred = ndimage.gaussian_filter(rate, sigma, mode="nearest")
             vals = ndimage.map_coordinates(blurred, [xy[..., 1].ravel(), xy[..., 0].ravel()], order=3, mode="constant", cval=0.0)
         else:  # the renderer's pixel-integrated kernel(s)

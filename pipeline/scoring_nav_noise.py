@@ -249,7 +249,7 @@ def centroid_usable(obs, fr, beacon, target, *, t, position_km, ephemeris):
         if xy is not None and np.all(np.isfinite(xy)) and float(np.hypot(*(xy - xy_t))) < BLEND_PX:
             return None
     d_px = diameter_px(BODY_RADII_KM.get(target, 0.0), float(np.linalg.norm(ephemeris.position(target, t) - r)), cam)
-    if d_px > 4.0 * float(getattr(cam, "defocus_sigma_px", 0.5)) and spot_saturated(
+    if d_px > 4.0 * cam.psf.equivalent_sigma_px(cam) and spot_saturated(
             obs.dn, beacon.xy_px, 0.5 * d_px + 1.0, float(cam.sensor.max_dn)):
         return "saturated"
     return "lambert"

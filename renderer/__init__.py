@@ -29,7 +29,8 @@ from .render import Detection, ExpectedImage, Frame, RenderOptions, detect, expe
 # name -> module that defines it; imported on first access. No module may share a name with an
 # entry here: importing a submodule binds its name on the package, which would hide the entry.
 _LAZY = {
-    "GaussianPSF": "psf", "PSF": "psf", "TablePSF": "psf", "rasterize": "raster",
+    "GaussianKernel": "kernels", "Kernel": "kernels", "TableKernel": "kernels", "CutKernel": "kernels",
+    "kernel_for": "optics", "rasterize": "raster",
     "Sensor": "detector", "ExposureDetails": "detector", "fixed_patterns": "detector",
     "CosmicRayHits": "cosmic_rays", "ChargeModel": "cosmic_rays", "draw_cosmic_rays": "cosmic_rays",
     "deposit": "cosmic_rays",

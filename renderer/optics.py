@@ -3,7 +3,7 @@
 Every non-Gaussian model of :mod:`skynav.scenes.psf` becomes one or more fine tables
 ``P(u, v)``: the PSF integrated over one pixel whose centre is offset ``(u, v)`` px from the
 point, sampled every ``1/N`` px (``N`` samples per pixel) on a square of ``L = 2 h + 4`` px
-(``h`` the stamp half size); :class:`~skynav.renderer.psf.TablePSF` reads stamps out of them.
+(``h`` the stamp half size); :class:`~skynav.renderer.kernels.TableKernel` reads stamps out of them.
 
 Method
 ------
@@ -48,10 +48,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import j1
 
-from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel, TabulatedPSFModel, noll_to_nm, zernike
+from skynav.scenes.psf import TabulatedPSFModel, zernike
 
 from . import spectra
-from .psf import GaussianPSF, TablePSF
+from .kernels import GaussianKernel, TableKernel
 
 __all__ = ["airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
            "optical_table", "tabulated_tables", "electron_spectrum", "effective_wavelength_nm", "SpectralNodes",
@@ -75,13 +75,13 @@ DEFAULT_OVERSAMPLING = 16
 #: Fine samples per lambda F the tables are raised to: a stamp reads its table bilinearly
 #: between samples, which errs by about ``0.5 / (n lf)^2`` of the peak (measured against GalSim's
 #: pixel-convolved Airy: 1.9e-3 at lambda F = 1 px and 16 samples per px, 4.8e-4 at 2.55 px);
-#: 48 per lambda F keeps it near 2e-4, a fifth of the 1e-3 of the peak the GalSim comparison
-#: allows.
+#: 48 per lambda F keeps it near 2e-4 (5e-4 at lambda F = 1 px, where :data:`MAX_OVERSAMPLING`
+#: caps it), within the 1e-3 of the peak the GalSim comparison allows.
 SAMPLES_PER_LAMBDA_F = 48
 
-#: Most fine samples per pixel (a pattern much narrower than a pixel is read less accurately
-#: between samples: docs/optics.md gives the figures).
-MAX_OVERSAMPLING = 64
+#: Most fine samples per pixel from :data:`SAMPLES_PER_LAMBDA_F` (the tables' memory grows as
+#: its square: a polychromatic Airy keeps several); Nyquist may ask for more.
+MAX_OVERSAMPLING = 32
 
 
 def fine_sampling(lf_px: float, oversampling: int = DEFAULT_OVERSAMPLING) -> int:
@@ -358,62 +358,83 @@ def spectral_nodes(camera, tolerance: float = SPECTRAL_TOLERANCE, max_intervals:
                          tolerance=float(tolerance), error=err)
 
 
+def _gaussian_kernel(camera, model, source, half):
+    return GaussianKernel(model.sigma_px)
+
+
+def _airy_kernel(camera, model, source, half):
+    floor = camera.sensor.read_noise_e  # the noise a faint source's smaller stamps are sized by
+    if model.wavelength_nm is not None:
+        lf = float(lambda_f_px(camera, model.wavelength_nm))
+        n = fine_sampling(lf)
+        return TableKernel((airy_table(lf, [1.0], model.obscuration, half, n),), n, half, noise_floor_e=floor)
+    if source is not None:
+        return source_kernel(camera, source, half=half)
+    nodes = spectral_nodes(camera)
+    n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
+    tables = []
+    for teff in nodes.teff_k:
+        wl, e = electron_spectrum(camera, ("star", teff))
+        tables.append(airy_table(lambda_f_px(camera, wl), e, model.obscuration, half, n))
+    return TableKernel(tuple(tables), n, half, wavelengths_nm=nodes.wavelength_nm, noise_floor_e=floor)
+
+
+def _optical_kernel(camera, model, source, half):
+    lf = float(lambda_f_px(camera, model.wavelength_nm))
+    n = fine_sampling(lf)
+    return TableKernel((optical_table(lf, model.obscuration, model.zernike_waves, half, n),), n, half,
+                       noise_floor_e=camera.sensor.read_noise_e)
+
+
+def _tabulated_kernel(camera, model, source, half):
+    tables, n = tabulated_tables(model, half)
+    return TableKernel(tables, n, half, grid=model.grid, noise_floor_e=camera.sensor.read_noise_e)
+
+
+#: The one dispatch from a scene's PSF *model* (:mod:`skynav.scenes.psf`, by its ``model`` name)
+#: to the builder of the renderer's *kernel*: ``builder(camera, model, source, half)``.
+KERNEL_BUILDERS = {
+    "gaussian": _gaussian_kernel,
+    "airy": _airy_kernel,
+    "optical": _optical_kernel,
+    "tabulated": _tabulated_kernel,
+}
+
+
 @functools.lru_cache(maxsize=64)
 def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
-    """The renderer's kernel of the camera's PSF (built once per camera: cached).
+    """The renderer's kernel of the camera's PSF model (built once per camera: cached), by
+    :data:`KERNEL_BUILDERS`.
 
     ``source`` None: the kernel every source is drawn with: for a polychromatic Airy the tables
     of its :func:`spectral_nodes`, whose stamps take each point's effective wavelength
     (``wavelength_nm``). A source (``("star", teff_k)``, ``("body", name)``, ``("spectrum",
     wavelengths, values)``, hashable) on a polychromatic camera: :func:`source_kernel`, the
-    exact table of its own spectrum. A Gaussian is :class:`~skynav.renderer.psf.GaussianPSF`.
-    Table kernels size a faint source's stamps by the camera's read noise
-    (:meth:`~skynav.renderer.psf.TablePSF.half_sizes_px`).
+    exact table of its own spectrum. A Gaussian is :class:`~skynav.renderer.kernels.GaussianKernel`,
+    every other model a :class:`~skynav.renderer.kernels.TableKernel`, whose faint sources' stamps
+    are sized by the camera's read noise
+    (:meth:`~skynav.renderer.kernels.TableKernel.half_sizes_px`).
     """
     model = camera.psf
-    if isinstance(model, GaussianPSFModel):
-        return GaussianPSF(model.sigma_px)
-    half = int(model.half_size_px(flux_fraction_lost, camera))
-    floor = camera.sensor.read_noise_e  # the noise a faint source's smaller stamps are sized by
-    if isinstance(model, AiryPSFModel):
-        if model.wavelength_nm is not None:
-            lf = float(lambda_f_px(camera, model.wavelength_nm))
-            n = fine_sampling(lf)
-            return TablePSF((airy_table(lf, [1.0], model.obscuration, half, n),), n, half, noise_floor_e=floor)
-        if source is not None:
-            return source_kernel(camera, source, flux_fraction_lost)
-        nodes = spectral_nodes(camera)
-        n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
-        tables = []
-        for teff in nodes.teff_k:
-            wl, e = electron_spectrum(camera, ("star", teff))
-            tables.append(airy_table(lambda_f_px(camera, wl), e, model.obscuration, half, n))
-        return TablePSF(tuple(tables), n, half, wavelengths_nm=nodes.wavelength_nm, noise_floor_e=floor)
-    if isinstance(model, OpticalPSFModel):
-        lf = float(lambda_f_px(camera, model.wavelength_nm))
-        n = fine_sampling(lf)
-        return TablePSF((optical_table(lf, model.obscuration, model.zernike_waves, half, n),), n, half,
-                        noise_floor_e=floor)
-    if isinstance(model, TabulatedPSFModel):
-        tables, n = tabulated_tables(model, half)
-        return TablePSF(tables, n, half, grid=model.grid, noise_floor_e=floor)
-    raise TypeError(f"unknown PSF model {model!r}")
+    half = 0 if model.model == "gaussian" else int(model.half_size_px(flux_fraction_lost, camera))
+    return KERNEL_BUILDERS[model.model](camera, model, source, half)
 
 
-def source_kernel(camera, source, flux_fraction_lost: float = 1e-6):
+def source_kernel(camera, source, flux_fraction_lost: float = 1e-6, half: int | None = None):
     """The exact polychromatic Airy of one source's own electron spectrum (one table): the
     reference :func:`kernel_for`'s interpolated nodes are tested against, and the kernel of a
     body (reflected sunlight, whose absorption bands make a pattern no blackbody's matches to
     1e-3: 8e-3 of the peak for Mars at lambda F = 2.2 px); :func:`kernel_for` caches it per
     camera and source."""
     model = camera.psf
-    half = int(model.half_size_px(flux_fraction_lost, camera))
+    if half is None:
+        half = int(model.half_size_px(flux_fraction_lost, camera))
     wl, e = electron_spectrum(camera, source)
     lf = lambda_f_px(camera, wl)
     n = fine_sampling(float(lambda_f_px(camera, min(camera.response_wavelengths_nm))))
-    return TablePSF((airy_table(lf, e, model.obscuration, half, n),), n, half, noise_floor_e=camera.sensor.read_noise_e)
+    return TableKernel((airy_table(lf, e, model.obscuration, half, n),), n, half, noise_floor_e=camera.sensor.read_noise_e)
 
 
 def is_polychromatic(camera) -> bool:
-    m = camera.psf
-    return isinstance(m, AiryPSFModel) and m.wavelength_nm is None
+    """Whether the camera's PSF model blends its tables by each source's spectrum."""
+    return camera.psf.polychromatic

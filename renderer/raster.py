@@ -25,7 +25,7 @@ import numpy as np
 
 from skynav.infra.errors import ConfigValueError
 
-from .psf import PSF, stamp_origin
+from .kernels import Kernel, stamp_origin
 
 __all__ = ["rasterize", "streak_subsamples"]
 
@@ -111,7 +111,7 @@ def _accumulate(images, flat, weights, support=None) -> None:
                 support.append(np.flatnonzero(add))
 
 
-def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
+def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: float = 1e-6, step_px: float | None = None,
               support: list | None = None, centre_of_light: np.ndarray | None = None,
               out: np.ndarray | None = None, wavelength_nm=None, also: tuple | None = None,
               stamp_e=None, drawn_e: np.ndarray | None = None) -> np.ndarray:
@@ -127,8 +127,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         points for curved paths). Sources with any non-finite position are skipped.
     electrons : ndarray, shape (N,), e-
         Total charge of each source over the exposure.
-    psf : PSF
-        Kernel (e.g. ``GaussianPSF(camera.defocus_sigma_px)``).
+    psf : Kernel
+        Kernel (e.g. ``GaussianKernel(camera.defocus_sigma_px)``).
     flux_fraction_lost : float
         Largest fraction of a point's flux allowed outside its stamp.
     step_px : float, optional
@@ -144,7 +144,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         Add the sources into this image (returned) instead of a new zero image.
     wavelength_nm : ndarray, shape (N,), nm, optional
         Effective wavelength of each source, for a polychromatic kernel (its stamps blend its
-        spectral tables there; see :class:`~skynav.renderer.psf.TablePSF`).
+        spectral tables there; see :class:`~skynav.renderer.kernels.TableKernel`).
     also : tuple (values, image), optional
         A second quantity of each source (``values``, shape (N,), e.g. its irradiance) drawn with
         the same stamps into ``image`` (shape (H, W), float64, C-contiguous), as a second call
@@ -152,7 +152,7 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
         pixels and their order are computed once.
     stamp_e : ndarray, shape (N,), e-, optional
         Each source's charge, to size its stamps by (a kernel with ``half_sizes_px``, e.g. a
-        :class:`~skynav.renderer.psf.TablePSF`, draws faint sources with smaller stamps, their
+        :class:`~skynav.renderer.kernels.TableKernel`, draws faint sources with smaller stamps, their
         light beyond not drawn); None: every stamp the kernel's full size. Pass the electrons for the
         irradiance image too, so that both are drawn with the same stamps.
     drawn_e : ndarray, shape (N,), optional
@@ -166,8 +166,8 @@ def rasterize(shape, paths_xy, electrons, psf: PSF, *, flux_fraction_lost: float
 
     Examples
     --------
-    >>> from skynav.renderer import GaussianPSF, rasterize
-    >>> img = rasterize((16, 16), [[[7.3, 8.1], [7.3, 8.1]]], [1000.0], GaussianPSF(0.5))
+    >>> from skynav.renderer import GaussianKernel, rasterize
+    >>> img = rasterize((16, 16), [[[7.3, 8.1], [7.3, 8.1]]], [1000.0], GaussianKernel(0.5))
     >>> round(float(img.sum()), 3)
     1000.0
     """

@@ -1,6 +1,6 @@
 """Point-spread-function models of a camera: what its optics do to a point, before any pixel.
 
-A camera carries one model (``Camera.psf``); the renderer (:mod:`skynav.renderer.psf`) turns it
+A camera carries one model (``Camera.psf``); the renderer (:mod:`skynav.renderer.kernels`) turns it
 into pixel-integrated stamps, sweeps them along streaks and convolves resolved bodies with them.
 Every model is a frozen value object (equality, hash, pickle, a repr that evals back), written to
 scene files, recipes, facility cameras, the ground truth and the manifest by :meth:`to_dict` and
@@ -187,6 +187,7 @@ class GaussianPSFModel:
 
     sigma_px: float = 0.5
     model = "gaussian"
+    polychromatic = False
 
     def __post_init__(self):
         object.__setattr__(self, "sigma_px", _num(self.sigma_px, "camera.psf.sigma_px", lo=0.0, hi=1e3, allowed="a number in [0, 1000] px"))
@@ -254,6 +255,11 @@ class AiryPSFModel:
     wavelength_nm: float | None = None
     max_half_px: int = MAX_HALF_SIZE_PX
     model = "airy"
+
+    @property
+    def polychromatic(self) -> bool:
+        """True without ``wavelength_nm``: the pattern is each source's own spectrum's."""
+        return self.wavelength_nm is None
 
     def __post_init__(self):
         _check_cap(self)
@@ -330,6 +336,7 @@ class OpticalPSFModel:
     zernike_waves: tuple = ()
     max_half_px: int = MAX_HALF_SIZE_PX
     model = "optical"
+    polychromatic = False
 
     def __post_init__(self):
         _check_cap(self)
@@ -488,6 +495,7 @@ class TabulatedPSFModel:
     max_half_px: int = MAX_HALF_SIZE_PX
     sha256: str = dataclasses.field(default="", compare=True, repr=False)
     model = "tabulated"
+    polychromatic = False
 
     def __post_init__(self):
         _check_cap(self)

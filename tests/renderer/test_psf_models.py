@@ -194,11 +194,11 @@ def test_centre_of_light_in_the_truth_is_the_moment_of_the_drawn_image():
 
 def test_default_gaussian_frame_is_drawn_by_the_same_code_as_before():
     """The Gaussian through the model plumbing is the pre-model path: the same code
-    (``rasterize`` with ``GaussianPSF(defocus_sigma_px)`` on the same paths) gives the same bits,
+    (``rasterize`` with ``GaussianKernel(defocus_sigma_px)`` on the same paths) gives the same bits,
     for the shorthand and for an explicit ``{model: gaussian}``; the frame with the same seed is
     the same too. (Against the code before this change, the default, a streaked and a Mitsuba
     frame kept their PNG and EXR SHA-256: docs/conventions.md.)"""
-    from skynav.renderer.psf import GaussianPSF
+    from skynav.renderer.kernels import GaussianKernel
     from skynav.renderer.radiometry import Radiometry
     from skynav.renderer.render import RenderOptions, expected_image, render, source_paths
     from skynav.scenes import frames
@@ -215,7 +215,7 @@ def test_default_gaussian_frame_is_drawn_by_the_same_code_as_before():
         img = expected_image(scene, rng=np.random.default_rng(1), options=opts).electrons
         rad = Radiometry.for_camera(cam)
         e = np.asarray(rad.star_electrons_per_s(scene.stars.v_mag, scene.stars.teff_k)) * cam.exposure_s
-        direct = rasterize((256, 256), source_paths(scene, scene.stars.u_icrs, opts), e, GaussianPSF(0.5),
+        direct = rasterize((256, 256), source_paths(scene, scene.stars.u_icrs, opts), e, GaussianKernel(0.5),
                            flux_fraction_lost=opts.flux_fraction_lost)
         assert np.array_equal(img, direct)
         images.append(render(scene, seed=5, options=opts).dn)
@@ -240,7 +240,7 @@ def test_a_faint_star_s_smaller_stamp_keeps_its_flux_and_centre_of_light(name, t
     phase grid, the 1.25 for phases between). On the paper camera (lambda F = 0.09 px) the faint
     stars are drawn with smaller stamps than the table's; a coma's asymmetric wing keeps its
     full stamps."""
-    from skynav.renderer.psf import STAMP_NOISE_FRACTION
+    from skynav.renderer.kernels import STAMP_NOISE_FRACTION
 
     if name.startswith("airy-paper"):
         cam = _paper_camera({"model": "airy", "obscuration": 0.2} | ({} if name.endswith("poly") else {"wavelength_nm": 550.0}))

@@ -15,7 +15,7 @@ from scipy import integrate
 from scipy.stats import norm
 
 from skynav.infra.errors import ConfigValueError
-from skynav.renderer.psf import GaussianPSF, PSF, stamp_origin
+from skynav.renderer.kernels import GaussianKernel, Kernel, stamp_origin
 from skynav.renderer.raster import rasterize
 
 
@@ -27,19 +27,19 @@ def _centroid(img):
 
 # ------------------------------------------------------------------------------------ PSF
 def test_gaussian_psf_value_semantics():
-    psf = GaussianPSF(0.5)
-    assert isinstance(psf, PSF)
-    assert psf == GaussianPSF(0.5) and hash(psf) == hash(GaussianPSF(0.5)) and psf != GaussianPSF(0.6)
+    psf = GaussianKernel(0.5)
+    assert isinstance(psf, Kernel)
+    assert psf == GaussianKernel(0.5) and hash(psf) == hash(GaussianKernel(0.5)) and psf != GaussianKernel(0.6)
     assert eval(repr(psf)) == psf
     assert pickle.loads(pickle.dumps(psf)) == psf
     with pytest.raises(ConfigValueError):
-        GaussianPSF(-0.1)
+        GaussianKernel(-0.1)
     with pytest.raises(ValueError):
-        GaussianPSF(float("nan"))
+        GaussianKernel(float("nan"))
 
 
 def test_pixel_fraction_matches_scipy_norm_and_2d_quadrature():
-    psf = GaussianPSF(0.7)
+    psf = GaussianKernel(0.7)
     x0, y0 = 0.23, -0.41
     edges = np.arange(-3.5, 4.0, 1.0)
     w = psf.pixel_weights(edges - x0, edges - y0)
@@ -55,7 +55,7 @@ def test_pixel_fraction_matches_scipy_norm_and_2d_quadrature():
 @pytest.mark.parametrize("sigma", [0.0, 0.3, 0.5, 1.3])
 @pytest.mark.parametrize("lost", [1e-4, 1e-6])
 def test_stamp_sums_to_one_within_flux_fraction_lost(sigma, lost):
-    psf = GaussianPSF(sigma)
+    psf = GaussianKernel(sigma)
     h = psf.half_size_px(lost)
     rng = np.random.default_rng(11)
     xy = rng.uniform(-50, 50, (200, 2))
@@ -68,7 +68,7 @@ def test_stamp_sums_to_one_within_flux_fraction_lost(sigma, lost):
 
 
 def test_delta_psf_puts_everything_in_the_containing_pixel():
-    psf = GaussianPSF(0.0)
+    psf = GaussianKernel(0.0)
     img = rasterize((8, 8), [[[3.49, 4.5], [3.49, 4.5]]], [10.0], psf)
     # pixel [row 5, col 3] covers x in [2.5, 3.5), y in [4.5, 5.5)
     assert img[5, 3] == 10.0 and img.sum() == 10.0
@@ -101,7 +101,7 @@ def test_flux_conservation_away_from_border(kind):
     else:
         paths = _random_paths(rng, 200, shape, 0.0 if kind == "static" else 17.0)
     e = rng.uniform(10.0, 1e5, 200)
-    img = rasterize(shape, paths, e, GaussianPSF(0.5), flux_fraction_lost=1e-6)
+    img = rasterize(shape, paths, e, GaussianKernel(0.5), flux_fraction_lost=1e-6)
     # 1e-4 (brief); flux lost outside each stamp is < 1e-6 by construction
     assert img.sum() == pytest.approx(e.sum(), rel=1e-4)
     assert img.min() >= 0.0
@@ -109,7 +109,7 @@ def test_flux_conservation_away_from_border(kind):
 
 def test_static_centroid_unbiased_over_subpixel_positions():
     rng = np.random.default_rng(5)
-    psf = GaussianPSF(0.5)
+    psf = GaussianKernel(0.5)
     worst = 0.0
     for x0, y0 in rng.uniform(20, 21, (40, 2)):
         img = rasterize((41, 41), [[[x0, y0], [x0, y0]]], [1.0], psf)
@@ -126,7 +126,7 @@ def test_streak_centroid_is_mid_exposure_position(sigma):
         c = rng.uniform(60, 70, 2)
         a = rng.uniform(0, 2 * np.pi)
         d = 10.0 * np.array([np.cos(a), np.sin(a)])
-        img = rasterize((130, 130), [[c - d, c + d]], [5e4], GaussianPSF(sigma))
+        img = rasterize((130, 130), [[c - d, c + d]], [5e4], GaussianKernel(sigma))
         cx, cy = _centroid(img)
         # 0.01 px (brief): straight streak, uniform speed -> centroid at the mid-exposure point
         assert abs(cx - c[0]) < 0.01 and abs(cy - c[1]) < 0.01
@@ -137,7 +137,7 @@ def test_curved_streak_centroid_is_time_mean_position():
     t = np.linspace(0, 1, 17)
     ang = 1.2 * t
     path = np.stack([60 + 25 * np.cos(ang), 40 + 25 * np.sin(ang)], -1)
-    img = rasterize((120, 120), path[None], [1e4], GaussianPSF(0.5))
+    img = rasterize((120, 120), path[None], [1e4], GaussianKernel(0.5))
     seg_mid = 0.5 * (path[1:] + path[:-1])
     cx, cy = _centroid(img)
     assert abs(cx - seg_mid[:, 0].mean()) < 0.01 and abs(cy - seg_mid[:, 1].mean()) < 0.01
@@ -146,8 +146,8 @@ def test_curved_streak_centroid_is_time_mean_position():
 def test_streak_quadrature_converged():
     # default panel length vs a 100x finer one: the image differs by < 1e-4 of the flux per pixel
     path = np.array([[[40.3, 50.7], [63.1, 59.2]]])
-    a = rasterize((100, 100), path, [1.0], GaussianPSF(0.5))
-    b = rasterize((100, 100), path, [1.0], GaussianPSF(0.5), step_px=0.005)
+    a = rasterize((100, 100), path, [1.0], GaussianKernel(0.5))
+    b = rasterize((100, 100), path, [1.0], GaussianKernel(0.5), step_px=0.005)
     assert np.abs(a - b).max() < 1e-4
 
 
@@ -158,7 +158,7 @@ def test_batch_equals_per_source_loop():
     paths[0] = [[-1.2, 10.0], [-1.2, 10.0]]  # partly off the left edge
     paths[15] = [[70.0, 60.0], [90.0, 70.0]]  # streak leaving the image
     e = rng.uniform(1, 1e3, 20)
-    psf = GaussianPSF(0.8)
+    psf = GaussianKernel(0.8)
     batch = rasterize(shape, paths, e, psf)
     loop = sum(rasterize(shape, paths[i : i + 1], e[i : i + 1], psf) for i in range(20))
     np.testing.assert_allclose(batch, loop, rtol=1e-12, atol=1e-12)
@@ -166,10 +166,10 @@ def test_batch_equals_per_source_loop():
 
 def test_clipping_at_edges_loses_only_off_image_flux():
     # a static star centred on the left edge (x = -0.5): exactly half its flux is on the image
-    img = rasterize((40, 40), [[[-0.5, 20.0], [-0.5, 20.0]]], [1000.0], GaussianPSF(0.6))
+    img = rasterize((40, 40), [[[-0.5, 20.0], [-0.5, 20.0]]], [1000.0], GaussianKernel(0.6))
     assert img.sum() == pytest.approx(500.0, rel=1e-6)
     # wholly off-image and non-finite sources contribute nothing
-    img2 = rasterize((40, 40), [[[-50, 5], [-40, 5]], [[np.nan, 1], [2, 2]]], [1.0, 1.0], GaussianPSF(0.6))
+    img2 = rasterize((40, 40), [[[-50, 5], [-40, 5]], [[np.nan, 1], [2, 2]]], [1.0, 1.0], GaussianKernel(0.6))
     assert img2.sum() == 0.0
 
 
@@ -181,9 +181,9 @@ def test_stamp_origin_convention():
 
 def test_bad_inputs_raise():
     with pytest.raises(ValueError):
-        rasterize((10, 10), np.zeros((3, 1, 2)), np.ones(3), GaussianPSF(0.5))
+        rasterize((10, 10), np.zeros((3, 1, 2)), np.ones(3), GaussianKernel(0.5))
     with pytest.raises(ValueError):
-        rasterize((10, 10), np.zeros((3, 2, 2)), np.ones(2), GaussianPSF(0.5))
+        rasterize((10, 10), np.zeros((3, 2, 2)), np.ones(2), GaussianKernel(0.5))
 
 
 def test_sparse_accumulation_matches_the_full_bincount_and_reports_its_support():
@@ -193,20 +193,20 @@ def test_sparse_accumulation_matches_the_full_bincount_and_reports_its_support()
     is off by a whole stamp value), zero exactly where the reference is, and ``support`` must
     hold every nonzero pixel."""
     from skynav.renderer import raster
-    from skynav.renderer.psf import GaussianPSF
+    from skynav.renderer.kernels import GaussianKernel
 
     rng = np.random.default_rng(5)
     paths = np.repeat(rng.uniform(-3.0, 803.0, (300, 1, 2)), 2, axis=1)  # some over the edges
     paths[:20, 1] += rng.uniform(-6.0, 6.0, (20, 2))  # streaks
     e = rng.uniform(10.0, 1e5, 300)
     support = []
-    img = raster.rasterize((800, 800), paths, e, GaussianPSF(0.5), support=support)
+    img = raster.rasterize((800, 800), paths, e, GaussianKernel(0.5), support=support)
     assert sum(map(len, support)) * 16 < img.size  # the sparse path
     orig = raster._accumulate
     try:  # the same sums through the full-size bincount
         raster._accumulate = lambda images, flat, ws, sup=None: [im.__iadd__(np.bincount(flat, weights=w, minlength=im.size))
                                                                  for im, w in zip(images, ws)]
-        ref = raster.rasterize((800, 800), paths, e, GaussianPSF(0.5))
+        ref = raster.rasterize((800, 800), paths, e, GaussianKernel(0.5))
     finally:
         raster._accumulate = orig
     np.testing.assert_array_max_ulp(img, ref, maxulp=2)
@@ -230,7 +230,7 @@ def test_also_draws_a_second_quantity_as_a_second_call(shape):
     paths[5] = [[shape[1] - 2.0, shape[0] + 0.3], [shape[1] - 2.0, shape[0] + 0.3]]  # alone, on the bottom edge
     e = rng.uniform(1, 1e3, 40)
     irr = e * 3.7e-15 * rng.uniform(0.5, 2.0, 40)
-    psf = GaussianPSF(0.8)
+    psf = GaussianKernel(0.8)
     for first, second in ((e, irr), (e, np.where(np.arange(40) == 3, 0.0, irr)), (np.where(np.arange(40) == 5, 0.0, e), irr)):
         s1, s2 = [], []
         c1, c2 = np.zeros((40, 2)), np.zeros((40, 2))

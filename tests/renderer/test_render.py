@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from skynav.infra.errors import ConfigValueError
-from skynav.renderer.psf import GaussianPSF
+from skynav.renderer.kernels import GaussianKernel
 from skynav.renderer.render import RenderOptions, blur_crop, render
 from skynav.scenes import presets
 from skynav.scenes.scene import build_from_spec
@@ -18,7 +18,7 @@ def test_blur_crop_conserves_flux_and_centroid():
     rng = np.random.default_rng(3)
     crop = np.zeros((16, 16))
     crop[5:9, 6:11] = rng.uniform(1, 2, (4, 5))
-    out, pad = blur_crop(crop, GaussianPSF(0.5), 1e-6)
+    out, pad = blur_crop(crop, GaussianKernel(0.5), 1e-6)
     assert out.sum() == pytest.approx(crop.sum(), rel=1e-12)  # kernel normalised, padded
     yy, xx = np.indices(crop.shape)
     c0 = np.array([(crop * xx).sum(), (crop * yy).sum()]) / crop.sum()

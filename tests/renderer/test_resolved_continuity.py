@@ -2,7 +2,7 @@
 
 Continuity: a body just ABOVE the threshold (2.02 px, ray-traced by Mitsuba, ``phase_law``
 normalisation) and the same body just BELOW it (1.98 px, drawn as a point by the point path)
-give the same image after the same PSF. Both go through ``GaussianPSF(camera.defocus_sigma_px)``:
+give the same image after the same PSF. Both go through ``GaussianKernel(camera.defocus_sigma_px)``:
 the point through the point path's own :func:`skynav.renderer.raster.rasterize` (exact
 pixel-integrated Gaussian), the Mitsuba crop by convolution with the pixel-integrated Gaussian
 kernel of a point on a pixel centre. Totals must agree to 1 % and centroids to 0.05 px.
@@ -26,7 +26,7 @@ from scipy.ndimage import convolve
 
 from skynav.renderer.brdf import default_brdf, photocentre_offset_xy
 from skynav.renderer.mitsuba_backend import RESOLVED_THRESHOLD_PX, render_resolved_body
-from skynav.renderer.psf import GaussianPSF
+from skynav.renderer.kernels import GaussianKernel
 from skynav.renderer.radiometry import Radiometry
 from skynav.renderer.raster import rasterize
 
@@ -53,7 +53,7 @@ def test_just_above_and_below_threshold_agree(mitsuba_variant, body_scene, name,
     above_scene, above = body_scene(xy=xy, diameter_px=2.02, **kw)
     below_scene, below = body_scene(xy=xy, diameter_px=1.98, **kw)
     cam = above_scene.camera
-    psf = GaussianPSF(cam.defocus_sigma_px)
+    psf = GaussianKernel(cam.defocus_sigma_px)
     brdf = default_brdf(name)
     spp = 1024 if not mitsuba_variant.startswith("scalar") else 256
 

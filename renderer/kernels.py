@@ -4,8 +4,8 @@ Pixel convention (docs/conventions.md): pixel ``[i, j]`` covers ``x in [j-0.5, j
 ``y in [i-0.5, i+0.5]``. A stamp for a point at ``(x, y)`` is centred on the pixel that
 contains it, ``(floor(x + 0.5), floor(y + 0.5))``, and spans ``2 h + 1`` pixels per axis.
 
-A kernel implements the :class:`PSF` protocol; :class:`GaussianPSF` is separable and computes
-its stamps as outer products of 1-D erf differences; :class:`TablePSF` reads them out of fine
+A kernel implements the :class:`Kernel` protocol; :class:`GaussianKernel` is separable and computes
+its stamps as outer products of 1-D erf differences; :class:`TableKernel` reads them out of fine
 tables of the pixel-integrated PSF (:mod:`skynav.renderer.optics`: Airy, pupil FFT, measured
 images, a field grid of them) as they are: a stamp holds the light the PSF puts in its pixels,
 the light beyond it is not drawn (nor folded back into the core).
@@ -25,12 +25,12 @@ from scipy.special import erf, erfinv
 
 from skynav.infra.errors import ConfigValueError
 
-__all__ = ["PSF", "GaussianPSF", "TablePSF", "CutPSF", "stamp_origin", "STAMP_NOISE_FRACTION",
+__all__ = ["Kernel", "GaussianKernel", "TableKernel", "CutKernel", "stamp_origin", "STAMP_NOISE_FRACTION",
            "STAMP_CENTRE_TOLERANCE_PX"]
 
 #: Largest change of any pixel, in units of its noise (the read noise and the point's own shot
 #: noise), that drawing a faint point with a stamp smaller than its kernel's table may make
-#: (:meth:`TablePSF.half_sizes_px`): the light beyond the smaller stamp is not drawn.
+#: (:meth:`TableKernel.half_sizes_px`): the light beyond the smaller stamp is not drawn.
 STAMP_NOISE_FRACTION = 0.1
 
 #: Largest move of a point's centre of light, px, that drawing it with a smaller stamp than its
@@ -56,17 +56,17 @@ def stamp_origin(xy, half_size: int) -> np.ndarray:
 
 
 @runtime_checkable
-class PSF(Protocol):
+class Kernel(Protocol):
     """What the rasteriser needs from a kernel (a value object: hashable, comparable).
 
-    :class:`GaussianPSF` and :class:`TablePSF` are the two kernels; the camera's PSF model
+    :class:`GaussianKernel` and :class:`TableKernel` are the two kernels; the camera's PSF model
     (:mod:`skynav.scenes.psf`) says which (``skynav.renderer.optics.kernel_for``).
 
     Examples
     --------
-    >>> from skynav.renderer import PSF, GaussianPSF
-    >>> psf = GaussianPSF(0.5)
-    >>> isinstance(psf, PSF), psf.half_size_px(1e-6)
+    >>> from skynav.renderer import Kernel, GaussianKernel
+    >>> psf = GaussianKernel(0.5)
+    >>> isinstance(psf, Kernel), psf.half_size_px(1e-6)
     (True, 3)
     >>> stamp = psf.stamps(np.array([[10.0, 20.0]]), 3)   # one point at a pixel centre
     >>> stamp.shape, round(float(stamp.sum()), 6)
@@ -85,14 +85,14 @@ class PSF(Protocol):
 
 
 @dataclass(frozen=True)
-class GaussianPSF:
+class GaussianKernel:
     """Circular Gaussian PSF of standard deviation ``sigma_px`` (px), pixel-integrated exactly.
 
     ``sigma_px = 0`` is a delta: all the flux goes into the pixel containing the point (a point
     on an edge belongs to the pixel on its right/below, ``j - 0.5 <= x < j + 0.5``).
 
     Positional ``sigma_px`` (deviation from the kw_only rule for value objects: the PSF is a
-    one-number value, ``GaussianPSF(0.5)`` reads best); the repr evals back to an equal object.
+    one-number value, ``GaussianKernel(0.5)`` reads best); the repr evals back to an equal object.
 
     Parameters
     ----------
@@ -100,8 +100,8 @@ class GaussianPSF:
 
     Examples
     --------
-    >>> from skynav.renderer import GaussianPSF
-    >>> psf = GaussianPSF(0.5)
+    >>> from skynav.renderer import GaussianKernel
+    >>> psf = GaussianKernel(0.5)
     >>> round(float(psf.integrate_1d(np.array([-0.5, 0.5]))[0]), 6)
     0.682689
     """
@@ -160,7 +160,7 @@ class GaussianPSF:
         wy = self.integrate_1d(dy_edges_px)
         return wy[..., :, None] * wx[..., None, :]
 
-    # ------------------------------------------------------------------ PSF protocol
+    # ------------------------------------------------------------------ Kernel protocol
     def half_size_px(self, flux_fraction_lost: float) -> int:
         """Stamp half size so that the flux outside the stamp is < ``flux_fraction_lost``.
 
@@ -177,7 +177,7 @@ class GaussianPSF:
         return max(0, int(math.ceil(r - 1e-12)))
 
     def stamps(self, xy, half_size: int) -> np.ndarray:
-        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`).
+        """Pixel-integrated stamps of points ``xy`` (see :class:`Kernel`).
 
         Parameters
         ----------
@@ -229,7 +229,7 @@ class GaussianPSF:
         return out, h
 
 
-class TablePSF:
+class TableKernel:
     """A PSF given as fine tables of its pixel-integrated image (see :mod:`.optics`).
 
     ``tables[k][iy, ix]`` is the fraction of the flux of a point in the pixel whose centre is
@@ -273,11 +273,11 @@ class TablePSF:
     --------
     The Airy kernel of the paper camera at 550 nm:
 
-    >>> from skynav.renderer import TablePSF
+    >>> from skynav.renderer import TableKernel
     >>> from skynav.renderer.optics import kernel_for
     >>> from skynav.scenes import AiryPSFModel, paper_camera
     >>> kernel = kernel_for(paper_camera(psf=AiryPSFModel(wavelength_nm=550.0)))
-    >>> isinstance(kernel, TablePSF), kernel.n, kernel.half
+    >>> isinstance(kernel, TableKernel), kernel.n, kernel.half
     (True, 23, 16)
     >>> stamp = kernel.stamps(np.array([[10.2, 20.7]]), 3)
     >>> stamp.shape, bool(stamp.sum() <= 1.0 + 1e-12)
@@ -292,7 +292,7 @@ class TablePSF:
         self.grid = grid
         self.wavelengths_nm = None if wavelengths_nm is None else tuple(float(w) for w in wavelengths_nm)
         if self.wavelengths_nm is not None and (grid is not None or len(self.wavelengths_nm) != len(self.tables)):
-            raise ValueError("TablePSF: one effective wavelength per table, and no field grid with them")
+            raise ValueError("TableKernel: one effective wavelength per table, and no field grid with them")
         self.noise_floor_e = None if noise_floor_e is None else float(noise_floor_e)
         self._block_cache = {}
         self._limits = None
@@ -305,13 +305,13 @@ class TablePSF:
         self._key = h.hexdigest()
 
     def __eq__(self, other):
-        return isinstance(other, TablePSF) and other._key == self._key
+        return isinstance(other, TableKernel) and other._key == self._key
 
     def __hash__(self):
         return hash(self._key)
 
     def __repr__(self):
-        return f"TablePSF(<{len(self.tables)} table(s) {self.tables[0].shape}>, n={self.n}, half={self.half})"
+        return f"TableKernel(<{len(self.tables)} table(s) {self.tables[0].shape}>, n={self.n}, half={self.half})"
 
     def half_size_px(self, flux_fraction_lost: float) -> int:
         """The stamp half size the model gave for the render's ``flux_fraction_lost``."""
@@ -434,9 +434,9 @@ class TablePSF:
             out[e <= lim[h]] = h
         return out
 
-    def cut(self, half_size: int) -> "CutPSF":
-        """This kernel drawn with stamps of ``half_size`` (see :class:`CutPSF`)."""
-        return CutPSF(self, int(half_size))
+    def cut(self, half_size: int) -> "CutKernel":
+        """This kernel drawn with stamps of ``half_size`` (see :class:`CutKernel`)."""
+        return CutKernel(self, int(half_size))
 
     def _field_weights(self, xy):
         """Bilinear weights (M, K) of the grid tables at points ``xy``."""
@@ -523,7 +523,7 @@ class TablePSF:
         return g / g.sum()
 
     def stamps(self, xy, half_size: int, wavelength_nm=None) -> np.ndarray:
-        """Pixel-integrated stamps of points ``xy`` (see :class:`PSF`), each summing to the share
+        """Pixel-integrated stamps of points ``xy`` (see :class:`Kernel`), each summing to the share
         of the PSF's light inside it; ``wavelength_nm`` (M,) or scalar, nm: the points' effective
         wavelengths (required by a polychromatic kernel, ignored by others).
 
@@ -580,23 +580,23 @@ class TablePSF:
         return self.stamps(np.asarray(xy, dtype=float).reshape(1, 2), half_size, wavelength_nm)[0]
 
 
-class CutPSF:
-    """A :class:`TablePSF` drawn with stamps of one half size (its :meth:`TablePSF.stamps` at
+class CutKernel:
+    """A :class:`TableKernel` drawn with stamps of one half size (its :meth:`TableKernel.stamps` at
     ``half``): what the rasteriser draws a class of points with, once
-    :meth:`TablePSF.half_sizes_px` has sized their stamps by their charge."""
+    :meth:`TableKernel.half_sizes_px` has sized their stamps by their charge."""
 
-    def __init__(self, psf: TablePSF, half: int):
+    def __init__(self, psf: TableKernel, half: int):
         self.psf = psf
         self.half = int(half)
 
     def __eq__(self, other):
-        return isinstance(other, CutPSF) and other.psf == self.psf and other.half == self.half
+        return isinstance(other, CutKernel) and other.psf == self.psf and other.half == self.half
 
     def __hash__(self):
         return hash((self.psf, self.half))
 
     def __repr__(self):
-        return f"CutPSF({self.psf!r}, half={self.half})"
+        return f"CutKernel({self.psf!r}, half={self.half})"
 
     def half_size_px(self, flux_fraction_lost: float) -> int:
         return self.half
