@@ -74,7 +74,9 @@ class RenderOptions:
     resolved : bool
         Ray-trace bodies flagged ``resolved`` (False: draw every body as a point).
     noise : bool
-        Apply the sensor noise chain (False: DN of the expected signal, no randomness).
+        Apply the sensor noise chain and draw cosmic rays (False: DN of the expected signal, no
+        cosmic rays: the frame is the same for every seed, apart from a resolved body's Monte
+        Carlo sampling of its disc, which follows the seed).
     backend : str
         ``"auto"``, ``"llvm"``, ``"cuda"`` or ``"numpy"`` for the sensor (docs/conventions.md
         "Randomness": one seed gives the same DN on one backend, the same statistics across
@@ -581,9 +583,13 @@ def detect(expected: ExpectedImage, camera: Camera, rng: np.random.Generator, op
     if electrons.shape != shape:
         raise ConfigValueError("expected.electrons.shape", electrons.shape, f"the camera's (H, W) = {shape}")
     T = cam.exposure_s
-    # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit
-    hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
-                               track_prob=options.cosmic_ray_track_prob)
+    # --- cosmic rays: charge added after shot noise and PRNU, before the full-well limit; none
+    # without noise (a noise-free frame has no random part: the same for every seed)
+    if options.noise:
+        hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
+                                   track_prob=options.cosmic_ray_track_prob)
+    else:
+        hits = cr.draw_cosmic_rays(shape, 0, rng, mode="fixed")  # no hit, no draw
     # the charge of the few pixels hit, never a full image: electrons + charge is the image
     # cr.deposit(np.zeros(shape), hits) would give, added to the electrons, to the bit
     charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,

@@ -248,7 +248,7 @@ def test_truth_carries_every_cosmic_ray_track(scene, track_prob):
     from skynav.renderer.cosmic_rays import draw_cosmic_rays
 
     tracks = {"cosmic_ray_track_prob": track_prob} if track_prob else {}  # the default: single-pixel hits
-    opts = RenderOptions(noise=False, cosmic_ray_mode="fixed", **tracks)
+    opts = RenderOptions(cosmic_ray_mode="fixed", **tracks)  # the electrons image holds no sensor noise
     sc, opts = _with_cosmic_rays(scene, opts, 12)
     sc0, opts0 = _with_cosmic_rays(scene, opts, 0)
     frame = render(sc, seed=4, options=opts)
@@ -337,3 +337,25 @@ def test_llvm_and_numpy_paths_agree_on_the_default_frame(scene):
     sd = math.sqrt(2.0 * np.sum(K * K * (mu + s2) + 1.0 / 12.0))
     diff = float(np.sum(b.dn[bright].astype(float)) - np.sum(a.dn[bright].astype(float)))
     assert bright.sum() > 100 and abs(diff) < 5.0 * sd, (int(bright.sum()), diff, sd)
+
+
+def test_no_noise_frames_of_two_seeds_are_identical(scene):
+    """``noise=False`` (``skynav render --no-noise``) has no random part: no sensor noise and no
+    cosmic rays, so frames of seeds 1 and 2 are the same bits (with noise they differ, by their
+    cosmic rays among others)."""
+    opts = RenderOptions(noise=False, cosmic_rays_per_frame=3.0)
+    a, b = render(scene, seed=1, options=opts), render(scene, seed=2, options=opts)
+    assert np.array_equal(a.dn, b.dn) and np.array_equal(a.electrons, b.electrons)
+    assert a.truth["cosmic_rays"] == b.truth["cosmic_rays"] == []
+    noisy = [render(scene, seed=s, options=RenderOptions(cosmic_rays_per_frame=3.0, cosmic_ray_mode="fixed")) for s in (1, 2)]
+    assert not np.array_equal(noisy[0].electrons, noisy[1].electrons)
+
+
+def test_no_noise_command_line_frames_of_two_seeds_are_identical(tmp_path):
+    """``skynav render --no-noise`` with seeds 1 and 2 (cosmic rays asked for): the same PNG bytes."""
+    from skynav.cli import main
+
+    small = ["--set", "camera.width=128", "--set", "camera.height=128", "--set", "render.cosmic_rays_per_frame=5"]
+    for seed in (1, 2):
+        assert main(["render", "-o", str(tmp_path / str(seed)), "--no-noise", "-q", "--seed", str(seed), *small]) == 0
+    assert (tmp_path / "1" / "frame.png").read_bytes() == (tmp_path / "2" / "frame.png").read_bytes()
