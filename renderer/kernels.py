@@ -278,7 +278,7 @@ class TableKernel:
     >>> from skynav.scenes import AiryPSFModel, paper_camera
     >>> kernel = kernel_for(paper_camera(psf=AiryPSFModel(wavelength_nm=550.0)))
     >>> isinstance(kernel, TableKernel), kernel.n, kernel.half
-    (True, 23, 16)
+    (True, 32, 16)
     >>> stamp = kernel.stamps(np.array([[10.2, 20.7]]), 3)
     >>> stamp.shape, bool(stamp.sum() <= 1.0 + 1e-12)
     ((1, 7, 7), True)
@@ -581,9 +581,28 @@ class TableKernel:
 
 
 class CutKernel:
-    """A :class:`TableKernel` drawn with stamps of one half size (its :meth:`TableKernel.stamps` at
-    ``half``): what the rasteriser draws a class of points with, once
-    :meth:`TableKernel.half_sizes_px` has sized their stamps by their charge."""
+    """A :class:`TableKernel` drawn with stamps of one (smaller) half size.
+
+    What the rasteriser draws a class of faint points with, once :meth:`TableKernel.half_sizes_px`
+    has sized their stamps by their charge: :meth:`TableKernel.stamps` at ``half``, the middle
+    of the full stamp (the light beyond it not drawn).
+
+    Parameters
+    ----------
+    psf : TableKernel
+        The full kernel.
+    half : int
+        The stamps' half size, px (``2 half + 1`` px a side).
+
+    Examples
+    --------
+    >>> from skynav.renderer.optics import kernel_for
+    >>> from skynav.scenes import AiryPSFModel, paper_camera
+    >>> full = kernel_for(paper_camera(psf=AiryPSFModel(wavelength_nm=550.0)))
+    >>> cut = full.cut(8)
+    >>> cut.half_size_px(1e-6), cut.stamps(np.array([[10.2, 20.7]]), 8).shape
+    (8, (1, 17, 17))
+    """
 
     def __init__(self, psf: TableKernel, half: int):
         self.psf = psf

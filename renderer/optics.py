@@ -403,17 +403,37 @@ KERNEL_BUILDERS = {
 
 @functools.lru_cache(maxsize=64)
 def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
-    """The renderer's kernel of the camera's PSF model (built once per camera: cached), by
-    :data:`KERNEL_BUILDERS`.
+    """The renderer's kernel of the camera's PSF model, built once per camera (cached).
 
-    ``source`` None: the kernel every source is drawn with: for a polychromatic Airy the tables
-    of its :func:`spectral_nodes`, whose stamps take each point's effective wavelength
-    (``wavelength_nm``). A source (``("star", teff_k)``, ``("body", name)``, ``("spectrum",
-    wavelengths, values)``, hashable) on a polychromatic camera: :func:`source_kernel`, the
-    exact table of its own spectrum. A Gaussian is :class:`~skynav.renderer.kernels.GaussianKernel`,
-    every other model a :class:`~skynav.renderer.kernels.TableKernel`, whose faint sources' stamps
-    are sized by the camera's read noise
-    (:meth:`~skynav.renderer.kernels.TableKernel.half_sizes_px`).
+    The one dispatch from a model to its kernel: :data:`KERNEL_BUILDERS`, by the model's
+    ``model`` name. A Gaussian is a :class:`~skynav.renderer.kernels.GaussianKernel`, every
+    other model a :class:`~skynav.renderer.kernels.TableKernel`, whose faint sources' stamps are
+    sized by the camera's read noise (:meth:`~skynav.renderer.kernels.TableKernel.half_sizes_px`).
+
+    Parameters
+    ----------
+    camera : skynav.scenes.camera.Camera
+        The camera: its ``psf`` model, f-number, pixel pitch, response and read noise.
+    source : tuple, optional
+        None: the kernel every source is drawn with (for a polychromatic Airy the tables of its
+        :func:`spectral_nodes`, whose stamps take each point's effective wavelength). A source
+        (``("star", teff_k)``, ``("body", name)``, ``("spectrum", wavelengths, values)``,
+        hashable) on a polychromatic camera: :func:`source_kernel`, the table of its own
+        spectrum.
+    flux_fraction_lost : float
+        The render's ``flux_fraction_lost``: the model sizes the stamps for it (capped at its
+        ``max_half_px``).
+
+    Returns
+    -------
+    GaussianKernel or TableKernel
+
+    Examples
+    --------
+    >>> from skynav.renderer import kernel_for
+    >>> from skynav.scenes import paper_camera
+    >>> kernel_for(paper_camera())
+    GaussianKernel(sigma_px=0.5)
     """
     model = camera.psf
     half = 0 if model.model == "gaussian" else int(model.half_size_px(flux_fraction_lost, camera))
