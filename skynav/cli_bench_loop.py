@@ -136,7 +136,8 @@ def _say_summary(args, summary, loop, noise, res, total, setup_s, out) -> None:
         f"{loop['centred_within_px']:.0f} px) {100 * loop['target_centred_fraction']:.1f} %; latency median "
         f"{1e3 * loop['latency_s']['median']:.0f} ms, p99 {1e3 * loop['latency_s']['p99']:.0f} ms"
         + (f"; {loop['deadline_misses']} deadline misses at {args.realtime:g}x real time" if args.realtime else ""),
-        f"  R: {noise.describe()}")
+        f"  R, the filter's measurement noise (sigma: the standard deviation of a planet's measured centre, D: its "
+        f"predicted apparent diameter in px): {noise.describe()}")
     if "biased_initial_state" in loop:
         b = loop["biased_initial_state"]
         for key, name in (("open_loop", "open loop (pointed from the truth, as a dataset)"),
