@@ -58,16 +58,12 @@ def _profile(edges, s):
     return e, de_dx, de_ds
 
 
-def _gauss_newton(data, corner, xy0, s, *, fit_width: bool, iterations: int, background=None):
-    """Gauss-Newton on every stamp at once: ``(xy (N, 2), s (N,), converged (N,))``; the
-    background ``b`` is fitted, or held at ``background`` when given."""
+def _gauss_newton(data, corner, xy0, s, *, fit_width: bool, iterations: int):
+    """Gauss-Newton on every stamp at once: ``(xy (N, 2), s (N,), converged (N,))``."""
     n, S, _ = data.shape
     edges = np.arange(S + 1, dtype=np.float64) - 0.5
     x, y = xy0[:, 0] - corner[:, 0], xy0[:, 1] - corner[:, 1]
-    if background is None:
-        b = np.minimum(np.min(data.reshape(n, -1), axis=1), np.median(data.reshape(n, -1), axis=1))
-    else:
-        b = np.full(n, float(background))
+    b = np.minimum(np.min(data.reshape(n, -1), axis=1), np.median(data.reshape(n, -1), axis=1))
     A = np.clip((data - b[:, None, None]).sum(axis=(1, 2)), 1.0, None)
     s = np.full(n, float(s)) if np.ndim(s) == 0 else np.asarray(s, float).copy()
     good = np.ones(n, bool)
@@ -81,21 +77,20 @@ def _gauss_newton(data, corner, xy0, s, *, fit_width: bool, iterations: int, bac
                 ey[:, :, None] * ex[:, None, :]]
         if fit_width:
             cols.append(A[:, None, None] * (ey[:, :, None] * dsx[:, None, :] + dsy[:, :, None] * ex[:, None, :]))
-        J = np.stack([c.reshape(n, -1) for c in cols[:3]] + ([ones] if background is None else [])
-                     + [c.reshape(n, -1) for c in cols[3:]], axis=1)  # (N, p, S^2): x, y, A, b (, s)
+        J = np.stack([c.reshape(n, -1) for c in cols[:3]] + [ones] + [c.reshape(n, -1) for c in cols[3:]],
+                     axis=1)  # (N, p, S^2): x, y, A, b (, s)
         r = (data - m).reshape(n, -1, 1)
         JtJ = J @ J.transpose(0, 2, 1)
         Jtr = (J @ r)[..., 0]
         d = np.arange(JtJ.shape[1])
-        JtJ[:, d, d] += 1e-9 * JtJ[:, d, d].max(axis=1, keepdims=True) + 1e-300  # never singular
+        JtJ[:, d, d] *= 1.0 + 1e-12  # a zero column (A = 0) makes a non-finite step: not converged
+        JtJ[:, d, d] += 1e-300
         with np.errstate(all="ignore"):
             step = np.linalg.solve(JtJ, Jtr[..., None])[..., 0]
         good &= np.all(np.isfinite(step), axis=1)
         step[~good] = 0.0
         step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)  # a damped start: no jump out of the stamp
-        x, y, A = x + step[:, 0], y + step[:, 1], A + step[:, 2]
-        if background is None:
-            b = b + step[:, 3]
+        x, y, A, b = x + step[:, 0], y + step[:, 1], A + step[:, 2], b + step[:, 3]
         if fit_width:
             s = np.clip(s + np.clip(step[:, -1], -0.5 * s, 0.5 * s), 0.15, 8.0)
     half = (S - 1) / 2
@@ -106,7 +101,7 @@ def _gauss_newton(data, corner, xy0, s, *, fit_width: bool, iterations: int, bac
 def frame_psf_sigma_px(img, xy, flux_dn, *, max_dn: float, n_stars: int = 12, start_px: float = 0.8) -> float:
     """The frame's Gaussian width (px): the median of the widths fitted on the ``n_stars``
     brightest spots whose 9 x 9 stamp lies in the image with no pixel at ``0.8 max_dn``, each
-    started from ``start_px`` (8 Gauss-Newton steps); nan when fewer than 3 fit."""
+    started from ``start_px`` (5 Gauss-Newton steps); nan when fewer than 3 fit."""
     order = np.argsort(-np.asarray(flux_dn, float), kind="stable")[:4 * n_stars]
     xy = np.asarray(xy, float)[order]
     data, corner, ok = _stamps(img, xy, 4)
@@ -114,12 +109,12 @@ def frame_psf_sigma_px(img, xy, flux_dn, *, max_dn: float, n_stars: int = 12, st
     sel = np.flatnonzero(ok)[:n_stars]
     if len(sel) < 3:
         return float("nan")
-    _, s, good = _gauss_newton(data[sel], corner[sel], xy[sel], start_px, fit_width=True, iterations=8)
+    _, s, good = _gauss_newton(data[sel], corner[sel], xy[sel], start_px, fit_width=True, iterations=5)
     s = s[good]
     return float(np.median(s)) if len(s) >= 3 else float("nan")
 
 
-def fit_gaussian_xy(img, xy, *, sigma_px: float, max_dn: float, iterations: int = 3, background_dn=None):
+def fit_gaussian_xy(img, xy, *, sigma_px: float, max_dn: float, iterations: int = 2):
     """``(xy (N, 2), fitted (N,))``: each spot's position by the least-squares fit of a
     pixel-integrated Gaussian of width ``sigma_px`` plus a constant (module docstring), started
     from ``xy``; where the stamp leaves the image, holds a saturated pixel, or the fit does not
@@ -133,8 +128,7 @@ def fit_gaussian_xy(img, xy, *, sigma_px: float, max_dn: float, iterations: int 
     sel = np.flatnonzero(ok)
     fitted = np.zeros(len(xy), bool)
     if len(sel):
-        fit, _, good = _gauss_newton(data[sel], corner[sel], xy[sel], sigma_px, fit_width=False, iterations=iterations,
-                                     background=background_dn)
+        fit, _, good = _gauss_newton(data[sel], corner[sel], xy[sel], sigma_px, fit_width=False, iterations=iterations)
         out[sel[good]] = fit[good]
         fitted[sel[good]] = True
     return out, fitted
