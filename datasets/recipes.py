@@ -40,13 +40,13 @@ from skynav.infra.count_cap import cap_count
 from skynav.scenes.config import (
     RENDER_KEYS,
     camera_from_mapping,
-    load_yaml,
     render_settings_from_mapping,
     scene_spec_from_mapping,
     visibility_from_mapping,
 )
 from skynav.scenes.errors import MovedKeyError
 from skynav.scenes.psf import resolve_psf_files
+from skynav.scenes.scene_files import load_yaml
 from skynav.scenes.timescales import to_time
 
 from .errors import RecipeError

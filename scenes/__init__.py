@@ -25,7 +25,7 @@ _LAZY = {
     # the scene
     "Scene": "scene", "SkyBody": "sky", "StarsInView": "scene", "BodyInView": "scene",
     "build_scene": "scene", "build_from_spec": "scene", "resolve_spec": "scene", "sky_bodies": "sky",
-    "SceneSpec": "config", "AttitudeSpec": "config", "load_scene_file": "config", "read_scene_file": "config",
+    "SceneSpec": "config", "AttitudeSpec": "config", "load_scene_file": "scene_files", "read_scene_file": "scene_files",
     "OverrideError": "overrides", "parse_override": "overrides", "apply_overrides": "overrides",
     "dataclass_from_overrides": "overrides",
     "default_scene_spec": "presets",

@@ -23,7 +23,8 @@ import yaml
 
 from skynav.infra.errors import SkynavError
 
-from .config import camera_from_mapping, load_yaml
+from .config import camera_from_mapping
+from .scene_files import load_yaml
 
 __all__ = ["OverrideError", "parse_override", "apply_overrides", "keep_field_of_view", "dataclass_from_overrides"]
 

@@ -415,7 +415,7 @@ def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
     Parameters
     ----------
     spec : SceneSpec
-        The scene description (:func:`~skynav.scenes.config.load_scene_file`,
+        The scene description (:func:`~skynav.scenes.scene_files.load_scene_file`,
         :func:`~skynav.scenes.presets.default_scene_spec`).
     ephemeris : Ephemeris, optional
         Default: DE421.

@@ -10,7 +10,7 @@ import numpy as np
 
 from skynav.datasets.frame_files import check_output_dir, check_stem, write_frame
 from skynav.renderer.render import RenderOptions, render
-from skynav.scenes import config, presets
+from skynav.scenes import config, presets, scene_files
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.errors import SceneFileError
 from skynav.scenes.frames import unit_to_radec
@@ -34,7 +34,7 @@ def _load_spec(arg: str | None, overrides=(), camera=None):
         path = Path(arg)
         if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
             raise SceneFileError(f"{arg}: no such scene file (give a .yaml file or a preset: {', '.join(presets.PRESETS)})")
-        mapping = config.load_scene_mapping(path)
+        mapping = scene_files.load_scene_mapping(path)
     if overrides:
         before, mapping = mapping, apply_overrides(mapping, overrides)
         keep_field_of_view(before, mapping, overrides)  # a size override keeps the field (one line says so)

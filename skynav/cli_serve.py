@@ -16,7 +16,7 @@ from .cli_common import COMMAND_HELP, fail
 def cmd_serve_vizard(args) -> int:
     """``skynav serve --vizard``: the Vizard-compatible image endpoint (skynav.service.vizard)."""
     # lazy: the endpoint loads zmq, protobuf and the renderer; skynav --help loads none of them
-    from skynav.scenes.config import load_scene_mapping
+    from skynav.scenes.scene_files import load_scene_mapping
     from skynav.scenes.overrides import apply_overrides
     from skynav.service.vizard import BASE_SECTIONS, VizardEndpoint, VizardStartError, serve_vizard
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skynav.scenes import config, presets
+from skynav.scenes import presets, scene_files
 from skynav.scenes.scene import build_from_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -17,7 +17,7 @@ def default_scene():
 
 
 def test_yaml_twin_gives_identical_scene(default_scene):
-    spec_yaml = config.load_scene_file(ROOT / "docs" / "examples" / "default_scene.yaml")
+    spec_yaml = scene_files.load_scene_file(ROOT / "docs" / "examples" / "default_scene.yaml")
     assert spec_yaml == presets.default_scene_spec()
     s2 = build_from_spec(spec_yaml)
     assert np.array_equal(s2.R_cam_icrs, default_scene.R_cam_icrs)
