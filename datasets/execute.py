@@ -308,6 +308,17 @@ def run_in_process(plan, accept) -> tuple:
     return 1, "in-process"
 
 
+def cpu_jiffies():
+    """``(idle, total)`` CPU time of the whole machine so far, in clock ticks of all its cores
+    (Linux's ``/proc/stat``; idle includes waiting for I/O); None where it cannot be read."""
+    try:
+        with open("/proc/stat", "rb") as f:
+            fields = [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    return (fields[3] + fields[4], sum(fields)) if len(fields) == 8 else None
+
+
 class HelpersPay:
     """Whether starting the helpers of a dataset run pays, asked before each of this process's
     frames (the ``pays`` of :func:`skynav.infra.pool.share_jobs`).
@@ -318,23 +329,46 @@ class HelpersPay:
     process busy for more than ``factor`` times that start-up at its own pace (the wall-clock time
     a frame has taken it since its first): then a helper that joins after its start-up still
     takes a good share of them (a helper gains half of what is left once it has joined, so it
-    pays from ``factor`` = 1; the margin covers a start-up longer than this estimate). On a
-    small dataset no helper is started and ``--workers N`` runs as ``--workers 1``.
+    pays from ``factor`` = 1; the margin covers a start-up longer than this estimate). And only
+    where a core is idle for it: on a machine whose cores are busy with other work, a helper's
+    start-up and frames would be taken from this process's share of them. The idle cores are
+    the machine's idle CPU time over at least ``window_s`` since the last look (``jiffies``,
+    :func:`cpu_jiffies`; where it cannot be read, a core is taken to be idle). On a small
+    dataset, or a busy machine, no helper is started and ``--workers N`` runs as ``--workers 1``.
     """
 
-    def __init__(self, *, imports_s: float = 1.0, factor: float = 1.5):
-        self.imports_s, self.factor = imports_s, factor
+    def __init__(self, *, imports_s: float = 1.0, factor: float = 1.5, idle_cores: float = 0.5,
+                 window_s: float = 0.5, jiffies=cpu_jiffies):
+        self.imports_s, self.factor, self.idle_cores, self.window_s, self.jiffies = (
+            imports_s, factor, idle_cores, window_s, jiffies)
         self.first_s = None
+        self.mark = None  # (seconds, jiffies) where the machine was last looked at
 
     def __call__(self, made: int, left: int, seconds: float) -> bool:
         if made == 0:
             return False
         if self.first_s is None:
-            self.first_s = seconds
+            self.first_s, self.mark = seconds, (seconds, self.jiffies())
         if made < 3:  # the pace of two frames after the first
             return False
         pace = (seconds - self.first_s) / (made - 1)
-        return left * pace > self.factor * (self.first_s + self.imports_s)
+        if left * pace <= self.factor * (self.first_s + self.imports_s):
+            return False
+        return self.a_core_is_idle(seconds)
+
+    def a_core_is_idle(self, seconds: float) -> bool:
+        """Whether the machine had ``idle_cores`` idle since the last look (at least ``window_s``
+        ago; sooner, not yet known: False)."""
+        then_s, then = self.mark
+        if then is None:
+            return True
+        if seconds - then_s < self.window_s:
+            return False
+        now = self.jiffies()
+        self.mark = (seconds, now)
+        if now is None or now[1] <= then[1]:
+            return True
+        return (now[0] - then[0]) / (now[1] - then[1]) * (os.cpu_count() or 1) >= self.idle_cores
 
 
 def run_process_pool(plan, accept, n_workers: int) -> tuple:

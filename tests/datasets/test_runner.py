@@ -54,13 +54,28 @@ def test_two_worker_processes_identical(reference_dataset, tmp_path, monkeypatch
 def test_a_helper_starts_only_once_the_frames_left_pay_its_start_up():
     from skynav.datasets.execute import HelpersPay
 
-    pays = HelpersPay(imports_s=1.0, factor=1.5)
+    pays = HelpersPay(imports_s=1.0, factor=1.5, jiffies=lambda: None)  # the machine unknown: idle
     assert not pays(0, 400, 0.0)
     assert not pays(1, 399, 2.0) and not pays(2, 398, 2.025)  # the first frame took 2 s: the start-up
     assert pays(3, 397, 2.05)  # 397 frames at 25 ms = 9.9 s > 1.5 x (2 + 1) s
-    pays = HelpersPay(imports_s=1.0, factor=1.5)
+    pays = HelpersPay(imports_s=1.0, factor=1.5, jiffies=lambda: None)
     pays(1, 59, 2.0)
     assert not pays(3, 57, 2.05)  # 57 frames at 25 ms = 1.4 s: the helper would not pay
+
+
+def test_a_helper_starts_only_where_a_core_is_idle(monkeypatch):
+    from skynav.datasets import execute
+
+    monkeypatch.setattr(execute.os, "cpu_count", lambda: 2)
+    ticks = iter([(0, 0), (20, 200), (40, 400), (150, 600)])  # idle, total: 0.2, then 1.1 cores idle
+    pays = execute.HelpersPay(imports_s=1.0, factor=1.5, window_s=0.5, jiffies=lambda: next(ticks))
+    pays(1, 999, 1.0)
+    assert not pays(3, 997, 1.1)  # frames enough, but the window since the first look is 0.1 s
+    assert not pays(4, 996, 1.6)  # 0.2 cores idle: the machine is busy
+    assert not pays(5, 995, 1.7)  # too soon to look again
+    assert not pays(6, 994, 2.2)  # 0.2 cores idle again
+    assert pays(7, 993, 2.8)  # 1.1 cores idle
+    assert execute.cpu_jiffies() is None or execute.cpu_jiffies()[1] > 0
 
 
 def test_dask_local_cluster_identical(reference_dataset, tmp_path):
@@ -78,10 +93,11 @@ def _count_json(frames_dir: Path) -> int:
     return sum(1 for p in frames_dir.glob("*.json")) if frames_dir.is_dir() else 0
 
 
-def _spawn_generator(recipe: dict, out: Path, options: str) -> subprocess.Popen:
-    """``generate(recipe, out, <options>)`` in a separate Python process."""
+def _spawn_generator(recipe: dict, out: Path, options: str, prelude: str = "") -> subprocess.Popen:
+    """``generate(recipe, out, <options>)`` in a separate Python process, after ``prelude``."""
     code = ("import json, sys\n"
             "from skynav.datasets import generate\n"
+            f"{prelude}"
             f"generate(json.loads(sys.argv[1]), sys.argv[2], {options})\n")
     return subprocess.Popen([sys.executable, "-c", code, json.dumps(recipe), str(out)])
 
@@ -246,8 +262,9 @@ def test_pool_workers_end_when_the_generator_is_killed(tmp_path):
     """SIGKILL to ``dataset generate``'s process leaves no worker behind (they used to wait for work
     forever, holding a Mitsuba process's memory each)."""
     out = tmp_path / "ds"
-    # frames enough for the helper to pay its start-up: it starts after the parent's third frame
-    proc = _spawn_generator(small_recipe(5000), out, "workers=2, progress=False")
+    # a helper at once, whatever the machine's load (it would start once it pays)
+    prelude = "from skynav.datasets import execute\nexecute.HelpersPay.__call__ = lambda self, *a: True\n"
+    proc = _spawn_generator(small_recipe(200), out, "workers=2, progress=False", prelude)
     try:
         _wait_until(proc, lambda: len(_helpers(proc.pid)) >= 1 and _count_json(out / "frames") >= 2, poll_s=0.05)
         kids = [k for k in _children(proc.pid) if _alive(k)]
