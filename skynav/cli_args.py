@@ -213,7 +213,7 @@ def add_facility_arg(parser, *, required: bool, default: str | None = None, help
     if former_positional:
         parser.add_argument("former_facility", nargs="?", action=_Facility, default=argparse.SUPPRESS,
                             metavar="FACILITY", help=argparse.SUPPRESS)
-    if former_positional:
+
         def merge(args):
             if getattr(args, "former_facility", None) is not None:
                 args.facility = args.former_facility
