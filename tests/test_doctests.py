@@ -2,7 +2,9 @@
 
 The modules are found by walking the installed ``skynav`` packages, so a module added or moved is
 covered without editing this file. Modules that need an optional accelerator are still imported
-(imports are lazy everywhere); their examples avoid the accelerator.
+(imports are lazy everywhere); their examples avoid the accelerator. A module that imports an
+optional extra at its top (``skynav.service.vizard``: pyzmq, the ``basilisk`` extra) is left out
+where that extra is not installed, and run where it is.
 """
 
 from __future__ import annotations
@@ -18,6 +20,18 @@ ROOMS = ("skynav.infra", "skynav.scenes", "skynav.renderer", "skynav.datasets", 
          "skynav.calibration", "skynav.service")
 
 
+def _importable(name: str) -> bool:
+    """False for a module whose import needs an optional extra that is not installed (a missing
+    third-party top-level package); any other import error is raised, as a failure."""
+    try:
+        importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.split(".")[0] != "skynav":
+            return False
+        raise
+    return True
+
+
 def _modules():
     names = []
     for room in ROOMS:
@@ -25,7 +39,7 @@ def _modules():
         names.append(room)
         for info in pkgutil.walk_packages(pkg.__path__, prefix=room + "."):
             names.append(info.name)
-    return sorted(names)
+    return sorted(n for n in names if _importable(n))
 
 
 def _with_examples(name):
