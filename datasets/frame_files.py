@@ -46,10 +46,12 @@ from PIL import Image
 from skynav.infra.atomic_files import atomic_write_bytes, open_binary
 from skynav.infra.errors import ConfigValueError
 from skynav.infra.threads import thread_budget
+from skynav.scenes.camera import Camera
 
 from .errors import OutputFormatError, OutputPathError
 from .exr_rle import reference_exr_bytes, sparse_exr_bytes
-from .fits_files import fits_bytes, fits_frame_header, tan_wcs_header
+from .fits_files import fits_bytes, fits_frame_header
+from .fits_sip import sky_wcs_header
 from .png_rle import png_rle_bytes
 from .truth_schema import truth_json_bytes
 
@@ -505,8 +507,7 @@ def encode_frame(frame, formats=("png", "exr", "json"), *, fits: bool = False) -
             blobs[fmt] = frame_file_bytes(frame, fmt)
         elif fmt == "fits":
             t = frame.truth
-            hdr = tan_wcs_header(np.array(t["camera"]["K"]), t["camera"]["width"], t["camera"]["height"],
-                                 np.array(t["attitude"]["R_cam_icrs"]))
+            hdr = sky_wcs_header(Camera.from_dict(dict(t["camera"])), np.array(t["attitude"]["R_cam_icrs"]))
             blobs[fmt] = fits_bytes(frame.dn, hdr, fits_frame_header(t))
         else:
             raise ConfigValueError("formats", fmt, "png, exr, json or fits")
