@@ -231,3 +231,38 @@ def test_a_taken_port_is_one_line():
         sock.close(0)
     assert run.returncode == 2
     assert run.stderr.strip().count("\n") == 0 and f"--vizard-port {port}" in run.stderr, run.stderr
+
+
+def test_a_client_gone_mid_request_leaves_the_endpoint_serving(endpoint):
+    ctx = zmq.Context.instance()
+    gone = ctx.socket(zmq.REQ)
+    gone.setsockopt(zmq.LINGER, 0)
+    gone.connect(endpoint.address)
+    gone.send_multipart(sim_update(frame=7))
+    gone.close(0)                                   # before the answer
+    ask = ctx.socket(zmq.REQ)
+    ask.setsockopt(zmq.LINGER, 0)
+    ask.setsockopt(zmq.RCVTIMEO, 120_000)
+    ask.connect(endpoint.address)
+    try:
+        ask.send_multipart([b"PING"])
+        assert ask.recv_multipart() == [b"PONG"]
+    finally:
+        ask.close(0)
+
+
+def test_a_camera_file_that_is_not_basilisks_is_one_line(tmp_path):
+    (tmp_path / "camera.yaml").write_text("camera:\n  preset: paper\n  width: 64\n  height: 64\n  exposure_s: 0.001\n")
+    ep = start_vizard("--camera", str(tmp_path / "camera.yaml"))
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(ep.address)
+    try:
+        for frames, reply in ((sim_update(), [b"OK"]), ([b"REQUEST_IMAGE_1"], [struct.pack(">i", 0), b""])):
+            sock.send_multipart(frames)
+            assert sock.recv_multipart() == reply
+    finally:
+        sock.close(0)
+        assert ep.stop() == 0
+    said = [line for line in ep.lines if "REQUEST_IMAGE_1" in line]
+    assert len(said) == 1 and "width 64" in said[0] and "Basilisk's camera (width 96" in said[0], ep.output
