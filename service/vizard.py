@@ -25,8 +25,6 @@ With ``truth_dir`` every frame's PNG, truth JSON and derived scene file are kept
 from __future__ import annotations
 
 import io
-import json
-import math
 import os
 import signal
 import struct
@@ -36,12 +34,14 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+import orjson
 import yaml
 import zmq
 from google.protobuf.message import DecodeError
 from PIL import Image
 
 from skynav.infra.errors import ConfigValueError, SkynavError
+from skynav.infra.heap import WarmHeap
 
 from .vizard_scene import epoch_utc_iso, origin_body, scene_mapping
 from .vizard_schema import VizMessage
@@ -49,6 +49,9 @@ from .worker import render_outputs
 
 #: Basilisk's default request port (``vizInterface.reqPortNumber``)
 DEFAULT_PORT = 5556
+
+#: full-scale pixels that make a saturated disc (a saturated star or cosmic ray is a handful)
+SATURATED_DISC_PX = 50
 
 #: the scene sections a user may give the endpoint (the rest comes from Basilisk's messages)
 BASE_SECTIONS = ("camera", "visibility", "render")
@@ -171,7 +174,9 @@ class VizardEndpoint:
                              origin=self.origin)
 
     def _render(self, mapping: dict) -> bytes:
-        outputs = ("png", "truth")
+        # the truth only where it is kept: decoding it to look for a saturated disc would cost a
+        # tenth of a second a frame (its stars); the PNG says whether anything saturates
+        outputs = ("png", "truth") if self.truth_dir is not None else ("png",)
         parts, lines = render_outputs(mapping, outputs)
         for line in lines:
             self._once(line, line)
@@ -189,22 +194,25 @@ class VizardEndpoint:
             self.log(line)
 
     def _check_saturation(self, parts: dict, mapping: dict) -> None:
-        """One line (once) when a resolved body's disc saturates: Hough and limb finders lose accuracy."""
+        """One line (once) when a disc saturates the sensor: Hough and limb finders lose accuracy.
+
+        A disc's worth of pixels at full scale (at least :data:`SATURATED_DISC_PX`; a star or a
+        cosmic ray saturates a handful) is a saturated body; the truth, where it is kept, names it.
+        """
         if "saturation" in self._said:
             return
-        truth = json.loads(parts["truth"])
-        discs = [b for b in truth.get("bodies", ()) if b.get("resolved") and b.get("in_fov")]
-        if not discs:
-            return
         dn = np.asarray(Image.open(io.BytesIO(parts["png"])))
-        full = np.iinfo(dn.dtype).max
-        n = int(np.count_nonzero(dn == full))
-        # a handful of full-scale pixels is a star or a cosmic ray; a disc's worth is the body
-        disc_px = max(math.pi / 4 * min(b.get("angular_diameter_px", 0.0) for b in discs) ** 2, 9.0)
-        if n >= min(disc_px / 4, 200):
-            self._once("saturation", f"{discs[0]['name']}'s disc saturates the sensor ({n} pixels at full scale, "
-                       f"exposure {mapping['camera'].get('exposure_s', 'the preset')} s): Basilisk's Hough and "
-                       "limb finders lose accuracy; shorten camera.exposure_s (--set)")
+        n = int(np.count_nonzero(dn == np.iinfo(dn.dtype).max))
+        if n < SATURATED_DISC_PX:
+            return
+        name = "a body"
+        if "truth" in parts:
+            bodies = orjson.loads(parts["truth"]).get("bodies", ())
+            discs = [b["name"] for b in bodies if b.get("resolved") and b.get("in_fov")]
+            name = discs[0] if discs else name
+        self._once("saturation", f"{name}'s disc saturates the sensor ({n} pixels at full scale, exposure "
+                   f"{mapping['camera'].get('exposure_s', 'the preset')} s): Basilisk's Hough and limb finders "
+                   "lose accuracy; shorten camera.exposure_s (--set)")
 
     def _keep(self, parts: dict, mapping: dict) -> None:
         stem = self.truth_dir / f"{self.frames:06d}"
@@ -247,6 +255,18 @@ def serve_vizard(endpoint: VizardEndpoint, *, host: str = "127.0.0.1", port: int
             previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     try:
         ready(f"skynav serve: Vizard endpoint ready at tcp://{host}:{port}")
+        _answer_until(endpoint, sock, stop, poll_ms)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        sock.close(0)
+        ctx.term()
+
+
+def _answer_until(endpoint: VizardEndpoint, sock, stop: threading.Event, poll_ms: int) -> None:
+    """Answer each request on ``sock`` until ``stop`` is set (checked every ``poll_ms``)."""
+    with WarmHeap() as heap:
+        warm = False
         while not stop.is_set():
             if not sock.poll(poll_ms, zmq.POLLIN):
                 continue
@@ -258,8 +278,6 @@ def serve_vizard(endpoint: VizardEndpoint, *, host: str = "127.0.0.1", port: int
                 endpoint.log(f"internal error on a request ({exc.__class__.__name__}); see above")
                 reply = [b"ERROR internal error"]
             sock.send_multipart(reply)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        sock.close(0)
-        ctx.term()
+            if endpoint.frames and not warm:
+                heap.warm()   # the first frame is made: the collector leaves the warm objects alone from here
+                warm = True

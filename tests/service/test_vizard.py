@@ -266,3 +266,12 @@ def test_a_camera_file_that_is_not_basilisks_is_one_line(tmp_path):
         assert ep.stop() == 0
     said = [line for line in ep.lines if "REQUEST_IMAGE_1" in line]
     assert len(said) == 1 and "width 64" in said[0] and "Basilisk's camera (width 96" in said[0], ep.output
+
+
+def test_the_benchmark_prints_its_ratio():
+    """benchmarks/vizard_bench.py in its quickest form (nothing timed here: its lines are printed)."""
+    run = subprocess.run([sys.executable, str(Path(__file__).resolve().parents[2] / "benchmarks" / "vizard_bench.py"),
+                          "--frames", "1", "--warmup", "0", "--size", "64"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "same PNG bytes on every frame: True" in run.stdout, run.stdout
+    assert re.search(r"VIZARD / HTTP FRAME TIME: [0-9.]+ x", run.stdout), run.stdout
