@@ -235,9 +235,7 @@ class _Sharing:
         self.t0 = time.perf_counter()
 
     def start_helpers(self) -> None:
-        """Spawn the helpers; from now on this process and each of them has the thread budget of
-        one of the workers (the variables stay set here until :meth:`stop`)."""
-        self.threads.__enter__()
+        """Spawn the helpers (they inherit the thread budget of one of the workers)."""
         shared, self.results = self.counter.share(self.ctx), self.ctx.Queue()
         self.helpers = [self.ctx.Process(target=_helper, daemon=True, name=f"skynav-helper-{i}",
                                          args=(self.loop, self.jobs, shared, self.results, os.getpid(), i))
@@ -294,8 +292,6 @@ class _Sharing:
             if failed or i not in self.took:
                 p.terminate()
             p.join()
-        if self.helpers:
-            self.threads.__exit__(None, None, None)
 
 
 def share_jobs(loop, jobs, n_workers: int, accept, *, pays=None) -> None:
@@ -309,21 +305,22 @@ def share_jobs(loop, jobs, n_workers: int, accept, *, pays=None) -> None:
     are started before its first job, or, with ``pays``, before the first of its jobs for which
     ``pays(jobs this process has taken, jobs nobody has taken, seconds since the start)`` is
     true: a helper's start-up (imports, caches) is then paid only where the jobs left are worth
-    it. From then on every process has the thread budget of one of ``n_workers`` workers
-    (:class:`WorkerThreads`). A helper adds its work once it has started, and one that has taken
-    no job when the last result arrives is stopped, so a run with helpers is not slower than one
-    without. A helper's exception is raised here (the others take no further job); so is this
-    process's, after the helpers are stopped.
+    it. Every process has the thread budget of one of ``n_workers`` workers
+    (:class:`WorkerThreads`), this one from its first job. A helper adds its work once it has
+    started, and one that has taken no job when the last result arrives is stopped, so a run
+    with helpers is not slower than one without. A helper's exception is raised here (the others
+    take no further job); so is this process's, after the helpers are stopped.
     """
     jobs = list(jobs)
     if n_workers <= 1 or len(jobs) <= 1:
         loop(iter(jobs), accept)
         return
     sharing = _Sharing(loop, jobs, n_workers, accept, pays)
-    try:
-        loop(_Claims(jobs, sharing.counter, between=sharing.between), sharing.emit)
-        sharing.wait_for_the_helpers()
-    except BaseException:
-        sharing.stop(failed=True)
-        raise
-    sharing.stop(failed=False)
+    with sharing.threads:
+        try:
+            loop(_Claims(jobs, sharing.counter, between=sharing.between), sharing.emit)
+            sharing.wait_for_the_helpers()
+        except BaseException:
+            sharing.stop(failed=True)
+            raise
+        sharing.stop(failed=False)
