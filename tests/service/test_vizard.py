@@ -9,6 +9,7 @@ Basilisk's own vizInterface.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -138,16 +139,30 @@ def test_the_body_at_the_origin_centres_the_frame():
 
 
 # ----------------------------------------------------------------------------- the endpoint
+R_M = np.array([1.2e7, -9.0e6, 3.0e6])       # the spacecraft, Mars-centred, m
+CAMERA_POS_B = [0.5, 0.0, -1.0]
+CAMERA_DIR_B = [0.2, 0.1, -0.4]
+
+
+def sigma_bn_at_mars() -> np.ndarray:
+    """sigma_BN that puts the camera's boresight on Mars: [BN] = [CB]^T [CN]."""
+    z = -R_M / np.linalg.norm(R_M)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    cn = np.array([x, np.cross(z, x), z])
+    return passive_mrp(camera_dcm_from_unity(CAMERA_DIR_B).T @ cn)
+
+
 def sim_update(*, frame=3, t_ns=60e9, epoch=True, resolution=(96, 64), fov_deg=40.0, render_rate=60_000_000_000):
     m = VizMessage()
     m.currentTime.frameNumber, m.currentTime.simTimeElapsed = frame, t_ns
     if epoch:
         m.epoch.year, m.epoch.month, m.epoch.day, m.epoch.hours, m.epoch.minutes, m.epoch.seconds = 2027, 2, 1, 0, 0, 30.5
     m.celestialBodies.add(bodyName="mars barycenter", position=[0, 0, 0], radiusEq=3396.19)
-    m.spacecraft.add(spacecraftName="bsk-Sat", position=[1.2e7, -9.0e6, 3.0e6], velocity=[1e3, 500.0, 0.0],
-                     rotation=[0.1, -0.3, 0.2])
+    m.spacecraft.add(spacecraftName="bsk-Sat", position=R_M.tolist(), velocity=[1e3, 500.0, 0.0],
+                     rotation=sigma_bn_at_mars().tolist())
     m.cameras.add(cameraID=1, parentName="bsk-Sat", fieldOfView=fov_deg, resolution=list(resolution),
-                  cameraPos_B=[0.5, 0.0, -1.0], cameraDir_B=[0.2, 0.1, -0.4], renderRate=render_rate)
+                  cameraPos_B=CAMERA_POS_B, cameraDir_B=CAMERA_DIR_B, renderRate=render_rate)
     return [b"SIM_UPDATE", b"", b"", m.SerializeToString()]
 
 
@@ -187,9 +202,12 @@ def test_an_image_is_the_png_skynav_render_makes_of_the_derived_scene(endpoint, 
     assert (endpoint.truth / kept.name.replace(".scene.yaml", ".png")).read_bytes() == png
     assert render_scene_file(kept, tmp_path / "render") == png
     scene = yaml.safe_load(kept.read_text())
+    truth = json.loads((endpoint.truth / kept.name.replace(".scene.yaml", ".json")).read_text())
+    mars = next(b for b in truth["bodies"] if b["name"] == "mars")
+    assert mars["in_fov"] and np.hypot(mars["xy"][0] - 47.5, mars["xy"][1] - 31.5) < 1.0   # at the centre
     # the scene's geometry from the message: the spacecraft's state plus the camera's offset on the body
-    bn = mrp_to_dcm([0.1, -0.3, 0.2])
-    r_km = (np.array([1.2e7, -9.0e6, 3.0e6]) + bn.T @ [0.5, 0.0, -1.0]) / 1e3
+    bn = mrp_to_dcm(sigma_bn_at_mars())
+    r_km = (R_M + bn.T @ CAMERA_POS_B) / 1e3
     assert scene["observer"]["relative_to"] == "mars"
     np.testing.assert_allclose(scene["observer"]["position_km"], r_km, rtol=0, atol=1e-9)
     # 2027-02-01T00:00:30.5 UTC + 60 s, in TDB by skyfield's time scales: the scene file's ms
@@ -275,3 +293,22 @@ def test_the_benchmark_prints_its_ratio():
     assert run.returncode == 0, run.stderr[-3000:]
     assert "same PNG bytes on every frame: True" in run.stdout, run.stdout
     assert re.search(r"VIZARD / HTTP FRAME TIME: [0-9.]+ x", run.stdout), run.stdout
+
+
+def test_a_saturated_disc_is_reported_once(tmp_path):
+    """The default camera's 0.4 s saturates Mars's disc: one line, however many frames."""
+    ep = start_vizard("--truth-dir", str(tmp_path))
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(ep.address)
+    try:
+        for k in (1, 2):
+            sock.send_multipart(sim_update(frame=k, t_ns=60e9 * k))
+            assert sock.recv_multipart() == [b"OK"]
+            sock.send_multipart([b"REQUEST_IMAGE_1"])
+            assert len(sock.recv_multipart()[1]) > 0
+    finally:
+        sock.close(0)
+        assert ep.stop() == 0
+    said = [line for line in ep.lines if "saturates" in line]
+    assert len(said) == 1 and "mars's disc" in said[0], ep.output
