@@ -171,18 +171,9 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
     >>> round(float(img.sum()), 3)
     1000.0
     """
-    h_img, w_img = (int(v) for v in shape)
-    if h_img <= 0 or w_img <= 0:
-        raise ConfigValueError("raster.shape", shape, "(H, W) with H, W > 0")
-    p = np.asarray(paths_xy, dtype=float)
-    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
-        raise ConfigValueError("raster.paths_xy", p.shape, "an array of shape (N, S, 2) with S >= 2")
-    e = np.asarray(electrons, dtype=float).reshape(-1)
-    if e.shape[0] != p.shape[0]:
-        raise ConfigValueError("raster.electrons", e.shape, f"shape ({p.shape[0]},) to match paths_xy")
+    (h_img, w_img), p, e = _checked_inputs(shape, paths_xy, electrons)
     if out is not None:
-        if out.shape != (h_img, w_img) or out.dtype != np.float64 or not out.flags.c_contiguous:
-            raise ConfigValueError("raster.out", (out.shape, out.dtype), f"a C-contiguous float64 array of shape {(h_img, w_img)}")
+        _check_image(out, (h_img, w_img), "raster.out")
         image = out.reshape(-1)
     else:
         image = np.zeros(h_img * w_img, dtype=float)
@@ -191,8 +182,7 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
         out2 = also[1]
         if e2.shape != e.shape:
             raise ConfigValueError("raster.also", e2.shape, f"values of shape ({p.shape[0]},) to match paths_xy")
-        if out2.shape != (h_img, w_img) or out2.dtype != np.float64 or not out2.flags.c_contiguous:
-            raise ConfigValueError("raster.also", (out2.shape, out2.dtype), f"a C-contiguous float64 image of shape {(h_img, w_img)}")
+        _check_image(out2, (h_img, w_img), "raster.also")
         drawn = np.isfinite(e) & (e != 0)
         if not np.array_equal(drawn, np.isfinite(e2) & (e2 != 0)):  # other sources drawn: two calls
             rasterize(shape, p, e2, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, out=out2,
@@ -200,7 +190,6 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
             return rasterize(shape, p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px, support=support,
                              centre_of_light=centre_of_light, out=out, wavelength_nm=wavelength_nm, stamp_e=stamp_e,
                              drawn_e=drawn_e)
-        image2 = out2.reshape(-1)
     if centre_of_light is not None:
         centre_of_light[...] = np.nan
     if drawn_e is not None:
@@ -214,30 +203,26 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
             raise ConfigValueError("raster.stamp_e", np.shape(stamp_e), f"shape ({p.shape[0]},) to match paths_xy")
         sizes = psf.half_sizes_px(stamp_e, flux_fraction_lost)
     if sizes is not None and np.any(sizes != psf.half_size_px(flux_fraction_lost)):  # one call per stamp size
-        lam_all = None if wavelength_nm is None else np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)
-        for h in np.unique(sizes):
-            sel = np.flatnonzero(sizes == h)
-            c = None if centre_of_light is None else np.empty((sel.size, 2))
-            d = None if drawn_e is None else np.empty(sel.size)
-            rasterize(shape, p[sel], e[sel], psf.cut(h), flux_fraction_lost=flux_fraction_lost, step_px=step_px,
-                      support=support, centre_of_light=c, out=image.reshape(h_img, w_img),
-                      wavelength_nm=None if lam_all is None else lam_all[sel],
-                      also=None if also is None else (e2[sel], out2), drawn_e=d)
-            if c is not None:
-                centre_of_light[sel] = c
-            if d is not None:
-                drawn_e[sel] = d
+        _rasterize_by_size(image.reshape(h_img, w_img), p, e, psf, sizes, flux_fraction_lost=flux_fraction_lost,
+                           step_px=step_px, support=support, centre_of_light=centre_of_light, wavelength_nm=wavelength_nm,
+                           also=None if also is None else (e2, out2), drawn_e=drawn_e)
         return image.reshape(h_img, w_img)
+    _rasterize_one_size(image, (h_img, w_img), p, e, psf, flux_fraction_lost=flux_fraction_lost, step_px=step_px,
+                        support=support, centre_of_light=centre_of_light, wavelength_nm=wavelength_nm,
+                        also=None if also is None else (e2, out2), drawn_e=drawn_e)
+    return image.reshape(h_img, w_img)
+
+
+def _rasterize_one_size(image, shape, p, e, psf, *, flux_fraction_lost, step_px, support, centre_of_light,
+                        wavelength_nm, also, drawn_e) -> None:
+    """:func:`rasterize`'s drawing, every stamp of the kernel's one half size, into the flat
+    ``image`` (and ``also``'s): the sources that may touch the image, cut into points along
+    their paths, their stamps added, their moments written to ``centre_of_light`` and
+    ``drawn_e``."""
     half = int(psf.half_size_px(flux_fraction_lost))
-    # drop sources that cannot touch the image (their whole path plus the stamp is outside)
-    ok = np.all(np.isfinite(p), axis=(1, 2)) & np.isfinite(e) & (e != 0)
-    lo = np.min(p, axis=1)
-    hi = np.max(p, axis=1)
-    margin = half + 1.0
-    ok &= (hi[:, 0] >= -0.5 - margin) & (lo[:, 0] <= w_img - 0.5 + margin)
-    ok &= (hi[:, 1] >= -0.5 - margin) & (lo[:, 1] <= h_img - 0.5 + margin)
+    ok = _touching(p, e, half, shape)
     if not np.any(ok):
-        return image.reshape(h_img, w_img)
+        return
     if step_px is None:
         step_px = psf.quadrature_step_px()
     xy, flux, source = streak_subsamples(p[ok], e[ok], float(step_px))
@@ -247,14 +232,81 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
     images = [image]
     fluxes = [flux]
     if also is not None:
-        images.append(image2)
-        fluxes.append(streak_subsamples(p[ok], e2[ok], float(step_px))[1])
+        images.append(also[1].reshape(-1))
+        fluxes.append(streak_subsamples(p[ok], also[0][ok], float(step_px))[1])
     moments = centre_of_light is not None or drawn_e is not None
-    if moments:
-        n_ok = int(np.count_nonzero(ok))
-        m0 = np.zeros(n_ok)
-        m1 = np.zeros((n_ok, 2))
+    m = _draw_points(images, shape, xy, fluxes, source if moments else None, int(np.count_nonzero(ok)), psf,
+                     half, lam, support)
+    if centre_of_light is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            centre_of_light[np.flatnonzero(ok)] = m[1] / m[0][:, None]
+    if drawn_e is not None:
+        drawn_e[np.flatnonzero(ok)] = m[0]
 
+
+def _checked_inputs(shape, paths_xy, electrons):
+    """``(H, W)``, the paths (N, S, 2) and the electrons (N,) as arrays, or one line naming the
+    bad one."""
+    h_img, w_img = (int(v) for v in shape)
+    if h_img <= 0 or w_img <= 0:
+        raise ConfigValueError("raster.shape", shape, "(H, W) with H, W > 0")
+    p = np.asarray(paths_xy, dtype=float)
+    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
+        raise ConfigValueError("raster.paths_xy", p.shape, "an array of shape (N, S, 2) with S >= 2")
+    e = np.asarray(electrons, dtype=float).reshape(-1)
+    if e.shape[0] != p.shape[0]:
+        raise ConfigValueError("raster.electrons", e.shape, f"shape ({p.shape[0]},) to match paths_xy")
+    return (h_img, w_img), p, e
+
+
+def _touching(p, e, half: int, shape) -> np.ndarray:
+    """Which sources may touch the image (N,): finite, with light, and their whole path plus a
+    stamp of half size ``half`` not outside it."""
+    h_img, w_img = shape
+    ok = np.all(np.isfinite(p), axis=(1, 2)) & np.isfinite(e) & (e != 0)
+    lo = np.min(p, axis=1)
+    hi = np.max(p, axis=1)
+    margin = half + 1.0
+    ok &= (hi[:, 0] >= -0.5 - margin) & (lo[:, 0] <= w_img - 0.5 + margin)
+    ok &= (hi[:, 1] >= -0.5 - margin) & (lo[:, 1] <= h_img - 0.5 + margin)
+    return ok
+
+
+def _check_image(image, shape, key: str) -> None:
+    """Refuse an output image that is not a C-contiguous float64 array of ``shape``."""
+    if image.shape != shape or image.dtype != np.float64 or not image.flags.c_contiguous:
+        what = "array" if key == "raster.out" else "image"
+        raise ConfigValueError(key, (image.shape, image.dtype), f"a C-contiguous float64 {what} of shape {shape}")
+
+
+def _rasterize_by_size(image, p, e, psf, sizes, *, flux_fraction_lost, step_px, support, centre_of_light,
+                       wavelength_nm, also, drawn_e) -> None:
+    """:func:`rasterize` of sources whose stamps have several half sizes (``sizes``, (N,)): one
+    call per size, with the kernel cut to it (``psf.cut(h)``), into ``image`` (and ``also``'s)."""
+    lam_all = None if wavelength_nm is None else np.broadcast_to(np.asarray(wavelength_nm, dtype=float), e.shape)
+    for h in np.unique(sizes):
+        sel = np.flatnonzero(sizes == h)
+        c = None if centre_of_light is None else np.empty((sel.size, 2))
+        d = None if drawn_e is None else np.empty(sel.size)
+        rasterize(image.shape, p[sel], e[sel], psf.cut(h), flux_fraction_lost=flux_fraction_lost, step_px=step_px,
+                  support=support, centre_of_light=c, out=image,
+                  wavelength_nm=None if lam_all is None else lam_all[sel],
+                  also=None if also is None else (also[0][sel], also[1]), drawn_e=d)
+        if c is not None:
+            centre_of_light[sel] = c
+        if d is not None:
+            drawn_e[sel] = d
+
+
+def _draw_points(images, shape, xy, fluxes, source, n_sources: int, psf, half: int, lam, support):
+    """Add the stamps of points ``xy`` (M, 2) with fluxes ``fluxes[i]`` (M,) into the flat
+    ``images[i]`` of ``shape``, in chunks; ``source`` (M,) or None: the point's source, whose
+    zeroth and first moments of the drawn stamps are returned, ``(m0 (n_sources,), m1
+    (n_sources, 2))`` (None without ``source``)."""
+    h_img, w_img = shape
+    if source is not None:
+        m0 = np.zeros(n_sources)
+        m1 = np.zeros((n_sources, 2))
     n_side = 2 * half + 1
     per_point = n_side * n_side
     chunk = max(1, _CHUNK_ENTRIES // per_point)
@@ -266,7 +318,7 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
         ws = [(st * f[a : a + chunk, None, None]).reshape(pts.shape[0], per_point) for f in fluxes]
         w = ws[0]
         origin = stamp_origin(pts, half)
-        if moments:  # zeroth and first moments of the stamps, per source
+        if source is not None:  # zeroth and first moments of the stamps, per source
             w3 = w.reshape(pts.shape[0], n_side, n_side)
             wx, wy = w3.sum(axis=1), w3.sum(axis=2)
             sw = wx.sum(axis=1)
@@ -286,9 +338,4 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
             inside = (((rows >= 0) & (rows < h_img))[:, :, None] & ((cols >= 0) & (cols < w_img))[:, None, :]).reshape(o.shape[0], per_point)
             flat = (rows[:, :, None] * w_img + cols[:, None, :]).reshape(o.shape[0], per_point)
             _accumulate(images, flat[inside], [wi[~full][inside] for wi in ws], support)
-    if centre_of_light is not None:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            centre_of_light[np.flatnonzero(ok)] = m1 / m0[:, None]
-    if drawn_e is not None:
-        drawn_e[np.flatnonzero(ok)] = m0
-    return image.reshape(h_img, w_img)
+    return None if source is None else (m0, m1)

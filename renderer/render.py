@@ -430,9 +430,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
-    ffl = options.flux_fraction_lost
-    poly = is_polychromatic(cam)  # Airy without a wavelength: tables by each source's spectrum
-    psf = kernel_for(cam, None, ffl)
+    psf = kernel_for(cam, None, options.flux_fraction_lost)
     T = cam.exposure_s
 
     # --- point sources: stars + bodies not ray-traced
@@ -447,6 +445,40 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
               for b in scene.bodies}
     body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
                 for b in scene.bodies}
+    if zeros is not None:
+        electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
+    else:
+        electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
+    drawn = _draw_point_sources(scene, proj, options, psf, points, track, (star_e, star_irr), (body_e, body_irr),
+                                (electrons, irradiance), support)
+    star_centre, body_centre, body_photocentre, star_fraction, body_fraction = drawn
+
+    # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
+    resolved, variant = _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, (body_e, body_irr),
+                                              (electrons, irradiance), support, body_centre, body_fraction)
+
+    background = options.background_e_per_px_s > 0
+    if background:
+        electrons += options.background_e_per_px_s * T
+        support.append(np.arange(electrons.size))
+    sparse = not background and sum(a.size for a in support) * 4 < electrons.size
+    return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
+                         body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
+                         mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
+                         body_centre_of_light=body_centre, star_fraction_drawn=star_fraction,
+                         body_fraction_drawn=body_fraction,
+                         support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
+
+
+def _draw_point_sources(scene, proj, options, psf, points, track, star_light, body_light, images, support):
+    """Stars and the bodies drawn as points (``points``), rasterised into ``images`` =
+    (electrons, irradiance or None) along their paths, each body at its photocentre; returns
+    (star centres of light (N, 2), {body: centre of light}, {body: photocentre drawn at}, star
+    fractions drawn (N,) or None, {body: fraction drawn} or None)."""
+    cam = scene.camera
+    ffl = options.flux_fraction_lost
+    stars = scene.stars
+    (star_e, star_irr), (body_e, body_irr), (electrons, irradiance) = star_light, body_light, images
     u_pts = np.concatenate([stars.u_icrs.reshape(-1, 3), np.array([b.u_icrs for b in points]).reshape(-1, 3)])
     e_pts = np.concatenate([star_e, np.array([body_e[b.name] for b in points])])
     irr_pts = np.concatenate([star_irr, np.array([body_irr[b.name] for b in points])])
@@ -461,11 +493,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             body_photocentre[b.name] = track[b.name][0] + off
     centre = np.full((len(e_pts), 2), np.nan)
     drawn = np.zeros(len(e_pts)) if psf.truncated else None  # the charge each source's stamps hold
-    if zeros is not None:
-        electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
-    else:
-        electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
-    if not poly:
+    shape = electrons.shape
+    with_irradiance = irradiance is not None
+    if not is_polychromatic(cam):
         rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre, out=electrons,
                   also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts, drawn_e=drawn)
     else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
@@ -488,43 +518,44 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
             fraction = np.where(e_pts > 0, drawn / e_pts, np.nan)
         star_fraction = fraction[: len(star_e)]
         body_fraction = {b.name: float(fraction[len(star_e) + j]) for j, b in enumerate(points)}
+    return star_centre, body_centre, body_photocentre, star_fraction, body_fraction
 
-    # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
+
+def _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, body_light, images, support, body_centre,
+                          body_fraction):
+    """The ray-traced bodies (``traced``): Mitsuba's crops, seeded from a child of the frame's
+    stream, blurred by the PSF and added to ``images`` = (electrons, irradiance or None); fills
+    ``body_centre``, ``body_fraction`` (if not None) and the body electrons (``body_light[0]``,
+    each the crop's total); returns ({body: ResolvedBodyImage}, Mitsuba variant or None)."""
+    cam = scene.camera
+    ffl = options.flux_fraction_lost
+    (body_e, body_irr), (electrons, irradiance) = body_light, images
     resolved = {}
     variant = None
-    if traced:
-        body_rng = rng.spawn(1)[0]
-        for b in traced:
-            img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
-                                       rng=body_rng, projection=proj)
-            kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
-            crop, pad = blur_crop(img.electrons, kern, ffl, at_xy=track[b.name][0])
-            _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
-            tot = float(crop.sum())
-            if tot > 0:
-                yy, xx = np.indices(crop.shape)
-                body_centre[b.name] = np.array([(crop * xx).sum() / tot + img.x0 - pad,
-                                                (crop * yy).sum() / tot + img.y0 - pad])
-            scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
-            if irradiance is not None:
-                _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
-            body_e[b.name] = float(img.electrons_total)
-            if body_fraction is not None and body_e[b.name] > 0:
-                body_fraction[b.name] = tot / body_e[b.name]
-            resolved[b.name] = img
-            variant = img.variant
-
-    background = options.background_e_per_px_s > 0
-    if background:
-        electrons += options.background_e_per_px_s * T
-        support.append(np.arange(electrons.size))
-    sparse = not background and sum(a.size for a in support) * 4 < electrons.size
-    return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
-                         body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
-                         mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
-                         body_centre_of_light=body_centre, star_fraction_drawn=star_fraction,
-                         body_fraction_drawn=body_fraction,
-                         support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
+    if not traced:
+        return resolved, variant
+    poly = is_polychromatic(cam)
+    body_rng = rng.spawn(1)[0]
+    for b in traced:
+        img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
+                                   rng=body_rng, projection=proj)
+        kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
+        crop, pad = blur_crop(img.electrons, kern, ffl, at_xy=track[b.name][0])
+        _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
+        tot = float(crop.sum())
+        if tot > 0:
+            yy, xx = np.indices(crop.shape)
+            body_centre[b.name] = np.array([(crop * xx).sum() / tot + img.x0 - pad,
+                                            (crop * yy).sum() / tot + img.y0 - pad])
+        scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
+        if irradiance is not None:
+            _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
+        body_e[b.name] = float(img.electrons_total)
+        if body_fraction is not None and body_e[b.name] > 0:
+            body_fraction[b.name] = tot / body_e[b.name]
+        resolved[b.name] = img
+        variant = img.variant
+    return resolved, variant
 
 
 def sensor_backend(requested: str) -> str:

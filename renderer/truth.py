@@ -33,6 +33,92 @@ def _seed_record(seed):
     return int(seed)
 
 
+def _star_records(stars, expected) -> list:
+    """The truth's ``stars``: one record per star in the field of view, with its electrons and,
+    when the renderer drew them, its centre of light and the fraction of its light drawn."""
+    star_electrons = expected.star_electrons
+    in_fov = np.asarray(stars.in_fov, dtype=bool)
+    sel = np.flatnonzero(in_fov)
+    # one tolist() per column, then zip: far cheaper than per-star conversions
+    cols = {
+        "hip": stars.hip[sel].astype(int).tolist(),
+        "v_mag": stars.v_mag[sel].astype(float).tolist(),
+        "b_v": stars.b_v[sel].astype(float).tolist(),
+        "teff_k": stars.teff_k[sel].astype(float).tolist(),
+        "u_icrs": stars.u_icrs[sel].tolist(),
+        "xy": stars.xy[sel].tolist(),
+        "xy_start": stars.xy_start[sel].tolist(),
+        "xy_end": stars.xy_end[sel].tolist(),
+        "electrons": np.asarray(star_electrons, dtype=float)[sel].tolist(),
+    }
+    col = getattr(expected, "star_centre_of_light", None)
+    if col is not None:
+        col_sel = np.asarray(col, dtype=float)[sel]
+        rows = col_sel.tolist()
+        for i in np.flatnonzero(~np.isfinite(col_sel).all(axis=1)):  # a star not drawn: null, not NaN
+            rows[i] = [v if math.isfinite(v) else None for v in rows[i]]
+        cols["centre_of_light_xy"] = rows
+    frac = getattr(expected, "star_fraction_drawn", None)
+    if frac is not None:  # a truncated kernel: the share of each star's electrons its stamps hold
+        cols["flux_fraction_drawn"] = [v if math.isfinite(v) else None for v in np.asarray(frac, dtype=float)[sel].tolist()]
+    names = tuple(cols)
+    star_list = [dict(zip(names, row)) for row in zip(*cols.values())]
+    return star_list
+
+
+def _body_record(b, expected) -> dict:
+    """The truth's record of one body: where it is, how it was drawn (Mitsuba, a point or not
+    at all) and, when drawn, its centre of light and the fraction of its light drawn."""
+    body_electrons = expected.body_electrons
+    resolved = expected.resolved
+    body_photocentre = expected.body_photocentre
+    d = {
+        "name": b.name,
+        "xy": list(b.xy),
+        "xy_geometric": list(b.xy_geometric),
+        "xy_light_time": list(b.xy_light_time),
+        "xy_start": list(b.xy_start),
+        "xy_end": list(b.xy_end),
+        "u_icrs": list(b.u_icrs),
+        "u_geometric": list(b.u_geometric),
+        "u_light_time": list(b.u_light_time),
+        "light_time_s": b.light_time_s,
+        "distance_km": b.distance_km,
+        "position_km": list(b.position_km),
+        "radius_km": b.radius_km,
+        "v_mag": b.v_mag,
+        "phase_angle_deg": math.degrees(b.phase_angle_rad),
+        "elongation_deg": math.degrees(b.elongation_rad),
+        "aberration_arcsec": b.aberration_arcsec,
+        "angular_diameter_px": b.angular_diameter_px,
+        "in_fov": b.in_fov,
+        "visible": b.visible,
+        "resolved": b.resolved,
+        "electrons": float(body_electrons.get(b.name, 0.0)),
+    }
+    bcol = (getattr(expected, "body_centre_of_light", None) or {}).get(b.name)
+    if bcol is not None and np.all(np.isfinite(bcol)):
+        d["centre_of_light_xy"] = [float(bcol[0]), float(bcol[1])]
+    bfrac = (getattr(expected, "body_fraction_drawn", None) or {}).get(b.name)
+    if bfrac is not None and math.isfinite(bfrac):
+        d["flux_fraction_drawn"] = bfrac
+    img = resolved.get(b.name)
+    if img is not None:
+        d["rendered_as"] = "mitsuba"
+        d["centre_of_figure_xy"] = list(map(float, img.centre_of_figure_xy))
+        d["photocentre_xy"] = list(map(float, img.photocentre_xy))
+        d["radius_px"] = float(img.radius_px)
+        d["electrons_raw"] = float(img.electrons_raw_total)
+        d["mitsuba_variant"] = img.variant
+        d["mitsuba_seeds"] = [int(v) for v in img.seeds]
+    else:
+        d["rendered_as"] = "point" if b.in_fov else "none"
+        pc = (body_photocentre or {}).get(b.name)
+        if pc is not None:
+            d["photocentre_xy"] = [float(pc[0]), float(pc[1])]
+    return d
+
+
 def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     """The ground-truth dict of one frame (JSON-ready apart from numpy scalars/arrays).
 
@@ -74,89 +160,12 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     >>> truth["render"]["backend_used"], validate_truth(truth)
     ('numpy', [])
     """
-    star_electrons = expected.star_electrons
-    body_electrons = expected.body_electrons
-    resolved = expected.resolved
-    body_photocentre = expected.body_photocentre
-
     cam = scene.camera
     t = time_from_tdb_seconds(scene.epoch_tdb_s)
     R = scene.R_cam_icrs
     ra, dec, twist = frames.dcm_to_radec_twist(R)
-    stars = scene.stars
-    in_fov = np.asarray(stars.in_fov, dtype=bool)
-    sel = np.flatnonzero(in_fov)
-    # one tolist() per column, then zip: far cheaper than per-star conversions
-    cols = {
-        "hip": stars.hip[sel].astype(int).tolist(),
-        "v_mag": stars.v_mag[sel].astype(float).tolist(),
-        "b_v": stars.b_v[sel].astype(float).tolist(),
-        "teff_k": stars.teff_k[sel].astype(float).tolist(),
-        "u_icrs": stars.u_icrs[sel].tolist(),
-        "xy": stars.xy[sel].tolist(),
-        "xy_start": stars.xy_start[sel].tolist(),
-        "xy_end": stars.xy_end[sel].tolist(),
-        "electrons": np.asarray(star_electrons, dtype=float)[sel].tolist(),
-    }
-    col = getattr(expected, "star_centre_of_light", None)
-    if col is not None:
-        col_sel = np.asarray(col, dtype=float)[sel]
-        rows = col_sel.tolist()
-        for i in np.flatnonzero(~np.isfinite(col_sel).all(axis=1)):  # a star not drawn: null, not NaN
-            rows[i] = [v if math.isfinite(v) else None for v in rows[i]]
-        cols["centre_of_light_xy"] = rows
-    frac = getattr(expected, "star_fraction_drawn", None)
-    if frac is not None:  # a truncated kernel: the share of each star's electrons its stamps hold
-        cols["flux_fraction_drawn"] = [v if math.isfinite(v) else None for v in np.asarray(frac, dtype=float)[sel].tolist()]
-    names = tuple(cols)
-    star_list = [dict(zip(names, row)) for row in zip(*cols.values())]
-    body_list = []
-    for b in scene.bodies:
-        d = {
-            "name": b.name,
-            "xy": list(b.xy),
-            "xy_geometric": list(b.xy_geometric),
-            "xy_light_time": list(b.xy_light_time),
-            "xy_start": list(b.xy_start),
-            "xy_end": list(b.xy_end),
-            "u_icrs": list(b.u_icrs),
-            "u_geometric": list(b.u_geometric),
-            "u_light_time": list(b.u_light_time),
-            "light_time_s": b.light_time_s,
-            "distance_km": b.distance_km,
-            "position_km": list(b.position_km),
-            "radius_km": b.radius_km,
-            "v_mag": b.v_mag,
-            "phase_angle_deg": math.degrees(b.phase_angle_rad),
-            "elongation_deg": math.degrees(b.elongation_rad),
-            "aberration_arcsec": b.aberration_arcsec,
-            "angular_diameter_px": b.angular_diameter_px,
-            "in_fov": b.in_fov,
-            "visible": b.visible,
-            "resolved": b.resolved,
-            "electrons": float(body_electrons.get(b.name, 0.0)),
-        }
-        bcol = (getattr(expected, "body_centre_of_light", None) or {}).get(b.name)
-        if bcol is not None and np.all(np.isfinite(bcol)):
-            d["centre_of_light_xy"] = [float(bcol[0]), float(bcol[1])]
-        bfrac = (getattr(expected, "body_fraction_drawn", None) or {}).get(b.name)
-        if bfrac is not None and math.isfinite(bfrac):
-            d["flux_fraction_drawn"] = bfrac
-        img = resolved.get(b.name)
-        if img is not None:
-            d["rendered_as"] = "mitsuba"
-            d["centre_of_figure_xy"] = list(map(float, img.centre_of_figure_xy))
-            d["photocentre_xy"] = list(map(float, img.photocentre_xy))
-            d["radius_px"] = float(img.radius_px)
-            d["electrons_raw"] = float(img.electrons_raw_total)
-            d["mitsuba_variant"] = img.variant
-            d["mitsuba_seeds"] = [int(v) for v in img.seeds]
-        else:
-            d["rendered_as"] = "point" if b.in_fov else "none"
-            pc = (body_photocentre or {}).get(b.name)
-            if pc is not None:
-                d["photocentre_xy"] = [float(pc[0]), float(pc[1])]
-        body_list.append(d)
+    star_list = _star_records(scene.stars, expected)
+    body_list = [_body_record(b, expected) for b in scene.bodies]
     render = dataclasses.asdict(options)
     render["backend_used"] = detection.backend
     render["mitsuba_variant"] = expected.mitsuba_variant
