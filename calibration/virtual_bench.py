@@ -18,7 +18,7 @@ this module and see only the files it writes (captures PNG, ``power_meter.csv``)
   bench's calibration accuracy was measured with); any other model by the renderer's own kernel
   (:func:`skynav.renderer.optics.kernel_for`: its pixel-integrated table, resampled onto the
   screen through the collimator's local Jacobian by
-  :meth:`~skynav.renderer.kernels.TableKernel.on_grid`; a field grid blended per camera pixel as the
+  :meth:`~skynav.renderer.table_kernels.TableKernel.on_grid`; a field grid blended per camera pixel as the
   renderer blends it; a polychromatic Airy with the table of the screen's own spectrum).
 """
 

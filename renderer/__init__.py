@@ -29,7 +29,7 @@ from .render import Detection, ExpectedImage, Frame, RenderOptions, detect, expe
 # name -> module that defines it; imported on first access. No module may share a name with an
 # entry here: importing a submodule binds its name on the package, which would hide the entry.
 _LAZY = {
-    "GaussianKernel": "kernels", "Kernel": "kernels", "TableKernel": "kernels", "CutKernel": "kernels",
+    "GaussianKernel": "kernels", "Kernel": "kernels", "TableKernel": "table_kernels", "CutKernel": "table_kernels",
     "kernel_for": "optics", "rasterize": "raster",
     "Sensor": "detector", "ExposureDetails": "detector", "fixed_patterns": "detector",
     "CosmicRayHits": "cosmic_rays", "ChargeModel": "cosmic_rays", "draw_cosmic_rays": "cosmic_rays",

@@ -3,7 +3,7 @@
 Every non-Gaussian model of :mod:`skynav.scenes.psf` becomes one or more fine tables
 ``P(u, v)``: the PSF integrated over one pixel whose centre is offset ``(u, v)`` px from the
 point, sampled every ``1/N`` px (``N`` samples per pixel) on a square of ``L = 2 h + 4`` px
-(``h`` the stamp half size); :class:`~skynav.renderer.kernels.TableKernel` reads stamps out of them.
+(``h`` the stamp half size); :class:`~skynav.renderer.table_kernels.TableKernel` reads stamps out of them.
 
 Method
 ------
@@ -51,7 +51,8 @@ from scipy.special import j1
 from skynav.scenes.psf import TabulatedPSFModel, zernike
 
 from . import spectra
-from .kernels import GaussianKernel, TableKernel
+from .kernels import GaussianKernel
+from .table_kernels import TableKernel
 
 __all__ = ["airy_intensity", "pixel_integrate", "fine_sampling", "airy_table",
            "optical_table", "tabulated_tables", "electron_spectrum", "effective_wavelength_nm", "SpectralNodes",
@@ -407,8 +408,8 @@ def kernel_for(camera, source=None, flux_fraction_lost: float = 1e-6):
 
     The one dispatch from a model to its kernel: :data:`KERNEL_BUILDERS`, by the model's
     ``model`` name. A Gaussian is a :class:`~skynav.renderer.kernels.GaussianKernel`, every
-    other model a :class:`~skynav.renderer.kernels.TableKernel`, whose faint sources' stamps are
-    sized by the camera's read noise (:meth:`~skynav.renderer.kernels.TableKernel.half_sizes_px`).
+    other model a :class:`~skynav.renderer.table_kernels.TableKernel`, whose faint sources' stamps are
+    sized by the camera's read noise (:meth:`~skynav.renderer.table_kernels.TableKernel.half_sizes_px`).
 
     Parameters
     ----------

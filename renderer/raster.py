@@ -144,7 +144,7 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
         Add the sources into this image (returned) instead of a new zero image.
     wavelength_nm : ndarray, shape (N,), nm, optional
         Effective wavelength of each source, for a polychromatic kernel (its stamps blend its
-        spectral tables there; see :class:`~skynav.renderer.kernels.TableKernel`).
+        spectral tables there; see :class:`~skynav.renderer.table_kernels.TableKernel`).
     also : tuple (values, image), optional
         A second quantity of each source (``values``, shape (N,), e.g. its irradiance) drawn with
         the same stamps into ``image`` (shape (H, W), float64, C-contiguous), as a second call
@@ -152,7 +152,7 @@ def rasterize(shape, paths_xy, electrons, psf: Kernel, *, flux_fraction_lost: fl
         pixels and their order are computed once.
     stamp_e : ndarray, shape (N,), e-, optional
         Each source's charge, to size its stamps by (a kernel with ``half_sizes_px``, e.g. a
-        :class:`~skynav.renderer.kernels.TableKernel`, draws faint sources with smaller stamps, their
+        :class:`~skynav.renderer.table_kernels.TableKernel`, draws faint sources with smaller stamps, their
         light beyond not drawn); None: every stamp the kernel's full size. Pass the electrons for the
         irradiance image too, so that both are drawn with the same stamps.
     drawn_e : ndarray, shape (N,), optional

@@ -240,7 +240,7 @@ def test_a_faint_star_s_smaller_stamp_keeps_its_flux_and_centre_of_light(name, t
     phase grid, the 1.25 for phases between). On the paper camera (lambda F = 0.09 px) the faint
     stars are drawn with smaller stamps than the table's; a coma's asymmetric wing keeps its
     full stamps."""
-    from skynav.renderer.kernels import STAMP_NOISE_FRACTION
+    from skynav.renderer.table_kernels import STAMP_NOISE_FRACTION
 
     if name.startswith("airy-paper"):
         cam = _paper_camera({"model": "airy", "obscuration": 0.2} | ({} if name.endswith("poly") else {"wavelength_nm": 550.0}))
