@@ -31,7 +31,8 @@ The matrix (``--matrix``, :data:`MATRIX`): the ``paper`` geometry under sensors 
 bits from 4 to 80 e-/DN, with read noise, sky and dark current (Poisson, GalSim's ``CCDNoise``)
 from a cold dark sky to a hot bright one, and Gaussian (sigma 0.4 to 1.5 px), Moffat and Airy
 PSFs, each drawn by GalSim convolved with the pixel and sampled every 1/8 px (:func:`matrix_drawer`);
-an 8-bit sensor's frames are 8-bit PNGs. ``--score`` then prints, per cell, skynav's and
+an 8-bit sensor's frames are 8-bit PNGs; every odd frame aims near a visible planet (beacons).
+``--score`` then prints, per cell, skynav's and
 tetra3rs's outcomes and medians, skynav's with Eq. 7-8 centroids only, and wrong beacons at a
 1e7 km prediction error.
 
@@ -237,6 +238,24 @@ def random_scene(rng):
     return jd, ecl_to_icrs @ r_ecl, ecl_to_icrs @ v_ecl, quat_to_dcm(q)
 
 
+def _aim_near_a_body(scene, rng, cam):
+    """An attitude whose field holds one of the scene's bodies of V <= 7 more than 45 deg from the
+    Sun (drawn at random), up to 0.35 of the half-field off the boresight, with a random twist;
+    None when there is none."""
+    from skynav.scenes.frames import point_boresight
+
+    sun = np.asarray(scene.sun_u_icrs, float)
+    bodies = [b for b in scene.bodies if b.v_mag <= 7.0 and np.dot(b.u_icrs, sun) < math.cos(math.radians(45.0))]
+    if not bodies:
+        return None
+    u = np.asarray(bodies[rng.integers(len(bodies))].u_icrs, float)
+    # tilt the boresight off the body by a random angle in a random direction
+    off = rng.uniform(0.0, 0.35) * cam.fov_x_rad / 2
+    t = np.cross(u, rng.normal(size=3))
+    t /= np.linalg.norm(t)
+    return point_boresight(math.cos(off) * u + math.sin(off) * t, rng.uniform(0.0, 2 * math.pi))
+
+
 def skynav_camera(sensor: Sensor):
     from skynav.scenes.camera import Camera
 
@@ -280,6 +299,12 @@ def render_frame(k: int, *, sensor: Sensor, psf, seed: int, ephemeris=None, cata
     t_tdb_s = (jd - 2451545.0) * 86400.0
     scene = build_scene(t_tdb_s, position_km=r_km, velocity_km_s=v_km_s, R_cam_icrs=R, camera=cam,
                         catalog_limiting_v_mag=STAR_V_LIMIT, ephemeris=ephemeris, catalog=catalog)
+    if isinstance(psf, Psf) and k % 2 == 1:  # matrix: every other frame aims near a visible body (beacons)
+        aimed = _aim_near_a_body(scene, np.random.default_rng(scene_seed), cam)
+        R = scene.R_cam_icrs if aimed is None else aimed
+        if aimed is not None:
+            scene = build_scene(t_tdb_s, position_km=r_km, velocity_km_s=v_km_s, R_cam_icrs=R, camera=cam,
+                                catalog_limiting_v_mag=STAR_V_LIMIT, ephemeris=ephemeris, catalog=catalog)
     st = scene.stars
     star_e = electrons_of_v(st.v_mag, sensor)
     bodies = [b for b in scene.bodies if b.in_fov]
