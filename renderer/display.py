@@ -2,7 +2,7 @@
 pixels, mapped to the screen digital counts that make the real camera collect the electrons the
 rendered source would give it.
 
-- Geometry at the line-of-sight level: :func:`~skynav.renderer.render.expected_image` draws
+- Geometry at the line-of-sight level: :func:`~skynav.renderer.expected.expected_image` draws
   through the facility's :class:`~skynav.scenes.screen.ScreenProjection` (``own_size``), so
   every point source (and its streak) lands at the screen position whose calibrated line of
   sight is its apparent direction, and resolved bodies are ray-traced by Mitsuba along the

@@ -1,22 +1,15 @@
 """Scene -> image: the software-mode render driver, in two steps a bench can separate.
 
-:func:`expected_image` (the optics): sources -> noise-free electrons and in-band pupil irradiance
-per pixel, through any :class:`~skynav.scenes.projection.Projection` (default: the scene's camera):
-
-1. every point source (stars, unresolved bodies) gets electrons and in-band pupil irradiance from
-   :mod:`radiometry`; its pixel path over the exposure is the projection of its apparent
-   direction under the attitude kinematics (:func:`source_paths`);
-2. the pixel-integrated PSF is integrated along each path (:mod:`raster`);
-3. resolved bodies are ray-traced by Mitsuba (:mod:`mitsuba_backend`) in crop windows, with rays
-   from the projection's lines of sight, blurred by the same PSF and added;
-4. a uniform sky background.
+:func:`~skynav.renderer.expected.expected_image` (the optics, :mod:`skynav.renderer.expected`):
+sources -> noise-free electrons and in-band pupil irradiance per pixel, through any projection.
 
 :func:`detect` (the sensor): cosmic-ray charge and the sensor chain (:mod:`detector`: PRNU, dark
 current, shot noise, full well, read noise, gain, quantisation) turn expected electrons into
 digital counts. Cosmic-ray charge joins after shot noise and PRNU, before the full-well limit.
 A hardware-in-the-loop bench puts its display model where :func:`detect` is.
 
-:func:`render` composes the two and writes the ground truth (:mod:`truth`).
+:func:`render` composes the two and writes the ground truth (:mod:`truth`); the options of both
+are :class:`~skynav.renderer.options.RenderOptions`.
 
 Randomness: the frame's ``numpy.random.Generator`` feeds the detection: cosmic rays draw from it
 first, then the sensor, so a frame is reproduced bit for bit from its seed (per backend). The
@@ -27,103 +20,20 @@ sensor noise are the draws they were before.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from skynav.infra.errors import ConfigValueError
-from skynav.scenes import frames
 from skynav.scenes.camera import Camera
-from skynav.scenes.projection import Projection
 from skynav.scenes.scene import Scene
 
 from . import cosmic_rays as cr
 from . import jit_backend
-from .brdf import photocentre_offset_xy
 from .detector import JIT_BACKENDS, PixelCharge, Sensor
-from .mitsuba_backend import render_resolved_body
-from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
-from .radiometry import Radiometry
-from .raster import rasterize
+from .expected import ExpectedImage, expected_image
+from .options import RenderOptions
 from .truth import frame_truth
-
-
-@dataclass(frozen=True, kw_only=True)
-class RenderOptions:
-    """Every speed/accuracy trade-off of a render in one value object.
-
-    Attributes
-    ----------
-    flux_fraction_lost : float
-        Largest fraction of a source's flux the PSF stamp may cut off.
-    path_step_px : float
-        Spacing of the samples along a curved source path, px (straight paths use 2 samples).
-    background_e_per_px_s : float
-        Uniform sky background (zodiacal + galactic), e-/px/s.
-    cosmic_rays_per_frame : float
-        Mean number of cosmic-ray hits per frame (Andreis et al. (2024): 1).
-    cosmic_ray_mode : str
-        ``"poisson"``: Poisson count with mean ``cosmic_rays_per_frame``; ``"fixed"``.
-    cosmic_ray_track_prob : float
-        Probability that a cosmic-ray hit is a short track rather than a single pixel
-        (:func:`~skynav.renderer.cosmic_rays.draw_cosmic_rays`; the draws do not depend on it,
-        so 0 and 0.3 give the same hit positions and charges).
-    mitsuba_spp, mitsuba_time_samples : int
-        Samples per pixel and sub-frame instants for resolved bodies.
-    resolved : bool
-        Ray-trace bodies flagged ``resolved`` (False: draw every body as a point).
-    noise : bool
-        Apply the sensor noise chain and draw cosmic rays (False: DN of the expected signal, no
-        cosmic rays: the frame is the same for every seed, apart from a resolved body's Monte
-        Carlo sampling of its disc, which follows the seed).
-    backend : str
-        ``"auto"``, ``"llvm"``, ``"cuda"`` or ``"numpy"`` for the sensor (docs/conventions.md
-        "Randomness": one seed gives the same DN on one backend, the same statistics across
-        them).
-
-    Raises
-    ------
-    ConfigValueError
-        A value out of its range (the ``render.*`` key named).
-
-    Examples
-    --------
-    >>> from skynav.renderer import RenderOptions
-    >>> opts = RenderOptions(backend="numpy", cosmic_rays_per_frame=0.0)
-    >>> opts.noise, opts.mitsuba_spp
-    (True, 16)
-    """
-
-    flux_fraction_lost: float = 1e-6
-    path_step_px: float = 0.5
-    background_e_per_px_s: float = 0.0
-    cosmic_rays_per_frame: float = 1.0
-    cosmic_ray_mode: str = "poisson"
-    cosmic_ray_track_prob: float = 0.0
-    mitsuba_spp: int = 16
-    mitsuba_time_samples: int = 1
-    resolved: bool = True
-    noise: bool = True
-    backend: str = "auto"
-
-    def __post_init__(self):
-        if not 0 < self.flux_fraction_lost < 0.1:
-            raise ConfigValueError("render.flux_fraction_lost", self.flux_fraction_lost, "in (0, 0.1)")
-        if not self.path_step_px > 0:
-            raise ConfigValueError("render.path_step_px", self.path_step_px, "> 0")
-        if not self.background_e_per_px_s >= 0:
-            raise ConfigValueError("render.background_e_per_px_s", self.background_e_per_px_s, ">= 0")
-        if not self.cosmic_rays_per_frame >= 0:
-            raise ConfigValueError("render.cosmic_rays_per_frame", self.cosmic_rays_per_frame, ">= 0")
-        if self.cosmic_ray_mode not in ("poisson", "fixed"):
-            raise ConfigValueError("render.cosmic_ray_mode", self.cosmic_ray_mode, "poisson or fixed")
-        if not 0.0 <= self.cosmic_ray_track_prob <= 1.0:
-            raise ConfigValueError("render.cosmic_ray_track_prob", self.cosmic_ray_track_prob, "in [0, 1]")
-        if self.backend not in ("auto", "llvm", "cuda", "numpy"):
-            raise ConfigValueError("render.backend", self.backend, "auto, llvm, cuda or numpy")
-        if self.mitsuba_spp < 1 or self.mitsuba_time_samples < 1:
-            raise ConfigValueError("render.mitsuba_spp", self.mitsuba_spp, ">= 1")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -160,82 +70,6 @@ class Frame:
     electrons: np.ndarray
     irradiance_w_m2: np.ndarray
     truth: dict
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class ExpectedImage:
-    """The noise-free image of a scene through a projection, before any detector.
-
-    Attributes
-    ----------
-    electrons : ndarray, shape (H, W), float64
-        Expected photo-electrons per pixel over the exposure (sources + background), e-.
-    irradiance_w_m2 : ndarray, shape (H, W), float64, or None
-        In-band irradiance at the pupil per pixel from the sources, W/m^2 (None when not asked for).
-    exposure_s : float
-        Exposure the electrons are integrated over, s.
-    star_electrons : ndarray, shape (N,), e-
-        Electrons of each star of ``scene.stars`` (whether on the image or not).
-    body_electrons : dict of str -> float
-        Electrons of each body, e- (a resolved body: its rendered crop's total).
-    body_photocentre : dict of str -> ndarray, shape (2,)
-        Where each body drawn as a point was drawn (centre + far-field photocentre offset), px.
-    resolved : dict of str -> ResolvedBodyImage
-        The Mitsuba crops of the ray-traced bodies.
-    mitsuba_variant : str or None
-        The Mitsuba variant that ray-traced them (None: no body was ray-traced).
-    projection : Projection
-        The projection the image was made through.
-    star_centre_of_light : ndarray, shape (N, 2), or None
-        Centre of light of each star's drawn image (first moment of its PSF-blurred, streaked
-        stamps), px; NaN for a star not drawn.
-    body_centre_of_light : dict of str -> ndarray, shape (2,)
-        The same for each drawn body (a resolved one: its blurred crop's first moment).
-    support : ndarray of int, or None
-        Flat indices (an index may repeat) holding every nonzero pixel of ``electrons`` and
-        ``irradiance_w_m2`` as :func:`expected_image` drew them (None: not known; every pixel
-        with a background), so that a dark image is converted to float32 without a full pass
-        (:func:`float32_image`). A caller who draws more into the images must drop it
-        (``dataclasses.replace(expected, support=None)``) before :func:`detect`.
-    star_fraction_drawn : ndarray, shape (N,), or None
-        The fraction of each star's electrons its stamps hold (a truncated kernel's: every model
-        but the Gaussian draws its PSF as it is, the light beyond the stamps not drawn); NaN for
-        a star without light; None for the Gaussian, whose stamps hold all but
-        ``flux_fraction_lost``.
-    body_fraction_drawn : dict of str -> float, or None
-        The same for each drawn body (a resolved one: its blurred crop's total over its
-        electrons).
-
-    Examples
-    --------
-    >>> import dataclasses
-    >>> from skynav.renderer import RenderOptions, render
-    >>> from skynav.scenes import build_from_spec, default_scene_spec
-    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
-    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
-    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
-    >>> from skynav.renderer import expected_image
-    >>> ex = expected_image(scene, rng=np.random.default_rng(1))
-    >>> ex.electrons.shape, ex.exposure_s, ex.star_electrons.shape == (len(scene.stars.xy),)
-    ((64, 64), 0.4, True)
-    >>> ex.mitsuba_variant is None   # nothing resolved at 64 px: no ray tracing
-    True
-    """
-
-    electrons: np.ndarray
-    irradiance_w_m2: np.ndarray
-    exposure_s: float
-    star_electrons: np.ndarray
-    body_electrons: dict
-    body_photocentre: dict
-    resolved: dict
-    mitsuba_variant: str | None
-    projection: object
-    star_centre_of_light: np.ndarray | None = None
-    body_centre_of_light: dict | None = None
-    support: np.ndarray | None = None
-    star_fraction_drawn: np.ndarray | None = None
-    body_fraction_drawn: dict | None = None
 
 
 def float32_image(image: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
@@ -286,276 +120,6 @@ class Detection:
     electrons: np.ndarray
     hits: object
     backend: str
-
-
-def sample_times(exposure_s: float, n: int) -> np.ndarray:
-    """``n`` instants spread evenly over the exposure, relative to mid-exposure, s."""
-    return np.linspace(-0.5 * exposure_s, 0.5 * exposure_s, n)
-
-
-def _max_sweep_px(scene: Scene, projection, w: np.ndarray) -> float:
-    """Upper bound of how far a source moves on the image over the exposure, px.
-
-    A :class:`Camera`: cross-boresight rate x focal length, plus twist rate x the tangent of the
-    corner angle (the closed form of a pinhole). Another projection: the largest local scale
-    (px/rad) at the image centre and corners, from finite differences of its line of sight, times
-    the cross-boresight rate plus the twist rate x the sine of the largest corner angle.
-    """
-    T = scene.camera.exposure_s
-    if isinstance(projection, Camera):
-        return T * projection.focal_length_px * (math.hypot(w[0], w[1]) + abs(w[2]) * math.tan(projection.half_diagonal_fov_rad))
-    W, H = projection.width, projection.height
-    pts = np.array([[(W - 1) / 2, (H - 1) / 2], [-0.5, -0.5], [W - 1.5, -0.5], [-0.5, H - 1.5], [W - 1.5, H - 1.5]])
-    los = projection.line_of_sight(pts)
-    dx = projection.line_of_sight(pts + [1.0, 0.0])
-    dy = projection.line_of_sight(pts + [0.0, 1.0])
-    step = np.concatenate([np.linalg.norm(dx - los, axis=-1), np.linalg.norm(dy - los, axis=-1)])
-    scale = 1.0 / float(np.min(step))  # px per rad (chord = angle to 1e-8 over one pixel)
-    sin_corner = float(np.max(np.linalg.norm(los[:, :2], axis=-1)))
-    return T * scale * (math.hypot(w[0], w[1]) + abs(w[2]) * sin_corner)
-
-
-def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, projection=None) -> np.ndarray:
-    """Pixel paths of apparent directions over the exposure.
-
-    Without rotation every path is two equal points. With a body rate the path is sampled every
-    ``options.path_step_px`` along the largest sweep (rotation about the boresight makes arcs).
-
-    Parameters
-    ----------
-    scene : Scene
-    u_icrs : ndarray, shape (N, 3)
-        Apparent unit vectors, ICRS.
-    options : RenderOptions
-    projection : Projection, optional
-        Camera-frame direction -> pixel (default ``scene.camera``).
-
-    Returns
-    -------
-    ndarray, shape (N, S, 2), px
-    """
-    proj = scene.camera if projection is None else projection
-    u = np.atleast_2d(np.asarray(u_icrs, dtype=float))
-    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
-    rate = float(np.linalg.norm(w))
-    if rate == 0.0 or len(u) == 0:
-        xy = proj.project(u @ scene.R_cam_icrs.T)
-        return np.stack([xy, xy], axis=1)
-    sweep_px = _max_sweep_px(scene, proj, w)
-    n = int(min(512, max(2, math.ceil(sweep_px / options.path_step_px) + 1)))
-    Rs = frames.propagate_attitude(scene.R_cam_icrs, w, sample_times(scene.camera.exposure_s, n))
-    v = np.einsum("sij,nj->nsi", Rs, u)
-    return proj.project(v)
-
-
-def _check_projection(scene: Scene, projection, own_size: bool = False):
-    if projection is None:
-        return scene.camera
-    if not isinstance(projection, Projection):
-        raise ConfigValueError("projection", type(projection).__name__, "an object with width, height, project() and line_of_sight()")
-    cam = scene.camera
-    if not own_size and (int(projection.width), int(projection.height)) != (cam.width, cam.height):
-        raise ConfigValueError("projection.size", (projection.width, projection.height),
-                               f"the camera's image size ({cam.width}, {cam.height})")
-    return projection
-
-
-def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
-    """A body's apparent pixel positions at mid-exposure, start and end; shape (3, 2), px."""
-    if projection is scene.camera:  # the scene computed them with this camera
-        return np.array([body.xy, body.xy_start, body.xy_end], dtype=float)
-    half = 0.5 * scene.camera.exposure_s
-    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
-    Rs = np.stack([scene.R_cam_icrs, frames.propagate_attitude(scene.R_cam_icrs, w, -half),
-                   frames.propagate_attitude(scene.R_cam_icrs, w, half)])
-    return projection.project(np.einsum("sij,j->si", Rs, np.asarray(body.u_icrs, dtype=float)))
-
-
-def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions(),
-                   own_size: bool = False, with_irradiance: bool = True, support: list | None = None,
-                   zeros: tuple | None = None) -> ExpectedImage:
-    """Noise-free electrons and pupil irradiance of a scene through a projection.
-
-    Parameters
-    ----------
-    scene : Scene
-        Sources, attitude and the camera's optics (aperture, spectral response, exposure, PSF).
-    projection : Projection, optional
-        Camera-frame line of sight <-> pixel of the image (default ``scene.camera``); its size
-        must be the camera's unless ``own_size``. Point sources are placed with ``projection.project``; resolved
-        bodies are ray-traced along ``projection.line_of_sight``.
-    rng : numpy.random.Generator
-        The frame's stream. Only resolved bodies use it, through ``rng.spawn(1)[0]`` (the Mitsuba
-        seeds), so ``rng``'s own draws are left for :func:`detect`.
-    options : RenderOptions
-        Accuracy of the stamps and paths, background, Mitsuba sampling.
-    own_size : bool
-        True: the image has the projection's size (a bench screen seen through its collimator),
-        not the camera's; the camera still sets the optics, radiometry and PSF (in image px).
-    with_irradiance : bool
-        False: skip the irradiance image (``irradiance_w_m2`` is None), e.g. for a screen frame,
-        which needs the electrons only.
-    support : list, optional
-        Arrays of flat indices are appended to it that hold every nonzero pixel of ``electrons``
-        (the point sources' stamps, the resolved bodies' crops; every pixel with a background).
-    zeros : (ndarray, ndarray), optional
-        Two float64 zero images of the image's shape, C-contiguous, drawn into as the electrons
-        and the irradiance (:func:`render` hands back images it has used, set to zero again).
-
-    Returns
-    -------
-    ExpectedImage
-        Electrons (e-) and irradiance (W/m^2) per pixel, float64, and each source's share.
-
-    Examples
-    --------
-    The electrons of the image are those of its sources (nothing leaves the image here but
-    the stars beyond the edges):
-
-    >>> import dataclasses
-    >>> from skynav.renderer import RenderOptions, render
-    >>> from skynav.scenes import build_from_spec, default_scene_spec
-    >>> spec = default_scene_spec()   # the paper camera, pointing at Mars
-    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
-    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))   # 64 px, 20 deg
-    >>> from skynav.renderer import expected_image
-    >>> ex = expected_image(scene, rng=np.random.default_rng(1), options=RenderOptions(backend="numpy"))
-    >>> ex.electrons.shape, ex.irradiance_w_m2.shape, ex.electrons.dtype.name
-    ((64, 64), (64, 64), 'float64')
-    >>> bool(ex.electrons.sum() <= ex.star_electrons.sum() + sum(ex.body_electrons.values()))
-    True
-    """
-    proj = _check_projection(scene, projection, own_size)
-    support = [] if support is None else support  # the pixels drawn: ExpectedImage.support (and the caller's list)
-    cam = scene.camera
-    shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
-    rad = Radiometry.for_camera(cam)
-    psf = kernel_for(cam, None, options.flux_fraction_lost)
-    T = cam.exposure_s
-
-    # --- point sources: stars + bodies not ray-traced
-    stars = scene.stars
-    star_e = np.asarray(rad.star_electrons_per_s(stars.v_mag, stars.teff_k), dtype=float) * T
-    star_irr = np.asarray(rad.star_irradiance_w_m2(stars.v_mag, stars.teff_k), dtype=float)
-    track = {b.name: _body_track_xy(scene, proj, b) for b in scene.bodies}
-    near = {b.name: _near_image(proj, track[b.name], b) for b in scene.bodies}
-    traced = [b for b in scene.bodies if b.resolved and options.resolved and near[b.name]]
-    points = [b for b in scene.bodies if b not in traced and near[b.name] and all(map(math.isfinite, track[b.name][0].tolist()))]
-    body_e = {b.name: float(rad.body_electrons_per_s(b.name, b.v_mag)) * T if np.isfinite(b.v_mag) else 0.0
-              for b in scene.bodies}
-    body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
-                for b in scene.bodies}
-    if zeros is not None:
-        electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
-    else:
-        electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
-    drawn = _draw_point_sources(scene, proj, options, psf, points, track, (star_e, star_irr), (body_e, body_irr),
-                                (electrons, irradiance), support)
-    star_centre, body_centre, body_photocentre, star_fraction, body_fraction = drawn
-
-    # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
-    resolved, variant = _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, (body_e, body_irr),
-                                              (electrons, irradiance), support, body_centre, body_fraction)
-
-    background = options.background_e_per_px_s > 0
-    if background:
-        electrons += options.background_e_per_px_s * T
-        support.append(np.arange(electrons.size))
-    sparse = not background and sum(a.size for a in support) * 4 < electrons.size
-    return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
-                         body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
-                         mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
-                         body_centre_of_light=body_centre, star_fraction_drawn=star_fraction,
-                         body_fraction_drawn=body_fraction,
-                         support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
-
-
-def _draw_point_sources(scene, proj, options, psf, points, track, star_light, body_light, images, support):
-    """Stars and the bodies drawn as points (``points``), rasterised into ``images`` =
-    (electrons, irradiance or None) along their paths, each body at its photocentre; returns
-    (star centres of light (N, 2), {body: centre of light}, {body: photocentre drawn at}, star
-    fractions drawn (N,) or None, {body: fraction drawn} or None)."""
-    cam = scene.camera
-    ffl = options.flux_fraction_lost
-    stars = scene.stars
-    (star_e, star_irr), (body_e, body_irr), (electrons, irradiance) = star_light, body_light, images
-    u_pts = np.concatenate([stars.u_icrs.reshape(-1, 3), np.array([b.u_icrs for b in points]).reshape(-1, 3)])
-    e_pts = np.concatenate([star_e, np.array([body_e[b.name] for b in points])])
-    irr_pts = np.concatenate([star_irr, np.array([body_irr[b.name] for b in points])])
-    paths = source_paths(scene, u_pts, options, proj)
-    # unresolved bodies are drawn at their photocentre (far-field BRDF offset along the Sun's
-    # projection), so the centroid is continuous across the resolved threshold
-    body_photocentre = {}
-    for j, b in enumerate(points):
-        off = np.asarray(photocentre_offset_xy(proj, scene.R_cam_icrs, b), dtype=float)
-        if np.all(np.isfinite(off)):
-            paths[len(star_e) + j] += off
-            body_photocentre[b.name] = track[b.name][0] + off
-    centre = np.full((len(e_pts), 2), np.nan)
-    drawn = np.zeros(len(e_pts)) if psf.truncated else None  # the charge each source's stamps hold
-    shape = electrons.shape
-    with_irradiance = irradiance is not None
-    if not is_polychromatic(cam):
-        rasterize(shape, paths, e_pts, psf, flux_fraction_lost=ffl, support=support, centre_of_light=centre, out=electrons,
-                  also=(irr_pts, irradiance) if with_irradiance else None, stamp_e=e_pts, drawn_e=drawn)
-    else:  # stars: the spectral nodes blended at each star's effective wavelength; bodies: their own spectrum
-        n_s = len(star_e)
-        lam = star_effective_wavelengths_nm(cam, stars.teff_k)
-        rasterize(shape, paths[:n_s], e_pts[:n_s], psf, flux_fraction_lost=ffl, support=support, out=electrons,
-                  centre_of_light=centre[:n_s], wavelength_nm=lam, stamp_e=e_pts[:n_s], drawn_e=drawn[:n_s],
-                  also=(irr_pts[:n_s], irradiance) if with_irradiance else None)
-        for j, b in enumerate(points):
-            kern = kernel_for(cam, ("body", b.name), ffl)
-            sel = slice(n_s + j, n_s + j + 1)
-            rasterize(shape, paths[sel], e_pts[sel], kern, flux_fraction_lost=ffl, support=support,
-                      centre_of_light=centre[sel], out=electrons, stamp_e=e_pts[sel], drawn_e=drawn[sel],
-                      also=(irr_pts[sel], irradiance) if with_irradiance else None)
-    star_centre = centre[: len(star_e)]
-    body_centre = {b.name: centre[len(star_e) + j] for j, b in enumerate(points)}
-    star_fraction = body_fraction = None
-    if drawn is not None:  # a truncated kernel: what its stamps hold of each source's light
-        with np.errstate(invalid="ignore", divide="ignore"):
-            fraction = np.where(e_pts > 0, drawn / e_pts, np.nan)
-        star_fraction = fraction[: len(star_e)]
-        body_fraction = {b.name: float(fraction[len(star_e) + j]) for j, b in enumerate(points)}
-    return star_centre, body_centre, body_photocentre, star_fraction, body_fraction
-
-
-def _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, body_light, images, support, body_centre,
-                          body_fraction):
-    """The ray-traced bodies (``traced``): Mitsuba's crops, seeded from a child of the frame's
-    stream, blurred by the PSF and added to ``images`` = (electrons, irradiance or None); fills
-    ``body_centre``, ``body_fraction`` (if not None) and the body electrons (``body_light[0]``,
-    each the crop's total); returns ({body: ResolvedBodyImage}, Mitsuba variant or None)."""
-    cam = scene.camera
-    ffl = options.flux_fraction_lost
-    (body_e, body_irr), (electrons, irradiance) = body_light, images
-    resolved = {}
-    variant = None
-    if not traced:
-        return resolved, variant
-    poly = is_polychromatic(cam)
-    body_rng = rng.spawn(1)[0]
-    for b in traced:
-        img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
-                                   rng=body_rng, projection=proj)
-        kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
-        crop, pad = blur_crop(img.electrons, kern, ffl, at_xy=track[b.name][0])
-        _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
-        tot = float(crop.sum())
-        if tot > 0:
-            yy, xx = np.indices(crop.shape)
-            body_centre[b.name] = np.array([(crop * xx).sum() / tot + img.x0 - pad,
-                                            (crop * yy).sum() / tot + img.y0 - pad])
-        scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
-        if irradiance is not None:
-            _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
-        body_e[b.name] = float(img.electrons_total)
-        if body_fraction is not None and body_e[b.name] > 0:
-            body_fraction[b.name] = tot / body_e[b.name]
-        resolved[b.name] = img
-        variant = img.variant
-    return resolved, variant
 
 
 def sensor_backend(requested: str) -> str:
@@ -718,41 +282,3 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
 #: with a background (every pixel lit, no support) are not kept. A pair is taken out while a
 #: frame uses it, so two threads never draw into the same images.
 _ZERO_IMAGES: dict = {}
-
-
-def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
-    """Convolve a pixel-binned crop with the PSF kernel, padded so that no drawn light is cut:
-    :meth:`blur_crop` of the kernel (the Gaussian's separable erf kernel, normalised to 1; a
-    table kernel's stamp of a point at a pixel centre, as it is, by FFT). ``at_xy`` (px) picks
-    the pixel, for a PSF that varies across the field (default: (0, 0)); ``wavelength_nm`` the
-    body's effective wavelength, for a polychromatic PSF. Returns (blurred crop, pad in px).
-    """
-    return psf.blur_crop(crop, flux_fraction_lost, at_xy=at_xy, wavelength_nm=wavelength_nm)
-
-
-def _near_image(projection, track_xy: np.ndarray, body, margin_px: float = 50.0) -> bool:
-    """True if any of a body's positions (mid-exposure, start, end; (3, 2) px) is within
-    ``margin_px`` plus its apparent radius of the image (Python floats: three points, nine
-    bodies a frame, too few for numpy's per-call cost to pay)."""
-    margin = margin_px + 0.5 * body.angular_diameter_px
-    x_hi, y_hi = projection.width - 0.5 + margin, projection.height - 0.5 + margin
-    lo = -0.5 - margin
-    for x, y in np.asarray(track_xy, dtype=float).tolist():
-        if math.isfinite(x) and math.isfinite(y) and lo <= x < x_hi and lo <= y < y_hi:
-            return True
-    return False
-
-
-def _add_crop(image: np.ndarray, crop: np.ndarray, x0: int, y0: int, support: list | None = None) -> None:
-    """Add a crop whose top-left pixel is (row y0, col x0), clipped to the image (``support``: the
-    flat indices of the pixels covered are appended to it)."""
-    h, w = crop.shape
-    H, W = image.shape
-    ys, xs = max(0, y0), max(0, x0)
-    ye, xe = min(H, y0 + h), min(W, x0 + w)
-    if ye <= ys or xe <= xs:
-        return
-    image[ys:ye, xs:xe] += crop[ys - y0:ye - y0, xs - x0:xe - x0]
-    if support is not None:
-        support.append((np.arange(ys, ye)[:, None] * W + np.arange(xs, xe)[None, :]).ravel())
-

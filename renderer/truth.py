@@ -126,13 +126,13 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     ----------
     scene : skynav.scenes.scene.Scene
         The rendered scene (epoch, observer, attitude, camera, stars, bodies).
-    expected : skynav.renderer.render.ExpectedImage
+    expected : skynav.renderer.expected.ExpectedImage
         Electrons per source, the Mitsuba crops and the variant that made them.
     detection : skynav.renderer.render.Detection
         The cosmic-ray hits and the sensor backend that ran.
     seed : int, sequence of int, numpy.random.SeedSequence or None
         The frame's seed, as given to :func:`~skynav.renderer.render.render`.
-    options : skynav.renderer.render.RenderOptions
+    options : skynav.renderer.options.RenderOptions
         The options the frame was rendered with.
 
     Returns

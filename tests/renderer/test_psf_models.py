@@ -200,7 +200,8 @@ def test_default_gaussian_frame_is_drawn_by_the_same_code_as_before():
     frame kept their PNG and EXR SHA-256: docs/conventions.md.)"""
     from skynav.renderer.kernels import GaussianKernel
     from skynav.renderer.radiometry import Radiometry
-    from skynav.renderer.render import RenderOptions, expected_image, render, source_paths
+    from skynav.renderer.expected import source_paths
+    from skynav.renderer.render import RenderOptions, expected_image, render
     from skynav.scenes import frames
     from skynav.scenes.camera import paper_camera
     from skynav.scenes.scene import build_scene

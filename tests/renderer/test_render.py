@@ -9,7 +9,8 @@ import pytest
 
 from skynav.infra.errors import ConfigValueError
 from skynav.renderer.kernels import GaussianKernel
-from skynav.renderer.render import RenderOptions, blur_crop, render
+from skynav.renderer.expected import blur_crop
+from skynav.renderer.render import RenderOptions, render
 from skynav.scenes import presets
 from skynav.scenes.scene import build_from_spec
 
