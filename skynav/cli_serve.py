@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 from skynav.calibration.facility_io import load_facility
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
@@ -13,32 +14,42 @@ from .cli_args import MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_ar
 from .cli_common import COMMAND_HELP, fail
 
 
-def cmd_serve_vizard(args) -> int:
-    """``skynav serve --vizard``: the Vizard-compatible image endpoint (skynav.service.vizard)."""
+def _vizard_endpoint(args):
+    """``(the endpoint of --vizard's options, None)``, or ``(None, exit code)`` after one line."""
     # lazy: the endpoint loads zmq, protobuf and the renderer; skynav --help loads none of them
-    from skynav.scenes.scene_files import load_scene_mapping
     from skynav.scenes.overrides import apply_overrides
-    from skynav.service.vizard import BASE_SECTIONS, VizardEndpoint, VizardStartError, serve_vizard
+    from skynav.scenes.scene_files import load_scene_mapping
+    from skynav.service.vizard import BASE_SECTIONS, VizardEndpoint
 
     if not is_loopback(args.host) and not args.insecure:
-        return fail(f"--host {args.host}: the Vizard endpoint has no token; binding an address other than "
-                    "loopback needs --insecure (anyone who reaches it may make it render)")
+        return None, fail(f"--host {args.host}: the Vizard endpoint has no token; binding an address other than "
+                          "loopback needs --insecure (anyone who reaches it may make it render)")
     base = {}
     if args.camera is not None:
         section = load_scene_mapping(args.camera)
         base["camera"] = section["camera"] if isinstance(section.get("camera"), dict) else section
     if args.overrides:
         base = apply_overrides(base, args.overrides)
+    unknown = sorted(set(base) - set(BASE_SECTIONS))
+    if unknown:
+        return None, fail(f"--set {unknown[0]}.*: the endpoint takes {', '.join(BASE_SECTIONS)} "
+                          "(the rest of the scene comes from Basilisk)")
     if args.truth_dir is not None:
         try:
             os.makedirs(args.truth_dir, exist_ok=True)
         except OSError as exc:
-            return fail(f"--truth-dir {args.truth_dir}: cannot make the folder ({exc.strerror or exc})")
-    unknown = sorted(set(base) - set(BASE_SECTIONS))
-    if unknown:
-        return fail(f"--set {unknown[0]}.*: the endpoint takes {', '.join(BASE_SECTIONS)} "
-                    "(the rest of the scene comes from Basilisk)")
-    endpoint = VizardEndpoint(base, truth_dir=args.truth_dir)
+            return None, fail(f"--truth-dir {args.truth_dir}: cannot make the folder ({exc.strerror or exc})")
+    return VizardEndpoint(base, truth_dir=args.truth_dir), None
+
+
+def cmd_serve_vizard(args) -> int:
+    """``skynav serve --vizard``: the Vizard-compatible image endpoint (skynav.service.vizard) alone."""
+    # lazy: the endpoint loads zmq, protobuf and the renderer; skynav --help loads none of them
+    from skynav.service.vizard import VizardStartError, serve_vizard
+
+    endpoint, rc = _vizard_endpoint(args)
+    if endpoint is None:
+        return rc
     try:
         serve_vizard(endpoint, host=args.host, port=args.vizard_port, ready=lambda line: print(line, flush=True))
     except VizardStartError as exc:
@@ -47,9 +58,54 @@ def cmd_serve_vizard(args) -> int:
     return 0
 
 
+def _vizard_beside(args):
+    """``--vizard --http``: the endpoint in a thread of its own; ``(thread, stop event, None)`` once it
+    is ready, or ``(None, None, exit code)`` after one line. The HTTP server, in the main thread, takes
+    the signals; setting the event stops the endpoint."""
+    # lazy: the endpoint loads zmq, protobuf and the renderer; skynav --help loads none of them
+    from skynav.service.vizard import VizardStartError, serve_vizard
+
+    endpoint, rc = _vizard_endpoint(args)
+    if endpoint is None:
+        return None, None, rc
+    stop, started, errors = threading.Event(), threading.Event(), []
+
+    def run():
+        try:
+            serve_vizard(endpoint, host=args.host, port=args.vizard_port, stop=stop,
+                         ready=lambda line: (print(line, flush=True), started.set()))
+        except VizardStartError as exc:
+            errors.append(str(exc))
+        finally:
+            started.set()
+
+    thread = threading.Thread(target=run, name="skynav-vizard", daemon=True)
+    thread.start()
+    started.wait()
+    if errors:
+        return None, None, fail(errors[0])
+    return thread, stop, None
+
+
 def cmd_serve(args) -> int:
-    if args.vizard:
+    if args.http and not args.vizard:
+        return fail("--http: serves HTTP beside the Vizard endpoint; give it with --vizard (HTTP alone is the default)")
+    if args.vizard and not args.http:
         return cmd_serve_vizard(args)
+    beside = stop = None
+    if args.vizard:
+        beside, stop, rc = _vizard_beside(args)
+        if beside is None:
+            return rc
+    try:
+        return _serve_http(args)
+    finally:
+        if beside is not None:
+            stop.set()
+            beside.join()
+
+
+def _serve_http(args) -> int:
     if args.port < 0 or args.port > 65535:
         return fail(f"--port {args.port}: expected 0..65535 (0: any free port)")
     token = args.token
@@ -108,9 +164,11 @@ def add_parser(sub) -> None:
     s.add_argument("--max-queue", type=positive_int, default=MAX_QUEUE, help="requests that may wait for a worker")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
     v = s.add_argument_group("Vizard endpoint", "Basilisk's vizInterface (noDisplay) gets skynav frames "
-                             "(docs/service.md); serves instead of HTTP")
+                             "(docs/service.md); instead of HTTP, or beside it with --http")
     v.add_argument("--vizard", action="store_true", help="serve Basilisk's vizInterface as Vizard would: a "
                    "ZeroMQ REP socket on --host:--vizard-port answering PING, SIM_UPDATE and REQUEST_IMAGE_<id>")
+    v.add_argument("--http", action="store_true", help="with --vizard: serve HTTP on --port as well (the "
+                   "endpoint then renders in the server's process, beside the HTTP workers)")
     v.add_argument("--vizard-port", type=int_in(0, 65535, "0: any free port"), default=5556, metavar="PORT",
                    help="the endpoint's TCP port (default 5556, vizInterface's reqPortNumber; 0: any free port)")
     v.add_argument("--camera", default=None, metavar="FILE", help="camera YAML (a scene file's camera: section): "

@@ -312,3 +312,45 @@ def test_a_saturated_disc_is_reported_once(tmp_path):
         assert ep.stop() == 0
     said = [line for line in ep.lines if "saturates" in line]
     assert len(said) == 1 and "mars's disc" in said[0], ep.output
+
+
+def test_beside_the_http_service():
+    """``--vizard --http``: both answer; a signal stops both."""
+    import urllib.request
+
+    proc = subprocess.Popen([sys.executable, "-m", "skynav", "serve", "--vizard", "--http", "--vizard-port", "0",
+                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines, found = [], {}
+
+    def pump():
+        for line in proc.stdout:
+            lines.append(line)
+            for key, pattern in (("tcp", READY), ("http", re.compile(r"ready at (http://\S+)"))):
+                m = pattern.search(line)
+                if m:
+                    found[key] = m.group(1)
+
+    threading.Thread(target=pump, daemon=True).start()
+    t_end = time.monotonic() + 300
+    while len(found) < 2 and proc.poll() is None and time.monotonic() < t_end:
+        time.sleep(0.1)
+    try:
+        assert len(found) == 2, "".join(lines)
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(found["tcp"])
+        sock.send_multipart([b"PING"])
+        assert sock.recv_multipart() == [b"PONG"]
+        sock.close(0)
+        with urllib.request.urlopen(found["http"] + "/v1/health", timeout=60) as answer:
+            assert answer.status == 200
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        assert proc.wait(120) == 0, "".join(lines)
+    assert "stopped" in "".join(lines)
+
+
+def test_http_without_vizard_is_one_line():
+    run = subprocess.run([sys.executable, "-m", "skynav", "serve", "--http"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and "--http" in run.stderr, run.stderr
