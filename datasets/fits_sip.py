@@ -10,7 +10,7 @@ offsets ``(u, v) = p - CRPIX`` from the principal point:
 - inverse ``AP, BP`` (sky to pixel): ``u = U + AP(U, V)``, ``v = V + BP(U, V)``.
 
 With ``K2 = K[:2, :2]`` and ``D`` the distortion on normalised coordinates
-(:class:`~skynav.scenes.camera.BrownConrady`), the exact maps are
+(:class:`~skynav.scenes.distortion.BrownConrady`), the exact maps are
 ``(U, V) = K2 D^-1(K2^-1 (u, v))`` and ``(u, v) = K2 D(K2^-1 (U, V))``. Neither is a polynomial
 in general (``D^-1`` never is), so both are fitted by least squares on a grid covering the
 sensor edge to edge, at the lowest order (2 to 9) whose largest residual on a second, denser

@@ -30,7 +30,7 @@ _LAZY = {
     "dataclass_from_overrides": "overrides",
     "default_scene_spec": "presets",
     # camera and facility
-    "Camera": "camera", "SensorParams": "camera", "BrownConrady": "camera", "paper_camera": "camera",
+    "Camera": "camera", "SensorParams": "camera", "BrownConrady": "distortion", "paper_camera": "camera",
     "Projection": "projection", "VisibilityCriteria": "visibility",
     "Facility": "facility", "Screen": "screen", "facility_from_mapping": "facility", "screen_preset": "facility",
     "screen_small_preset": "facility",

@@ -17,8 +17,9 @@ import numpy as np
 
 from skynav.infra.errors import ConfigValueError, SkynavWarning
 
-from .camera import MOVED_CAMERA_KEYS, BrownConrady, Camera, SensorParams, paper_camera
+from .camera import MOVED_CAMERA_KEYS, Camera, SensorParams, paper_camera
 from .constants import C_KM_S, SECONDS_PER_DAY
+from .distortion import BrownConrady
 from .ephemeris_jpl import BODIES
 from .errors import MovedKeyError, SceneFileError, UnknownBodyError
 from .psf import GaussianPSFModel, psf_from_dict

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from skynav.cli import main
-from skynav.scenes.camera import BrownConrady, paper_camera
+from skynav.scenes.camera import paper_camera
+from skynav.scenes.distortion import BrownConrady
 
 
 def _render(out, distortion):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from skynav.pipeline.measurement import CASES, LightCorrections, deaberrate_pixel, planet_pixel
-from skynav.scenes.camera import BrownConrady, paper_camera
+from skynav.scenes.camera import paper_camera
+from skynav.scenes.distortion import BrownConrady
 from skynav.scenes.constants import AU_KM
 
 

@@ -243,7 +243,8 @@ def test_position_with_distortion_and_offset_principal_point(mitsuba_variant, bo
     projected through ``Camera.project`` (distortion included), puts it (< 0.02 px). The backend
     takes every ray from ``Camera.line_of_sight``, so the distortion's local scale and shear are
     rendered too (a crescent under strong distortion: ``tests/renderer/test_mitsuba_projection.py``)."""
-    from skynav.scenes.camera import BrownConrady, paper_camera
+    from skynav.scenes.camera import paper_camera
+    from skynav.scenes.distortion import BrownConrady
 
     cam = paper_camera(cx=530.25, cy=497.6, distortion=BrownConrady(k1=-0.08, k2=0.01, p1=2e-4, p2=-1e-4))
     scene, body = body_scene(xy=(150.2, 880.7), diameter_px=30.0, phase_deg=0.0, sun_pa_deg=200.0,

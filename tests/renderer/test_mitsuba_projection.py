@@ -28,7 +28,8 @@ import pytest
 from skynav.renderer.brdf import BRDF
 from skynav.renderer.errors import ProjectionCropError
 from skynav.renderer.mitsuba_backend import crop_lines_of_sight, render_resolved_body
-from skynav.scenes.camera import BrownConrady, paper_camera
+from skynav.scenes.camera import paper_camera
+from skynav.scenes.distortion import BrownConrady
 from skynav.scenes.projection import Projection
 from tests.renderer.test_mitsuba_against_lambert_sphere import (
     K_550,

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from skynav.infra.errors import ConfigValueError
-from skynav.scenes.camera import BrownConrady, Camera, paper_camera
+from skynav.scenes.camera import Camera, paper_camera
+from skynav.scenes.distortion import BrownConrady
 
 
 def test_paper_camera_matches_paper002_table4():
@@ -78,7 +79,8 @@ def test_camera_value_semantics():
 
 def test_camera_is_a_projection_and_line_of_sight_inverts_project():
     """The pinhole + Brown-Conrady camera satisfies the Projection protocol; round trip < 1e-6 px."""
-    from skynav.scenes.camera import BrownConrady, paper_camera
+    from skynav.scenes.camera import paper_camera
+    from skynav.scenes.distortion import BrownConrady
     from skynav.scenes.projection import Projection
 
     cam = paper_camera(distortion=BrownConrady(k1=-0.05, p1=1e-4))
