@@ -10,6 +10,8 @@ Adapter module: the one place that knows the folder layout::
     <dataset>/index.csv            one row per frame
     <dataset>/trajectory.csv       (sequences) the cruise, barycentric ICRS
     <dataset>/legs.csv             (sequences) the leg timeline
+    <dataset>/trajectory.oem       (sequences, ccsds extra) the cruise as a CCSDS OEM
+    <dataset>/attitude.aem         (sequences, ccsds extra) the frames' attitudes as a CCSDS AEM
 
 The manifest holds nothing that depends on how or when the dataset was made (no dates, hosts,
 worker counts), so the same recipe gives byte-identical folders whatever the parallelism.

@@ -23,6 +23,7 @@ from .distortion import BrownConrady
 from .ephemeris_jpl import BODIES
 from .errors import MovedKeyError, SceneFileError, UnknownBodyError
 from .psf import GaussianPSFModel, psf_from_dict
+from .mission_ccsds import resolve_mission_sources
 from .scene import RESOLVED_THRESHOLD_PX
 from .timescales import to_time
 from .visibility import VisibilityCriteria
@@ -442,6 +443,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if not isinstance(d, dict):
         raise SceneFileError("a scene file must be a mapping with keys: " + ", ".join(sorted(_SCENE_KEYS)))
     _check_keys(d, "", _SCENE_KEYS)
+    d = resolve_mission_sources(d)  # observer: {oem: FILE}, attitude: {aem: FILE}
     if "epoch" not in d:
         raise ConfigValueError("epoch", None, "an ISO date in TDB, e.g. 2027-03-15T00:00:00")
     try:

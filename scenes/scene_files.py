@@ -16,6 +16,7 @@ import yaml
 from .errors import SceneFileError
 
 from .config import SceneSpec, scene_spec_from_mapping
+from .mission_ccsds import mark_mission_files
 from .psf import resolve_psf_files
 
 __all__ = ["load_yaml", "read_scene_mapping", "read_scene_file", "load_scene_mapping", "load_scene_file"]
@@ -124,7 +125,7 @@ def load_scene_mapping(path):
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")
     with open(path, "rb") as f:
-        return resolve_psf_files(read_scene_mapping(f, str(path)), path.parent)
+        return mark_mission_files(resolve_psf_files(read_scene_mapping(f, str(path)), path.parent), path.parent)
 
 
 def load_scene_file(path) -> SceneSpec:
