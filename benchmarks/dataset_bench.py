@@ -341,7 +341,7 @@ def cost_split(recipe, n: int, warmup: int, disk_dir) -> dict:
     from skynav.infra.atomic_files import atomic_write_many, sha256_file
     from skynav.datasets.frame_files import frame_file_bytes
     from skynav.datasets.journal import write_record
-    from skynav.datasets.recipes import validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
     from skynav.datasets.samplers import frame_seed, make_plan
     from skynav.renderer.render import render
     from skynav.scenes.scene import build_scene
@@ -528,7 +528,7 @@ def run_scaling(a, tmp: Path) -> bool:
 def _plot_legs(path: str) -> None:
     from skynav.datasets import preset_recipe as pr
     from skynav.datasets.plots import plot_leg_magnitudes
-    from skynav.datasets.recipes import validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
     from skynav.datasets.samplers import make_plan
 
     plan = make_plan(validate_recipe(pr("sequence")))

@@ -40,7 +40,7 @@ def _frames(n: int, warmup: int, small: bool):
 
     from skynav.datasets import preset_recipe
     from skynav.datasets.plan import frame_seed
-    from skynav.datasets.recipes import validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
     from skynav.datasets.samplers import make_plan
     from skynav.renderer.render import render
     from skynav.scenes.scene import build_scene

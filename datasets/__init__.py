@@ -38,7 +38,7 @@ open = open_dataset  # noqa: A001 - skynav.datasets.open(path), as asked by the 
 # function here: importing a submodule binds its name on the package, which would hide the function.
 _LAZY = {
     "leg_plot": "contact_sheet", "preview": "contact_sheet",
-    "PRESETS": "recipes", "load_recipe_file": "recipes", "preset_recipe": "recipes", "validate_recipe": "recipes",
+    "PRESETS": "recipes", "load_recipe_file": "recipes", "preset_recipe": "recipes", "validate_recipe": "recipe_checks",
     "recipe_yaml": "recipes",
     "GenerateSummary": "runner", "generate": "runner", "regenerate_frame": "runner",
     "VerifyReport": "integrity", "info": "integrity", "verify": "integrity",

@@ -51,7 +51,8 @@ from .frame_files import check_output_dir
 from .journal import frame_problem
 from .lock import dataset_lock
 from .plan import RunPlan
-from .recipes import RECIPE_RENDER_OPTIONS, recipe_camera, validate_recipe
+from .recipe_checks import RECIPE_RENDER_OPTIONS, validate_recipe
+from .recipes import recipe_camera
 from .samplers import make_plan
 from .truth_schema import read_truth_json
 

@@ -293,7 +293,7 @@ class ScenesPlan:
     ``render.cosmic_rays_per_frame`` and ``render.mitsuba_spp`` replace the recipe's (its
     ``render:`` mapping, or the defaults) for that frame. The frame's ground truth records the camera and star limit it was rendered
     with, and the scene's ``render`` mapping under ``dataset.render``. (``render.seed`` is refused
-    by :func:`~skynav.datasets.recipes.validate_recipe`: frame k's stream is fixed by the
+    by :func:`~skynav.datasets.recipe_checks.validate_recipe`: frame k's stream is fixed by the
     recipe's seed.)
     """
 

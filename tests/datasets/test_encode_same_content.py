@@ -70,7 +70,7 @@ def test_writers_give_back_mains_decoded_content(tmp_path, bits, stem):
 
 def test_montecarlo_plan_of_200_frames_is_mains():
     from skynav.datasets import preset_recipe
-    from skynav.datasets.recipes import validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
     from skynav.datasets.samplers import frame_seed, make_plan
 
     ref = json.loads((REF / "montecarlo_plan_200.json").read_text())

@@ -12,7 +12,8 @@ import yaml
 from skynav.datasets import generate
 from skynav.datasets.errors import RecipeError
 from skynav.datasets.frame_files import read_exr
-from skynav.datasets.recipes import PRESETS, load_recipe_file, preset_recipe, recipe_yaml, validate_recipe
+from skynav.datasets.recipe_checks import validate_recipe
+from skynav.datasets.recipes import PRESETS, load_recipe_file, preset_recipe, recipe_yaml
 from skynav.datasets.runner import recipe_render_options
 from skynav.infra.errors import ConfigValueError
 from skynav.renderer.render import RenderOptions

@@ -11,7 +11,8 @@ from scipy import stats
 
 from skynav.datasets import preset_recipe, validate_recipe
 from skynav.datasets.errors import RecipeError
-from skynav.datasets.recipes import KINDS, PRESETS, load_recipe_file
+from skynav.datasets.recipe_checks import KINDS
+from skynav.datasets.recipes import PRESETS, load_recipe_file
 from skynav.datasets.samplers import R_ECL_ICRS, frame_rng, make_plan
 from skynav.infra.errors import ConfigValueError, SkynavError
 from skynav.scenes.constants import AU_KM, GM_KM3_S2

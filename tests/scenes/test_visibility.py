@@ -123,7 +123,8 @@ def test_observer_inside_a_body_is_its_own_error():
 
 def test_sampler_rejects_a_pose_inside_a_body_by_that_error():
     """The Monte Carlo sampler rejects (and redraws) a pose inside a body; other errors propagate."""
-    from skynav.datasets.recipes import preset_recipe, validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
+    from skynav.datasets.recipes import preset_recipe
     from skynav.datasets.samplers import make_plan
     from skynav.scenes.timescales import tdb_seconds
 
@@ -137,7 +138,8 @@ def test_sampler_rejects_a_pose_inside_a_body_by_that_error():
 
 
 def test_recipes_carry_the_criteria_and_refuse_the_old_keys():
-    from skynav.datasets.recipes import preset_recipe, recipe_visibility, validate_recipe
+    from skynav.datasets.recipe_checks import validate_recipe
+    from skynav.datasets.recipes import preset_recipe, recipe_visibility
     from skynav.datasets.samplers import make_plan
 
     rec = preset_recipe("montecarlo")
