@@ -9,7 +9,7 @@ into a position, ``relativeODuKF`` filters the positions into an orbit. Each ima
 scored against the frame's truth (kept with ``--truth-dir``), and the filter's position error
 against its 3-sigma.
 
-    python docs/examples/basilisk_opnav.py [--images 20] [--size 256] [--exposure-s 1e-5] [--step-s 60]
+    python docs/examples/basilisk_opnav.py [--images 20] [--size 256] [--exposure-s 1e-5] [--step-s 60] [--figure PNG]
 """
 
 from __future__ import annotations
@@ -142,6 +142,7 @@ def main(argv=None) -> int:
     ap.add_argument("--exposure-s", type=float, default=1e-5, help="exposure, s (0.4 s saturates Mars's disc)")
     ap.add_argument("--step-s", type=float, default=60.0, help="time between images, s")
     ap.add_argument("--truth-dir", default=None, help="keep the frames and their truth here (default: a temporary folder)")
+    ap.add_argument("--figure", default=None, metavar="PNG", help="draw the last frame with Hough's circle and the truth's")
     args = ap.parse_args(argv)
     from Basilisk.utilities import macros
 
@@ -157,6 +158,8 @@ def main(argv=None) -> int:
                 sim.ConfigureStopTime(macros.sec2nano(args.step_s * k))
                 sim.ExecuteSimulation()
                 rows.append(score(k, m, truth_dir / f"{k - 1:06d}.json"))
+            if args.figure:
+                figure(args.figure, truth_dir / f"{args.images - 1:06d}", m["hough"].opnavCirclesOutMsg.read())
         finally:
             endpoint.terminate()
             endpoint.wait(60)
@@ -183,6 +186,33 @@ def score(k: int, m: dict, truth_path: Path) -> dict:
     row["pos_err_m"] = float(np.linalg.norm(np.array(filt.state[:3]) - r_true))
     row["pos_3sigma_m"] = 3 * math.sqrt(sum(np.array(filt.covar).reshape(6, 6)[i, i] for i in range(3)))
     return row
+
+
+def figure(path: str, stem: Path, circles) -> None:
+    """The frame Basilisk received (the kept PNG), Hough's circle and the truth's disc."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    dn = np.asarray(Image.open(stem.with_suffix(".png")))
+    truth = json.loads(stem.with_suffix(".json").read_text())
+    mars = next(b for b in truth["bodies"] if b["name"] == "mars")
+    radius_px = truth["camera"]["K"][1][1] * math.tan(math.asin(mars["radius_km"] / mars["distance_km"]))
+    fig, ax = plt.subplots(figsize=(5, 5), dpi=100)
+    ax.imshow(dn, cmap="gray", origin="upper")
+    cx, cy = circles.circlesCenters[:2]
+    ax.add_patch(plt.Circle((cx, cy), circles.circlesRadii[0], fill=False, color="tab:red", lw=1.2,
+                            label=f"houghCircles: ({cx:.1f}, {cy:.1f}), r {circles.circlesRadii[0]:.1f} px"))
+    ax.add_patch(plt.Circle(mars["xy"], radius_px, fill=False, color="tab:cyan", lw=1.0, ls="--",
+                            label=f"truth: ({mars['xy'][0]:.1f}, {mars['xy'][1]:.1f}), r {radius_px:.1f} px"))
+    ax.legend(loc="lower center", fontsize=8)
+    ax.set_title(f"Mars from {mars['distance_km']:,.0f} km, {truth['camera']['exposure_s']:g} s", fontsize=9)
+    ax.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def report(rows) -> None:

@@ -25,7 +25,8 @@ ROW = re.compile(r"image\s+(\d+): circle centre\s+([\d.]+) px, radius\s+([-+\d.]
 def test_basilisks_opnav_chain_on_skynav_frames(tmp_path):
     pytest.importorskip("Basilisk.fswAlgorithms.houghCircles", reason="bsk-opnav (pip install skynav[basilisk]) is not installed")
     pytest.importorskip("zmq", reason="pyzmq (pip install skynav[basilisk]) is not installed")
-    run = subprocess.run([sys.executable, str(EXAMPLE), "--images", "20", "--truth-dir", str(tmp_path)],
+    run = subprocess.run([sys.executable, str(EXAMPLE), "--images", "20", "--truth-dir", str(tmp_path),
+                          "--figure", str(tmp_path / "figure.png")],
                          capture_output=True, text=True, timeout=900)
     assert run.returncode == 0, run.stderr[-3000:]
     rows = [tuple(float(v) for v in m.groups()) for m in ROW.finditer(run.stdout)]
@@ -33,4 +34,5 @@ def test_basilisks_opnav_chain_on_skynav_frames(tmp_path):
     for k, centre_px, radius_pct, range_pct, _, _ in rows:
         assert centre_px <= 2.0 and abs(radius_pct) <= 2.0 and abs(range_pct) <= 3.0, f"image {k:.0f}: {run.stdout}"
     assert rows[-1][4] <= rows[-1][5], run.stdout       # the filter's final error inside its 3-sigma
-    assert len(list(tmp_path.glob("*.png"))) == 20      # the truth of every frame is kept
+    assert len(list(tmp_path.glob("0*.png"))) == 20     # the truth of every frame is kept
+    assert (tmp_path / "figure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
