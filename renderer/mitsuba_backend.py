@@ -111,7 +111,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from skynav.infra.errors import ConfigValueError
-from skynav.scenes.camera import Camera
 from skynav.scenes.constants import AU_KM
 from skynav.scenes.constants import C_M_S as _C_M_S
 from skynav.scenes.constants import PLANCK_J_S as _H_J_S
@@ -121,6 +120,9 @@ from skynav.scenes.scene import RESOLVED_THRESHOLD_PX  # the default diameter (p
 from . import jit_backend, spectra
 from .brdf import BRDF, default_brdf
 from .errors import ProjectionCropError
+from .crop_geometry import (CROP_MARGIN_PX, SENSORS, _frame_z, _sensor_kind, _to_world, crop_lines_of_sight,
+                            crop_window, limb_radius_px, plain_pinhole)
+from .mitsuba_plugins import register_plugins
 from .radiometry import Radiometry
 
 __all__ = [
@@ -136,15 +138,6 @@ __all__ = [
 ]
 
 
-#: Margin around the body's disk (and its streak) in the crop, px.
-CROP_MARGIN_PX = 2.0
-
-#: Crop sizes are rounded up to a multiple of this, px (kernel reuse across frames).
-CROP_QUANTUM_PX = 8
-
-#: Largest crop side, px (a body larger than this is clipped to a window around the frame).
-MAX_CROP_PX = 4096
-
 LAMBDA_REF_NM = 550.0
 
 #: Near and far clip of the ``perspective`` sensor, world units (the observer-body distance is
@@ -152,13 +145,10 @@ LAMBDA_REF_NM = 550.0
 _NEAR_CLIP = 1e-5
 _FAR_CLIP = 4.0
 
-#: ``render_resolved_body(sensor=...)`` values.
-SENSORS = ("auto", "perspective", "projection")
 
 _lock = threading.RLock()
 _cache: "OrderedDict[tuple, _Entry]" = OrderedDict()
 _CACHE_SIZE = 8
-_registered: set = set()
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -239,159 +229,6 @@ def _sample_times(exposure_s: float, n: int) -> np.ndarray:
     return ((np.arange(n) + 0.5) / n - 0.5) * exposure_s
 
 
-def crop_window(centres_xy, radius_px: float, *, margin_px: float = CROP_MARGIN_PX, quantum_px: int = CROP_QUANTUM_PX):
-    """Integer crop ``(x0, y0, w, h)`` holding disks of ``radius_px`` at ``centres_xy``.
-
-    Parameters
-    ----------
-    centres_xy : ndarray, shape (T, 2), px
-    radius_px : float
-
-    Returns
-    -------
-    x0, y0, w, h : int (w, h multiples of ``quantum_px``, centred on the bounding box)
-    """
-    c = np.asarray(centres_xy, dtype=float).reshape(-1, 2)
-    r = float(radius_px) + float(margin_px)
-    lo = np.floor(c.min(0) - r + 0.5).astype(int)
-    hi = np.floor(c.max(0) + r + 0.5).astype(int)
-    size = hi - lo + 1
-    q = int(quantum_px)
-    qsize = np.minimum(((size + q - 1) // q) * q, MAX_CROP_PX)
-    lo = lo - (qsize - size) // 2
-    return int(lo[0]), int(lo[1]), int(qsize[0]), int(qsize[1])
-
-
-def _frame_z(direction) -> np.ndarray:
-    """A rotation 4x4 whose +z column is ``direction`` (unit)."""
-    z = np.asarray(direction, dtype=float)
-    z = z / np.linalg.norm(z)
-    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(a, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    M = np.eye(4)
-    M[:3, 0], M[:3, 1], M[:3, 2] = x, y, z
-    return M
-
-
-def _to_world(R_cam_icrs: np.ndarray, position) -> np.ndarray:
-    """The ``perspective`` sensor's camera-to-world 4x4: columns ``(-x_cam, -y_cam, z_cam)`` in
-    ICRS (Mitsuba's film has +x left and +y up) and the observer's position."""
-    M = np.eye(4)
-    M[:3, 0] = -R_cam_icrs[0]
-    M[:3, 1] = -R_cam_icrs[1]
-    M[:3, 2] = R_cam_icrs[2]
-    M[:3, 3] = position
-    return M
-
-
-def plain_pinhole(projection) -> bool:
-    """True if ``projection`` is a :class:`~skynav.scenes.camera.Camera` whose rays Mitsuba's
-    ``perspective`` sensor traces exactly: no lens distortion and square pixels (fx == fy)."""
-    return isinstance(projection, Camera) and projection.distortion.is_identity and projection.pixel_pitch_y_um is None
-
-
-def _sensor_kind(projection, sensor: str) -> str:
-    """``"perspective"`` or ``"projection"`` for a ``render_resolved_body(sensor=...)`` request."""
-    if sensor not in SENSORS:
-        raise ConfigValueError("mitsuba.sensor", sensor, "one of: " + ", ".join(SENSORS))
-    if sensor == "auto":
-        return "perspective" if plain_pinhole(projection) else "projection"
-    if sensor == "perspective" and not plain_pinhole(projection):
-        raise ConfigValueError("mitsuba.sensor", sensor, "'projection' or 'auto' for this projection "
-                               "(the perspective sensor is a pinhole: a Camera without distortion, with square pixels)")
-    return sensor
-
-
-def _perpendicular_basis(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit vectors e1, e2 with (e1, e2, c) right-handed; e1 near the camera's +x."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(c[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = a - (a @ c) * c
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(c, e1)
-
-
-def limb_radius_px(projection, R_cam_icrs, u_icrs, sin_r: float, *, n: int = 64) -> float:
-    """Largest distance from a body's projected centre to its projected limb, px.
-
-    Parameters
-    ----------
-    projection : Projection
-    R_cam_icrs : ndarray, shape (3, 3)
-    u_icrs : ndarray, shape (3,)
-        Unit vector to the body's centre.
-    sin_r : float
-        ``radius_km / distance_km``: the limb is the cone of half-angle ``asin(sin_r)``.
-    n : int
-        Limb points.
-
-    Returns
-    -------
-    float, px (NaN where the limb does not project)
-    """
-    u = np.asarray(u_icrs, dtype=float)
-    p, q = _perpendicular_basis(u)
-    rho = math.asin(sin_r)
-    phi = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    limb = math.cos(rho) * u + math.sin(rho) * (np.cos(phi)[:, None] * p + np.sin(phi)[:, None] * q)
-    R = np.asarray(R_cam_icrs, dtype=float)
-    xy = projection.project(np.concatenate([(R @ u)[None], limb @ R.T]))
-    return float(np.max(np.hypot(*(xy[1:] - xy[0]).T)))
-
-
-def _triangle_solid_angle(a, b, c) -> np.ndarray:
-    """Solid angle of spherical triangles of unit vectors (..., 3), sr (Van Oosterom & Strackee
-    1983); the triple product from differences, so tiny triangles keep their precision."""
-    num = np.abs(np.einsum("...i,...i->...", a, np.cross(b - a, c - a)))
-    den = 1.0 + np.einsum("...i,...i->...", a, b) + np.einsum("...i,...i->...", b, c) + np.einsum("...i,...i->...", c, a)
-    return 2.0 * np.arctan2(num, den)
-
-
-def crop_lines_of_sight(projection, x0: int, y0: int, w: int, h: int, *, body: str = "body"):
-    """The line-of-sight table of a crop, as the ``skynav_projection`` sensor takes it.
-
-    Parameters
-    ----------
-    projection : Projection
-    x0, y0, w, h : int
-        Crop: top-left pixel (column, row) and size, px.
-    body : str
-        Named in the error.
-
-    Returns
-    -------
-    basis : ndarray, shape (3, 3)
-        Columns ``e1, e2, c`` in the camera frame; ``c`` is the line of sight at the crop centre.
-    ab : ndarray, shape (h + 1, w + 1, 2)
-        Tangent-plane coordinates of the pixel-corner lines of sight: ``v ~ a e1 + b e2 + c``.
-    omega_sr : ndarray, shape (h, w)
-        Solid angle of each pixel, sr.
-
-    Raises
-    ------
-    ProjectionCropError
-        A line of sight is not finite, or 89.9 deg or more from the crop centre's.
-    """
-    xs = x0 - 0.5 + np.arange(w + 1, dtype=float)
-    ys = y0 - 0.5 + np.arange(h + 1, dtype=float)
-    corners = np.stack(np.meshgrid(xs, ys), axis=-1)
-    los = np.asarray(projection.line_of_sight(corners), dtype=float)
-    c = np.asarray(projection.line_of_sight(np.array([x0 + 0.5 * (w - 1), y0 + 0.5 * (h - 1)])), dtype=float)
-    if not (np.all(np.isfinite(los)) and np.all(np.isfinite(c))):
-        raise ProjectionCropError(body, (x0, y0, w, h), "has pixels without a finite line of sight")
-    los = los / np.linalg.norm(los, axis=-1, keepdims=True)
-    c = c / np.linalg.norm(c)
-    e1, e2 = _perpendicular_basis(c)
-    dots = los @ c
-    if float(dots.min()) < 1.7e-3:  # cos(89.9 deg)
-        raise ProjectionCropError(body, (x0, y0, w, h), "spans 90 deg or more from its central line of sight")
-    ab = np.stack([(los @ e1) / dots, (los @ e2) / dots], axis=-1)
-    c00, c10, c01, c11 = los[:-1, :-1], los[:-1, 1:], los[1:, :-1], los[1:, 1:]
-    omega = _triangle_solid_angle(c00, c10, c11) + _triangle_solid_angle(c00, c11, c01)
-    return np.column_stack([e1, e2, c]), ab, omega
-
-
 # ------------------------------------------------------------------------------ Mitsuba scene
 @functools.lru_cache(maxsize=4)
 def _solar_cells_1au(wl_key: tuple) -> np.ndarray:
@@ -419,166 +256,6 @@ def _spectrum_dict(wl, values) -> dict:
         "wavelengths": ",".join(repr(float(x)) for x in wl),
         "values": ",".join(repr(float(x)) for x in values),
     }
-
-
-def _register_plugins(variant: str) -> None:
-    """Register the Python plugins for the current variant: the BSDFs (Lommel-Seeliger,
-    Oren-Nayar) and the ``skynav_projection`` sensor."""
-    if variant in _registered:
-        return
-    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
-    import drjit as dr
-    import mitsuba as mi
-
-    class _PyDiffuseBase(mi.BSDF):
-        def __init__(self, props):
-            mi.BSDF.__init__(self, props)
-            self.reflectance = props["reflectance"]
-            flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-            self.m_components = [flags]
-            self.m_flags = flags
-
-        def _f_cos(self, si, wo, active):  # BRDF x cos(wo), Spectrum
-            raise NotImplementedError
-
-        def sample(self, ctx, si, sample1, sample2, active):
-            cos_i = mi.Frame3f.cos_theta(si.wi)
-            bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = mi.warp.square_to_cosine_hemisphere(sample2)
-            bs.pdf = mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
-            bs.eta = 1.0
-            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
-            bs.sampled_component = mi.UInt32(0)
-            ok = active & (cos_i > 0) & (bs.pdf > 0)
-            value = self._f_cos(si, bs.wo, ok) / dr.select(ok, bs.pdf, 1.0)
-            return bs, dr.select(ok, value, 0.0)
-
-        def eval(self, ctx, si, wo, active):
-            ok = active & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
-            return dr.select(ok, self._f_cos(si, wo, ok), 0.0)
-
-        def pdf(self, ctx, si, wo, active):
-            ok = active & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
-            return dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
-
-        def eval_pdf(self, ctx, si, wo, active):
-            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
-
-        def traverse(self, callback):
-            callback.put("reflectance", self.reflectance, mi.ParamFlags.Differentiable)
-
-        def parameters_changed(self, keys):
-            pass
-
-    class LommelSeeliger(_PyDiffuseBase):
-        """f = w / (4 pi (mu0 + mu)); eval returns f mu0 (mu0 = cos of the light direction)."""
-
-        def _f_cos(self, si, wo, active):
-            mu = dr.maximum(mi.Frame3f.cos_theta(si.wi), 0.0)
-            mu0 = dr.maximum(mi.Frame3f.cos_theta(wo), 0.0)
-            k = self.reflectance.eval(si, active)
-            return k * (dr.inv_four_pi * mu0 / dr.maximum(mu0 + mu, 1e-12))
-
-    class OrenNayar(_PyDiffuseBase):
-        """Qualitative Oren-Nayar (1994, eq. 30); ``roughness`` is the slope deviation, rad."""
-
-        def __init__(self, props):
-            super().__init__(props)
-            s2 = float(props["roughness"]) ** 2
-            self.a = 1.0 - 0.5 * s2 / (s2 + 0.33)
-            self.b = 0.45 * s2 / (s2 + 0.09)
-
-        def _f_cos(self, si, wo, active):
-            wi = si.wi
-            c0 = dr.clip(mi.Frame3f.cos_theta(wo), 0.0, 1.0)
-            c1 = dr.clip(mi.Frame3f.cos_theta(wi), 0.0, 1.0)
-            s0 = dr.safe_sqrt(1.0 - c0 * c0)
-            s1 = dr.safe_sqrt(1.0 - c1 * c1)
-            pw = dr.safe_sqrt((wo.x * wo.x + wo.y * wo.y) * (wi.x * wi.x + wi.y * wi.y))
-            cos_psi = dr.select(pw > 1e-12, (wo.x * wi.x + wo.y * wi.y) / dr.maximum(pw, 1e-12), 1.0)
-            sin_a = dr.maximum(s0, s1)
-            tan_b = dr.select(c0 > c1, s0 / dr.maximum(c0, 1e-12), s1 / dr.maximum(c1, 1e-12))
-            k = self.reflectance.eval(si, active)
-            return k * (dr.inv_pi * (self.a + self.b * dr.maximum(cos_psi, 0.0) * sin_a * tan_b) * c0)
-
-    class ProjectionSensor(mi.Sensor):
-        """Rays along a table of lines of sight at the film's pixel corners (module notes).
-
-        Parameters (set per frame, never literals in a kernel): ``a``, ``b``, the ``(h+1) x (w+1)``
-        corner table of tangent-plane coordinates, each flattened row-major; ``basis``, the
-        crop-to-world rotation (columns ``R^T e1, R^T e2, R^T c``); ``origin``, the observer.
-        """
-
-        def __init__(self, props):
-            mi.Sensor.__init__(self, props)
-            w, h = self.film().crop_size()
-            self.w, self.h = int(w), int(h)
-            self.m_needs_sample_3 = False  # a pinhole-like sensor: no aperture sample
-            # a Dr.Jit array in the JIT variants; in the scalar ones (one ray per call, mi.Float is
-            # a float) a NumPy array read by index
-            self._jit = dr.is_jit_v(mi.Float)
-            self.set_table(np.zeros((self.h + 1, self.w + 1, 2)))
-            self.basis = mi.Matrix3f(mi.ScalarMatrix3f(np.eye(3)))
-            self.origin = mi.Point3f(0.0, 0.0, -1.0)
-            dr.make_opaque(self.basis, self.origin)
-
-        def set_table(self, ab) -> None:
-            """Corner table, ndarray (h + 1, w + 1, 2)."""
-            # two flat arrays gathered with the pixel index itself (a gather of (a, b) pairs from
-            # one interleaved array let Dr.Jit emit two forms of the index arithmetic, i.e. two
-            # kernels, from one frame to the next)
-            a = np.ascontiguousarray(np.asarray(ab)[..., 0], dtype=np.float32).ravel()
-            b = np.ascontiguousarray(np.asarray(ab)[..., 1], dtype=np.float32).ravel()
-            self.a, self.b = (mi.Float(a), mi.Float(b)) if self._jit else (a, b)
-
-        def _corner(self, k, active):
-            if self._jit:
-                return mi.Point2f(dr.gather(mi.Float, self.a, k, active), dr.gather(mi.Float, self.b, k, active))
-            return mi.Point2f(float(self.a[k]), float(self.b[k]))
-
-        def set_view(self, basis, origin) -> None:
-            """Crop-to-world rotation (3, 3) and observer position (3,), world units."""
-            self.basis = mi.Matrix3f(mi.ScalarMatrix3f(np.asarray(basis, dtype=np.float64)))
-            self.origin = mi.Point3f(*(float(v) for v in origin))
-            dr.make_opaque(self.basis, self.origin)
-
-        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
-            wavelengths, weight = self.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f), wavelength_sample, active)
-            u = position_sample.x * self.w
-            v = position_sample.y * self.h
-            i = dr.clip(mi.Int32(dr.floor(u)), 0, self.w - 1)
-            j = dr.clip(mi.Int32(dr.floor(v)), 0, self.h - 1)
-            fu = u - mi.Float(i)
-            fv = v - mi.Float(j)
-            k = mi.UInt32(j * (self.w + 1) + i)
-            c00 = self._corner(k, active)
-            c10 = self._corner(k + 1, active)
-            c01 = self._corner(k + (self.w + 1), active)
-            c11 = self._corner(k + (self.w + 2), active)
-            p = dr.lerp(dr.lerp(c00, c10, fu), dr.lerp(c01, c11, fu), fv)
-            d = dr.normalize(self.basis @ mi.Vector3f(p.x, p.y, 1.0))
-            return mi.Ray3f(self.origin, d, time, wavelengths), weight
-
-        def sample_ray_differential(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
-            ray, weight = self.sample_ray(time, wavelength_sample, position_sample, aperture_sample, active)
-            return mi.RayDifferential3f(ray), weight
-
-        def traverse(self, callback):
-            super().traverse(callback)
-            if self._jit:
-                callback.put("table_a", self.a, mi.ParamFlags.NonDifferentiable)
-                callback.put("table_b", self.b, mi.ParamFlags.NonDifferentiable)
-
-        def parameters_changed(self, keys):
-            pass
-
-        def to_string(self):
-            return f"ProjectionSensor[{self.w} x {self.h}]"
-
-    mi.register_bsdf("skynav_lommel_seeliger", lambda props: LommelSeeliger(props))
-    mi.register_bsdf("skynav_oren_nayar", lambda props: OrenNayar(props))
-    mi.register_sensor("skynav_projection", lambda props: ProjectionSensor(props))
-    _registered.add(variant)
 
 
 def _bsdf_dict(brdf: BRDF, reflectance_values) -> dict:
@@ -632,7 +309,7 @@ def _scene_for(variant: str, camera, w: int, h: int, brdf: BRDF, body_name: str,
     # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
     import mitsuba as mi
 
-    _register_plugins(variant)
+    register_plugins(variant)
     sun = solar_irradiance_nodes_w_m2_nm(AU_KM)
     scene = mi.load_dict({
         "type": "scene",
