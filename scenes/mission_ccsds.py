@@ -33,6 +33,7 @@ from . import frames
 from skynav.infra.errors import ConfigValueError
 
 from .errors import SceneFileError
+from .mission_spice import spice_source
 from .timescales import tdb_seconds, time_from_tdb_seconds, to_time
 
 __all__ = ["ccsds_available", "SceneFilePath", "mark_mission_files", "resolve_mission_sources", "OemTable", "AemTable", "oem_kvn", "aem_kvn", "read_oem", "read_aem",
@@ -285,8 +286,8 @@ def rate_deg_s(w_rad_s) -> list[float]:
     return [math.degrees(float(x)) for x in w_rad_s]
 
 
-#: scene-file keys naming CCSDS files: (section, key, reader)
-_SOURCES = (("observer", "oem"), ("attitude", "aem"))
+#: scene-file keys naming data files: (section, key)
+_SOURCES = (("observer", "oem"), ("attitude", "aem"), ("observer", "spice"), ("attitude", "spice"))
 
 
 def mark_mission_files(mapping, folder):
@@ -299,13 +300,19 @@ def mark_mission_files(mapping, folder):
         sec = out.get(section)
         if isinstance(sec, Mapping) and isinstance(sec.get(key), str):
             out[section] = {**sec, key: SceneFilePath((Path(folder) / sec[key]).resolve())}
+        elif (isinstance(sec, Mapping) and isinstance(sec.get(key), Mapping)
+              and isinstance(sec[key].get("kernels"), list)):
+            kernels = [SceneFilePath((Path(folder) / k).resolve()) if isinstance(k, str) else k
+                       for k in sec[key]["kernels"]]
+            out[section] = {**sec, key: {**sec[key], "kernels": kernels}}
     return out
 
 
 def resolve_mission_sources(d):
-    """The scene mapping with ``observer: {oem: FILE}`` replaced by the file's state at the
-    scene's epoch (``position_km``, ``velocity_km_s``) and ``attitude: {aem: FILE}`` by its
-    attitude (``q_cam_icrs``, ``angular_velocity_deg_s``); other mappings as they are."""
+    """The scene mapping with ``observer: {oem: FILE}`` (or ``{spice: {kernels, body}}``)
+    replaced by the state at the scene's epoch (``position_km``, ``velocity_km_s``) and
+    ``attitude: {aem: FILE}`` (or ``{spice: {kernels, frame}}``) by the attitude
+    (``q_cam_icrs``, ``angular_velocity_deg_s``); other mappings as they are."""
     if not isinstance(d, Mapping) or not any(isinstance(d.get(s), Mapping) and k in d[s] for s, k in _SOURCES):
         return d
     try:
@@ -321,6 +328,13 @@ def resolve_mission_sources(d):
         if extra:
             raise ConfigValueError(f"{section}", sorted(sec), f"{key} alone (the file gives the whole {section})")
         path = sec[key]
+        if key == "spice":
+            kernels = path.get("kernels") if isinstance(path, Mapping) else None
+            if not isinstance(kernels, list) or not kernels or not all(isinstance(k, SceneFilePath) for k in kernels):
+                raise ConfigValueError(f"{section}.spice.kernels", kernels, "a list of kernel files named in a scene "
+                                       "file (read beside it); a mapping from elsewhere cannot name a file")
+            out[section] = spice_source(section, path, t)
+            continue
         if not isinstance(path, SceneFilePath):
             raise ConfigValueError(f"{section}.{key}", path, "a file named in a scene file (read beside it); "
                                    "a mapping from elsewhere cannot name a file")

@@ -1,0 +1,91 @@
+"""SPICE kernels in scene files: an SPK (Type 13, written here with spiceypy from an analytic
+motion) as the observer, the kernel pool isolated between scenes, and the errors (one line
+naming the kernels, exit 2)."""
+
+import numpy as np
+import pytest
+
+sp = pytest.importorskip("spiceypy")
+
+from skynav.cli import main  # noqa: E402
+from skynav.infra.errors import ConfigValueError  # noqa: E402
+from skynav.scenes.config import scene_spec_from_mapping  # noqa: E402
+from skynav.scenes.mission_spice import spice_state  # noqa: E402
+from skynav.scenes.scene_files import load_scene_file  # noqa: E402
+from skynav.scenes.timescales import tdb_seconds  # noqa: E402
+
+T0 = float(tdb_seconds("2027-02-01T00:00:00"))
+R0 = np.array([1.2e8, -4.0e7, 2.5e7])
+V0 = np.array([10.0, 20.0, -5.0])
+
+
+def _spk(path, r0=R0, v=V0, body=-999, span_s=6 * 3600.0):
+    """A Type 13 (Hermite) SPK of uniform motion r0 + v (t - T0): Hermite is exact on it."""
+    t = T0 + np.arange(0.0, span_s + 1.0, 600.0)
+    states = np.hstack([r0 + np.outer(t - T0, v), np.tile(v, (len(t), 1))])
+    handle = sp.spkopn(str(path), "skynav test", 0)
+    sp.spkw13(handle, body, 0, "J2000", t[0], t[-1], "uniform", 3, len(t), states, t)
+    sp.spkcls(handle)
+
+
+def _scene(tmp_path, kernels, body="-999", epoch="2027-02-01T01:15:00"):
+    path = tmp_path / "scene.yaml"
+    ks = ", ".join(kernels)
+    path.write_text(f"epoch: {epoch}\nobserver: {{spice: {{kernels: [{ks}], body: '{body}'}}}}\n"
+                    f"attitude: {{ra_deg: 10, dec_deg: 5}}\n")
+    return path
+
+
+def test_spk_type_13_is_the_observer(tmp_path):
+    _spk(tmp_path / "craft.bsp")
+    spec = load_scene_file(_scene(tmp_path, ["craft.bsp"]))
+    dt = float(tdb_seconds("2027-02-01T01:15:00")) - T0
+    # SPICE ET is TDB seconds past J2000: exact; 1 mm (double rounding of 1e8 km)
+    np.testing.assert_allclose(spec.position_km, R0 + V0 * dt, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(spec.velocity_km_s, V0, rtol=0, atol=1e-12)
+    assert sp.ktotal("ALL") == 0  # nothing left in the pool
+
+
+def test_two_scenes_never_see_each_others_kernels(tmp_path):
+    """The same NAIF id in two SPKs: each scene gets its own (CSPICE would give the last loaded
+    one to both if the pool were shared)."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    _spk(tmp_path / "a" / "craft.bsp")
+    _spk(tmp_path / "b" / "craft.bsp", r0=R0 + 1000.0)
+    sa = load_scene_file(_scene(tmp_path / "a", ["craft.bsp"]))
+    sb = load_scene_file(_scene(tmp_path / "b", ["craft.bsp"]))
+    sa2 = load_scene_file(_scene(tmp_path / "a", ["craft.bsp"]))
+    np.testing.assert_allclose(np.subtract(sb.position_km, sa.position_km), [1000.0] * 3, atol=1e-6)
+    assert sa2.position_km == sa.position_km
+
+
+def test_a_mapping_from_elsewhere_cannot_name_a_kernel():
+    d = {"epoch": "2027-02-01T00:20:00", "observer": {"spice": {"kernels": ["/tmp/x.bsp"], "body": "-999"}},
+         "attitude": {"ra_deg": 0, "dec_deg": 0}}
+    with pytest.raises(ConfigValueError, match="observer.spice.kernels"):
+        scene_spec_from_mapping(d)
+
+
+@pytest.mark.parametrize("kernels, body, epoch, expected", [
+    (["missing.bsp"], "-999", "2027-02-01T01:15:00", "no such SPICE kernel"),
+    (["craft.bsp"], "-555", "2027-02-01T01:15:00", "SPICE(SPKINSUFFDATA)"),  # a body with no data
+    (["craft.bsp"], "-999", "2027-02-02T01:15:00", "SPICE(SPKINSUFFDATA)"),  # outside the coverage
+    (["broken.bsp"], "-999", "2027-02-01T01:15:00", "SPICE("),  # not a kernel
+])
+def test_errors_are_one_line_exit_2(tmp_path, capsys, kernels, body, epoch, expected):
+    _spk(tmp_path / "craft.bsp")
+    (tmp_path / "broken.bsp").write_bytes(b"DAF/SPK " + b"\0" * 100)
+    path = _scene(tmp_path, kernels, body=body, epoch=epoch)
+    assert main(["render", str(path), "-o", str(tmp_path / "out"), "--backend", "numpy", "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expected in err and kernels[0] in err and "Traceback" not in err
+    assert "=====" not in err  # never CSPICE's dump
+    assert sp.ktotal("ALL") == 0
+
+
+def test_spice_state_against_the_analytic_motion_at_many_epochs(tmp_path):
+    _spk(tmp_path / "craft.bsp")
+    for dt in np.linspace(0.0, 6 * 3600.0, 7):
+        r, v = spice_state([str(tmp_path / "craft.bsp")], "-999", T0 + dt)
+        np.testing.assert_allclose(r, R0 + V0 * dt, rtol=0, atol=1e-6)
