@@ -89,3 +89,87 @@ def test_spice_state_against_the_analytic_motion_at_many_epochs(tmp_path):
     for dt in np.linspace(0.0, 6 * 3600.0, 7):
         r, v = spice_state([str(tmp_path / "craft.bsp")], "-999", T0 + dt)
         np.testing.assert_allclose(r, R0 + V0 * dt, rtol=0, atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- attitude from a CK
+SCLK = """KPL/SCLK
+\\begindata
+SCLK_KERNEL_ID           = ( @2027-01-01/00:00 )
+SCLK_DATA_TYPE_999       = ( 1 )
+SCLK01_TIME_SYSTEM_999   = ( 1 )
+SCLK01_N_FIELDS_999      = ( 2 )
+SCLK01_MODULI_999        = ( 4294967296 65536 )
+SCLK01_OFFSETS_999       = ( 0 0 )
+SCLK01_OUTPUT_DELIM_999  = ( 1 )
+SCLK_PARTITION_START_999 = ( 0.0 )
+SCLK_PARTITION_END_999   = ( 2.8147497671065E+14 )
+SCLK01_COEFFICIENTS_999  = ( 0.0 {et0} 1.0 )
+\\begintext
+"""
+FK = """KPL/FK
+\\begindata
+FRAME_SKYNAV_CAM         = -999000
+FRAME_-999000_NAME       = 'SKYNAV_CAM'
+FRAME_-999000_CLASS      = 3
+FRAME_-999000_CLASS_ID   = -999000
+FRAME_-999000_CENTER     = -999
+CK_-999000_SCLK          = -999
+CK_-999000_SPK           = -999
+\\begintext
+"""
+W_CAM = np.array([1e-3, -2e-3, 5e-4])  # rad/s, camera frame
+
+
+def _R_true(dt):
+    from skynav.scenes import frames
+
+    R0 = frames.radec_twist_to_dcm(0.3, -0.2, 0.1)
+    return frames.propagate_attitude(R0, W_CAM, dt)
+
+
+def _ck(tmp_path):
+    """A Type 3 CK of a constant body rate, with its SCLK (TDB ticks of 1/65536 s) and FK."""
+    (tmp_path / "craft.tsc").write_text(SCLK.format(et0=repr(T0)))
+    (tmp_path / "craft.tf").write_text(FK)
+    dts = np.arange(0.0, 600.0 + 1.0, 10.0)
+    sp.furnsh(str(tmp_path / "craft.tsc"))
+    try:
+        ticks = np.array([sp.sce2c(-999, T0 + dt) for dt in dts])
+    finally:
+        sp.kclear()
+    R = [_R_true(dt) for dt in dts]
+    quats = np.array([sp.m2q(r) for r in R])
+    av = np.array([r.T @ W_CAM for r in R])  # CK rates are in the reference frame (J2000)
+    handle = sp.ckopn(str(tmp_path / "craft.bc"), "skynav test", 0)
+    sp.ckw03(handle, ticks[0], ticks[-1], -999000, "J2000", True, "spin", len(ticks), ticks, quats, av, 1,
+             ticks[:1])
+    sp.ckcls(handle)
+
+
+def test_ck_with_sclk_and_fk_is_the_attitude(tmp_path):
+    from skynav.scenes import frames
+
+    _ck(tmp_path)
+    _spk(tmp_path / "craft.bsp")
+    path = tmp_path / "scene.yaml"
+    path.write_text("epoch: 2027-02-01T00:04:05\nobserver: {spice: {kernels: [craft.bsp], body: '-999'}}\n"
+                    "attitude: {spice: {kernels: [craft.bc, craft.tsc, craft.tf], frame: SKYNAV_CAM}}\n")
+    spec = load_scene_file(path)
+    dt = float(tdb_seconds("2027-02-01T00:04:05")) - T0
+    # CK Type 3 interpolates linearly in rotation between the 10-s samples of a constant rate:
+    # exact up to the SCLK's 1/65536-s ticks (1e-3 rad/s x 15 us = 1.5e-8 rad)
+    R = frames.quat_to_dcm(spec.attitude.q_cam_icrs)
+    assert np.max(np.abs(R - _R_true(dt))) < 5e-8
+    # through the scene file's deg/s and back: 1e-12 rad/s
+    np.testing.assert_allclose(spec.attitude.angular_velocity_rad_s, W_CAM, rtol=0, atol=1e-12)
+
+
+def test_a_ck_without_its_sclk_is_one_line(tmp_path, capsys):
+    _ck(tmp_path)
+    _spk(tmp_path / "craft.bsp")
+    path = tmp_path / "scene.yaml"
+    path.write_text("epoch: 2027-02-01T00:04:05\nobserver: {spice: {kernels: [craft.bsp], body: '-999'}}\n"
+                    "attitude: {spice: {kernels: [craft.bc, craft.tf], frame: SKYNAV_CAM}}\n")
+    assert main(["render", str(path), "-o", str(tmp_path / "out"), "--backend", "numpy", "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "craft.bc" in err and "SPICE(" in err and "Traceback" not in err
