@@ -26,6 +26,7 @@ pixel at ``(0, 0)``. Tables are indexed ``[row, column]`` = ``[y, x]``.
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 import hashlib
@@ -419,21 +420,31 @@ class FieldPSF:
     file: str
 
 
-def _read_image(path: str, key: str) -> np.ndarray:
-    """A PSF image from a ``.npy`` or ``.fits`` file: 2-D, finite, >= 0, sum > 0; float64."""
+#: How a tabulated PSF reads its files. None (the default): ``file`` names are paths, read from
+#: the file system (a relative one from the current directory) and stored absolute. Else a
+#: function ``(name, key) -> binary file object`` that resolves and opens the name (raising a
+#: :class:`ConfigValueError` where it may not), and the names are stored as given: the render
+#: service reads a request's files so, only inside its ``--data-dir`` folders
+#: (:mod:`skynav.service.files`).
+PSF_FILE_OPENER: contextvars.ContextVar = contextvars.ContextVar("PSF_FILE_OPENER", default=None)
+
+
+def _read_image(path: str, key: str, opener=None) -> np.ndarray:
+    """A PSF image from a ``.npy`` or ``.fits`` file: 2-D, finite, >= 0, sum > 0; float64.
+    ``opener(path, key)`` opens it where given (:data:`PSF_FILE_OPENER`), else ``open``."""
     low = path.lower()
     try:
-        if low.endswith(".npy"):
-            with open(path, "rb") as f:
-                a = np.load(f, allow_pickle=False)
-        elif low.endswith((".fits", ".fit", ".fits.gz")):
-            # astropy.io.fits: ~0.2 s to import, only a FITS PSF image needs it
-            from astropy.io import fits
-
-            with fits.open(path, memmap=False) as hdul:
-                a = next((h.data for h in hdul if h.data is not None), None)
-        else:
+        if not low.endswith((".npy", ".fits", ".fit", ".fits.gz")):
             raise ConfigValueError(key, path, "a .npy or .fits file")
+        with (open(path, "rb") if opener is None else opener(path, key)) as f:
+            if low.endswith(".npy"):
+                a = np.load(f, allow_pickle=False)
+            else:
+                # astropy.io.fits: ~0.2 s to import, only a FITS PSF image needs it
+                from astropy.io import fits
+
+                with fits.open(f, memmap=False) as hdul:
+                    a = next((h.data for h in hdul if h.data is not None), None)
     except OSError as e:
         raise ConfigValueError(key, path, f"a readable .npy or .fits file ({e.strerror or e})") from None
     except ValueError as e:
@@ -503,13 +514,15 @@ class TabulatedPSFModel:
         if isinstance(o, bool) or not isinstance(o, (int, np.integer)) or not 1 <= o <= 64:
             raise ConfigValueError("camera.psf.oversampling", o, "an integer in 1..64 (samples per pixel)")
         object.__setattr__(self, "oversampling", int(o))
+        opener = PSF_FILE_OPENER.get()
         if (self.file is None) == (not self.field):
             raise ConfigValueError("camera.psf.file", self.file, "either file or field (a grid of {x_px, y_px, file}), not both")
         if self.file is not None:
             if not isinstance(self.file, str):
                 raise ConfigValueError("camera.psf.file", self.file, "a path to a .npy or .fits file")
-            object.__setattr__(self, "file", os.path.abspath(self.file))
-            tables = (_read_image(self.file, "camera.psf.file"),)
+            if opener is None:
+                object.__setattr__(self, "file", os.path.abspath(self.file))
+            tables = (_read_image(self.file, "camera.psf.file", opener),)
             grid = None
         else:
             pts = []
@@ -523,7 +536,7 @@ class TabulatedPSFModel:
                 if not isinstance(p, FieldPSF) or not isinstance(p.file, str):
                     raise ConfigValueError(key, p, "a mapping with x_px, y_px and file")
                 pts.append(FieldPSF(x_px=_num(p.x_px, f"{key}.x_px"), y_px=_num(p.y_px, f"{key}.y_px"),
-                                    file=os.path.abspath(p.file)))
+                                    file=p.file if opener is not None else os.path.abspath(p.file)))
             xs = sorted({p.x_px for p in pts})
             ys = sorted({p.y_px for p in pts})
             where = {(p.x_px, p.y_px): k for k, p in enumerate(pts)}
@@ -531,7 +544,7 @@ class TabulatedPSFModel:
                 raise ConfigValueError("camera.psf.field", f"{len(pts)} points",
                                        "a rectangular grid: one file at every (x_px, y_px) of its distinct x and y values")
             object.__setattr__(self, "field", tuple(pts))
-            tables = tuple(_read_image(p.file, f"camera.psf.field[{k}].file") for k, p in enumerate(pts))
+            tables = tuple(_read_image(p.file, f"camera.psf.field[{k}].file", opener) for k, p in enumerate(pts))
             if len({t.shape for t in tables}) != 1:
                 raise ConfigValueError("camera.psf.field", [t.shape for t in tables], "images of one shape")
             grid = (tuple(xs), tuple(ys), tuple(tuple(where[(x, y)] for x in xs) for y in ys))

@@ -4,7 +4,7 @@ Each worker (:func:`skynav.service.worker.worker_main`) is a process of its own,
 of a :class:`multiprocessing.connection.Connection`. The server speaks to it from the event loop
 that serves HTTP, through asyncio streams over the same socket, in the connection's framing (a
 4-byte big-endian signed length, -1 then an 8-byte length from 2 GiB, then a pickle): a request
-``(JSON body, outputs, pixel bound)`` out, its answer in; the worker uses the connection's own
+``(JSON body, outputs, bounds)`` out, its answer in; the worker uses the connection's own
 ``recv`` and ``send``.
 Concurrency is bounded: ``n`` frames render at once, ``max_queue`` more wait for an idle worker,
 the next is refused (:class:`ServiceBusy`). A worker that dies (killed, out of memory) fails its
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 from skynav.infra.pool import WorkerThreads
 
+from .files import MAX_DATA_FILE_BYTES
 from .protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from .worker import worker_main
 
@@ -47,6 +48,13 @@ class Limits:
     max_request_bytes: int = MAX_REQUEST_BYTES
     max_camera_pixels: int = MAX_CAMERA_PIXELS
     max_queue: int = MAX_QUEUE
+    data_dirs: tuple = ()                       # folders whose files a request may name (--data-dir)
+    max_data_file_bytes: int = MAX_DATA_FILE_BYTES
+
+    def worker_bounds(self) -> dict:
+        """The bounds a worker applies to each request (:func:`skynav.service.worker.answer`)."""
+        return {"max_camera_pixels": self.max_camera_pixels, "data_dirs": tuple(self.data_dirs),
+                "max_data_file_bytes": self.max_data_file_bytes}
 
 
 class _Worker:
@@ -164,7 +172,7 @@ class WorkerPool:
         # the exchange is a task of its own, shielded from this request's cancellation: the worker
         # goes back to the idle queue only once its answer has been read, so that the next request
         # never reads this one's frame
-        task = self._keep(self._exchange(worker, (bytes(body), outputs, self.limits.max_camera_pixels)))
+        task = self._keep(self._exchange(worker, (bytes(body), outputs, self.limits.worker_bounds())))
         return await asyncio.shield(task), queue_s
 
     def _keep(self, coro) -> asyncio.Task:

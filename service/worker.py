@@ -4,7 +4,7 @@ Each worker is a process of its own (``spawn``: nothing of the server's memory i
 requests never touch the same frame buffers or random streams: frames of concurrent clients cannot
 mix. A worker loads the catalogue, ephemeris, radiometry tables and Mitsuba/Dr.Jit kernels once,
 by rendering the built-in scenes at start, then answers the requests on its pipe (a request's
-JSON body, its outputs, the pixel bound) with the answer's HTTP body
+JSON body, its outputs, the server's bounds) with the answer's HTTP body
 (:func:`skynav.service.protocol.answer_chunks`: one output's bytes, or the multipart body of
 several), which the server sends to the client.
 
@@ -33,6 +33,7 @@ from skynav.infra.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
+from .files import request_files
 from .protocol import OUTPUTS, answer_chunks, read_json
 
 
@@ -85,16 +86,18 @@ def warm_up(facility=None) -> float:
 
 
 def answer(msg, facility) -> tuple:
-    """The answer to one request ``(JSON body, outputs, pixel bound)``: ``("ok", content type,
+    """The answer to one request ``(JSON body, outputs, bounds)`` (bounds:
+    :meth:`skynav.service.pool.Limits.worker_bounds`): ``("ok", content type,
     warning lines, render seconds, HTTP body)``, or ``(kind, one line)`` with kind ``bad`` (the
     request's fault: a 400) or ``error`` (a bug: a 500, the traceback on this process's stderr)."""
-    body, outputs, max_pixels = msg
+    body, outputs, bounds = msg
     try:
         mapping = read_json(body)   # as the server read it (it checked the envelope)
         mapping.pop("outputs", None)
         t0 = time.perf_counter()
-        parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
-                                      max_camera_pixels=max_pixels)
+        with request_files(bounds["data_dirs"], bounds["max_data_file_bytes"]):
+            parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
+                                          max_camera_pixels=bounds["max_camera_pixels"])
         chunks, ctype = answer_chunks(parts)
         return "ok", ctype, lines, time.perf_counter() - t0, b"".join(chunks)
     except SkynavError as exc:

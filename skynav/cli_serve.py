@@ -7,6 +7,7 @@ import sys
 import threading
 
 from skynav.calibration.facility_io import load_facility
+from skynav.service.files import MAX_DATA_FILE_BYTES
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
 
@@ -121,8 +122,12 @@ def _serve_http(args) -> int:
     if args.facility is not None:   # a bad facility is one line here, not a worker's failure
 
         load_facility(args.facility).check_coverage()
+    for folder in args.data_dir:
+        if not os.path.isdir(folder):
+            return fail(f"--data-dir {folder}: not a folder")
     limits = Limits(max_request_bytes=args.max_request_bytes, max_camera_pixels=args.max_camera_pixels,
-                    max_queue=args.max_queue)
+                    max_queue=args.max_queue, data_dirs=tuple(os.path.realpath(d) for d in args.data_dir),
+                    max_data_file_bytes=args.max_data_file_bytes)
     threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
     def ready(line):
@@ -162,6 +167,10 @@ def add_parser(sub) -> None:
     s.add_argument("--max-request-bytes", type=positive_int, default=MAX_REQUEST_BYTES, help="largest request body")
     s.add_argument("--max-camera-pixels", type=positive_int, default=MAX_CAMERA_PIXELS, help="largest frame, width x height")
     s.add_argument("--max-queue", type=positive_int, default=MAX_QUEUE, help="requests that may wait for a worker")
+    s.add_argument("--data-dir", action="append", default=[], metavar="DIR", help="a folder whose files "
+                   "(PSF images) requests may name, relative to it; repeatable (default: none, requests name no file)")
+    s.add_argument("--max-data-file-bytes", type=positive_int, default=MAX_DATA_FILE_BYTES, metavar="N",
+                   help=f"largest file a request may name (default {MAX_DATA_FILE_BYTES})")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
     v = s.add_argument_group("Vizard endpoint", "Basilisk's vizInterface (noDisplay) gets skynav frames "
                              "(docs/service.md); instead of HTTP, or beside it with --http")

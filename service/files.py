@@ -1,0 +1,90 @@
+"""The files a render request may name: only inside the folders the operator allows.
+
+A request's file-valued keys (``camera.psf.file``, ``camera.psf.field[].file``) name files
+relative to the server's ``--data-dir`` folders, never server paths. A name is resolved in each
+folder in turn (symlinks followed, ``..`` included) and read only where the resolved path lies
+inside that folder, is a regular file (not a FIFO, device or folder: opened without blocking,
+then checked on the open descriptor) and holds at most ``max_bytes``. Everything else, a name
+that does not exist included, gets one line that says nothing of the file system
+(:func:`refused`), so that a client cannot probe which paths exist. The truth records the name as
+given and the tables' digest (:class:`skynav.scenes.psf.TabulatedPSFModel`), never a path.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import stat
+
+from skynav.infra.errors import ConfigValueError
+from skynav.scenes.psf import PSF_FILE_OPENER
+
+#: Default bound on one file a request names, bytes (``skynav serve --max-data-file-bytes``):
+#: a 512 x 512 float64 PSF image is 2 MiB.
+MAX_DATA_FILE_BYTES = 4 * 1024 * 1024
+
+
+def refused(key: str, name, data_dirs, max_bytes: int) -> ConfigValueError:
+    """The one error of every name that cannot be read (the same whatever the reason)."""
+    if not data_dirs:
+        return ConfigValueError(key, name, "no file: this server reads no files (its operator allows folders "
+                                           "with skynav serve --data-dir DIR)")
+    return ConfigValueError(key, name, f"the name of a regular .npy or .fits file of at most {max_bytes} bytes "
+                                       "inside the server's --data-dir folders, relative to them")
+
+
+def _inside(path: str, folder: str) -> bool:
+    return os.path.commonpath([path, folder]) == folder
+
+
+def _read_at_most(fd: int, n: int) -> bytes:
+    chunks, got = [], 0
+    while got < n:
+        chunk = os.read(fd, n - got)
+        if not chunk:
+            break
+        chunks.append(chunk)
+        got += len(chunk)
+    return b"".join(chunks)
+
+
+def read_data_file(name, key: str, data_dirs, max_bytes: int) -> bytes:
+    """The bytes of the file ``name`` in the first of ``data_dirs`` (resolved, absolute folders)
+    that holds it as the module says; :func:`refused` where none does."""
+    if not isinstance(name, str) or not name or "\x00" in name or os.path.isabs(name):
+        raise refused(key, name, data_dirs, max_bytes)
+    for folder in data_dirs:
+        path = os.path.realpath(os.path.join(folder, name))
+        if not _inside(path, folder):
+            continue
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            continue
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or st.st_size > max_bytes:
+                continue
+            data = _read_at_most(fd, max_bytes + 1)
+        finally:
+            os.close(fd)
+        if len(data) <= max_bytes:
+            return data
+    raise refused(key, name, data_dirs, max_bytes)
+
+
+@contextlib.contextmanager
+def request_files(data_dirs=(), max_bytes: int = MAX_DATA_FILE_BYTES):
+    """Within: the PSF files of the scenes built are read only as :func:`read_data_file` allows
+    (none where ``data_dirs`` is empty), their names kept as given."""
+    folders = tuple(os.path.realpath(d) for d in data_dirs)
+
+    def opener(name, key):
+        return io.BytesIO(read_data_file(name, key, folders, max_bytes))
+
+    token = PSF_FILE_OPENER.set(opener)
+    try:
+        yield
+    finally:
+        PSF_FILE_OPENER.reset(token)
