@@ -8,7 +8,7 @@ of GalSim's peak. A core made brighter by folding the wings back into it, or any
 shows as a difference.
 
 Cameras: 3.45 um pixels, 550 nm, the f-number set for lambda F / pitch (GalSim's
-``lam_over_diam`` at scale 1) = 1, 2.55 (f/16, the sensor of the issue's frames) and 4 px.
+``lam_over_diam`` at scale 1) = 1, 2.55 (f/16, a 3.45 um sensor at 550 nm) and 4 px.
 """
 
 import functools
