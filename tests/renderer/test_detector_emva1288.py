@@ -162,7 +162,7 @@ def test_jit_read_noise_erfinv_against_math_erf(jit_backend_name):
     is off by 1e-3 or more). On each Dr.Jit backend: the CUDA kernel takes the GPU's log."""
     import drjit as dr
 
-    from skynav.renderer.detector import _jit_erfinv, _jit_module
+    from skynav.renderer.sensor_jit import _jit_erfinv, _jit_module
 
     Float = _jit_module(jit_backend_name).Float
 

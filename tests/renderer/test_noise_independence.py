@@ -195,7 +195,7 @@ def test_llvm_path_draws_two_words_from_the_generator():
     ],
 )
 def test_tea_matches_published_test_vectors(key, plain, cipher):
-    from skynav.renderer.detector import tea_encrypt
+    from skynav.renderer.sensor_jit import tea_encrypt
 
     got = tea_encrypt(np.uint32([plain[0]]), np.uint32([plain[1]]), key)
     assert [int(w[0]) for w in got] == list(cipher)
