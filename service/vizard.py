@@ -43,7 +43,7 @@ from PIL import Image
 from skynav.infra.errors import ConfigValueError, SkynavError
 from skynav.infra.heap import WarmHeap
 
-from .vizard_scene import epoch_utc_iso, origin_body, scene_mapping
+from .vizard_scene import check_base, epoch_utc_iso, origin_body, scene_mapping
 from .vizard_schema import VizMessage
 from .worker import render_outputs
 
@@ -89,6 +89,7 @@ class VizardEndpoint:
         if unknown:
             raise ConfigValueError(unknown[0], base[unknown[0]], "one of the sections " + ", ".join(BASE_SECTIONS)
                                    + " (the rest of the scene comes from Basilisk)")
+        check_base(base)     # a bad key or value is one line now, not on every image
         self.base = base
         self.truth_dir = Path(truth_dir) if truth_dir is not None else None
         self.log = log or (lambda line: print(f"skynav serve --vizard: {line}", file=sys.stderr, flush=True))

@@ -34,9 +34,11 @@ import math
 import numpy as np
 
 from skynav.infra.errors import ConfigValueError
-from skynav.scenes.config import camera_from_mapping
+from skynav.scenes.config import camera_from_mapping, scene_spec_from_mapping
 from skynav.scenes.ephemeris_jpl import BODIES
 from skynav.scenes.frames import dcm_to_quat
+
+from .vizard_schema import CameraConfig
 
 #: the MRP of Unity's camera frame Cu relative to Basilisk's camera frame C (vizInterface adds it)
 SIGMA_CU_C = (1.0 / 3.0, 1.0 / 3.0, -1.0 / 3.0)
@@ -168,3 +170,27 @@ def scene_mapping(message, config, spacecraft, *, epoch_utc: str, base: dict, or
         mapping["visibility"] = dict(base["visibility"])
     mapping["render"] = render
     return mapping
+
+
+def check_base(base: dict) -> None:
+    """Validate the user's sections as a scene file would, before any message comes: a probe
+    camera with the base's own size and field of view (or 64 x 64 px, 40 deg) on a fixed pose.
+
+    Raises the scene file's one-line error (an unknown key, a bad value)."""
+    cam = dict(base.get("camera") or {"preset": "paper"})
+    try:
+        width, height = int(cam.get("width", 64)), int(cam.get("height", 64))
+        fov_x = math.radians(float(cam.get("fov_deg", 2 * math.degrees(math.atan(width / height * math.tan(
+            math.radians(20.0)))))))
+    except (TypeError, ValueError):
+        raise ConfigValueError("camera", {k: cam[k] for k in ("width", "height", "fov_deg") if k in cam},
+                               "width and height in px, fov_deg in degrees") from None
+    fov_y_deg = math.degrees(2 * math.atan(height / width * math.tan(fov_x / 2))) if 0 < fov_x < math.pi else 0.0
+    probe = CameraConfig(cameraID=0, fieldOfView=fov_y_deg, resolution=[width, height])
+    mapping = {"epoch": "2027-02-01T00:00:00", "observer": {"position_km": [1.5e8, 0.0, 0.0],
+                                                            "velocity_km_s": [0.0, 0.0, 0.0]},
+               "attitude": {"q_cam_icrs": [1.0, 0.0, 0.0, 0.0]}, "camera": camera_section(cam, probe),
+               "render": dict(base.get("render") or {})}
+    if base.get("visibility"):
+        mapping["visibility"] = dict(base["visibility"])
+    scene_spec_from_mapping(mapping)

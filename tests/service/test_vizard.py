@@ -354,3 +354,9 @@ def test_beside_the_http_service():
 def test_http_without_vizard_is_one_line():
     run = subprocess.run([sys.executable, "-m", "skynav", "serve", "--http"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and "--http" in run.stderr, run.stderr
+
+
+def test_a_bad_override_is_one_line_at_start():
+    run = subprocess.run([sys.executable, "-m", "skynav", "serve", "--vizard", "--set", "camera.exposure_s=-1"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and "camera.exposure_s" in run.stderr, run.stderr
