@@ -113,6 +113,7 @@ class OemTable:
     t_tdb_s: np.ndarray
     position_km: np.ndarray
     velocity_km_s: np.ndarray
+    segment: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,6 +125,7 @@ class AemTable:
     t_tdb_s: np.ndarray
     q_cam_icrs: np.ndarray
     angular_velocity_rad_s: np.ndarray | None
+    segment: np.ndarray | None = None
 
 
 def _parse(path, kind: str):
@@ -156,11 +158,18 @@ def _tdb_seconds(path, epochs, time_system) -> np.ndarray:
     return ((t.jd1 - 2451545.0) + t.jd2) * 86400.0
 
 
-def _check_increasing(path, t) -> None:
-    if len(t) == 0:
+def _segments(path, ts) -> tuple[np.ndarray, np.ndarray]:
+    """(epochs, segment index of each) of the segments' epochs: strictly increasing inside a
+    segment; a segment may start at the epoch where the one before stops (a manoeuvre's
+    boundary: the later segment's state holds from there), never before it."""
+    if not ts or not any(len(t) for t in ts):
         raise SceneFileError(f"{path}: no data lines")
-    if np.any(np.diff(t) <= 0):
-        raise SceneFileError(f"{path}: epochs are not strictly increasing")
+    for k, t in enumerate(ts):
+        if np.any(np.diff(t) <= 0):
+            raise SceneFileError(f"{path}: epochs of segment {k + 1} are not strictly increasing")
+        if k and len(t) and len(ts[k - 1]) and t[0] < ts[k - 1][-1]:
+            raise SceneFileError(f"{path}: segment {k + 1} starts before segment {k} stops")
+    return np.concatenate(ts), np.concatenate([np.full(len(t), k) for k, t in enumerate(ts)])
 
 
 def read_oem(path) -> OemTable:
@@ -179,9 +188,8 @@ def read_oem(path) -> OemTable:
         ts.append(_tdb_seconds(path, seg.data.state_vector_epochs, md.time_system))
         rs.append(sv[:, :3])
         vs.append(sv[:, 3:6])
-    t = np.concatenate(ts) if ts else np.array([])
-    _check_increasing(path, t)
-    return OemTable(str(path), t, np.vstack(rs), np.vstack(vs))
+    t, seg = _segments(path, ts)
+    return OemTable(str(path), t, np.vstack(rs), np.vstack(vs), seg)
 
 
 def read_aem(path) -> AemTable:
@@ -211,17 +219,22 @@ def read_aem(path) -> AemTable:
             ws.append(np.radians(rows[:, 4:7]))
         else:
             ws.append(None)
-    t = np.concatenate(ts) if ts else np.array([])
-    _check_increasing(path, t)
+    t, seg = _segments(path, ts)
     w = None if any(x is None for x in ws) else np.vstack(ws)
-    return AemTable(str(path), t, np.vstack(qs), w)
+    return AemTable(str(path), t, np.vstack(qs), w, seg)
 
 
-def _bracket(path, t_all, t: float) -> int:
+def _bracket(path, t_all, t: float, segment=None) -> int:
+    """Index ``i`` of the samples ``i, i + 1`` around ``t``, both of one segment (or ``t`` is
+    sample ``i`` itself); an epoch outside the file or between two segments is refused."""
     if not t_all[0] <= t <= t_all[-1]:
         raise SceneFileError(f"{path}: epoch {to_time(float(t)).tdb.isot} TDB is outside the file's "
                              f"{to_time(float(t_all[0])).tdb.isot} to {to_time(float(t_all[-1])).tdb.isot}")
-    return int(min(np.searchsorted(t_all, t, side="right") - 1, len(t_all) - 2))
+    i = int(min(np.searchsorted(t_all, t, side="right") - 1, len(t_all) - 2))
+    if segment is not None and segment[i] != segment[i + 1] and t != t_all[i]:
+        raise SceneFileError(f"{path}: epoch {to_time(float(t)).tdb.isot} TDB falls between segments "
+                             f"{segment[i] + 1} and {segment[i + 1] + 1} (no data there)")
+    return i
 
 
 def oem_state(table: OemTable, t_tdb_s: float):
@@ -232,9 +245,11 @@ def oem_state(table: OemTable, t_tdb_s: float):
         if t_tdb_s != t_all[0]:
             _bracket(table.path, np.array([t_all[0], t_all[0]]), t_tdb_s)
         return table.position_km[0].copy(), table.velocity_km_s[0].copy()
-    i = _bracket(table.path, t_all, t_tdb_s)
+    i = _bracket(table.path, t_all, t_tdb_s, table.segment)
     h = t_all[i + 1] - t_all[i]
     s = (t_tdb_s - t_all[i]) / h
+    if h <= 0.0 or s == 0.0:  # a sample itself (also the last of a segment)
+        return table.position_km[i].copy(), table.velocity_km_s[i].copy()
     p0, p1 = table.position_km[i], table.position_km[i + 1]
     m0, m1 = table.velocity_km_s[i] * h, table.velocity_km_s[i + 1] * h
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
@@ -254,9 +269,13 @@ def aem_attitude(table: AemTable, t_tdb_s: float):
             _bracket(table.path, np.array([t_all[0], t_all[0]]), t_tdb_s)
         w = table.angular_velocity_rad_s
         return table.q_cam_icrs[0].copy(), (np.zeros(3) if w is None else w[0].copy())
-    i = _bracket(table.path, t_all, t_tdb_s)
+    i = _bracket(table.path, t_all, t_tdb_s, table.segment)
     h = t_all[i + 1] - t_all[i]
     s = (t_tdb_s - t_all[i]) / h
+    seg = table.segment
+    if h <= 0.0 or (seg is not None and seg[i] != seg[i + 1]):  # the last sample of a segment
+        w = table.angular_velocity_rad_s
+        return table.q_cam_icrs[i].copy(), (np.zeros(3) if w is None else w[i].copy())
     R0, R1 = frames.quat_to_dcm(table.q_cam_icrs[i]), frames.quat_to_dcm(table.q_cam_icrs[i + 1])
     # R1 = exp([phi x]) R0; at a constant body rate w (camera frame) R(t) = exp(-[w x] t) R0
     # (frames.propagate_attitude), so the slerp's rate is w = -phi / h

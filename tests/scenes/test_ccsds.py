@@ -43,12 +43,30 @@ def test_handmade_oem_two_segments_utc():
     # UTC epochs to TDB by astropy directly: 1 us (float64 seconds past J2000 resolve ~0.1 us)
     assert abs(tab.t_tdb_s[0] - _tdb("2027-02-01T00:00:00")) < 1e-6
     np.testing.assert_array_equal(tab.position_km[1], [120018000.0, -39964000.0, 24991000.0])
-    # between samples and across the segments' gap: uniform motion, exact for cubic Hermite;
-    # the truth is in UTC seconds, TDB runs at 1 + O(1e-8) of it: 1 m over an hour at 22 km/s
-    for utc, dt in (("2027-02-01T00:15:00", 900.0), ("2027-02-01T01:30:00", 5400.0)):
+    # between samples of each segment: uniform motion, exact for cubic Hermite; the truth is in
+    # UTC seconds, TDB runs at 1 + O(1e-8) of it: 1 m over an hour at 22 km/s
+    for utc, dt in (("2027-02-01T00:15:00", 900.0), ("2027-02-01T02:30:00", 9000.0), ("2027-02-01T01:00:00", 3600.0)):
         r, v = oem_state(tab, _tdb(utc))
         assert np.max(np.abs(r - (R0 + V0 * dt))) < 1e-3
         assert np.max(np.abs(v - V0)) < 1e-6
+    # the gap between the segments holds no data
+    with pytest.raises(SceneFileError, match="between segments 1 and 2"):
+        oem_state(tab, _tdb("2027-02-01T01:30:00"))
+
+
+def test_a_segment_may_start_where_the_last_stopped(tmp_path):
+    """A manoeuvre: segment 2 starts at segment 1's last epoch with another velocity; from that
+    epoch on, segment 2's state holds."""
+    text = (DATA / "handmade.oem").read_text()
+    text = text.replace("START_TIME = 2027-02-01T02:00:00.000", "START_TIME = 2027-02-01T01:00:00.000")
+    text = text.replace("2027-02-01T02:00:00.000 120072000.0 -39856000.0 24964000.0 10.0 20.0 -5.0",
+                        "2027-02-01T01:00:00.000 120036000.0 -39928000.0 24982000.0 10.0 21.0 -5.0")
+    (tmp_path / "burn.oem").write_text(text)
+    tab = read_oem(tmp_path / "burn.oem")
+    _, v = oem_state(tab, _tdb("2027-02-01T01:00:00"))
+    assert v[1] == 21.0
+    _, v = oem_state(tab, _tdb("2027-02-01T00:59:59"))
+    assert abs(v[1] - 20.0) < 1e-6
 
 
 def test_handmade_aem_spin_about_z():
