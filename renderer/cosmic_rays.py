@@ -278,6 +278,14 @@ def draw_cosmic_rays(
     length = rng.uniform(1.0, max_track_length_px, n)
     charge_per_px = model.sample(n, rng)
 
+    return _hits(shape, pos, is_track, angle, length, charge_per_px)
+
+
+def _hits(shape, pos, is_track, angle, length, charge_per_px) -> CosmicRayHits:
+    """The hits of drawn positions (n, 2), kinds, angles, lengths and charges per px: a single
+    pixel's hit at the centre of the struck pixel, a track's spread over the pixels it crosses
+    (:func:`_track_pixels`) in proportion to its length in each."""
+    n = pos.shape[0]
     xy = np.floor(pos + 0.5)  # single pixel: the centre of the struck pixel
     start = xy.copy()
     end = xy.copy()

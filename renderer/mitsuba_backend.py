@@ -406,25 +406,15 @@ def render_resolved_body(
     -------
     ResolvedBodyImage
     """
-    if normalize not in ("phase_law", "none"):
-        raise ConfigValueError("mitsuba.normalize", normalize, "one of: phase_law, none")
-    if not (isinstance(spp, (int, np.integer)) and spp >= 1):
-        raise ConfigValueError("mitsuba.spp", spp, "an integer >= 1")
-    if not (isinstance(time_samples, (int, np.integer)) and time_samples >= 1):
-        raise ConfigValueError("mitsuba.time_samples", time_samples, "an integer >= 1")
+    _check_render_arguments(body, normalize, spp, time_samples)
     if brdf is None or isinstance(brdf, str):
         brdf = default_brdf(body.name, brdf)
-    if not (body.distance_km > body.radius_km > 0):
-        raise ConfigValueError("body.distance_km", body.distance_km, f"> radius_km = {body.radius_km}")
     rng = np.random.default_rng(0 if rng is None else rng)
 
     cam = scene.camera
     proj = cam if projection is None else projection
     kind = _sensor_kind(proj, sensor)
     variant = current_variant(variant)
-    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
-    import mitsuba as mi
-
     u = np.asarray(body.u_icrs, dtype=float)
     u = u / np.linalg.norm(u)
     sin_r = body.radius_km / body.distance_km
@@ -440,12 +430,43 @@ def render_resolved_body(
     basis, ab, omega_sr = crop_lines_of_sight(proj, x0, y0, w, h, body=body.name)
 
     entry = _scene_for(variant, proj if kind == "perspective" else cam, w, h, brdf, body.name, int(spp), kind)
-    params = entry.params
-    mi_sensor = entry.scene.sensors()[0]
     if kind == "projection":
-        mi_sensor.set_table(ab)
+        entry.scene.sensors()[0].set_table(ab)
+    inv_r2 = _place_body_and_sun(entry.params, body, sin_r)
+    acc, seeds = _render_exposure(entry, kind, proj, R_t, basis, u, (x0, y0, w, h), rng)
+    value = acc * (inv_r2 / len(dt))  # time-averaged film value at r_sun, W m^-2 sr^-1 (SRF-weighted)
 
-    # body: sphere radius sin_r at the origin (world unit = observer-body distance)
+    electrons, raw_total = _electrons(value, omega_sr, cam, body, normalize)
+    total = float(electrons.sum())
+    centre = proj.project(R_mid @ u)
+    photocentre = _photocentre(electrons, total, x0, y0, centre)
+    return ResolvedBodyImage(
+        x0=x0, y0=y0, electrons=electrons, photocentre_xy=photocentre,
+        centre_of_figure_xy=(float(centre[0]), float(centre[1])), radius_px=float(radius_px),
+        electrons_total=total, electrons_raw_total=raw_total, variant=variant, spp=entry.spp,
+        time_samples=int(time_samples), brdf=brdf, normalize=normalize, seeds=tuple(seeds),
+        sensor=kind,
+    )
+
+
+def _check_render_arguments(body, normalize, spp, time_samples) -> None:
+    """One line naming a bad argument of :func:`render_resolved_body`."""
+    if normalize not in ("phase_law", "none"):
+        raise ConfigValueError("mitsuba.normalize", normalize, "one of: phase_law, none")
+    if not (isinstance(spp, (int, np.integer)) and spp >= 1):
+        raise ConfigValueError("mitsuba.spp", spp, "an integer >= 1")
+    if not (isinstance(time_samples, (int, np.integer)) and time_samples >= 1):
+        raise ConfigValueError("mitsuba.time_samples", time_samples, "an integer >= 1")
+    if not (body.distance_km > body.radius_km > 0):
+        raise ConfigValueError("body.distance_km", body.distance_km, f"> radius_km = {body.radius_km}")
+
+
+def _place_body_and_sun(params, body, sin_r: float) -> float:
+    """Set the body (a sphere of radius ``sin_r`` at the origin: the world unit is the
+    observer-body distance) and the Sun's direction in the scene; returns the 1/r^2 factor of
+    the Sun's irradiance from 1 AU. The emitter keeps its 1 AU spectrum (no per-frame spectral
+    update, no recompilation); the rendering is linear in the irradiance, so the factor is
+    applied to the film values."""
     _set(params, "body.to_world", np.diag([sin_r, sin_r, sin_r, 1.0]))
     # Sun: light travels from the Sun to the body; 1/r^2 from 1 AU
     body_pos = np.asarray(body.position_km, dtype=float)
@@ -453,13 +474,22 @@ def render_resolved_body(
     r_sun_km = float(np.linalg.norm(sun_vec))
     _set(params, "sun.to_world", _frame_z(sun_vec))
     params.update()
-    # The emitter keeps its 1 AU spectrum (no per-frame spectral update, no recompilation); the
-    # rendering is linear in the irradiance, so the 1/r^2 factor is applied to the film values.
-    inv_r2 = (AU_KM / r_sun_km) ** 2
+    return (AU_KM / r_sun_km) ** 2
 
+
+def _render_exposure(entry, kind: str, proj, R_t, basis, u, window, rng):
+    """Mitsuba's film of the crop ``window`` = (x0, y0, w, h) summed over the exposure's
+    attitudes ``R_t`` (one render per instant, each with a seed drawn from ``rng``); returns
+    (sum, shape (h, w); the seeds)."""
+    # Mitsuba only when a body is ray-traced: import skynav.renderer loads neither Mitsuba nor Dr.Jit
+    import mitsuba as mi
+
+    x0, y0, w, h = window
+    params = entry.params
+    mi_sensor = entry.scene.sensors()[0]
     acc = np.zeros((h, w))
     seeds = []
-    for k in range(len(dt)):
+    for k in range(len(R_t)):
         if kind == "projection":
             mi_sensor.set_view(R_t[k].T @ basis, -u)  # crop frame -> camera frame -> ICRS
         else:
@@ -471,8 +501,24 @@ def render_resolved_body(
         seeds.append(seed)
         img = mi.render(entry.scene, spp=entry.spp, seed=seed)
         acc += np.asarray(img, dtype=np.float64).reshape(h, w)
-    value = acc * (inv_r2 / len(dt))  # time-averaged film value at r_sun, W m^-2 sr^-1 (SRF-weighted)
+    return acc, seeds
 
+
+def _photocentre(electrons, total: float, x0: int, y0: int, centre) -> tuple:
+    """The first moment of a crop's electrons in image px (the centre of figure when it is dark)."""
+    if total > 0:
+        h, w = electrons.shape
+        ys = np.arange(y0, y0 + h, dtype=float)
+        xs = np.arange(x0, x0 + w, dtype=float)
+        return (float(electrons.sum(0) @ xs / total), float(electrons.sum(1) @ ys / total))
+    return (float(centre[0]), float(centre[1]))
+
+
+def _electrons(value, omega_sr, cam, body, normalize: str):
+    """Electrons over the exposure of the crop's film values ``value`` (W m^-2 sr^-1, weighted
+    by the camera's response) through pixels of solid angle ``omega_sr``, counted as photons at
+    :data:`LAMBDA_REF_NM`; with ``normalize="phase_law"`` scaled to the body's phase-law
+    electrons. Returns (electrons, their total before the scaling)."""
     e_per_s = value * omega_sr * (cam.aperture_area_m2 * LAMBDA_REF_NM * 1e-9 / (_H_J_S * _C_M_S))
     electrons = e_per_s * cam.exposure_s
     raw_total = float(electrons.sum())
@@ -482,18 +528,4 @@ def render_resolved_body(
             electrons = electrons * (target / raw_total)
         else:
             electrons = np.zeros_like(electrons)
-    total = float(electrons.sum())
-    centre = proj.project(R_mid @ u)
-    if total > 0:
-        ys = np.arange(y0, y0 + h, dtype=float)
-        xs = np.arange(x0, x0 + w, dtype=float)
-        photocentre = (float(electrons.sum(0) @ xs / total), float(electrons.sum(1) @ ys / total))
-    else:
-        photocentre = (float(centre[0]), float(centre[1]))
-    return ResolvedBodyImage(
-        x0=x0, y0=y0, electrons=electrons, photocentre_xy=photocentre,
-        centre_of_figure_xy=(float(centre[0]), float(centre[1])), radius_px=float(radius_px),
-        electrons_total=total, electrons_raw_total=raw_total, variant=variant, spp=entry.spp,
-        time_samples=int(time_samples), brdf=brdf, normalize=normalize, seeds=tuple(seeds),
-        sensor=kind,
-    )
+    return electrons, raw_total
