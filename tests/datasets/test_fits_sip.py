@@ -92,3 +92,18 @@ def test_sip_fit_residual_over_the_whole_sensor(k1):
     a = sum(c[0] * u ** p * v ** q for (p, q), c in fwd.items())
     b = sum(c[1] * u ** p * v ** q for (p, q), c in fwd.items())
     assert np.max(np.hypot(u + a - (ideal[:, 0] - cx), v + b - (ideal[:, 1] - cy))) <= 0.01
+
+
+def test_a_dataset_of_a_distorting_camera_writes_tan_sip(tmp_path):
+    import skynav.datasets as D
+    from skynav.datasets.truth_schema import read_truth_json
+
+    rec = D.preset_recipe("sequence")
+    rec["frames"] = 1
+    rec["formats"] = ["png", "json", "fits"]
+    rec["camera"] = {"preset": "paper", "width": 256, "height": 256, "fov_deg": 20.0, "distortion": {"k1": -0.2}}
+    rec["catalog_limiting_v_mag"] = 7.0
+    D.generate(rec, tmp_path / "ds", workers=1, progress=False)
+    truth = read_truth_json(tmp_path / "ds" / "frames" / "000000.json")
+    _, px, xy = _astropy_pixels(tmp_path / "ds" / "frames" / "000000.fits", truth)
+    assert len(xy) > 10 and np.max(np.hypot(px[:, 0] - xy[:, 0], px[:, 1] - xy[:, 1])) <= 0.01
