@@ -192,3 +192,17 @@ def test_epoch_outside_and_old_aem_are_one_line(tmp_path, capsys, epoch, aem, ex
     assert main(["render", str(path), "-o", str(tmp_path / "out"), "--backend", "numpy", "-q"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and expected in err and "Traceback" not in err
+
+
+def test_xml_messages_are_read_too(tmp_path):
+    """The same hand-made messages in XML (the library's conversion) give the same states."""
+    import ccsds_ndm
+
+    for name, cls, read in (("handmade.oem", ccsds_ndm.Oem, read_oem), ("handmade_v2.aem", ccsds_ndm.Aem, read_aem)):
+        xml = tmp_path / (name + ".xml")
+        xml.write_text(cls.from_file(str(DATA / name)).to_str("xml"))
+        a, b = read(DATA / name), read(xml)
+        np.testing.assert_array_equal(a.t_tdb_s, b.t_tdb_s)
+        for field in ("position_km", "velocity_km_s", "q_cam_icrs"):
+            if hasattr(a, field):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
