@@ -138,7 +138,7 @@ def add_parser(sub) -> None:
     r.add_argument("--name", default="frame", help="file stem (default: frame)")
     add_seed_arg(r, default=None, help="random seed (default: the scene's render.seed)")
     r.add_argument("--fits", action="store_true", help="also write FITS with a TAN WCS")
-    r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal, no sensor noise")
+    r.add_argument("--no-noise", action="store_true", help="digital counts of the expected signal: no sensor noise, no cosmic rays (the same frame for every seed)")
     r.add_argument("--preview", action="store_true",
                    help="also write NAME_preview.png, an 8-bit quick look for the eye (zscale limits, asinh stretch; "
                         "the PNG beside it keeps the physical DN, which a viewer shows nearly black)")
