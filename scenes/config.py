@@ -30,6 +30,10 @@ from .visibility import VisibilityCriteria
 
 CAMERA_PRESETS = {"paper": paper_camera}
 
+#: Longest wavelength of a camera's response table, nm (far infrared: no optical camera reaches it;
+#: the radiometry integrates the band on a 0.25 nm grid, which a wider band would make unbounded).
+MAX_WAVELENGTH_NM = 1e5
+
 
 def _number(value, key, *, allowed="a finite number", integer=False):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -116,6 +120,9 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         qe = [_number(v, f"{key}.response.qe_t[{i}]") for i, v in enumerate(qe)]
         if any(b <= a for a, b in zip(wl, wl[1:])):
             raise ConfigValueError(f"{key}.response.wavelengths_nm", wl[:3], "strictly increasing wavelengths")
+        if not (0 < wl[0] and wl[-1] <= MAX_WAVELENGTH_NM):
+            raise ConfigValueError(f"{key}.response.wavelengths_nm", [wl[0], wl[-1]],
+                                   f"wavelengths > 0 and <= {MAX_WAVELENGTH_NM:g} nm")
         if any(not 0 <= v <= 1 for v in qe):
             raise ConfigValueError(f"{key}.response.qe_t", qe[:3], "values in [0, 1]")
         kw["response_wavelengths_nm"], kw["response_qe_t"] = tuple(wl), tuple(qe)

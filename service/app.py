@@ -55,6 +55,7 @@ def parse_request(body: bytes, *, has_facility: bool) -> tuple:
     if not isinstance(doc, dict):
         raise _HTTPError(400, "request body: expected a JSON object with the keys of a scene file ("
                               + ", ".join(SCENE_KEYS) + ") and outputs")
+    _check_numbers(doc)
     outputs = doc.get("outputs", ["png", "truth"])
     allowed = [o for o in OUTPUTS if o != "screen_png" or has_facility]
     if isinstance(outputs, str):
@@ -67,6 +68,27 @@ def parse_request(body: bytes, *, has_facility: bool) -> tuple:
             why = " (this server has no facility: start it with --facility)" if o == "screen_png" else ""
             raise _HTTPError(400, f"outputs: unknown output {_short(o)}; allowed: {', '.join(allowed)}{why}")
     return tuple(outputs)
+
+
+#: Integers in a request are at most this in magnitude: every numeric field of a scene is a
+#: 64-bit integer or a float, and a larger integer (JSON allows any number of digits) overflows
+#: their conversions.
+MAX_INTEGER = 2**63 - 1
+
+
+def _check_numbers(doc) -> None:
+    """A 400 naming the first integer of ``doc`` beyond :data:`MAX_INTEGER` in magnitude (its
+    dotted key, as the scene-file errors write it), before any field's validator converts it."""
+    stack = [("", doc)]
+    while stack:
+        path, node = stack.pop()
+        if isinstance(node, dict):
+            stack.extend((f"{path}.{k}" if path else str(k), v) for k, v in reversed(node.items()))
+        elif isinstance(node, list):
+            stack.extend((f"{path}[{i}]", v) for i, v in reversed(list(enumerate(node))))
+        elif isinstance(node, int) and not isinstance(node, bool) and abs(node) > MAX_INTEGER:
+            raise _HTTPError(400, f"{path or 'request body'} = an integer of {len(str(abs(node)))} digits is not "
+                                  f"allowed; expected a number of magnitude at most {MAX_INTEGER}")
 
 
 def _short(value) -> str:
