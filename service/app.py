@@ -23,10 +23,13 @@ from contextlib import asynccontextmanager
 
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
+from starlette.middleware.cors import CORSMiddleware
 from starlette.requests import ClientDisconnect
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
+from .browser import BrowserGuard
 from .openapi import openapi_document
 from .pool import Limits, ServiceBusy, WorkerDied, WorkerPool
 from .protocol import API_PREFIX, OUTPUTS, SCENE_KEYS, read_json, server_timing, warnings_header
@@ -105,8 +108,8 @@ def _check_token(request, token: bytes | None) -> None:
 
 
 def _check_media_type(request) -> None:
-    kind = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
-    if kind not in ("application/json", "application/x-www-form-urlencoded", ""):
+    kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if kind != "application/json":   # a form or a bare text/plain is what a web page can send unasked
         raise _HTTPError(415, f"Content-Type {kind!r}: send the scene mapping as application/json")
 
 
@@ -160,9 +163,12 @@ def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_
     return render
 
 
-def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits(), on_ready=None) -> Starlette:
+def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits(), on_ready=None,
+              host: str = "127.0.0.1", allow_origins=()) -> Starlette:
     """The ASGI application of protocol v1 around a started :class:`WorkerPool`; ``on_ready()``
-    is called once it has started (its lifespan's startup)."""
+    is called once it has started (its lifespan's startup). Requests from web pages are refused
+    unless their origin is in ``allow_origins``, other ``Host`` names than ``host``'s too
+    (:mod:`skynav.service.browser`)."""
     has_facility = pool.info.get("facility") is not None
     document = openapi_document()
 
@@ -195,5 +201,9 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
         yield
         pool.detach()
 
-    return Starlette(routes=routes, lifespan=lifespan,
+    middleware = [Middleware(BrowserGuard, host=host, allow_origins=tuple(allow_origins))]
+    if allow_origins:
+        middleware.append(Middleware(CORSMiddleware, allow_origins=list(allow_origins), allow_methods=["GET", "POST"],
+                                     allow_headers=["authorization", "content-type"]))
+    return Starlette(routes=routes, lifespan=lifespan, middleware=middleware,
                      exception_handlers={HTTPException: http_error, Exception: internal_error})

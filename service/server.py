@@ -64,7 +64,7 @@ def _stop_signals_noted():
 
 
 def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facility=None, token: str | None = None,
-          limits: Limits = Limits(), threads=None, ready=print) -> None:
+          limits: Limits = Limits(), threads=None, ready=print, allow_origins=()) -> None:
     """Bind, warm the workers, print the ready line through ``ready``, serve until SIGINT/SIGTERM.
 
     On a signal uvicorn stops accepting, lets the running renders finish and answer, then the
@@ -81,7 +81,8 @@ def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facili
     line = (f"skynav serve: ready at http://{shown}:{sock.getsockname()[1]} ({workers} worker{'s' if workers != 1 else ''}"
             f"{', facility ' + str(pool.info['facility']) if pool.info.get('facility') else ''}; warm in {warm_s:.1f} s)")
     try:
-        app = build_app(pool, token=token, limits=limits, on_ready=lambda: ready(line))
+        app = build_app(pool, token=token, limits=limits, on_ready=lambda: ready(line), host=host,
+                        allow_origins=allow_origins)
         # proxy_headers off: the server is not behind a proxy (a client's X-Forwarded-For means nothing here)
         config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="on", proxy_headers=False,
                                 timeout_graceful_shutdown=600, limit_concurrency=limits.max_queue * 4 + workers + 64)

@@ -135,7 +135,7 @@ def _serve_http(args) -> int:
 
     try:
         serve(host=args.host, port=args.port, workers=args.workers, facility=args.facility, token=token,
-              limits=limits, threads=threads, ready=ready)
+              limits=limits, threads=threads, ready=ready, allow_origins=tuple(args.allow_origin))
     except ServiceStartError as exc:
         return fail(str(exc))
     except KeyboardInterrupt:
@@ -171,6 +171,8 @@ def add_parser(sub) -> None:
                    "(PSF images) requests may name, relative to it; repeatable (default: none, requests name no file)")
     s.add_argument("--max-data-file-bytes", type=positive_int, default=MAX_DATA_FILE_BYTES, metavar="N",
                    help=f"largest file a request may name (default {MAX_DATA_FILE_BYTES})")
+    s.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN", help="a web origin "
+                   "(e.g. https://lab.example) whose pages may call the server (CORS); repeatable (default: none)")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
     v = s.add_argument_group("Vizard endpoint", "Basilisk's vizInterface (noDisplay) gets skynav frames "
                              "(docs/service.md); instead of HTTP, or beside it with --http")

@@ -69,7 +69,7 @@ def _raw(url, data: bytes, *, read: int = 0):
 def test_clients_that_disconnect_mid_request_or_mid_response(server, client):
     scene = small_scene(size=256)
     body = json.dumps({**scene, "outputs": ["png", "exr", "truth"]}).encode()
-    head = (f"POST /v1/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+    head = (f"POST /v1/render HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
             f"Content-Length: {len(body)}\r\n\r\n").encode()
     for _ in range(4):
         _raw(server.url, head + body[: len(body) // 2])            # hangs up in the middle of its request

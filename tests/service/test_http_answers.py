@@ -14,7 +14,7 @@ from .conftest import small_scene
 
 def _request(scene, outputs) -> bytes:
     body = json.dumps({**scene, "outputs": list(outputs)}).encode()
-    return (f"POST /v1/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+    return (f"POST /v1/render HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
             f"Content-Length: {len(body)}\r\n\r\n").encode() + body
 
 
