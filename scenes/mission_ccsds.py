@@ -32,6 +32,7 @@ import numpy as np
 from . import frames
 from skynav.infra.errors import ConfigValueError
 
+from .constants import J2000_JD, SECONDS_PER_DAY
 from .errors import SceneFileError
 from .mission_spice import spice_source
 from .timescales import tdb_seconds, time_from_tdb_seconds, to_time
@@ -155,7 +156,7 @@ def _tdb_seconds(path, epochs, time_system) -> np.ndarray:
     from astropy.time import Time  # heavy (~0.3 s): only when an OEM/AEM is read
 
     t = Time(list(epochs), scale=scale, format="isot").tdb
-    return ((t.jd1 - 2451545.0) + t.jd2) * 86400.0
+    return ((t.jd1 - J2000_JD) + t.jd2) * SECONDS_PER_DAY
 
 
 def _segments(path, ts) -> tuple[np.ndarray, np.ndarray]:

@@ -342,8 +342,8 @@ def test_llvm_and_numpy_paths_agree_on_the_default_frame(scene):
 
 def test_no_noise_frames_of_two_seeds_are_identical(scene):
     """``noise=False`` (``skynav render --no-noise``) has no random part: no sensor noise and no
-    cosmic rays, so frames of seeds 1 and 2 are the same bits (with noise they differ, by their
-    cosmic rays among others)."""
+    cosmic rays, so frames of seeds 1 and 2 are equal, pixel for pixel (with noise they differ,
+    by their cosmic rays among others): a determinism test of one code path."""
     opts = RenderOptions(noise=False, cosmic_rays_per_frame=3.0)
     a, b = render(scene, seed=1, options=opts), render(scene, seed=2, options=opts)
     assert np.array_equal(a.dn, b.dn) and np.array_equal(a.electrons, b.electrons)
