@@ -56,7 +56,7 @@ class ProcessOptions:
         Improved: the final Wahba problem weighted by each star's centroid variance.
     psf_fit : bool
         Improved: the matched stars' final centroids by a least-squares fit of a pixel-integrated
-        Gaussian of the frame's own width (:mod:`~skynav.pipeline.psf_fit`); False: Eq. 7-8's.
+        Gaussian of the frame's own width (:mod:`~skynav.pipeline.psf_fit`); False (default): Eq. 7-8's.
     psf_fit_max_sigma_px : float
         Improved: the fit is used on frames whose fitted Gaussian width is below this, px (wider
         PSFs leave Eq. 7-8 no pull towards the pixel centre).
@@ -108,7 +108,7 @@ class ProcessOptions:
     refine_px: float = 1.5              # improved: association radius of the final attitude, px
     refine_max_spots: int = 400         # improved: brightest spots offered to the final association
     variance_weights: bool = True       # improved: the final Wahba weighted by each star's centroid variance
-    psf_fit: bool = True                # improved: the matched stars' final centroids by a fitted pixel-integrated Gaussian
+    psf_fit: bool = False               # improved, opt-in: the matched stars' final centroids by a fitted pixel-integrated Gaussian
     psf_fit_max_sigma_px: float = 1.0   # ... on frames whose fitted Gaussian width is below this (wider: Eq. 7-8 has no pull)
     blend_px: float = 8.0               # improved: beacons predicted closer than this may share a spot
     # tracking, improved mode: spots only in windows around the stars (to refine_v_mag) and beacons
