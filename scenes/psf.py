@@ -705,7 +705,7 @@ def psf_from_dict(d, key: str = "camera.psf"):
     if not isinstance(d, dict):
         raise ConfigValueError(key, d, "a mapping with model: " + ", ".join(PSF_MODELS))
     m = d.get("model")
-    if m not in _KEYS:
+    if not isinstance(m, str) or m not in _KEYS:
         raise ConfigValueError(f"{key}.model", m, "one of: " + ", ".join(PSF_MODELS))
     for k in d:
         if k != "model" and k not in _KEYS[m]:

@@ -45,6 +45,22 @@ def small_ds(tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="module")
+def long_ds(tmp_path_factory):
+    """A 40-frame dataset like ``small_ds``: an export long enough that a Ctrl-C after its first
+    frame lands while it runs, however warm the machine."""
+    from skynav.calibration.facility_io import load_facility
+
+    root = tmp_path_factory.mktemp("hostile-long") / "ds"
+    recipe = datasets.preset_recipe("montecarlo")
+    recipe.update(frames=LONG_FRAMES, formats=["png", "json"], camera=load_facility(SMALL).camera.to_dict())
+    datasets.generate(recipe, root, workers=1, progress=False)
+    return root
+
+
+LONG_FRAMES = 40
+
+
 def _copy(src: Path, dst: Path, *, manifest=None, truth=None) -> Path:
     shutil.copytree(src, dst)
     for name, edit in (("manifest.json", manifest), ("frames/000000.json", truth)):
@@ -278,10 +294,10 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the process table from /proc")
 @pytest.mark.parametrize("workers", [1, 2])
-def test_ctrl_c_ends_hil_export_with_one_line_no_orphans_and_it_resumes(small_ds, tmp_path, workers, capsys):
+def test_ctrl_c_ends_hil_export_with_one_line_no_orphans_and_it_resumes(long_ds, tmp_path, workers, capsys):
     """SIGINT to the whole process group (what a terminal's Ctrl-C does) once a frame is done."""
     out = tmp_path / "e"
-    p = subprocess.Popen([sys.executable, "-m", "skynav", "hil", "export", str(small_ds), "--facility", SMALL, "-o",
+    p = subprocess.Popen([sys.executable, "-m", "skynav", "hil", "export", str(long_ds), "--facility", SMALL, "-o",
                           str(out), "-q", "--workers", str(workers)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True, start_new_session=True)
     kids, t0 = set(), time.monotonic()
@@ -307,11 +323,11 @@ def test_ctrl_c_ends_hil_export_with_one_line_no_orphans_and_it_resumes(small_ds
     assert not [k for k in kids if _alive(k)], "worker processes outlived the export"
     done = len(list((out / "frames").glob("*.sha256")))
     # the same command again finishes the export and keeps the frames already made
-    assert main(["hil", "export", str(small_ds), "--facility", SMALL, "-o", str(out), "--workers", "1"]) == 0
+    assert main(["hil", "export", str(long_ds), "--facility", SMALL, "-o", str(out), "--workers", "1"]) == 0
     said = capsys.readouterr().out
-    assert done >= 1 and f"({done} already there) of 4" in said, said
+    assert done >= 1 and f"({done} already there) of {LONG_FRAMES}" in said, said
     assert json.loads((out / "export.json").read_text())["complete"] is True
-    assert len(list((out / "frames").glob("*.png"))) == 4 and not list(out.rglob("*.tmp"))
+    assert len(list((out / "frames").glob("*.png"))) == LONG_FRAMES and not list(out.rglob("*.tmp"))
 
 
 # ----------------------------------------------------------------------------- render --hil: the camera, the layout
