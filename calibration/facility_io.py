@@ -11,7 +11,7 @@ import yaml
 
 from skynav.infra.errors import ConfigValueError
 from skynav.scenes import facility as fac
-from skynav.scenes.psf import resolve_psf_files
+from skynav.scenes.psf_measured import resolve_psf_files
 
 from .errors import FacilityFileError
 

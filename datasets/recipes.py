@@ -37,7 +37,7 @@ import os
 import yaml
 
 from skynav.scenes.config import RENDER_KEYS, camera_from_mapping, visibility_from_mapping
-from skynav.scenes.psf import resolve_psf_files
+from skynav.scenes.psf_measured import resolve_psf_files
 from skynav.scenes.scene_files import load_yaml
 
 from .errors import RecipeError

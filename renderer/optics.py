@@ -48,7 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import j1
 
-from skynav.scenes.psf import TabulatedPSFModel, zernike
+from skynav.scenes.psf import zernike
+from skynav.scenes.psf_measured import TabulatedPSFModel
 
 from . import spectra
 from .kernels import GaussianKernel

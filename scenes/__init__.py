@@ -34,8 +34,8 @@ _LAZY = {
     "Projection": "projection", "VisibilityCriteria": "visibility",
     "Facility": "facility", "Screen": "screen", "facility_from_mapping": "facility", "screen_preset": "facility",
     "screen_small_preset": "facility",
-    "GaussianPSFModel": "psf", "AiryPSFModel": "psf", "OpticalPSFModel": "psf", "TabulatedPSFModel": "psf",
-    "psf_from_dict": "psf",
+    "GaussianPSFModel": "psf", "AiryPSFModel": "psf", "OpticalPSFModel": "psf", "TabulatedPSFModel": "psf_measured",
+    "psf_from_dict": "psf_measured",
     # ephemerides, time, catalogue, photometry
     "Ephemeris": "ephemeris_jpl", "default_ephemeris": "ephemeris_jpl",
     "to_time": "timescales", "tdb_seconds": "timescales", "time_from_tdb_seconds": "timescales",

@@ -30,7 +30,8 @@ from skynav.infra.errors import ConfigValueError
 
 from .distortion import BrownConrady
 from .errors import MovedKeyError
-from .psf import GaussianPSFModel, psf_from_dict
+from .psf import GaussianPSFModel
+from .psf_measured import psf_from_dict
 
 
 def _check(cond: bool, key: str, value, allowed: str) -> None:

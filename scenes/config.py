@@ -22,7 +22,8 @@ from .constants import C_KM_S, SECONDS_PER_DAY
 from .distortion import BrownConrady
 from .ephemeris_jpl import BODIES
 from .errors import MovedKeyError, SceneFileError, UnknownBodyError
-from .psf import GaussianPSFModel, psf_from_dict
+from .psf import GaussianPSFModel
+from .psf_measured import psf_from_dict
 from .mission_ccsds import resolve_mission_sources
 from .scene import RESOLVED_THRESHOLD_PX
 from .timescales import to_time

@@ -17,7 +17,7 @@ from .errors import SceneFileError
 
 from .config import SceneSpec, scene_spec_from_mapping
 from .mission_ccsds import mark_mission_files
-from .psf import resolve_psf_files
+from .psf_measured import resolve_psf_files
 
 __all__ = ["load_yaml", "read_scene_mapping", "read_scene_file", "load_scene_mapping", "load_scene_file"]
 
@@ -120,7 +120,7 @@ def read_scene_file(fobj, name: str = "<scene>") -> SceneSpec:
 
 def load_scene_mapping(path):
     """The mapping of a scene file at ``path`` (not yet validated); relative PSF file paths in
-    it are made relative to the file's folder (:func:`~skynav.scenes.psf.resolve_psf_files`)."""
+    it are made relative to the file's folder (:func:`~skynav.scenes.psf_measured.resolve_psf_files`)."""
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"{path}: no such scene file")

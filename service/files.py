@@ -7,7 +7,7 @@ inside that folder, is a regular file (not a FIFO, device or folder: opened with
 then checked on the open descriptor) and holds at most ``max_bytes``. Everything else, a name
 that does not exist included, gets one line that says nothing of the file system
 (:func:`refused`), so that a client cannot probe which paths exist. The truth records the name as
-given and the tables' digest (:class:`skynav.scenes.psf.TabulatedPSFModel`), never a path.
+given and the tables' digest (:class:`skynav.scenes.psf_measured.TabulatedPSFModel`), never a path.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import os
 import stat
 
 from skynav.infra.errors import ConfigValueError
-from skynav.scenes.psf import PSF_FILE_OPENER
+from skynav.scenes.psf_measured import PSF_FILE_OPENER
 
 #: Default bound on one file a request names, bytes (``skynav serve --max-data-file-bytes``):
 #: a 512 x 512 float64 PSF image is 2 MiB.

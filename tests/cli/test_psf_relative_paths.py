@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from skynav.cli import main
-from skynav.scenes.psf import TabulatedPSFModel
+from skynav.scenes.psf_measured import TabulatedPSFModel
 
 SMALL = ["--set", "camera.width=128", "--set", "camera.height=128", "--set", "render.cosmic_rays_per_frame=0"]
 

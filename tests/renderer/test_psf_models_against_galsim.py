@@ -268,7 +268,8 @@ def test_every_model_gives_its_width_as_galsim_measures_it(tmp_path):
     the optical model without aberrations against the clear Airy's to 1 % (its disc of equal
     area counted on a grid of lambda F / 32); the tabulated Moffat against ``galsim.Moffat`` to
     3 % (counted in samples of 1/4 px)."""
-    from skynav.scenes.psf import FWHM_PER_SIGMA, psf_from_dict
+    from skynav.scenes import psf_from_dict
+    from skynav.scenes.psf import FWHM_PER_SIGMA
 
     lf = 2.55
     cam = _camera(lf, None)

@@ -8,8 +8,8 @@ import pytest
 from skynav.infra.errors import ConfigValueError
 from skynav.scenes.camera import Camera, paper_camera
 from skynav.scenes.config import camera_from_mapping
-from skynav.scenes.psf import (AiryPSFModel, FieldPSF, GaussianPSFModel, OpticalPSFModel,  # noqa: F401 (eval)
-                               TabulatedPSFModel, psf_from_dict)
+from skynav.scenes.psf import AiryPSFModel, GaussianPSFModel, OpticalPSFModel  # noqa: F401 (eval)
+from skynav.scenes.psf_measured import FieldPSF, TabulatedPSFModel, psf_from_dict  # noqa: F401 (eval)
 
 
 def _models(tmp_path):
