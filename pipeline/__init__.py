@@ -2,15 +2,17 @@
 
 Public API: :func:`process_frame` (one frame in, a :class:`FrameResult` out, never raising for a
 bad image), :class:`OnboardCatalog` (built once, cached on disk), :class:`PredictedState`,
-:class:`ProcessOptions` and the result classes.
+:class:`ProcessOptions` and the result classes; :class:`ImageProcessor`, the contract anyone's
+image processing fulfils to be benchmarked (:mod:`skynav.pipeline.protocols`).
 """
 
 from .catalog import OnboardCatalog
 from .process import ProcessOptions, process_frame
+from .protocols import BeaconSighting, ImageProcessor, ImageResult
 from .results import AttitudeResult, BeaconResult, FrameResult, PredictedState
 
-__all__ = ["AttitudeResult", "BeaconResult", "FrameResult", "OnboardCatalog", "PredictedState", "ProcessOptions",
-           "process_frame"]
+__all__ = ["AttitudeResult", "BeaconResult", "BeaconSighting", "FrameResult", "ImageProcessor", "ImageResult",
+           "OnboardCatalog", "PredictedState", "ProcessOptions", "process_frame"]
 
 # Navigation filter: measurement model, EKF, optimal pair.
 from .ekf import NavFilter, initial_covariance  # noqa: E402
