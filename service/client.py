@@ -16,7 +16,6 @@ import io
 import json
 import math
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -28,6 +27,7 @@ import orjson
 from skynav.datasets.frame_files import read_exr, read_png
 from skynav.infra.errors import SkynavError
 
+from .connection import Closed, Connection, Malformed, byte_count
 from .protocol import API_PREFIX, MULTIPART, OUTPUTS, parse_server_timing
 
 __all__ = ["Client", "LocalServer", "RenderResult", "ServiceError"]
@@ -134,103 +134,6 @@ class RenderResult:
         return read_exr(io.BytesIO(self.exr))
 
 
-class _Closed(ConnectionError):
-    """The server closed a kept-alive connection before answering (nothing of an answer was read)."""
-
-
-class _Connection:
-    """One kept-alive HTTP/1.1 connection: a request in one write (Nagle's algorithm off), the
-    answer's header parsed here, the answer read into one buffer that the connection keeps.
-
-    ``http.client`` does the same with more Python on the path of every frame (a request's header
-    and body in two writes, the answer's header through the e-mail parser, a new buffered reader
-    per answer). The server is uvicorn, whose answers all
-    carry a Content-Length; one without is refused (a chunked answer, as from a proxy in between).
-
-    The buffer grows to the largest answer and is read into again by the next one: the kernel
-    copies an answer into memory that is already mapped (a fresh ~250 KB buffer per frame is
-    fresh pages, or at least a zero-fill), and the caller copies out of it only the bytes it keeps
-    (:meth:`request` returns a view that holds until the next request on this connection).
-    """
-
-    def __init__(self, host: str, port: int, timeout_s: float):
-        self.host, self.port, self.timeout_s = host, port, timeout_s
-        self.host_header = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-        self.sock = None
-        self.buf = bytearray(1 << 17)
-        self.extra = (0, 0)   # where in buf the bytes read past the last answer are (none from a well-behaved server)
-
-    def close(self) -> None:
-        if self.sock is not None:
-            self.sock.close()
-            self.sock = None
-        self.extra = (0, 0)
-
-    def head(self, method: str, path: str, headers: dict) -> bytes:
-        """The request line and header lines of a request, less its Content-Length and the blank
-        line (the same for every request of a kind: :class:`Client` keeps them)."""
-        lines = [f"{method} {path} HTTP/1.1", f"Host: {self.host_header}", *(f"{k}: {v}" for k, v in headers.items())]
-        return ("\r\n".join(lines) + "\r\n").encode("latin-1")
-
-    def request(self, head: bytes, body: bytes | None):
-        """Send ``head`` (:meth:`head`) and ``body``; ``(status, headers with lower-case names, body
-        as a memoryview into this connection's buffer, valid until its next request)``."""
-        if self.sock is None:
-            self.sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
-            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        if body is None:
-            self.sock.sendall(head + b"\r\n")
-        else:
-            self.sock.sendall(b"%sContent-Length: %d\r\n\r\n%s" % (head, len(body), body))
-        return self._answer()
-
-    def _recv_into(self, view, got: int) -> int:
-        k = self.sock.recv_into(view)
-        if not k:
-            if got:
-                raise ConnectionError("the service closed the connection in the middle of an answer")
-            raise _Closed("the service closed the connection")
-        return k
-
-    def _answer(self):
-        buf = self.buf
-        lo, hi = self.extra
-        if hi > lo:
-            buf[:hi - lo] = buf[lo:hi]
-        got, self.extra = hi - lo, (0, 0)
-        while (end := buf.find(b"\r\n\r\n", 0, got)) < 0:
-            if got >= 1 << 16:
-                raise ConnectionError("an answer header of more than 64 KiB")
-            with memoryview(buf) as view:
-                got += self._recv_into(view[got:], got)
-        status_line, *header_lines = buf[:end].decode("latin-1").split("\r\n")
-        version, _, rest = status_line.partition(" ")
-        if not version.startswith("HTTP/1.") or not rest[:3].isdigit():
-            raise ConnectionError(f"not an HTTP answer: {status_line[:80]!r}")
-        status = int(rest[:3])
-        headers = {}
-        for line in header_lines:
-            k, _, v = line.partition(":")
-            k, v = k.strip().lower(), v.strip()
-            headers[k] = f"{headers[k]}, {v}" if k in headers else v
-        if "content-length" not in headers:   # uvicorn gives every answer one
-            self.close()
-            raise ConnectionError(f"an answer without Content-Length ({status_line[:80]!r})")
-        start = end + 4
-        stop = start + int(headers["content-length"])
-        if stop > len(buf):   # a larger answer than any before: a larger buffer, the bytes read so far kept
-            grown = bytearray(max(stop, 2 * len(buf)))
-            grown[:got] = buf[:got]
-            self.buf = buf = grown
-        view = memoryview(buf)
-        while got < stop:
-            got += self._recv_into(view[got:stop], got)
-        self.extra = (stop, got)
-        if headers.get("connection", "").lower() == "close":
-            self.close()
-        return status, headers, view[start:stop]
-
-
 class Client:
     """A connection to ``skynav serve`` at ``url``; thread-safe (one keep-alive connection per thread).
 
@@ -244,7 +147,8 @@ class Client:
     token : str, optional
         The server's ``--token`` (sent as ``Authorization: Bearer TOKEN``).
     timeout_s : float
-        Socket timeout of one request, s.
+        Deadline of one call, s: connecting, sending and the whole answer (a server that drips
+        its answer does not extend it).
 
     Raises
     ------
@@ -274,15 +178,16 @@ class Client:
         self._heads: dict = {}
 
     # ------------------------------------------------------------------ transport
-    def _conn(self) -> _Connection:
+    def _conn(self) -> Connection:
         c = getattr(self._local, "conn", None)
         if c is None:
-            c = self._local.conn = _Connection(self._host, self._port, self.timeout_s)
+            c = self._local.conn = Connection(self._host, self._port)
         return c
 
     def _request(self, method: str, path: str, body: bytes | None = None):
-        """``(status, headers with lower-case names, body)`` of one request; the body a memoryview
-        valid until this thread's next request."""
+        """``(status, headers with lower-case names, body)`` of one request, within ``timeout_s``
+        from now; the body a memoryview valid until this thread's next request."""
+        deadline = time.monotonic() + self.timeout_s
         conn = self._conn()
         head = self._heads.get((method, path))
         if head is None:
@@ -290,16 +195,23 @@ class Client:
             if self.token is not None:
                 headers["Authorization"] = f"Bearer {self.token}"
             head = self._heads[(method, path)] = conn.head(method, API_PREFIX + path, headers)
+        conn.drop_if_stale()
         for attempt in (0, 1):
             fresh = conn.sock is None
             try:
-                return conn.request(head, body)
-            except (_Closed, BrokenPipeError, ConnectionResetError) as exc:
+                return conn.request(head, body, deadline)
+            except (Closed, BrokenPipeError, ConnectionResetError) as exc:
                 conn.close()
                 # a kept-alive connection the server closed while it was idle (uvicorn closes them
                 # after 5 s): nothing of an answer came, so the request was not taken; once more
                 if attempt or fresh:
                     raise ServiceError(f"{self.url}: the service closed the connection ({exc})") from None
+            except TimeoutError:
+                conn.close()
+                raise ServiceError(f"{self.url}: no complete answer within timeout_s = {self.timeout_s:g} s") from None
+            except Malformed as exc:
+                conn.close()
+                raise ServiceError(f"{self.url}: a malformed answer: {exc}") from None
             except OSError as exc:
                 conn.close()
                 raise ServiceError(f"{self.url}: cannot reach the service ({exc.strerror or exc})") from None
@@ -331,7 +243,13 @@ class Client:
         status, _, data = self._request("GET", "/health")
         if status != 200:
             self._raise_for(status, data)
-        return json.loads(bytes(data))
+        try:
+            doc = json.loads(bytes(data))
+        except ValueError:
+            doc = None
+        if not isinstance(doc, dict):
+            raise ServiceError(f"{self.url}: a malformed answer: the health answer is not a JSON object")
+        return doc
 
     def wait_ready(self, timeout_s: float = 120.0) -> dict:
         """Poll ``/v1/health`` until it answers (a server still warming up does not listen yet).
@@ -445,37 +363,53 @@ def _non_finite(value) -> bool:
 
 def parse_multipart(data, content_type: str) -> dict:
     """``{name: bytes}`` of the server's multipart/mixed answer (each part has a Content-Length);
-    ``data`` bytes or a memoryview (each part is copied out of it once)."""
+    ``data`` bytes or a memoryview (each part is copied out of it once). An answer that is not
+    such a body raises :class:`ServiceError` naming what is wrong."""
     boundary = None
     for param in content_type.split(";")[1:]:
         k, _, v = param.strip().partition("=")
         if k.lower() == "boundary":
             boundary = v.strip('"')
     if not boundary:
-        raise ServiceError("service: a multipart answer without a boundary")
-    delim = f"--{boundary}".encode("ascii")
+        raise ServiceError("service: a malformed answer: a multipart answer without a boundary")
+    delim = f"--{boundary}".encode("latin-1")
     data = memoryview(data)
     parts, pos = {}, 0
     while True:
         if data[pos:pos + len(delim)] != delim:
-            raise ServiceError("service: a malformed multipart answer")
+            raise ServiceError(f"service: a malformed answer: no multipart delimiter at byte {pos}")
         pos += len(delim)
         if data[pos:pos + 2] == b"--":
             return parts
         pos += 2  # CRLF
-        head = bytes(data[pos:pos + 4096])   # a part's header lines (~120 bytes)
-        end = head.find(b"\r\n\r\n")
-        if end < 0:
-            raise ServiceError("service: a malformed multipart answer")
-        hdrs = {}
-        for line in head[:end].decode("ascii").split("\r\n"):
-            k, _, v = line.partition(":")
-            hdrs[k.strip().lower()] = v.strip()
-        name = hdrs["content-disposition"].split('name="', 1)[1].split('"', 1)[0]
-        n = int(hdrs["content-length"])
-        start = pos + end + 4
+        name, n, start = _part_head(bytes(data[pos:pos + 4096]), pos)   # a part's header lines (~120 bytes)
+        if start + n + 2 > len(data):
+            raise ServiceError(f"service: a malformed answer: multipart part {name!r} of {n} bytes runs past the "
+                               f"end of the answer ({len(data)} bytes)")
         parts[name] = bytes(data[start:start + n])
         pos = start + n + 2
+
+
+def _part_head(head: bytes, pos: int) -> tuple:
+    """``(name, byte count, where its bytes start)`` of the multipart part whose header starts
+    ``head``, at byte ``pos`` of the answer; :class:`ServiceError` naming what is missing."""
+    end = head.find(b"\r\n\r\n")
+    if end < 0:
+        raise ServiceError(f"service: a malformed answer: a multipart part at byte {pos} has no end of header")
+    hdrs = {}
+    for line in head[:end].decode("latin-1").split("\r\n"):
+        k, _, v = line.partition(":")
+        hdrs[k.strip().lower()] = v.strip()
+    _, found, rest = hdrs.get("content-disposition", "").partition('name="')
+    if not found or '"' not in rest:
+        raise ServiceError(f"service: a malformed answer: the multipart part at byte {pos} has no "
+                           "Content-Disposition with a name")
+    name = rest.split('"', 1)[0]
+    n = byte_count(hdrs.get("content-length", ""))
+    if n is None:
+        raise ServiceError(f"service: a malformed answer: multipart part {name!r}: Content-Length "
+                           f"{hdrs.get('content-length', '')[:40]!r} is not a byte count")
+    return name, n, pos + end + 4
 
 
 class LocalServer:
