@@ -46,8 +46,8 @@ from __future__ import annotations
 
 from .scoring_nav_campaign import (UPDATE_ITERATIONS, CampaignResult, check_realisations, run_campaign,
                                    run_realisations)
-from .scoring_nav_noise import (BLEND_PX, MIN_CLASS_FRAMES, CentroidNoise, calibrate_sigma_px, centroid_usable,
-                                diameter_px, track_bias_sigma)
+from .planet_centroid import BLEND_PX, CentroidNoise, centroid_usable, diameter_px
+from .scoring_nav_noise import MIN_CLASS_FRAMES, calibrate_sigma_px, track_bias_sigma
 from .scoring_nav_plan import NavInputError, NavPlan, icrs_to_ecliptic, load_plan
 
 __all__ = ["NavInputError", "NavPlan", "CampaignResult", "CentroidNoise", "load_plan", "calibrate_sigma_px",

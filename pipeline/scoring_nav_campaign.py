@@ -19,28 +19,17 @@ import numpy as np
 
 import skynav.datasets as sdat
 from skynav.infra.pool import process_pool_map
-from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
-from .catalog import OnboardCatalog
-from .ekf import NavFilter, initial_covariance
 from .filter_dynamics import FilterDynamics
+from .flight import DEFAULT_FILTER, UPDATE_ITERATIONS, FilterSetup, FlightComputer, initial_states, make_filter
 from .measurement import CASES, planet_pixel
-from .pairs import candidates_from_state, optimal_pair
-from .process import process_frame
-from .results import PredictedState
-from .scoring_nav_noise import CentroidNoise, centroid_usable, diameter_px, target_beacon
+from .planet_centroid import CentroidNoise
 from .scoring_nav_plan import NavInputError, NavPlan, observation
 
 __all__ = ["UPDATE_ITERATIONS", "CampaignResult", "ChunkResult", "run_campaign", "run_realisations",
            "check_realisations"]
 
-
-#: Iterated EKF update in the campaign: after the first 10-day propagation the position is known to
-#: ~1e5 km only and the first Earth fix is nonlinear over that spread; with the one-step EKF 2 of 6
-#: runs (seed 3, synthetic centroids) were left 4 sigma off and then gated out every later
-#: measurement (final error 4e6 km); 3 iterations keep them all (tests/pipeline/test_ekf_iterated.py).
-UPDATE_ITERATIONS = 3
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class CampaignResult:
@@ -59,6 +48,8 @@ class CampaignResult:
     filter_time_s: float
     pairs: tuple                 # per leg: (leg, plan pair, optimal pair from the estimate)
     sequences: int = 1           # independent image sequences behind the runs (run_realisations)
+    faults: tuple = ()           # (R,) per run, (F,) per frame: the filter's fault in that step ("" none)
+    filter_name: str = DEFAULT_FILTER   # the filter, MODULE:FACTORY
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -74,89 +65,73 @@ class ChunkResult:
     ip_time_s: float
     filter_time_s: float
     pairs: tuple
+    faults: tuple = ()
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
-               progress_q=None, synthetic_seed=None):
+               progress_q=None, synthetic_seed=None, filter_spec: str = DEFAULT_FILTER):
     ds = sdat.open(plan.root)
     eph = default_ephemeris()
     t = plan.t_tdb_s
-    dyn = dynamics.bind(eph, t[0] - SECONDS_PER_DAY, t[-1] + SECONDS_PER_DAY)
-    kf = NavFilter(dyn, x0, P0, t[0], corrections=CASES[case], iterations=UPDATE_ITERATIONS)
-    n_runs, F = kf.n_runs, plan.frames
-    err = np.empty((n_runs, F, 6))
-    cov = np.empty((n_runs, F, 6, 6))
+    setup = FilterSetup(ephemeris=eph, t_start_tdb_s=float(t[0]), t_end_tdb_s=float(t[-1]), case=case, dynamics=dynamics)
+    n_runs, F = len(x0), plan.frames
+    err = np.full((n_runs, F, 6), np.nan)
+    cov = np.full((n_runs, F, 6, 6), np.nan)
     res = np.full((n_runs, F, 2), np.nan)
     acc = np.zeros((n_runs, F), dtype=bool)
     meas = np.full((F, 2), np.nan)
+    faults = [[""] * F for _ in range(n_runs)]
     status = []
-    cat = None
-    prev = None
-    ip_s = fl_s = 0.0
     track_frames = {}   # frames per (leg, phase): the commanded observation plan
     for lg, ph in zip(plan.leg, plan.phase):
         track_frames[(int(lg), ph)] = track_frames.get((int(lg), ph), 0) + 1
+    fc = FlightComputer(make_filter(filter_spec, setup), noise=noise, ephemeris=eph,
+                        track_frames=track_frames, phase_offset=phase_offset)
+    fc.start(t[0], x0, P0)
     pairs = []
+    read_s = 0.0
     for i in range(F):
-        c0 = time.perf_counter()
-        kf.propagate(t[i])
+        fc.propagate(t[i])
         if i == 0 or plan.leg[i] != plan.leg[i - 1]:
             lg = int(plan.leg[i])
-            mean = kf.x.mean(0)
-            choice = optimal_pair(candidates_from_state(t[i], mean[:3], mean[3:6], ephemeris=eph))
             plan_pair = plan.plan_pairs[lg] if lg < len(plan.plan_pairs) else ("", "")
-            pairs.append((lg, tuple(plan_pair), None if choice is None else (choice.first, choice.second)))
-        c1 = time.perf_counter()
+            pairs.append((lg, tuple(plan_pair), fc.choose_pair(t[i])))
+        c0 = time.perf_counter()
         obs = observation(ds, plan, i)
-        if cat is None:
-            cat = OnboardCatalog.load(camera=obs.camera)
-        mean = kf.x.mean(0)
-        spread = np.cov(kf.x[:, :3].T) if n_runs > 1 else np.zeros((3, 3))
-        # the image processing predicts the planet's centre; its spot is the centre of light, up to
-        # 0.9 radius away (measurement.lambert_photocentre_offset): widen the search by one radius
-        radius = BODY_RADII_KM.get(plan.target[i], 0.0)
-        ps = PredictedState(position_km=mean[:3], velocity_km_s=mean[3:6],
-                            position_cov_km2=kf.P[:, :3, :3].mean(0) + spread + radius**2 * np.eye(3))
-        fr = process_frame(obs, catalog=cat, predicted_state=ps, previous_attitude=prev)
-        prev = fr.attitude.R_cam_icrs
-        status.append(fr.status)
-        b = target_beacon(fr, plan.target[i])
-        use = None if b is None else centroid_usable(obs, fr, b, plan.target[i], t=t[i], position_km=mean[:3],
-                                                     ephemeris=eph)
-        c2 = time.perf_counter()
-        if b is not None and use is None:
-            status[-1] = "blended"
-        if use is not None:
-            rp, vp = eph.position_velocity(plan.target[i], t[i])
-            radius = BODY_RADII_KM[plan.target[i]]
-            sigma_px = noise.sigma_px(diameter_px(radius, np.linalg.norm(rp - mean[:3]), obs.camera),
-                                      f"{plan.target[i]}/{use}", track_frames[(int(plan.leg[i]), plan.phase[i])])
-            zxy = np.asarray(b.xy_px, dtype=float)
-            if synthetic_seed is not None:
-                # reference mode: the exact model (case 1, this photocentre law) at the TRUE state
-                # plus white noise of exactly the filter's R; the same draw in every worker
-                m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs,
-                                      obs.camera, corrections=CASES[1], sun_position_km=eph.position("sun", t[i]),
-                                      planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
-                g = np.random.default_rng(np.random.SeedSequence([int(synthetic_seed), 0x5E, i]))
-                zxy = m_true.xy_px + sigma_px * g.standard_normal(2)
-            z = np.broadcast_to(zxy, (n_runs, 2))
-            u = kf.update(z, rp, vp, fr.attitude.R_cam_icrs, obs.camera, sigma_px,
-                          sun_position_km=eph.position("sun", t[i]),
-                          planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
-            res[:, i], acc[:, i] = u.residual_px, u.accepted
-        if b is not None:
-            meas[i] = (zxy if use is not None else np.asarray(b.xy_px)) - plan.target_xy_px[i]
+        read_s += time.perf_counter() - c0
+        step = fc.step(obs, plan.target[i], track=(int(plan.leg[i]), plan.phase[i]),
+                       replace_xy=None if synthetic_seed is None else _synthetic(plan, i, eph, phase_offset, synthetic_seed))
+        status.append(step.status)
+        if step.measurement is not None:
+            res[:, i], acc[:, i] = step.residual_px, step.accepted
+        if step.xy_px is not None:
+            meas[i] = step.xy_px - plan.target_xy_px[i]
+        x, P, _ = fc.estimate()
         truth = np.concatenate([plan.position_km[i], plan.velocity_km_s[i]])
-        err[:, i] = kf.x[:, :6] - truth
-        cov[:, i] = kf.P[:, :6, :6]
-        c3 = time.perf_counter()
-        ip_s += c2 - c1
-        fl_s += (c1 - c0) + (c3 - c2)
+        err[:, i] = x[:, :6] - truth
+        cov[:, i] = P[:, :6, :6]
+        for r in np.flatnonzero(step.failed):
+            faults[r][i] = step.fault
         if progress_q is not None:
             progress_q(1)
     return ChunkResult(error=err, cov=cov, residual_px=res, accepted=acc, measured_error_px=meas,
-                       ip_status=tuple(status), ip_time_s=ip_s, filter_time_s=fl_s, pairs=tuple(pairs))
+                       ip_status=tuple(status), ip_time_s=fc.ip_time_s + read_s, filter_time_s=fc.filter_time_s,
+                       pairs=tuple(pairs), faults=tuple(tuple(f) for f in faults))
+
+
+def _synthetic(plan, i, eph, phase_offset, synthetic_seed):
+    """Reference mode: the exact model (case 1, this photocentre law) at the TRUE state plus white
+    noise of exactly the filter's R; the same draw in every worker."""
+    def replace_xy(obs, fr, use, sigma_px):
+        t = plan.t_tdb_s[i]
+        rp, vp = eph.position_velocity(plan.target[i], t)
+        radius = BODY_RADII_KM[plan.target[i]]
+        m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs,
+                              obs.camera, corrections=CASES[1], sun_position_km=eph.position("sun", t),
+                              planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
+        g = np.random.default_rng(np.random.SeedSequence([int(synthetic_seed), 0x5E, i]))
+        return m_true.xy_px + sigma_px * g.standard_normal(2)
+    return replace_xy
 
 
 def _chunk_worker(args):
@@ -165,36 +140,34 @@ def _chunk_worker(args):
 
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
-                 progress=None, synthetic_seed: int | None = None) -> CampaignResult:
+                 progress=None, synthetic_seed: int | None = None, filter_spec: str = DEFAULT_FILTER) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (Andreis et al. (2024), Eq. 45-46 initial errors; Andreis et al. (2023b), Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
     ``synthetic_seed``: reference mode; every centroid the filter would use is replaced by the
     measurement model at the true state plus white noise of the filter's own R (seeded): what a
     consistent filter shows on ONE realisation shared by the runs (``benchmarks/nav_consistency.py``).
+    ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`).
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
     if runs < 1:
         raise NavInputError(f"--runs {runs}: give at least 1 run")
     dynamics = dynamics or FilterDynamics()
-    P0 = initial_covariance()   # Andreis et al. (2023b), Table 2
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 45]))
-    nominal = np.concatenate([plan.position_km[0], plan.velocity_km_s[0], np.zeros(6)])
-    x0 = nominal + rng.standard_normal((runs, 12)) * np.sqrt(np.diag(P0))   # Andreis et al. (2024), Eq. 45
+    x0, P0 = initial_states(plan.position_km[0], plan.velocity_km_s[0], runs, seed)
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
-        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed)]
+        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed, filter_spec)]
     else:
         outs = process_pool_map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None,
-                                                 synthetic_seed) for c in chunks], workers)
+                                                 synthetic_seed, filter_spec) for c in chunks], workers)
     cat = lambda k: np.concatenate([getattr(o, k) for o in outs], 0)  # noqa: E731
     return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("error"),
                           cov=cat("cov"), residual_px=cat("residual_px"), accepted=cat("accepted"),
                           ip_status=outs[0].ip_status, measured_error_px=outs[0].measured_error_px,
                           ip_time_s=max(o.ip_time_s for o in outs), filter_time_s=max(o.filter_time_s for o in outs),
-                          pairs=outs[0].pairs)
+                          pairs=outs[0].pairs, faults=sum((o.faults for o in outs), ()), filter_name=filter_spec)
 
 
 def _realisation_worker(args):
@@ -212,7 +185,7 @@ def check_realisations(plans, reference: NavPlan) -> None:
 
 def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers: int = 1, noise: CentroidNoise,
                      dynamics: FilterDynamics | None = None, phase_offset: bool = True, progress=None,
-                     reference: NavPlan | None = None) -> CampaignResult:
+                     reference: NavPlan | None = None, filter_spec: str = DEFAULT_FILTER) -> CampaignResult:
     """The Monte Carlo with independent measurement noise: ``plans`` are renderings of ONE cruise
     (the same trajectory, another dataset seed: other image noise, cosmic rays and pointing), the
     ``runs`` are dealt round-robin over them (``runs == len(plans)``: every run has images of its
@@ -227,7 +200,7 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
     check_realisations(plans, reference if reference is not None else plans[0])
     counts = [len(c) for c in np.array_split(np.arange(runs), len(plans))]
     jobs = [(p, dict(runs=n, case=case, seed=int(np.random.SeedSequence([seed, 0x5EA, k]).generate_state(1)[0]),
-                     noise=noise, dynamics=dynamics, phase_offset=phase_offset))
+                     noise=noise, dynamics=dynamics, phase_offset=phase_offset, filter_spec=filter_spec))
             for k, (p, n) in enumerate(zip(plans, counts)) if n > 0]
     if workers > 1 and len(jobs) > 1:
         outs = process_pool_map(_realisation_worker, jobs, min(workers, len(jobs)),
@@ -244,4 +217,4 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
                           residual_px=cat("residual_px"), accepted=cat("accepted"), ip_status=o0.ip_status,
                           measured_error_px=o0.measured_error_px, ip_time_s=sum(o.ip_time_s for o in outs),
                           filter_time_s=sum(o.filter_time_s for o in outs), pairs=o0.pairs,
-                          sequences=len(outs))
+                          sequences=len(outs), faults=sum((o.faults for o in outs), ()), filter_name=filter_spec)

@@ -6,7 +6,7 @@ Three parties, as on a spacecraft with a camera on a bench:
   recipe, the pointing controller's error model (the recipe's ``pointing_error_deg`` and
   ``jitter_rate_deg_s``); it turns a commanded attitude at a frame time into the scene mapping the
   camera sees (true state, commanded attitude times the controller's error);
-- the **flight software** (:class:`FlightSoftware`, ``skynav.pipeline`` only): its EKF state, the
+- the **flight software** (:class:`FlightSoftware`, ``skynav.pipeline`` only): its navigation filter, the
   image processing, the on-board catalogue and ephemeris; at each frame time it commands the
   attitude that points the boresight at the target planet *as its own estimate predicts it*,
   receives the image, measures the planet and updates the filter. It sees the image, the
@@ -34,16 +34,15 @@ from skynav.datasets.plan import epoch_iso
 from skynav.datasets.recipes import recipe_camera
 from skynav.datasets.samplers import make_plan
 from skynav.datasets.sequence import pointing_controller
-from skynav.pipeline import NavFilter, OnboardCatalog, PredictedState, process_frame
+from skynav.pipeline import OnboardCatalog
 from skynav.pipeline.filter_dynamics import FilterDynamics
-from skynav.pipeline.measurement import CASES
-from skynav.pipeline.pairs import candidates_from_state, optimal_pair
-from skynav.pipeline.scoring_nav import (UPDATE_ITERATIONS, CampaignResult, CentroidNoise, NavPlan, centroid_usable,
-                                         calibrate_sigma_px, diameter_px)
+from skynav.pipeline.flight import DEFAULT_FILTER, FilterSetup, FlightComputer, make_filter
+from skynav.pipeline.planet_centroid import CentroidNoise
+from skynav.pipeline.scoring_nav import CampaignResult, NavPlan, calibrate_sigma_px
 from skynav.scenes import frames
 from skynav.scenes.apparent import aberrate
-from skynav.scenes.constants import C_KM_S, SECONDS_PER_DAY
-from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
+from skynav.scenes.constants import C_KM_S
+from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.timescales import tdb_seconds
 
 #: A target is "centred" when its true pixel is within this fraction of the half-width of the
@@ -85,7 +84,7 @@ def observation(k: int, t: float, dn: np.ndarray, camera):
 
 
 def centroid_noise(noise):
-    """``noise`` as a :class:`~skynav.pipeline.scoring_nav.CentroidNoise` (a number: that sigma, px)."""
+    """``noise`` as a :class:`~skynav.pipeline.planet_centroid.CentroidNoise` (a number: that sigma, px)."""
     return noise if isinstance(noise, CentroidNoise) else CentroidNoise(sigma0_px=float(noise))
 
 
@@ -146,54 +145,43 @@ class Simulator:
 
 
 class FlightSoftware:
-    """Navigation from ``skynav.pipeline``: EKF, image processing, pointing commands. No truth."""
+    """Navigation from ``skynav.pipeline``: the flight loop's step (:class:`~skynav.pipeline.flight.FlightComputer`),
+    with anyone's navigation filter, and pointing commands. No truth."""
 
     def __init__(self, camera, x0, P0, t0: float, t_end: float, *, noise, case: int = 1, dynamics=None,
-                 twist_rad: float = 0.0, track_frames: dict | None = None):
-        self.camera, self.noise, self.twist_rad = camera, centroid_noise(noise), float(twist_rad)
-        self.track_frames = dict(track_frames or {})   # frames per (leg, phase): the commanded observation plan
+                 twist_rad: float = 0.0, track_frames: dict | None = None, filter_spec: str = DEFAULT_FILTER):
+        self.camera, self.twist_rad = camera, float(twist_rad)
         self.eph = default_ephemeris()
-        dyn = (dynamics or FilterDynamics()).bind(self.eph, t0 - SECONDS_PER_DAY, t_end + SECONDS_PER_DAY)
-        self.kf = NavFilter(dyn, np.atleast_2d(x0), P0, t0, corrections=CASES[case], iterations=UPDATE_ITERATIONS)
-        self.catalog = OnboardCatalog.load(camera=camera)
-        self.previous_attitude = None
+        setup = FilterSetup(ephemeris=self.eph, t_start_tdb_s=float(t0), t_end_tdb_s=float(t_end), case=case,
+                            dynamics=dynamics or FilterDynamics())
+        self.fc = FlightComputer(make_filter(filter_spec, setup), noise=centroid_noise(noise), ephemeris=self.eph,
+                                 track_frames=track_frames, catalog=OnboardCatalog.load(camera=camera))
+        self.fc.start(t0, np.atleast_2d(x0), P0)
+        self._last_command = np.eye(3)
+
+    def estimate(self):
+        """The filter's state and covariance of the run, ``(x (n,), P (n, n))`` (NaN after a fault)."""
+        x, P, _ = self.fc.estimate()
+        return x[0], P[0]
 
     def command(self, t: float, target: str) -> np.ndarray:
-        """Propagate to ``t``; the attitude that puts ``target`` on the boresight as the estimate predicts it."""
-        self.kf.propagate(t)
-        return point_at(self.eph, target, t, self.kf.x[0, :3], self.kf.x[0, 3:6], self.twist_rad)
+        """Propagate to ``t``; the attitude that puts ``target`` on the boresight as the estimate predicts it
+        (a filter without a usable estimate holds the last command; before any, the ICRS axes)."""
+        self.fc.propagate(t)
+        x, _ = self.estimate()
+        if np.all(np.isfinite(x[:6])):
+            self._last_command = point_at(self.eph, target, t, x[:3], x[3:6], self.twist_rad)
+        return self._last_command
 
     def observe(self, k: int, t: float, dn: np.ndarray, target: str, track: tuple = ()) -> dict:
         """Process the image of frame ``k`` and update the filter; what happened, for the report.
 
         ``track``: the frame's ``(leg, phase)`` in the observation plan (the measurement noise of a
         class with a track-constant part depends on the track's length, as in ``bench nav``)."""
-        obs = observation(k, t, dn, self.camera)
-        x, P = self.kf.x[0], self.kf.P[0]
-        radius = BODY_RADII_KM.get(target, 0.0)
-        ps = PredictedState(position_km=x[:3], velocity_km_s=x[3:6], position_cov_km2=P[:3, :3] + radius**2 * np.eye(3))
-        fr = process_frame(obs, catalog=self.catalog, predicted_state=ps, previous_attitude=self.previous_attitude)
-        self.previous_attitude = fr.attitude.R_cam_icrs if fr.status == "ok" else None
-        out = {"status": fr.status, "xy": None, "residual_px": (math.nan, math.nan), "accepted": False}
-        beacon = None
-        if fr.status == "ok" and fr.attitude.R_cam_icrs is not None:
-            beacon = next((b for b in fr.beacons if b.name == target and b.status == "found" and b.xy_px is not None), None)
-        if beacon is None:
-            return out
-        use = centroid_usable(obs, fr, beacon, target, t=t, position_km=x[:3], ephemeris=self.eph)
-        out["xy"] = tuple(float(c) for c in beacon.xy_px)
-        if use is None:
-            out["status"] = "blended"
-            return out
-        rp, vp = self.eph.position_velocity(target, t)
-        sigma_px = self.noise.sigma_px(diameter_px(radius, float(np.linalg.norm(rp - x[:3])), self.camera),
-                                       f"{target}/{use}", self.track_frames.get(tuple(track), 1))
-        u = self.kf.update(np.asarray(beacon.xy_px, dtype=float).reshape(1, 2), rp, vp, fr.attitude.R_cam_icrs,
-                           self.camera, sigma_px, sun_position_km=self.eph.position("sun", t),
-                           planet_radius_km=radius, photocentre=use)
-        out["residual_px"] = tuple(float(c) for c in u.residual_px[0])
-        out["accepted"] = bool(u.accepted[0])
-        return out
+        step = self.fc.step(observation(k, t, dn, self.camera), target, track=track)
+        return {"status": step.status, "xy": None if step.xy_px is None else tuple(float(c) for c in step.xy_px),
+                "residual_px": tuple(float(c) for c in step.residual_px[0]), "accepted": bool(step.accepted[0]),
+                "fault": step.fault}
 
 
 @dataclass
@@ -214,6 +202,7 @@ class LoopRun:
     ip_time_s: float = 0.0
     filter_time_s: float = 0.0
     pairs: list = field(default_factory=list)
+    faults: list = field(default_factory=list)   # (F,) the filter's fault in that step ("" none)
 
 
 def track_frames(schedule) -> dict:
@@ -226,10 +215,11 @@ def track_frames(schedule) -> dict:
 
 def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: str = "estimate",
              realtime: float | None = None, rendering: int = 0, dynamics=None,
-             progress=None) -> LoopRun:
+             progress=None, filter_spec: str = DEFAULT_FILTER) -> LoopRun:
     """One closed-loop run over the simulator's frames, the frames asked of ``client``.
 
-    ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.scoring_nav.CentroidNoise`
+    ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`).
+    ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.planet_centroid.CentroidNoise`
     (:func:`calibrate_loop_noise`, as ``bench nav`` calibrates it) or a sigma in px.
     ``rendering``: which rendering of the cruise the run sees, its controller errors and image
     noise (:meth:`Simulator.scene`; rendering 0: the controller errors of the recipe's dataset).
@@ -244,7 +234,7 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
     camera = recipe_camera(sim.recipe)
     twist = math.radians(sim.recipe["sequence"]["twist_deg"]) if "twist_deg" in sim.recipe["sequence"] else 0.0
     fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], noise=noise, case=case, dynamics=dynamics,
-                         twist_rad=twist, track_frames=track_frames(sched))
+                         twist_rad=twist, track_frames=track_frames(sched), filter_spec=filter_spec)
     run = LoopRun(error=np.full((F, 6), np.nan), cov=np.full((F, 6, 6), np.nan), residual_px=np.full((F, 2), np.nan),
                   accepted=np.zeros(F, bool), status=[], in_field=np.zeros(F, bool), offset_px=np.full(F, np.inf),
                   measured_error_px=np.full((F, 2), np.nan), latency_s=np.zeros(F), step_s=np.zeros(F),
@@ -261,11 +251,8 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
         c0 = time.perf_counter()
         R_cmd = fsw.command(t, target)
         if k == 0 or leg != sched[k - 1][1]:
-            mean = fsw.kf.x[0]
-            choice = optimal_pair(candidates_from_state(t, mean[:3], mean[3:6], ephemeris=fsw.eph))
-            pairs = sim.plan.windows
-            plan_pair = tuple(w.target for w in pairs if w.leg == leg and w.phase.startswith("track"))
-            run.pairs.append((leg, plan_pair, None if choice is None else (choice.first, choice.second)))
+            plan_pair = tuple(w.target for w in sim.plan.windows if w.leg == leg and w.phase.startswith("track"))
+            run.pairs.append((leg, plan_pair, fsw.fc.choose_pair(t)))
         if pointing == "truth":
             R_cmd = point_at(fsw.eph, target, t, *sim.state(t), twist)
         mapping = sim.scene(k, t, R_cmd, rendering)
@@ -286,8 +273,10 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
             run.offset_px[k] = float(math.hypot(body["xy"][0] - cx, body["xy"][1] - cy))
             if got["xy"] is not None:
                 run.measured_error_px[k] = np.subtract(got["xy"], body["xy"])
-        run.error[k] = np.concatenate([fsw.kf.x[0, :3] - r_true, fsw.kf.x[0, 3:6] - v_true])
-        run.cov[k] = fsw.kf.P[0, :6, :6]
+        x, P = fsw.estimate()
+        run.error[k] = np.concatenate([x[:3] - r_true, x[3:6] - v_true])
+        run.cov[k] = P[:6, :6]
+        run.faults.append(got["fault"])
         run.residual_px[k] = got["residual_px"]
         run.accepted[k] = got["accepted"]
         run.status.append(got["status"])

@@ -14,6 +14,7 @@ import numpy as np
 
 from skynav.datasets.recipes import recipe_camera
 from skynav.pipeline.ekf import initial_covariance
+from skynav.pipeline.flight import initial_states
 from skynav.pipeline.scoring_nav import NavInputError
 from skynav.pipeline.scoring_nav_report import summarise, write_report
 from skynav.pipeline.star_id import star_id_camera_check
@@ -87,11 +88,9 @@ def _noise(args, sim, client):
 def _fly(args, sim, client, noise, bias):
     """The Monte Carlo runs, then (with a bias) the biased start pointed from the truth and from
     the estimate: ``(runs, {pointing: run}, bias km or None)``."""
-    P0 = initial_covariance()
-    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 45]))   # as bench nav's runs (Andreis et al. (2024), Eq. 45)
     r0, v0 = sim.state(sim.schedule()[0][0])
+    x0s, P0 = initial_states(r0, v0, args.runs, args.seed)   # as bench nav's runs (Andreis et al. (2024), Eq. 45)
     nominal = np.concatenate([r0, v0, np.zeros(6)])
-    x0s = nominal + rng.standard_normal((args.runs, 12)) * np.sqrt(np.diag(P0))
     extra = 2 if bias is not None else 0
     biased, b_km = {}, None
     with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
