@@ -172,7 +172,7 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
     projection = expected.projection
     if projection is not cam:
         render["projection"] = type(projection).__name__
-    return {
+    out = {
         "schema": SCHEMA,
         "epoch": {"tdb_iso": t.isot, "jd_tdb": float(t.jd1 + t.jd2), "tdb_seconds_past_j2000": scene.epoch_tdb_s},
         "observer": {"position_km": scene.position_km.tolist(), "velocity_km_s": scene.velocity_km_s.tolist()},
@@ -195,4 +195,7 @@ def frame_truth(scene, expected, detection, *, seed, options) -> dict:
         "cosmic_rays": detection.hits.to_ground_truth(),
         "seeds": {"frame": _seed_record(seed), "sensor_pattern": cam.sensor.pattern_seed},
     }
+    if getattr(scene, "data_files", ()):  # the mission files read: name as given and SHA-256
+        out["data_files"] = [dict(r) for r in scene.data_files]
+    return out
 

@@ -24,7 +24,7 @@ from .ephemeris_jpl import BODIES
 from .errors import MovedKeyError, SceneFileError, UnknownBodyError
 from .psf import GaussianPSFModel
 from .psf_measured import psf_from_dict
-from .mission_ccsds import resolve_mission_sources
+from .mission_files import resolve_mission_sources
 from .scene import RESOLVED_THRESHOLD_PX
 from .timescales import to_time
 from .visibility import VisibilityCriteria
@@ -304,6 +304,11 @@ class SceneSpec:
         Mitsuba samples per pixel of resolved bodies.
     seed : int
         Seed of the frame's noise and cosmic rays.
+    data_files : tuple of dict
+        The mission data files the scene read (``key``, ``name`` as given, ``sha256``), for the
+        truth (:mod:`skynav.scenes.mission_files`).
+    ephemeris : SpiceEphemeris or None
+        The planets' ephemeris of ``ephemeris: {spk: FILE}``; None: DE421.
 
     Examples
     --------
@@ -327,9 +332,11 @@ class SceneSpec:
     cosmic_rays_per_frame: float = 1.0
     mitsuba_spp: int = 16
     seed: int = 0
+    data_files: tuple = ()
+    ephemeris: object = None
 
 
-_SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render"}
+_SCENE_KEYS = {"epoch", "observer", "attitude", "camera", "visibility", "render", "ephemeris"}
 
 #: The ``render:`` keys of a scene file and of a dataset recipe (one table for both): key ->
 #: (default, meaning with unit and allowed values). The defaults are the scene model's and the
@@ -451,7 +458,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if not isinstance(d, dict):
         raise SceneFileError("a scene file must be a mapping with keys: " + ", ".join(sorted(_SCENE_KEYS)))
     _check_keys(d, "", _SCENE_KEYS)
-    d = resolve_mission_sources(d)  # observer: {oem: FILE}, attitude: {aem: FILE}
+    d, mission = resolve_mission_sources(d)  # oem/aem, spice kernels, ephemeris: {spk}, UTC epochs
     if "epoch" not in d:
         raise ConfigValueError("epoch", None, "an ISO date in TDB, e.g. 2027-03-15T00:00:00")
     try:
@@ -522,5 +529,7 @@ def scene_spec_from_mapping(d) -> SceneSpec:
         attitude=attitude,
         camera=camera,
         visibility=visibility,
+        data_files=mission.records,
+        ephemeris=mission.ephemeris,
         **render,
     )

@@ -23,32 +23,24 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import frames
-from skynav.infra.errors import ConfigValueError
 
 from .constants import J2000_JD, SECONDS_PER_DAY
 from .errors import SceneFileError
-from .mission_spice import spice_source
-from .timescales import tdb_seconds, time_from_tdb_seconds, to_time
+from .timescales import time_from_tdb_seconds, to_time
 
-__all__ = ["ccsds_available", "SceneFilePath", "mark_mission_files", "resolve_mission_sources", "OemTable", "AemTable", "oem_kvn", "aem_kvn", "read_oem", "read_aem",
+__all__ = ["ccsds_available", "OemTable", "AemTable", "oem_kvn", "aem_kvn", "read_oem", "read_aem",
            "oem_state", "aem_attitude"]
 
 #: Name of skynav's camera frame in AEM files (``REF_FRAME_B``).
 CAMERA_FRAME = "SKYNAV_CAMERA"
 _SSB = ("SOLAR SYSTEM BARYCENTER", "SSB", "SOLAR SYSTEM BARYCENTRE")
 _TIME_SYSTEMS = {"TDB": "tdb", "TT": "tt", "TAI": "tai", "UTC": "utc"}
-
-
-class SceneFilePath(str):
-    """A data-file path named in a scene file, made absolute beside that file. Only these are
-    opened: a mapping from elsewhere (a service request) cannot name a file on the server."""
 
 
 def ccsds_available() -> bool:
@@ -304,64 +296,3 @@ def _rotation_vector(R_delta) -> np.ndarray:
 def rate_deg_s(w_rad_s) -> list[float]:
     """An angular velocity in deg/s, as a scene file gives it."""
     return [math.degrees(float(x)) for x in w_rad_s]
-
-
-#: scene-file keys naming data files: (section, key)
-_SOURCES = (("observer", "oem"), ("attitude", "aem"), ("observer", "spice"), ("attitude", "spice"))
-
-
-def mark_mission_files(mapping, folder):
-    """The scene mapping with ``observer.oem`` / ``attitude.aem`` paths made absolute beside the
-    scene file's ``folder`` and marked as named by a file (:class:`SceneFilePath`)."""
-    if not isinstance(mapping, Mapping):
-        return mapping
-    out = dict(mapping)
-    for section, key in _SOURCES:
-        sec = out.get(section)
-        if isinstance(sec, Mapping) and isinstance(sec.get(key), str):
-            out[section] = {**sec, key: SceneFilePath((Path(folder) / sec[key]).resolve())}
-        elif (isinstance(sec, Mapping) and isinstance(sec.get(key), Mapping)
-              and isinstance(sec[key].get("kernels"), list)):
-            kernels = [SceneFilePath((Path(folder) / k).resolve()) if isinstance(k, str) else k
-                       for k in sec[key]["kernels"]]
-            out[section] = {**sec, key: {**sec[key], "kernels": kernels}}
-    return out
-
-
-def resolve_mission_sources(d):
-    """The scene mapping with ``observer: {oem: FILE}`` (or ``{spice: {kernels, body}}``)
-    replaced by the state at the scene's epoch (``position_km``, ``velocity_km_s``) and
-    ``attitude: {aem: FILE}`` (or ``{spice: {kernels, frame}}``) by the attitude
-    (``q_cam_icrs``, ``angular_velocity_deg_s``); other mappings as they are."""
-    if not isinstance(d, Mapping) or not any(isinstance(d.get(s), Mapping) and k in d[s] for s, k in _SOURCES):
-        return d
-    try:
-        t = float(tdb_seconds(str(d["epoch"])))
-    except Exception:
-        raise ConfigValueError("epoch", d.get("epoch"), "an ISO date in TDB, e.g. 2027-03-15T00:00:00") from None
-    out = dict(d)
-    for section, key in _SOURCES:
-        sec = d.get(section)
-        if not isinstance(sec, Mapping) or key not in sec:
-            continue
-        extra = sorted(set(sec) - {key})
-        if extra:
-            raise ConfigValueError(f"{section}", sorted(sec), f"{key} alone (the file gives the whole {section})")
-        path = sec[key]
-        if key == "spice":
-            kernels = path.get("kernels") if isinstance(path, Mapping) else None
-            if not isinstance(kernels, list) or not kernels or not all(isinstance(k, SceneFilePath) for k in kernels):
-                raise ConfigValueError(f"{section}.spice.kernels", kernels, "a list of kernel files named in a scene "
-                                       "file (read beside it); a mapping from elsewhere cannot name a file")
-            out[section] = spice_source(section, path, t)
-            continue
-        if not isinstance(path, SceneFilePath):
-            raise ConfigValueError(f"{section}.{key}", path, "a file named in a scene file (read beside it); "
-                                   "a mapping from elsewhere cannot name a file")
-        if key == "oem":
-            r, v = oem_state(read_oem(path), t)
-            out[section] = {"position_km": [float(x) for x in r], "velocity_km_s": [float(x) for x in v]}
-        else:
-            q, w = aem_attitude(read_aem(path), t)
-            out[section] = {"q_cam_icrs": [float(x) for x in q], "angular_velocity_deg_s": rate_deg_s(w)}
-    return out

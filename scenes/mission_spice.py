@@ -13,16 +13,29 @@ leapseconds kernel is needed.
 
 The kernel pool
 ---------------
-CSPICE keeps one kernel pool per process. :func:`kernel_pool` holds a process-wide lock, clears
-the pool, loads exactly the scene's kernels, and clears the pool again on the way out, so two
-scenes (or two threads of a service) never see each other's kernels; worker processes each have
-their own pool. CSPICE errors become one line naming the kernels and CSPICE's own short and
-long messages (never its multi-line dump).
+CSPICE keeps one kernel pool per process. Every use goes through :func:`kernel_pool`, which holds
+a process-wide lock for the whole use and, inside it, makes the pool hold exactly the kernels
+asked for: when the set differs from the one loaded last (by name, modification time and size),
+or the pool is not what skynav left in it (code of yours called ``kclear`` or ``furnsh``), it
+clears the pool and loads the set. So two scenes, two threads of a service or two recipes never
+see each other's kernels, and a scene that asks for the set already loaded pays nothing to
+reload it; worker processes each have their own pool. :func:`release_kernels` empties the pool
+(for code of yours that shares the process's CSPICE). CSPICE errors become one line naming the
+kernels as given and CSPICE's own short and long messages (never its multi-line dump).
+
+Names, paths and digests
+------------------------
+A kernel named in a scene file or a recipe is read beside that file; the names as given are what
+the truth and the manifest record, with each file's SHA-256 (:func:`kernel_records`), never a
+path. A mapping from elsewhere (a service request) names kernels only through
+:data:`KERNEL_RESOLVER`, which the service sets to its ``--data-dir`` rule.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import hashlib
 import os
 import threading
 from collections.abc import Mapping, Sequence
@@ -34,9 +47,23 @@ from skynav.infra.errors import ConfigValueError
 from . import frames
 from .errors import SceneFileError
 
-__all__ = ["kernel_pool", "spice_state", "spice_attitude", "spice_source"]
+__all__ = ["KERNEL_RESOLVER", "kernel_pool", "release_kernels", "kernel_records", "given_name", "spice_state",
+           "spice_attitude", "spice_source"]
 
 _POOL_LOCK = threading.Lock()
+#: What the pool holds, as skynav left it: (the set's key, CSPICE's list of loaded files).
+_LOADED: list = [None, None]
+_SHA256: dict = {}
+
+#: How a kernel named by a mapping that is not a file (a service request) is found:
+#: ``resolve(name, key)`` gives the file's path or raises a one-line error naming ``key``;
+#: None (the default) refuses every such name.
+KERNEL_RESOLVER: contextvars.ContextVar = contextvars.ContextVar("KERNEL_RESOLVER", default=None)
+
+
+def given_name(path) -> str:
+    """The name a kernel was given by (``.given`` of a path named in a file), else the path."""
+    return str(getattr(path, "given", path))
 
 
 def _spice():
@@ -48,35 +75,78 @@ def _spice():
 
 
 def _names(paths) -> str:
-    return ", ".join(str(p) for p in paths)
+    return ", ".join(given_name(p) for p in paths)
 
 
 def _one_line(exc, paths) -> SceneFileError:
     short = getattr(exc, "short", "") or exc.__class__.__name__
     long = " ".join(str(getattr(exc, "long", "") or "").split())
+    for p in paths:  # CSPICE names files by path: say the names as given
+        long = long.replace(str(p), given_name(p))
     return SceneFileError(f"{_names(paths)}: {short}{': ' + long if long else ''}"[:600])
+
+
+def _loaded_files(sp) -> tuple:
+    return tuple(sp.kdata(i, "ALL")[0] for i in range(sp.ktotal("ALL")))
+
+
+def _set_key(paths) -> tuple:
+    out = []
+    for p in paths:
+        if not isinstance(p, str) or not p:
+            raise SceneFileError(f"{p!r}: a SPICE kernel must be a file path")
+        try:
+            st = os.stat(p)
+        except OSError:
+            st = None
+        if st is None or not os.path.isfile(p):
+            raise SceneFileError(f"{given_name(p)}: no such SPICE kernel")
+        out.append((str(p), st.st_mtime_ns, st.st_size))
+    return tuple(out)
 
 
 @contextlib.contextmanager
 def kernel_pool(paths: Sequence):
-    """CSPICE with exactly ``paths`` loaded, for this block only (this module's docstring)."""
+    """CSPICE holding exactly the kernels ``paths``, to this block alone (this module's docstring)."""
     sp = _spice()
-    for p in paths:
-        if not isinstance(p, str) or not p:
-            raise SceneFileError(f"{p!r}: a SPICE kernel must be a file path")
-        if not os.path.isfile(p):
-            raise SceneFileError(f"{p}: no such SPICE kernel")
+    key = _set_key(paths)
     with _POOL_LOCK:
-        sp.kclear()
-        try:
+        if _LOADED[0] != key or _loaded_files(sp) != _LOADED[1]:
+            _LOADED[0] = None
+            sp.kclear()
             for p in paths:
                 try:
                     sp.furnsh(str(p))
                 except Exception as exc:  # CSPICE's error, one line
+                    sp.kclear()
                     raise _one_line(exc, [p]) from None
-            yield sp
-        finally:
-            sp.kclear()
+            _LOADED[0], _LOADED[1] = key, _loaded_files(sp)
+        yield sp
+
+
+def release_kernels() -> None:
+    """Empty the process's kernel pool (``kclear``), for code that shares CSPICE with skynav."""
+    sp = _spice()
+    with _POOL_LOCK:
+        sp.kclear()
+        _LOADED[0] = _LOADED[1] = None
+
+
+def _sha256(path: str) -> str:
+    st = os.stat(path)
+    key = (str(path), st.st_mtime_ns, st.st_size)
+    if key not in _SHA256:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        _SHA256[key] = h.hexdigest()
+    return _SHA256[key]
+
+
+def kernel_records(paths) -> list:
+    """``[{"name": as given, "sha256": of the file}]`` of kernels, for the truth and the manifest."""
+    return [{"name": given_name(p), "sha256": _sha256(str(p))} for p in paths]
 
 
 def spice_state(paths, body, t_tdb_s: float):
@@ -111,10 +181,87 @@ def spice_source(section: str, spec, t_tdb_s: float) -> dict:
     want = "body" if section == "observer" else "frame"
     if not isinstance(spec, Mapping) or set(spec) != {"kernels", want}:
         raise ConfigValueError(f"{section}.spice", spec, f"a mapping of kernels (a list of files) and {want}")
-    paths = [str(p) for p in spec["kernels"]]
+    paths = list(spec["kernels"])
     if section == "observer":
         r, v = spice_state(paths, spec[want], t_tdb_s)
         return {"position_km": [float(x) for x in r], "velocity_km_s": [float(x) for x in v]}
     R, w = spice_attitude(paths, spec[want], t_tdb_s)
     return {"q_cam_icrs": [float(x) for x in frames.dcm_to_quat(R)],
             "angular_velocity_deg_s": [float(x) for x in np.degrees(w)]}
+
+
+class SpiceEphemeris:
+    """Barycentric ICRS states of :data:`~skynav.scenes.ephemeris_jpl.BODIES` from a planetary
+    SPK of any type CSPICE reads (DE440, a mission's moons), in place of DE421: a scene file's
+    ``ephemeris: {spk: FILE}``.
+
+    The same NAIF ids as the DE421 path (:data:`~skynav.scenes.ephemeris_jpl.BODY_NAIF_IDS`:
+    the system barycentres of the giant planets), geometric states (``spkgeo`` in ``J2000``
+    about the solar-system barycentre, no correction), epochs in TDB seconds past J2000
+    (SPICE's ET). Each call evaluates inside :func:`kernel_pool` with this one file loaded. The
+    interface is :class:`~skynav.scenes.ephemeris_jpl.Ephemeris`'s; ``offset_s`` is added to
+    the epoch in float64 (2e-7 s of rounding near 2030, 6 mm at 30 km/s).
+    """
+
+    def __init__(self, path):
+        self.paths = [path]
+        self.path = str(path)
+
+    def __repr__(self) -> str:
+        return f"SpiceEphemeris({given_name(self.paths[0])!r})"
+
+    def __eq__(self, other):
+        return isinstance(other, SpiceEphemeris) and self.path == other.path
+
+    def __hash__(self):
+        return hash((SpiceEphemeris, self.path))
+
+    def _states(self, body, t_tdb_s, offset_s, velocity: bool):
+        from .ephemeris_jpl import BODIES, BODY_NAIF_IDS
+        from .errors import UnknownBodyError
+
+        key = body.lower() if isinstance(body, str) else body
+        if key not in BODY_NAIF_IDS:
+            raise UnknownBodyError(body, BODIES)
+        t = np.asarray(t_tdb_s, dtype=float) + np.asarray(offset_s, dtype=float)
+        flat = np.atleast_1d(t).ravel()
+        out = np.empty((flat.size, 6))
+        with kernel_pool(self.paths) as sp:
+            try:
+                for i, ti in enumerate(flat.tolist()):
+                    out[i] = sp.spkgeo(BODY_NAIF_IDS[key], ti, "J2000", 0)[0]
+            except Exception as exc:
+                raise _one_line(exc, self.paths) from None
+        out = out.reshape(t.shape + (6,)) if t.ndim else out[0]
+        return (out[..., :3], out[..., 3:]) if velocity else out[..., :3]
+
+    def position_velocity(self, body: str, t_tdb_s, *, offset_s=0.0):
+        """Position (km) and velocity (km/s) of ``body`` at ``t_tdb_s`` (+ ``offset_s``)."""
+        return self._states(body, t_tdb_s, offset_s, True)
+
+    def position(self, body: str, t_tdb_s, *, offset_s=0.0):
+        """Position (km) of ``body`` at ``t_tdb_s`` (+ ``offset_s``)."""
+        return self._states(body, t_tdb_s, offset_s, False)
+
+    def states_at(self, t_tdb_s: float, bodies=None) -> dict:
+        """``{body: (r, v)}`` at one epoch."""
+        from .ephemeris_jpl import BODIES
+
+        return {b: self.position_velocity(b, float(t_tdb_s)) for b in (bodies or BODIES)}
+
+    def epoch_states(self, t_tdb_s: float, bodies=None):
+        """The states of several bodies at one epoch, as an ``EpochStates``."""
+        from .ephemeris_jpl import BODIES, EpochStates
+
+        bodies = tuple(bodies or BODIES)
+        states = [self.position_velocity(b, float(t_tdb_s)) for b in bodies]
+        return EpochStates(bodies, np.array([r for r, _ in states]).reshape(-1, 3),
+                           np.array([v for _, v in states]).reshape(-1, 3))
+
+    def positions_at(self, t_tdb_s, bodies=None) -> np.ndarray:
+        """Positions (N, bodies, 3) of several bodies at several epochs, km."""
+        from .ephemeris_jpl import BODIES
+
+        bodies = tuple(bodies or BODIES)
+        t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
+        return np.stack([self.position(b, t) for b in bodies], axis=1).reshape(t.size, len(bodies), 3)

@@ -10,6 +10,8 @@ in three flavours because the pipeline and the ground truth need all of them:
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -199,6 +201,7 @@ class Scene:
     sun_u_icrs: np.ndarray = field(default_factory=lambda: np.zeros(3))
     catalog_limiting_v_mag: float = 9.0
     visibility: VisibilityCriteria = field(default_factory=VisibilityCriteria)
+    data_files: tuple = ()
 
     @property
     def boresight_sun_angle_rad(self) -> float:
@@ -418,14 +421,15 @@ def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
         The scene description (:func:`~skynav.scenes.scene_files.load_scene_file`,
         :func:`~skynav.scenes.presets.default_scene_spec`).
     ephemeris : Ephemeris, optional
-        Default: DE421.
+        Default: the spec's (``ephemeris: {spk: FILE}``), else DE421.
     catalog : StarCatalog, optional
         Default: Hipparcos (:func:`~skynav.scenes.catalog_hipparcos.load_catalog`).
 
     Returns
     -------
     Scene
-        Everything the renderer needs for the frame.
+        Everything the renderer needs for the frame (``data_files``: the spec's records of the
+        mission files it read).
 
     Examples
     --------
@@ -436,10 +440,12 @@ def build_from_spec(spec, *, ephemeris=None, catalog=None) -> Scene:
     >>> int(scene.stars.in_fov.sum()) > 500   # stars to V = 9 in the 20 deg field
     True
     """
-    eph = ephemeris or default_ephemeris()
+    eph = ephemeris or getattr(spec, "ephemeris", None) or default_ephemeris()
     t, r, v, R, sky = resolve_spec(spec, ephemeris=eph)
     a = spec.attitude
-    return build_scene(t, position_km=r, velocity_km_s=v, R_cam_icrs=R, camera=spec.camera,
-                       angular_velocity_rad_s=a.angular_velocity_rad_s, catalog_limiting_v_mag=spec.catalog_limiting_v_mag,
-                       visibility=spec.visibility,
-                       resolved_threshold_px=spec.resolved_threshold_px, ephemeris=eph, catalog=catalog, sky=sky)
+    scene = build_scene(t, position_km=r, velocity_km_s=v, R_cam_icrs=R, camera=spec.camera,
+                        angular_velocity_rad_s=a.angular_velocity_rad_s, catalog_limiting_v_mag=spec.catalog_limiting_v_mag,
+                        visibility=spec.visibility,
+                        resolved_threshold_px=spec.resolved_threshold_px, ephemeris=eph, catalog=catalog, sky=sky)
+    records = tuple(getattr(spec, "data_files", ()))
+    return dataclasses.replace(scene, data_files=records) if records else scene

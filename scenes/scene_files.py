@@ -16,7 +16,7 @@ import yaml
 from .errors import SceneFileError
 
 from .config import SceneSpec, scene_spec_from_mapping
-from .mission_ccsds import mark_mission_files
+from .mission_files import mark_mission_files
 from .psf_measured import resolve_psf_files
 
 __all__ = ["load_yaml", "read_scene_mapping", "read_scene_file", "load_scene_mapping", "load_scene_file"]

@@ -8,6 +8,12 @@ then checked on the open descriptor) and holds at most ``max_bytes``. Everything
 that does not exist included, gets one line that says nothing of the file system
 (:func:`refused`), so that a client cannot probe which paths exist. The truth records the name as
 given and the tables' digest (:class:`skynav.scenes.psf_measured.TabulatedPSFModel`), never a path.
+
+SPICE kernels (``observer.spice.kernels``, ``attitude.spice.kernels``, ``ephemeris.spk``) follow
+the same rule (:func:`kernel_path`), without the size bound: CSPICE reads a kernel by its path
+and only the parts it needs, so the resolved path is handed to it, checked to be a regular file
+inside a folder. The truth records each kernel's name as given and its SHA-256. A meta-kernel
+in a ``--data-dir`` folder is the operator's file: the kernels it names are loaded as written.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import os
 import stat
 
 from skynav.infra.errors import ConfigValueError
+from skynav.scenes.mission_spice import KERNEL_RESOLVER
 from skynav.scenes.psf_measured import PSF_FILE_OPENER
 
 #: Default bound on one file a request names, bytes (``skynav serve --max-data-file-bytes``):
@@ -74,17 +81,52 @@ def read_data_file(name, key: str, data_dirs, max_bytes: int) -> bytes:
     raise refused(key, name, data_dirs, max_bytes)
 
 
+def kernel_refused(key: str, name, data_dirs) -> ConfigValueError:
+    """The one error of every kernel name that cannot be loaded (the same whatever the reason)."""
+    if not data_dirs:
+        return ConfigValueError(key, name, "no file: this server reads no files (its operator allows folders "
+                                           "with skynav serve --data-dir DIR)")
+    return ConfigValueError(key, name, "the name of a SPICE kernel (a regular file) inside the server's "
+                                       "--data-dir folders, relative to them")
+
+
+def kernel_path(name, key: str, data_dirs) -> str:
+    """The resolved path of the kernel ``name`` in the first of ``data_dirs`` (resolved, absolute
+    folders) where it is a regular file inside the folder; :func:`kernel_refused` where none."""
+    if not isinstance(name, str) or not name or "\x00" in name or os.path.isabs(name):
+        raise kernel_refused(key, name, data_dirs)
+    for folder in data_dirs:
+        path = os.path.realpath(os.path.join(folder, name))
+        if not _inside(path, folder):
+            continue
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            continue
+        try:
+            regular = stat.S_ISREG(os.fstat(fd).st_mode)
+        finally:
+            os.close(fd)
+        if regular:
+            return path
+    raise kernel_refused(key, name, data_dirs)
+
+
 @contextlib.contextmanager
 def request_files(data_dirs=(), max_bytes: int = MAX_DATA_FILE_BYTES):
     """Within: the PSF files of the scenes built are read only as :func:`read_data_file` allows
-    (none where ``data_dirs`` is empty), their names kept as given."""
+    and their kernels loaded only as :func:`kernel_path` allows (none where ``data_dirs`` is
+    empty), their names kept as given."""
     folders = tuple(os.path.realpath(d) for d in data_dirs)
 
     def opener(name, key):
         return io.BytesIO(read_data_file(name, key, folders, max_bytes))
 
     token = PSF_FILE_OPENER.set(opener)
+    # no folders: a request's kernel names get the scene layer's "cannot name a file"
+    k_token = KERNEL_RESOLVER.set((lambda name, key: kernel_path(name, key, folders)) if folders else None)
     try:
         yield
     finally:
+        KERNEL_RESOLVER.reset(k_token)
         PSF_FILE_OPENER.reset(token)
