@@ -31,7 +31,7 @@ from starlette.routing import Route
 
 from .browser import BrowserGuard
 from .openapi import openapi_document
-from .pool import Limits, ServiceBusy, WorkerDied, WorkerPool
+from .pool import ClientGone, Limits, ServiceBusy, WorkerDied, WorkerPool
 from .protocol import API_PREFIX, OUTPUTS, SCENE_KEYS, read_json, server_timing, warnings_header
 
 
@@ -144,12 +144,12 @@ def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_
             _check_media_type(request)
             body = await _read_body(request, limits.max_request_bytes)
             outputs = parse_request(body, has_facility=has_facility)
-            answer, queue_s = await pool.render(body, outputs)
+            answer, queue_s = await pool.render(body, outputs, gone=request.is_disconnected)
         except _HTTPError as exc:
             return _error(exc.status, exc.message)
         except (ServiceBusy, WorkerDied) as exc:
             return _error(503, str(exc))
-        except ClientDisconnect:
+        except (ClientDisconnect, ClientGone):
             return Response(status_code=400)   # no one reads it
         if answer[0] != "ok":
             return _error(400 if answer[0] == "bad" else 500, answer[1])

@@ -43,6 +43,10 @@ class WorkerDied(Exception):
     """The worker rendering a request died before it answered; one line."""
 
 
+class ClientGone(Exception):
+    """The client of a queued request hung up before a worker was free: the frame is not rendered."""
+
+
 @dataclass
 class Limits:
     max_request_bytes: int = MAX_REQUEST_BYTES
@@ -98,6 +102,10 @@ class _Worker:
     def detach(self) -> None:
         self.writer.close()
 
+    def alive(self) -> bool:
+        """The process runs and its end of the pipe is open (no answer is pending: the worker is idle)."""
+        return not self.reader.at_eof() and self.process.is_alive()
+
     def stop(self, timeout_s: float = 30.0) -> None:
         try:
             self.conn.send(None)
@@ -150,13 +158,15 @@ class WorkerPool:
         for w in self.workers:
             w.detach()
 
-    async def render(self, body: bytes, outputs: tuple) -> tuple:
+    async def render(self, body: bytes, outputs: tuple, gone=None) -> tuple:
         """``(the worker's answer, seconds waited for an idle worker)`` for one request: ``body``
         the request's JSON, whose envelope :func:`skynav.service.app.parse_request` has checked.
 
         The answer is ``("ok", content type, warning lines, render seconds, HTTP body)`` or
         ``(kind, one line)`` (:func:`skynav.service.worker.answer`). Raises :class:`ServiceBusy`
-        when the queue is full, :class:`WorkerDied` when the worker died on this request.
+        when the queue is full, :class:`WorkerDied` when the worker died on this request,
+        :class:`ClientGone` when ``await gone()`` (asked once a worker is free) says that the
+        client hung up while the request waited.
         """
         if self.busy >= self.n and self.waiting >= self.limits.max_queue:
             raise ServiceBusy(f"the server is busy ({self.busy} frames rendering, {self.waiting} waiting; "
@@ -164,16 +174,30 @@ class WorkerPool:
         t0 = time.perf_counter()
         self.waiting += 1
         try:
-            worker = await self._idle.get()
+            worker = await self._idle_worker()
         finally:
             self.waiting -= 1
         queue_s = time.perf_counter() - t0
+        if gone is not None and await gone():
+            self._idle.put_nowait(worker)
+            raise ClientGone("the client hung up while its request waited")
         self.busy += 1
         # the exchange is a task of its own, shielded from this request's cancellation: the worker
         # goes back to the idle queue only once its answer has been read, so that the next request
         # never reads this one's frame
         task = self._keep(self._exchange(worker, (bytes(body), outputs, self.limits.worker_bounds())))
         return await asyncio.shield(task), queue_s
+
+    async def _idle_worker(self) -> _Worker:
+        """The next idle worker that is alive; one that died while idle (killed, out of memory)
+        is replaced and the request waits for the next (a fresh one when it was the only one)."""
+        while True:
+            worker = await self._idle.get()
+            if worker.alive():
+                return worker
+            print(f"skynav serve: a render worker died while idle (exit code {worker.process.exitcode}); replacing it",
+                  file=sys.stderr)
+            self._keep(self._replace(worker))
 
     def _keep(self, coro) -> asyncio.Task:
         """``coro`` as a task held until it is done (the loop keeps only weak references), its

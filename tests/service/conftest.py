@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -81,3 +82,17 @@ def small_scene(name="default", *, size=128, **changes):
     for key, value in changes.items():
         m.setdefault(key, {}).update(value)
     return m
+
+
+def worker_pids(server_pid: int) -> list[int]:
+    """The pids of the render workers of the server process ``server_pid`` (Linux: /proc)."""
+    pids = []
+    for st in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(st.read_text().rsplit(")", 1)[1].split()[1])
+            cmd = (st.parent / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if parent == server_pid and b"multiprocessing" in cmd and b"resource_tracker" not in cmd:
+            pids.append(int(st.parent.name))
+    return pids

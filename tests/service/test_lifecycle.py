@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from .conftest import small_scene, start_server
+from .conftest import small_scene, start_server, worker_pids
 
 TOKEN = "0123456789abcdef-test-token"
 
@@ -98,21 +98,6 @@ def test_token_then_sigterm_finishes_the_running_render():
             s.proc.kill()
 
 
-def _worker_pids(server_pid: int) -> list[int]:
-    from pathlib import Path
-
-    pids = []
-    for st in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            parent = int(st.read_text().rsplit(")", 1)[1].split()[1])
-            cmd = (st.parent / "cmdline").read_bytes()
-        except OSError:
-            continue
-        if parent == server_pid and b"multiprocessing" in cmd and b"resource_tracker" not in cmd:
-            pids.append(int(st.parent.name))
-    return pids
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the worker through /proc")
 def test_a_killed_worker_is_one_503_then_a_fresh_worker_serves():
     """The server talks to its worker in the event loop: a worker killed mid-frame (as the
@@ -127,7 +112,7 @@ def test_a_killed_worker_is_one_503_then_a_fresh_worker_serves():
         client = Client(s.url)
         scene = small_scene(size=96)
         want = client.render(scene, outputs=("png",)).png
-        (victim,) = _worker_pids(s.proc.pid)
+        (victim,) = worker_pids(s.proc.pid)
         big = small_scene(size=4096)   # the largest frame the server takes: ~1 s or more
         caught = {}
 
@@ -147,7 +132,7 @@ def test_a_killed_worker_is_one_503_then_a_fresh_worker_serves():
         assert caught["e"].status == 503 and "worker died" in str(caught["e"]), caught
         assert "\n" not in str(caught["e"])
         assert client.render(scene, outputs=("png",)).png == want
-        (fresh,) = _worker_pids(s.proc.pid)
+        (fresh,) = worker_pids(s.proc.pid)
         assert fresh != victim
         assert s.stop() == 0, s.output
         assert "Traceback" not in s.output, s.output
