@@ -170,7 +170,10 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
     frame = render(scene, seed=ss, rng=rng, options=options)
     t2 = time.perf_counter()
     truth = dict(frame.truth)
-    truth["dataset"] = {**req.meta, "master_seed": int(master_seed),
+    meta = {k: v for k, v in req.meta.items() if k != "data_files"}
+    if "data_files" in req.meta:  # the mission files the plan read (name as written, SHA-256)
+        truth["data_files"] = req.meta["data_files"]
+    truth["dataset"] = {**meta, "master_seed": int(master_seed),
                         "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
     frame = dataclasses.replace(frame, truth=truth)
     blobs = encode_frame(frame, tuple(formats))

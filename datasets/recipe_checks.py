@@ -21,11 +21,12 @@ from skynav.scenes.config import (
     visibility_from_mapping,
 )
 from skynav.scenes.errors import MovedKeyError
+from skynav.scenes.mission_spice import KernelName
 from skynav.scenes.timescales import to_time
 
 from .errors import RecipeError
 
-__all__ = ["KINDS", "validate_recipe", "RECIPE_RENDER_OPTIONS", "RECIPE_RENDER_KEYS"]
+__all__ = ["KINDS", "SEQUENCE_KERNEL_SOURCES", "validate_recipe", "RECIPE_RENDER_OPTIONS", "RECIPE_RENDER_KEYS"]
 
 #: The ``render:`` keys that set :class:`~skynav.renderer.render.RenderOptions` fields of the same name.
 RECIPE_RENDER_OPTIONS = ("cosmic_rays_per_frame", "mitsuba_spp")
@@ -52,6 +53,10 @@ MONTECARLO_DEFAULTS = {
     "keep": ["visible_planet"],
     "max_draws_per_frame": 2000,
 }
+
+#: The ``sequence:`` keys that take the cruise from a mission's SPICE kernels (absent: the
+#: built-in ballistic cruise and pointing rule): section key -> the key naming what to read.
+SEQUENCE_KERNEL_SOURCES = {"observer": "body", "attitude": "frame"}
 
 #: The ``sequence:`` section's keys and defaults.
 SEQUENCE_DEFAULTS = {
@@ -114,18 +119,33 @@ def _epoch(value, name) -> str:
     return iso
 
 
-def _section(recipe, key, defaults):
+def _section(recipe, key, defaults, optional=()):
     sec = recipe.get(key, {})
     if sec is None:
         sec = {}
     if not isinstance(sec, dict):
         raise RecipeError(key, sec, "a mapping")
     for k in sec:
-        if k not in defaults:
-            raise RecipeError(f"{key}.{k}", sec[k], "no such key; allowed keys: " + ", ".join(sorted(defaults)))
+        if k not in defaults and k not in optional:
+            raise RecipeError(f"{key}.{k}", sec[k], "no such key; allowed keys: " + ", ".join(sorted([*defaults, *optional])))
     out = copy.deepcopy(defaults)
     out.update(copy.deepcopy(sec))
     return out
+
+
+def _kernel_source(value, name: str, want: str) -> dict:
+    """A sequence's ``observer`` or ``attitude`` from kernels, ``{spice: {kernels, body|frame}}``
+    (the scene file's spelling); each kernel kept as a :class:`KernelName` (the name as written,
+    the file beside the recipe file or in the current folder)."""
+    spec = value.get("spice") if isinstance(value, dict) and set(value) == {"spice"} else None
+    if not isinstance(spec, dict) or set(spec) != {"kernels", want}:
+        raise RecipeError(name, value, f"a mapping {{spice: {{kernels: [FILE, ...], {want}: ...}}}}")
+    ks = spec["kernels"]
+    if not isinstance(ks, list) or not ks or not all(isinstance(k, str) and k for k in ks):
+        raise RecipeError(f"{name}.spice.kernels", ks, "a non-empty list of kernel files (read beside the recipe file)")
+    if not isinstance(spec[want], (str, int)) or isinstance(spec[want], bool) or not str(spec[want]).strip():
+        raise RecipeError(f"{name}.spice.{want}", spec[want], "a NAIF name or integer id")
+    return {"spice": {"kernels": [k if isinstance(k, KernelName) else KernelName(k) for k in ks], want: str(spec[want])}}
 
 
 def _validate_montecarlo(recipe) -> dict:
@@ -153,8 +173,11 @@ def _validate_montecarlo(recipe) -> dict:
 
 
 def _validate_sequence(recipe) -> dict:
-    s = _section(recipe, "sequence", SEQUENCE_DEFAULTS)
+    s = _section(recipe, "sequence", SEQUENCE_DEFAULTS, optional=tuple(SEQUENCE_KERNEL_SOURCES))
     w = "sequence"
+    for key, want in SEQUENCE_KERNEL_SOURCES.items():
+        if key in s:
+            s[key] = _kernel_source(s[key], f"{w}.{key}", want)
     win = s["departure_window_tdb"]
     if not isinstance(win, (list, tuple)) or len(win) != 2:
         raise RecipeError(f"{w}.departure_window_tdb", win, "a list of two ISO dates (TDB)")

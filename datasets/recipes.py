@@ -36,12 +36,14 @@ import os
 
 import yaml
 
+from skynav.scenes.mission_spice import KernelName
 from skynav.scenes.config import RENDER_KEYS, camera_from_mapping, visibility_from_mapping
 from skynav.scenes.psf_measured import resolve_psf_files
 from skynav.scenes.scene_files import load_yaml
 
 from .errors import RecipeError
-from .recipe_checks import FILTERS, KINDS, MONTECARLO_DEFAULTS, RECIPE_RENDER_KEYS, SEQUENCE_DEFAULTS, validate_recipe
+from .recipe_checks import (FILTERS, KINDS, MONTECARLO_DEFAULTS, RECIPE_RENDER_KEYS, SEQUENCE_DEFAULTS,
+                            SEQUENCE_KERNEL_SOURCES, validate_recipe)
 
 __all__ = ["PRESETS", "preset_recipe", "recipe_camera", "recipe_visibility", "load_recipe_file",
            "read_recipe_mapping", "recipe_render", "recipe_yaml"]
@@ -164,8 +166,24 @@ def read_recipe_mapping(path) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise RecipeError("recipe", str(path), f"valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__}{where})") from None
-    # a PSF file named in the recipe is found beside the recipe, wherever it is run from
-    return resolve_psf_files(data, os.path.dirname(os.path.abspath(path)))
+    # a PSF file or a kernel named in the recipe is found beside the recipe, wherever it is run from
+    folder = os.path.dirname(os.path.abspath(path))
+    return _mark_kernels(resolve_psf_files(data, folder), folder)
+
+
+def _mark_kernels(data, folder: str):
+    """The recipe with its ``sequence.observer|attitude.spice.kernels`` names kept as written
+    and read beside the recipe (:class:`~skynav.scenes.mission_spice.KernelName`)."""
+    seq = data.get("sequence") if isinstance(data, dict) else None
+    if not isinstance(seq, dict):
+        return data
+    seq = dict(seq)
+    for key in SEQUENCE_KERNEL_SOURCES:
+        spec = seq.get(key, {}).get("spice") if isinstance(seq.get(key), dict) else None
+        if isinstance(spec, dict) and isinstance(spec.get("kernels"), list):
+            kernels = [KernelName(k, os.path.join(folder, k)) if isinstance(k, str) and k else k for k in spec["kernels"]]
+            seq[key] = {**seq[key], "spice": {**spec, "kernels": kernels}}
+    return {**data, "sequence": seq}
 
 
 def load_recipe_file(path) -> dict:
@@ -254,6 +272,10 @@ KEY_COMMENTS = {
     "sequence.relativity": "post-Newtonian term of the Sun in the propagation: true or false",
     "sequence.rtol": "relative tolerance of the integrator, in [1e-14, 1e-6]",
     "sequence.trajectory_step_s": "spacing of the stored trajectory samples, s, in [1, 1e7]",
+    "sequence.observer": "optional: the cruise from SPICE kernels, {spice: {kernels: [FILE, ...], body: NAME_OR_ID}} "
+                         "(files beside the recipe); the legs start where the kernels' coverage of the body starts",
+    "sequence.attitude": "optional: the frames' attitudes from SPICE kernels, {spice: {kernels: [FILE, ...], "
+                         "frame: CAMERA_FRAME}} (a CK with its SCLK and FK), in place of the pointing rule",
     "scenes": "a list of scenes, each with a scene file's keys (epoch, observer, attitude, camera, visibility, "
               "render; no render.seed), as in docs/examples/*.yaml",
 }

@@ -50,6 +50,7 @@ from skynav.scenes.timescales import tdb_seconds
 from .errors import RecipeError, SceneSamplingError
 from .plan import FrameRequest, epoch_iso, frame_rng
 from .recipes import PLANETS, recipe_visibility
+from .sequence_kernels import KernelCruise, describe_kernels, kernel_attitudes, rotation_vector
 
 __all__ = ["Transfer", "LegWindow", "search_transfer", "leg_timeline", "choose_pair", "SequencePlan", "pointing_controller"]
 
@@ -191,16 +192,14 @@ class SequencePlan:
         self.visibility = recipe_visibility(recipe)
         s = self.s = recipe["sequence"]
         eph = self.ephemeris = ephemeris or default_ephemeris()
-        window = (float(tdb_seconds(s["departure_window_tdb"][0])), float(tdb_seconds(s["departure_window_tdb"][1])))
-        self.transfer = search_transfer(eph, window, (s["tof_days"][0] * DAY_S, s["tof_days"][1] * DAY_S),
-                                        s["grid_days"] * DAY_S)
-        td = self.transfer.departure_tdb_s
-        t_start = td + s["start_offset_days"] * DAY_S
-        r0, v0 = self._two_body_start(td, t_start)
         leg_s = 2 * s["track_s"] + s["slew_s"] + s["propagate_s"]
+        if "observer" in s:  # the mission's kernels (sequence_kernels.py)
+            self.transfer = None
+            self.trajectory = KernelCruise(s["observer"], s["legs"] * leg_s)
+            t_start = self.trajectory.start_tdb_s
+        else:
+            t_start = self._ballistic_cruise(s, leg_s)
         t_end = t_start + s["legs"] * leg_s
-        model = ForceModel(srp=SpacecraftSRP(**s["spacecraft"]), relativity=s["relativity"])
-        self.trajectory = propagate(eph, r0, v0, t_start, t_end, model=model, rtol=s["rtol"])
         self.start_tdb_s, self.end_tdb_s = t_start, t_end
 
         # pairs at the start of each leg
@@ -236,6 +235,25 @@ class SequencePlan:
         self.frame_r, self.frame_v = self.trajectory.state(self.frame_tdb_s)
         self.frame_r = np.atleast_2d(self.frame_r)
         self.frame_v = np.atleast_2d(self.frame_v)
+        self.frame_R = self.frame_w = None
+        if "attitude" in s:  # read here, once: the workers get numbers
+            self.frame_R, self.frame_w = kernel_attitudes(s["attitude"], self.frame_tdb_s)
+        self.data_files = [{"key": f"sequence.{key}.spice.kernels", **r}
+                           for key, d in describe_kernels(s).items() for r in d["spice"]["kernels"]]
+
+    def _ballistic_cruise(self, s: dict, leg_s: float) -> float:
+        """The built-in cruise (steps 1 and 2 of the module docstring): sets ``transfer`` and
+        ``trajectory``; returns the legs' start, TDB s."""
+        eph = self.ephemeris
+        window = (float(tdb_seconds(s["departure_window_tdb"][0])), float(tdb_seconds(s["departure_window_tdb"][1])))
+        self.transfer = search_transfer(eph, window, (s["tof_days"][0] * DAY_S, s["tof_days"][1] * DAY_S),
+                                        s["grid_days"] * DAY_S)
+        td = self.transfer.departure_tdb_s
+        t_start = td + s["start_offset_days"] * DAY_S
+        r0, v0 = self._two_body_start(td, t_start)
+        model = ForceModel(srp=SpacecraftSRP(**s["spacecraft"]), relativity=s["relativity"])
+        self.trajectory = propagate(eph, r0, v0, t_start, t_start + s["legs"] * leg_s, model=model, rtol=s["rtol"])
+        return t_start
 
     def _two_body_start(self, td: float, t_start: float):
         """Barycentric state at ``t_start`` on the Sun-only Lambert arc from the Earth at ``td``."""
@@ -266,25 +284,33 @@ class SequencePlan:
         sky = sky_bodies(t, r, v, ephemeris=self.ephemeris)
         body = next(b for b in sky[0] if b.name == target)
         R_nominal = frames.point_boresight(body.directions.u_icrs, math.radians(s["twist_deg"]))
-        R, err, jitter = pointing_controller(rng, s, R_nominal)
+        R, err, jitter = pointing_controller(rng, s, R_nominal)  # drawn in any case: frame k's stream
         w = np.radians(np.asarray(s["angular_velocity_deg_s"], dtype=float)) + jitter
+        if self.frame_R is not None:  # the CK's attitude; its error from the nominal pointing
+            R, w = self.frame_R[k].copy(), self.frame_w[k].copy()
+            err = -rotation_vector(R @ R_nominal.T)  # R = exp(-[err x]) R_nominal (pointing_controller)
         meta = {"kind": "sequence", "frame": int(k), "leg": int(leg), "phase": phase, "target": target,
                 "window_frame": int(j), "pointing_error_rad": [float(x) for x in err]}
+        if self.data_files:
+            meta["data_files"] = self.data_files
         return FrameRequest(epoch_tdb_s=t, position_km=np.array(r), velocity_km_s=np.array(v), R_cam_icrs=R,
                             angular_velocity_rad_s=w, meta=meta, sky=sky)
 
     # ------------------------------------------------------------------ dataset side files
     def describe(self) -> dict:
-        """Plan summary for the manifest."""
+        """Plan summary for the manifest (the transfer, or the kernels read: names and SHA-256)."""
         tr = self.transfer
-        return {
-            "transfer": {
+        head = describe_kernels(self.s)
+        if tr is not None:
+            head["transfer"] = {
                 "departure_tdb": epoch_iso(tr.departure_tdb_s),
                 "tof_days": tr.tof_s / DAY_S,
                 "arrival_tdb": epoch_iso(tr.departure_tdb_s + tr.tof_s),
                 "v_inf_departure_km_s": tr.v_inf_departure_km_s,
                 "v_inf_arrival_km_s": tr.v_inf_arrival_km_s,
-            },
+            }
+        return {
+            **head,
             "cruise_start_tdb": epoch_iso(self.start_tdb_s),
             "cruise_end_tdb": epoch_iso(self.end_tdb_s),
             "frames_planned": self.n_planned,

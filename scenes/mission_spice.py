@@ -47,7 +47,7 @@ from skynav.infra.errors import ConfigValueError
 from . import frames
 from .errors import SceneFileError
 
-__all__ = ["KERNEL_RESOLVER", "kernel_pool", "release_kernels", "kernel_records", "given_name", "spice_state",
+__all__ = ["KERNEL_RESOLVER", "KernelName", "kernel_pool", "spice_states", "spice_attitudes", "spice_coverage", "release_kernels", "kernel_records", "given_name", "spice_state",
            "spice_attitude", "spice_source"]
 
 _POOL_LOCK = threading.Lock()
@@ -59,6 +59,17 @@ _SHA256: dict = {}
 #: ``resolve(name, key)`` gives the file's path or raises a one-line error naming ``key``;
 #: None (the default) refuses every such name.
 KERNEL_RESOLVER: contextvars.ContextVar = contextvars.ContextVar("KERNEL_RESOLVER", default=None)
+
+
+class KernelName(str):
+    """A kernel's name as written in a recipe (the string: what the manifest records) and the
+    file it names (``path``, absolute: beside the recipe file, or the current folder)."""
+
+    def __new__(cls, name, path=None):
+        self = super().__new__(cls, name)
+        self.path = os.path.abspath(str(name)) if path is None else str(path)
+        self.given = str(name)
+        return self
 
 
 def given_name(path) -> str:
@@ -173,6 +184,60 @@ def spice_attitude(paths, frame: str, t_tdb_s: float):
     R = np.asarray(R, dtype=float)
     # xf2rav's av: the frame's angular velocity relative to J2000, in J2000 coordinates
     return R, R @ np.asarray(av, dtype=float)
+
+
+def _body_id(sp, body) -> int:
+    text = str(body).strip()
+    try:
+        return int(text)
+    except ValueError:
+        code = sp.bods2c(text)  # raises on a name the pool does not know
+        return int(code)
+
+
+def spice_coverage(paths, body) -> tuple:
+    """(start, end), TDB s past J2000, of the first interval the SPKs among ``paths`` (a
+    meta-kernel's included) cover ``body`` over; None where none does."""
+    with kernel_pool(paths) as sp:
+        try:
+            code = _body_id(sp, body)
+            cover = sp.stypes.SPICEDOUBLE_CELL(20000)
+            for i in range(sp.ktotal("SPK")):
+                sp.spkcov(sp.kdata(i, "SPK")[0], code, cover)
+        except Exception as exc:
+            raise _one_line(exc, paths) from None
+        if sp.wncard(cover) == 0:
+            return None
+        return tuple(float(x) for x in sp.wnfetd(cover, 0))
+
+
+def spice_states(paths, body, t_tdb_s):
+    """:func:`spice_state` at many epochs, one pool: (positions (N, 3) km, velocities (N, 3) km/s)."""
+    t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
+    out = np.empty((t.size, 6))
+    with kernel_pool(paths) as sp:
+        try:
+            for i, ti in enumerate(t.tolist()):
+                out[i] = sp.spkezr(str(body), ti, "J2000", "NONE", "SOLAR SYSTEM BARYCENTER")[0]
+        except Exception as exc:
+            raise _one_line(exc, paths) from None
+    return out[:, :3], out[:, 3:]
+
+
+def spice_attitudes(paths, frame: str, t_tdb_s):
+    """:func:`spice_attitude` at many epochs, one pool: (``R_cam_icrs`` (N, 3, 3), angular
+    velocities (N, 3) rad/s, camera frame)."""
+    t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
+    R, w = np.empty((t.size, 3, 3)), np.empty((t.size, 3))
+    with kernel_pool(paths) as sp:
+        try:
+            for i, ti in enumerate(t.tolist()):
+                Ri, av = sp.xf2rav(sp.sxform("J2000", str(frame), ti))
+                R[i] = Ri
+                w[i] = R[i] @ np.asarray(av, dtype=float)
+        except Exception as exc:
+            raise _one_line(exc, paths) from None
+    return R, w
 
 
 def spice_source(section: str, spec, t_tdb_s: float) -> dict:
