@@ -46,7 +46,7 @@ from .frame_files import encode_frame
 from .journal import write_record
 from .plan import frame_seed
 
-__all__ = ["FrameResult", "EncodedFrame", "produce_frame", "make_frame", "commit_frame", "run_in_process",
+__all__ = ["FrameResult", "EncodedFrame", "produce_frame", "render_request", "make_frame", "commit_frame", "run_in_process",
            "run_process_pool", "run_dask", "check_backends"]
 
 
@@ -139,11 +139,12 @@ class EncodedFrame:
     timings_s: dict  # sample, render, encode
 
 
-def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
-               render_options=None, before_render=None) -> EncodedFrame:
-    """The first half of :func:`produce_frame` (same parameters): sample, render and encode
-    frame ``k`` in memory. ``before_render``: called with no argument once the scene is built,
-    right before the render (:func:`_made_and_written` starts writing the frame before there)."""
+def render_request(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: float, render_options=None,
+                   before_render=None):
+    """Sample and render frame ``k`` in memory: ``(frame, draws, timings_s)``, the frame's truth with
+    its ``dataset`` section; what :func:`make_frame` encodes and :func:`skynav.datasets.stream.stream`
+    hands to a training loop (so a streamed frame is the dataset's frame of the same seed and index).
+    Parameters as :func:`produce_frame`; ``before_render``: as :func:`make_frame`."""
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
@@ -176,12 +177,23 @@ def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limi
     truth["dataset"] = {**meta, "master_seed": int(master_seed),
                         "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
     frame = dataclasses.replace(frame, truth=truth)
+    return frame, req.meta.get("draws"), {"sample": t1 - t0, "render": t2 - t1}
+
+
+def make_frame(plan, k: int, out_dir, *, master_seed: int, formats, catalog_limiting_v_mag: float,
+               render_options=None, before_render=None) -> EncodedFrame:
+    """The first half of :func:`produce_frame` (same parameters): sample, render and encode
+    frame ``k`` in memory. ``before_render``: called with no argument once the scene is built,
+    right before the render (:func:`_made_and_written` starts writing the frame before there)."""
+    frame, draws, timings = render_request(plan, k, master_seed=master_seed, catalog_limiting_v_mag=catalog_limiting_v_mag,
+                                           render_options=render_options, before_render=before_render)
+    t2 = time.perf_counter()
     blobs = encode_frame(frame, tuple(formats))
     t3 = time.perf_counter()
-    ran = truth["render"]  # what ran, as the renderer records it
-    backends = {"sensor": ran["backend_used"] if options.noise else None, "mitsuba_variant": ran["mitsuba_variant"]}
-    return EncodedFrame(frame=int(k), out_dir=Path(out_dir), blobs=blobs, truth=truth, draws=req.meta.get("draws"),
-                        backends=backends, timings_s={"sample": t1 - t0, "render": t2 - t1, "encode": t3 - t2})
+    ran = frame.truth["render"]  # what ran, as the renderer records it
+    backends = {"sensor": ran["backend_used"] if ran["noise"] else None, "mitsuba_variant": ran["mitsuba_variant"]}
+    return EncodedFrame(frame=int(k), out_dir=Path(out_dir), blobs=blobs, truth=frame.truth, draws=draws,
+                        backends=backends, timings_s={**timings, "encode": t3 - t2})
 
 
 def commit_frame(made: EncodedFrame) -> FrameResult:

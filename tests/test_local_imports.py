@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 #: Optional packages (or ones only a few paths need) a function may import on first use, each with
 #: a comment saying why.
 OPTIONAL = ("mitsuba", "drjit", "matplotlib", "dask", "distributed", "PIL", "tetra3rs", "cedar_solve",
-            "ccsds_ndm", "spiceypy")
+            "ccsds_ndm", "spiceypy", "torch", "jax", "webdataset", "datasets")
 
 #: Packages slow to import (scipy's submodules 0.2-0.5 s, astropy.time 0.7 s, colour-science 1 s,
 #: jsonschema 0.1 s, tqdm 35 ms, OpenEXR) that a module on a light path (the dataset reader, the

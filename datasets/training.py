@@ -1,0 +1,347 @@
+"""Frames for training: a recipe's frames in batches, in memory, with their labels.
+
+Driver module. :func:`stream` renders the frames of a recipe (a file, a preset name or the
+mapping ``skynav dataset generate`` takes) and yields one mapping per batch of ``batch``
+consecutive frames: the image stack, the labels a network learns from (:data:`LABELS`) and
+the full ground truth, with no file written. Frame k is made by
+:func:`skynav.datasets.execute.render_request`, the function that makes a dataset's frame k, from
+``SeedSequence([seed, k])`` alone: a streamed frame is the dataset's frame of the same seed and
+index (truth and expected image), whatever the batch size, the shard or the worker that made it.
+
+The arrays are numpy arrays (``device="cpu"``) or Dr.Jit tensors (``"llvm"``, ``"cuda"``); both
+export the DLPack protocol, so ``torch.from_dlpack`` and ``jax.numpy.from_dlpack`` take them
+without a copy. :func:`torch_dataset` (a PyTorch ``IterableDataset`` that splits the batches over
+the ``DataLoader``'s workers) and :func:`jax_batches` are the thin adapters (the ``ml`` extra).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Iterator, Mapping
+
+import numpy as np
+
+from skynav.renderer import jit_backend
+from skynav.renderer.options import RenderOptions
+from skynav.renderer.sensor_jit import _jit_module
+
+from .errors import DatasetError
+from .execute import render_request
+from .recipe_checks import validate_recipe
+from .recipes import read_recipe_mapping
+from .runner import recipe_render_options
+from .samplers import make_plan
+from .truth_schema import truth_to_jsonable
+
+__all__ = ["LABELS", "stream", "collate", "torch_dataset", "jax_batches"]
+
+#: The label set of a batch (N frames; S: the most stars in view of a frame of the batch; B: the
+#: bodies of the batch's frames). Padding: NaN for floats, -1 for integers, False for flags.
+LABELS = {
+    "frame": "(N,) int64: the frame's index in the recipe (its seed is SeedSequence([seed, frame]))",
+    "image": "(N, H, W) uint8 or uint16: digital counts at the camera's bit depth, DN",
+    "electrons": "(N, H, W) float32: expected electrons plus cosmic-ray charge, no noise, e- (electrons=True)",
+    "star_count": "(N,) int64: stars in the field of view",
+    "star_hip": "(N, S) int64: Hipparcos numbers (the star IDs)",
+    "star_v_mag": "(N, S) float64: V magnitudes",
+    "star_xy": "(N, S, 2) float64: apparent position at mid-exposure, px (x = column, y = row)",
+    "star_centroid_xy": "(N, S, 2) float64: centre of light of the drawn (PSF-blurred, streaked) star, px; NaN: not drawn",
+    "star_electrons": "(N, S) float64: expected charge over the exposure, e-",
+    "q_cam_icrs": "(N, 4) float64: attitude quaternion, scalar first, v_cam = A(q) v_icrs",
+    "body_names": "tuple of B str: the bodies, in the order of the body axes",
+    "body_xy": "(N, B, 2) float64: apparent centre of each body at mid-exposure, px",
+    "body_radius_px": "(N, B) float64: apparent radius, px (half the angular diameter)",
+    "body_in_fov": "(N, B) bool: the body's centre is in the image",
+    "body_visible": "(N, B) bool: visible by the recipe's visibility rule",
+    "body_resolved": "(N, B) bool: drawn as a ray-traced disc rather than a point",
+    "cosmic_ray_mask": "(N, H, W) bool: pixels charged by a cosmic ray",
+    "truth": "list of N dict: the frame's full ground truth (skynav.frame/2, JSON types), as the dataset's JSON",
+}
+
+DEVICES = ("cpu", "llvm", "cuda")
+
+
+def _pad(rows, width: int, tail: tuple, fill, dtype) -> np.ndarray:
+    """Rows of different lengths as one (len(rows), width, *tail) array padded with ``fill``."""
+    out = np.full((len(rows), width, *tail), fill, dtype=dtype)
+    for i, r in enumerate(rows):
+        if len(r):
+            out[i, :len(r)] = np.asarray(r, dtype=dtype).reshape(len(r), *tail)
+    return out
+
+
+def _float_rows(records_per_frame, key: str) -> list:
+    return [[math.nan if r.get(key) is None else r[key] for r in recs] for recs in records_per_frame]
+
+
+def _xy_rows(records_per_frame, key: str) -> list:
+    return [[[math.nan if v is None else v for v in (r.get(key) or (None, None))] for r in recs]
+            for recs in records_per_frame]
+
+
+def _body_labels(truths) -> dict:
+    names = tuple(dict.fromkeys(b["name"] for t in truths for b in t["bodies"]))
+    col = {name: j for j, name in enumerate(names)}
+    n, nb = len(truths), len(names)
+    xy = np.full((n, nb, 2), np.nan)
+    radius = np.full((n, nb), np.nan)
+    flags = {key: np.zeros((n, nb), bool) for key in ("in_fov", "visible", "resolved")}
+    for i, t in enumerate(truths):
+        for b in t["bodies"]:
+            j = col[b["name"]]
+            xy[i, j] = [math.nan if v is None else v for v in b["xy"]]
+            radius[i, j] = math.nan if b["angular_diameter_px"] is None else 0.5 * b["angular_diameter_px"]
+            for key in flags:
+                flags[key][i, j] = bool(b[key])
+    return {"body_names": names, "body_xy": xy, "body_radius_px": radius,
+            **{f"body_{key}": v for key, v in flags.items()}}
+
+
+def collate(frames, ks) -> dict:
+    """One batch mapping (:data:`LABELS`, numpy) of rendered frames (each with ``dn``,
+    ``electrons`` or None, and a JSON-type ``truth``) and their indices ``ks``."""
+    truths = [f["truth"] for f in frames]
+    stars = [t["stars"] for t in truths]
+    width = max((len(s) for s in stars), default=0)
+    shape = frames[0]["dn"].shape
+    mask = np.zeros((len(frames), *shape), bool)
+    for i, t in enumerate(truths):
+        for hit in t["cosmic_rays"]:
+            for row, col, _ in hit.get("pixels") or ():
+                mask[i, int(row), int(col)] = True
+    out = {
+        "frame": np.asarray(ks, dtype=np.int64),
+        "image": np.stack([f["dn"] for f in frames]),
+        "star_count": np.asarray([len(s) for s in stars], dtype=np.int64),
+        "star_hip": _pad([[r["hip"] for r in s] for s in stars], width, (), -1, np.int64),
+        "star_v_mag": _pad(_float_rows(stars, "v_mag"), width, (), np.nan, np.float64),
+        "star_xy": _pad(_xy_rows(stars, "xy"), width, (2,), np.nan, np.float64),
+        "star_centroid_xy": _pad(_xy_rows(stars, "centre_of_light_xy"), width, (2,), np.nan, np.float64),
+        "star_electrons": _pad(_float_rows(stars, "electrons"), width, (), np.nan, np.float64),
+        "q_cam_icrs": np.asarray([t["attitude"]["q_cam_icrs"] for t in truths], dtype=np.float64),
+        **_body_labels(truths),
+        "cosmic_ray_mask": mask,
+        "truth": truths,
+    }
+    if frames[0].get("electrons") is not None:
+        out["electrons"] = np.stack([f["electrons"] for f in frames])
+    return out
+
+
+def _to_device(batch: dict, device: str) -> dict:
+    """The batch's arrays as Dr.Jit tensors of ``device`` (``"llvm"``, ``"cuda"``); ``"cpu"``: as is."""
+    if device == "cpu":
+        return batch
+    jt = _jit_module(device)
+    tensors = {np.dtype(np.uint8): jt.TensorXu8, np.dtype(np.uint16): jt.TensorXu, np.dtype(np.int64): jt.TensorXi64,
+               np.dtype(np.float32): jt.TensorXf, np.dtype(np.float64): jt.TensorXf64, np.dtype(bool): jt.TensorXb}
+    out = {}
+    for key, v in batch.items():
+        if isinstance(v, np.ndarray):
+            v = tensors[v.dtype](v.astype(np.uint32) if v.dtype == np.uint16 else v)
+        out[key] = v
+    return out
+
+
+def _check_device(device: str, options):
+    """The render options of ``device`` (its sensor backend), or one line naming what is allowed."""
+    if device not in DEVICES:
+        raise DatasetError(f"device = {device!r} is not allowed; expected one of: {', '.join(DEVICES)}")
+    if device == "cpu":
+        return options
+    jit_backend.require(device)  # one line (BackendUnavailableError) if it does not work here
+    return dataclasses.replace(options, backend=device)
+
+
+def _recipe_mapping(recipe) -> dict:
+    if isinstance(recipe, Mapping):
+        return validate_recipe(dict(recipe))
+    if isinstance(recipe, (str, os.PathLike)):
+        return validate_recipe(read_recipe_mapping(os.fspath(recipe)))
+    raise DatasetError(f"recipe = {type(recipe).__name__} is not allowed; expected a recipe file, a preset name "
+                       "or a recipe mapping")
+
+
+def _check_counts(batch, start, stop, shard, n_frames):
+    if not (isinstance(batch, (int, np.integer)) and not isinstance(batch, bool) and batch >= 1):
+        raise DatasetError(f"batch = {batch!r} is not allowed; expected an integer >= 1")
+    stop = n_frames if stop is None else stop
+    if not (0 <= start <= stop <= n_frames):
+        raise DatasetError(f"frames {start}..{stop} are not allowed; expected 0 <= start <= stop <= {n_frames} "
+                           "(the recipe's frames)")
+    index, count = shard
+    if not (0 <= index < count):
+        raise DatasetError(f"shard = {shard!r} is not allowed; expected (i, n) with 0 <= i < n")
+    return stop
+
+
+def stream(recipe, *, batch: int = 1, device: str = "cpu", electrons: bool = False, start: int = 0,
+           stop: int | None = None, shard: tuple = (0, 1), render_options=None, ephemeris=None) -> Iterator[dict]:
+    """Yield the recipe's frames in batches, in memory, with their labels.
+
+    Parameters
+    ----------
+    recipe : str, os.PathLike or mapping
+        A recipe file, a preset name (``montecarlo``, ``sequence``, ``scenes``), or a recipe
+        mapping, as :func:`skynav.datasets.generate` takes.
+    batch : int
+        Frames per batch; the last batch holds what is left.
+    device : {"cpu", "llvm", "cuda"}
+        ``"cpu"``: numpy arrays, the sensor on ``render_options.backend`` (default ``auto``);
+        ``"llvm"``, ``"cuda"``: the sensor on that Dr.Jit backend and the arrays as its tensors.
+    electrons : bool
+        Add ``electrons``, the float32 expected electrons with the cosmic-ray charge.
+    start, stop : int
+        The frames ``start .. stop - 1`` (default: all the recipe's).
+    shard : (int, int)
+        ``(i, n)``: only batches ``b`` with ``b % n == i`` (batch ``b`` holds frames
+        ``start + b * batch ..``): how ``n`` workers share a stream.
+    render_options : RenderOptions, optional
+        As :func:`~skynav.datasets.generate`'s; the recipe's ``render:`` keys win.
+    ephemeris : optional
+        As :func:`~skynav.datasets.generate`'s.
+
+    Yields
+    ------
+    dict
+        One mapping per batch, keys and shapes in :data:`LABELS`.
+
+    Raises
+    ------
+    DatasetError, RecipeError
+        A bad argument or recipe (one line naming it).
+
+    Examples
+    --------
+    >>> from skynav.datasets import preset_recipe, stream
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=3, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> batches = list(stream(recipe, batch=2, electrons=True))
+    >>> [b["image"].shape for b in batches], batches[0]["electrons"].dtype.name
+    ([(2, 64, 64), (1, 64, 64)], 'float32')
+    >>> batches[1]["frame"].tolist(), batches[0]["q_cam_icrs"].shape
+    ([2], (2, 4))
+    """
+    recipe = _recipe_mapping(recipe)
+    options = recipe_render_options(recipe, render_options if render_options is not None else RenderOptions())
+    options = _check_device(device, options)
+    plan = make_plan(recipe, ephemeris=ephemeris)
+    stop = _check_counts(batch, start, stop, tuple(shard), plan.n_frames)
+    seed, mag = int(recipe["seed"]), float(recipe["catalog_limiting_v_mag"])
+    index, count = shard
+    for b, first in enumerate(range(start, stop, batch)):
+        if b % count != index:
+            continue
+        ks = list(range(first, min(first + batch, stop)))
+        frames = []
+        for k in ks:
+            frame, _, _ = render_request(plan, k, master_seed=seed, catalog_limiting_v_mag=mag, render_options=options)
+            frames.append({"dn": frame.dn, "electrons": frame.electrons if electrons else None,
+                           "truth": truth_to_jsonable(frame.truth)})
+        yield _to_device(collate(frames, ks), device)
+
+
+def _dlpack_tensors(batch: dict, from_dlpack) -> dict:
+    """The batch with every array exchanged through DLPack (no copy); other values as they are."""
+    return {k: from_dlpack(v) if hasattr(v, "__dlpack__") else v for k, v in batch.items()}
+
+
+def torch_dataset(recipe, **kwargs):
+    """A PyTorch ``IterableDataset`` of :func:`stream`'s batches (tensors through DLPack).
+
+    Use it with ``torch.utils.data.DataLoader(ds, batch_size=None, num_workers=n,
+    multiprocessing_context="spawn")``: worker ``i`` of ``n`` renders batches ``i, i + n, ...``
+    (``shard=(i, n)``), so every batch is made once and frame k is the same whatever ``n``
+    (spawn: Dr.Jit keeps threads that a forked worker must not inherit).
+
+    Parameters
+    ----------
+    recipe : str, os.PathLike or mapping
+        As :func:`stream`.
+    **kwargs
+        :func:`stream`'s other arguments (not ``shard``).
+
+    Returns
+    -------
+    torch.utils.data.IterableDataset
+        Its items are :func:`stream`'s batches, arrays as ``torch.Tensor``.
+
+    Raises
+    ------
+    DatasetError
+        PyTorch is not installed (the ``ml`` extra).
+
+    Examples
+    --------
+    >>> from skynav.datasets import DatasetError, preset_recipe, torch_dataset
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> try:
+    ...     batch = next(iter(torch_dataset(recipe, batch=2)))
+    ...     print(type(batch["image"]).__name__, tuple(batch["image"].shape))
+    ... except DatasetError:   # without PyTorch
+    ...     print("Tensor", (2, 64, 64))
+    Tensor (2, 64, 64)
+    """
+    try:
+        # PyTorch: the optional 'ml' extra, only for this adapter
+        import torch
+        from torch.utils.data import IterableDataset, get_worker_info
+    except ImportError:
+        raise DatasetError("torch_dataset needs PyTorch: pip install 'skynav[ml]'") from None
+
+    class FrameStream(IterableDataset):
+        """The batches of a recipe, split over the DataLoader's workers."""
+
+        def __iter__(self):
+            info = get_worker_info()
+            shard = (0, 1) if info is None else (info.id, info.num_workers)
+            for batch in stream(recipe, shard=shard, **kwargs):
+                yield _dlpack_tensors(batch, torch.from_dlpack)
+
+    return FrameStream()
+
+
+def jax_batches(recipe, **kwargs) -> Iterator[dict]:
+    """:func:`stream`'s batches as JAX arrays (``jax.numpy.from_dlpack``).
+
+    JAX rounds the float64 labels to float32 unless ``jax.config.update("jax_enable_x64", True)``.
+
+    Parameters
+    ----------
+    recipe : str, os.PathLike or mapping
+        As :func:`stream`.
+    **kwargs
+        :func:`stream`'s other arguments.
+
+    Returns
+    -------
+    iterator of dict
+        :func:`stream`'s batches, arrays as ``jax.Array``.
+
+    Raises
+    ------
+    DatasetError
+        JAX is not installed (the ``ml`` extra).
+
+    Examples
+    --------
+    >>> from skynav.datasets import DatasetError, jax_batches, preset_recipe
+    >>> recipe = preset_recipe("montecarlo")
+    >>> recipe.update(frames=2, camera={"preset": "paper", "width": 64, "height": 64, "fov_deg": 20})
+    >>> try:
+    ...     batch = next(jax_batches(recipe, batch=2))
+    ...     print(tuple(batch["image"].shape), batch["star_xy"].shape[-1])
+    ... except DatasetError:   # without JAX
+    ...     print((2, 64, 64), 2)
+    (2, 64, 64) 2
+    """
+    try:
+        # JAX: the optional 'ml' extra, only for this adapter
+        import jax.numpy as jnp
+    except ImportError:
+        raise DatasetError("jax_batches needs JAX: pip install 'skynav[ml]'") from None
+    for batch in stream(recipe, **kwargs):
+        yield _dlpack_tensors(batch, jnp.from_dlpack)
