@@ -84,7 +84,8 @@ def read_frame_pair(png_path, json_path, *, index: int):
         truth = dict(truth, camera=dict(cam, sensor={"bit_depth": cam["bit_depth"]}))
     try:
         camera, extra = camera_from_record(truth["camera"]) if isinstance(truth, dict) else (None, [])
-        note_unknown_keys(json_path, extra, "the frame's camera")
+        # once per folder of frames (a dataset), however many of its frames carry them
+        note_unknown_keys(json_path.parent, extra, f"{json_path.name}'s camera", kind="camera")
         obs = make_observation(truth, dn, index=index, camera=camera)
     except SkynavError as exc:
         raise DatasetError(f"{json_path}: {exc}") from None

@@ -12,6 +12,7 @@ predicted state drawn here from the truth with the given sigma per axis (Andreis
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import dataclass
@@ -29,17 +30,20 @@ from skynav.scenes.constants import ARCSEC_RAD
 from .attitude import rotation_angle_rad
 from .catalog import OnboardCatalog
 from .errors import BenchInputError
-from .process import process_frame
+from .plugins import BUILTIN, PluginError, SkynavProcessor, call_processor, load_image_processor
 from .results import PredictedState
-from .scoring_peers import available_peers
 
-__all__ = ["FrameTruthLite", "BeaconScore", "FrameScore", "PeerScore", "open_frames", "predicted_state", "score_frame",
-           "run_benchmark", "summarise", "summarise_peers", "WRONG_ATTITUDE_ARCSEC", "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM"]
+__all__ = ["FrameTruthLite", "BeaconScore", "FrameScore", "open_frames", "predicted_state", "score_frame",
+           "run_benchmark", "summarise", "summarise_peers", "WRONG_ATTITUDE_ARCSEC", "BEACON_WRONG_PX", "DEFAULT_SIGMAS_KM",
+           "DEFAULT_FRAME_TIMEOUT_S"]
 
 WRONG_ATTITUDE_ARCSEC = 500.0    # wrong = error > 500 arcsec
 BEACON_WRONG_PX = 5.0            # Andreis et al. (2023a), Sec. V: a beacon error > 5 px is a failure
 DEFAULT_SIGMAS_KM = (1e4, 1e5, 1e6, 1e7)
 VELOCITY_SIGMA_KM_S = 0.1        # predicted-velocity error per axis (aberration only)
+#: the default per-frame time limit of a processor, s: generous (skynav's pipeline takes ~0.1 s a
+#: frame); a plug-in stuck on a frame fails that frame, not the benchmark
+DEFAULT_FRAME_TIMEOUT_S = 60.0
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -87,16 +91,10 @@ class FrameScore:
     method: str
     time_ms: float
     beacons: tuple
-
-
-@dataclass(frozen=True, kw_only=True)
-class PeerScore:
-    """One frame solved (or not) by a peer star tracker (tetra3rs, cedar-solve)."""
-
-    frame: int
-    solved: bool
-    error_arcsec: float
-    time_ms: float
+    #: the image processor's name (``skynav-improved``, ``tetra3rs``, a plug-in's spec)
+    pipeline: str = ""
+    #: why the processor failed on the frame (``"exception: ValueError: ..."``); "" when it did not
+    fault: str = ""
 
 
 class _SkynavSource:
@@ -208,15 +206,35 @@ def predicted_state(truth, sigma_km, rng):
     return PredictedState(position_km=pos, velocity_km_s=vel, position_cov_km2=np.eye(3) * sigma_km**2)
 
 
-def score_frame(result, truth, *, frame, sigma_km) -> FrameScore:
-    """The score of one processed frame: its attitude outcome and its beacons' outcomes."""
+def score_frame(result, truth, *, frame, sigma_km, fault=None, time_ms=None, pipeline="") -> FrameScore:
+    """The score of one processed frame: its attitude outcome and its beacons' outcomes.
+
+    ``result``: an :class:`~skynav.pipeline.protocols.ImageResult` (or None with ``fault``, the
+    reason the processor failed on the frame: the attitude is ``"none"``, the status ``"fault"``).
+    ``time_ms``: the call's wall time (default: the result's own ``timings_ms["total"]``).
+    """
+    if result is None:
+        return FrameScore(frame=int(frame), sigma_km=float(sigma_km), status="fault", attitude="none",
+                          error_arcsec=float("nan"), error_estimate_arcsec=float("nan"), n_stars=0, n_spots=0, method="",
+                          time_ms=float("nan") if time_ms is None else float(time_ms), beacons=(), pipeline=pipeline,
+                          fault="" if fault is None else str(fault))
     err = float("nan")
-    if result.status == "ok":
-        err = rotation_angle_rad(result.attitude.R_cam_icrs, truth.R_cam_icrs) / ARCSEC_RAD
+    if result.R_cam_icrs is not None:
+        err = rotation_angle_rad(result.R_cam_icrs, truth.R_cam_icrs) / ARCSEC_RAD
         outcome = "correct" if err <= WRONG_ATTITUDE_ARCSEC else "wrong"
     else:
         outcome = "none"
-    found = {b.name: b for b in result.beacons}
+    if time_ms is None:
+        time_ms = result.timings_ms.get("total", float("nan"))
+    return FrameScore(frame=int(frame), sigma_km=float(sigma_km), status=result.status, attitude=outcome, error_arcsec=err,
+                      error_estimate_arcsec=float(result.error_estimate_arcsec), n_stars=result.n_stars,
+                      n_spots=len(result.centroids_xy_px), method=result.method, time_ms=float(time_ms),
+                      beacons=_score_beacons(result.beacons if result.R_cam_icrs is not None else (), truth),
+                      pipeline=pipeline)
+
+
+def _score_beacons(found_beacons, truth):
+    found = {b.name: b for b in found_beacons}
     beacons = []
     expected = {name for name, xy, in_fov, vis in truth.bodies if in_fov and vis}
     for name, xy, in_fov, vis in truth.bodies:
@@ -235,42 +253,46 @@ def score_frame(result, truth, *, frame, sigma_km) -> FrameScore:
             e = float(np.hypot(*(b.xy_px - xy))) if in_fov and np.all(np.isfinite(xy)) else float("inf")
             if not e <= BEACON_WRONG_PX:
                 beacons.append(BeaconScore(name=name, outcome="wrong", error_px=float("nan"), offset_px=None))
-    return FrameScore(frame=int(frame), sigma_km=float(sigma_km), status=result.status, attitude=outcome, error_arcsec=err,
-                      error_estimate_arcsec=result.attitude.error_estimate_arcsec, n_stars=result.attitude.n_stars,
-                      n_spots=len(result.centroids_xy_px), method=result.star_id_method,
-                      time_ms=float(result.timings_ms.get("total", float("nan"))), beacons=tuple(beacons))
+    return tuple(beacons)
 
 
 def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0, progress=True, limit=None,
-                  catalog=None, peers=False, options=None):
-    """Process every frame at every sigma: ``(scores, info)``, a :class:`FrameScore` per run and
-    the run's facts (``frames``, ``wall_s``, ..., ``peer_rows``: a list of :class:`PeerScore` per peer).
+                  catalog=None, peers=False, options=None, pipelines=None, frame_timeout_s=DEFAULT_FRAME_TIMEOUT_S):
+    """Process every frame at every sigma with every image processor: ``(scores, info)``.
 
-    ``options`` (a :class:`~skynav.pipeline.process.ProcessOptions`, default its defaults) is
-    passed to every :func:`process_frame`.
+    ``pipelines``: the processors, each a ``"MODULE:FACTORY"`` spec (or a short name of
+    :data:`skynav.pipeline.plugins.BUILTIN`) or a ``(name, factory)`` pair, ``factory(camera)``
+    called once with the first frame's calibrated camera. Default: skynav's pipeline in ``mode``
+    with ``options`` (a :class:`~skynav.pipeline.process.ProcessOptions`) and ``catalog``;
+    ``peers`` adds tetra3rs and cedar-solve (one that cannot run is noted, not raised).
 
-    Each (frame, sigma) draws its predicted state from ``SeedSequence([seed, frame, i_sigma])``.
+    Every processor sees the same frames and the same predicted states: each (frame, sigma) draws
+    its predicted state from ``SeedSequence([seed, frame, i_sigma])``. A processor's fault on a
+    frame (:func:`~skynav.pipeline.plugins.call_processor`, ``frame_timeout_s``) is a failed frame
+    with its reason.
+
+    Returns
+    -------
+    scores : list of FrameScore
+        The first processor's (a :class:`FrameScore` per frame and sigma).
+    info : dict
+        ``frames``, ``wall_s``, ``catalog``, ``kvector_build_s``, ``pipelines`` (name -> its
+        scores), ``notes`` (name -> why it did not run), ``peer_rows`` and ``peer_notes`` (the same
+        for every processor but the first).
     """
     src = open_frames(path)
     n = len(src) if limit is None else min(limit, len(src))
     if n == 0:
         raise BenchInputError(f"{path}: no frames")
     first = src.observation(0)
-    cat = catalog if catalog is not None else OnboardCatalog.load(camera=first.camera)
-    rows = []
-    peer_rows = {}
-    peer_notes = {}
-    peer_objs = {}
-    if peers:
-        for name, p in available_peers().items():
-            if isinstance(p, str):
-                peer_notes[name] = p
-            else:
-                peer_objs[name] = p(first.camera)
-                peer_rows[name] = []
-    bar = None
-    if progress:
-        bar = tqdm(total=n, unit="frame", desc=f"bench ip ({mode})")
+    if pipelines is None:
+        cat = catalog if catalog is not None else OnboardCatalog.load(camera=first.camera)
+        pipelines = [(f"skynav-{mode}", functools.partial(SkynavProcessor, mode=mode, options=options, catalog=cat))]
+        pipelines += [BUILTIN["tetra3rs"], BUILTIN["cedar-solve"]] if peers else []
+    procs, notes = _make_processors(pipelines, first.camera, optional={BUILTIN["tetra3rs"], BUILTIN["cedar-solve"]}
+                                    if peers else set())
+    rows = {name: [] for name in procs}
+    bar = tqdm(total=n, unit="frame", desc=f"bench ip ({', '.join(procs)})") if progress else None
     t0 = time.perf_counter()
     for k in range(n):
         obs = first if k == 0 else src.observation(k)
@@ -278,38 +300,61 @@ def run_benchmark(path, *, sigmas_km=DEFAULT_SIGMAS_KM, mode="improved", seed=0,
             raise BenchInputError(f"{path}: frame {k} is {obs.dn.shape[1]}x{obs.dn.shape[0]} px, frame 0 "
                                   f"{first.dn.shape[1]}x{first.dn.shape[0]}; a benchmark's frames share one camera")
         truth = src.truth(k)
-        for name, peer in peer_objs.items():
-            R, ms = peer.solve(obs.dn, predicted_state(truth, float(sigmas_km[0]),
-                                                        np.random.default_rng(np.random.SeedSequence([int(seed), k, 0]))).velocity_km_s)
-            err = rotation_angle_rad(R, truth.R_cam_icrs) / ARCSEC_RAD if R is not None else float("nan")
-            peer_rows[name].append(PeerScore(frame=k, solved=R is not None, error_arcsec=err, time_ms=ms))
         for i, s in enumerate(sigmas_km):
-            rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, i]))
-            ps = predicted_state(truth, float(s), rng)
-            res = process_frame(obs, catalog=cat, predicted_state=ps, mode=mode, options=options)
-            rows.append(score_frame(res, truth, frame=k, sigma_km=float(s)))
+            ps = predicted_state(truth, float(s), np.random.default_rng(np.random.SeedSequence([int(seed), k, i])))
+            for name, proc in procs.items():
+                res, fault, ms = call_processor(proc, obs, ps, timeout_s=frame_timeout_s)
+                rows[name].append(score_frame(res, truth, frame=k, sigma_km=float(s), fault=fault, time_ms=ms,
+                                              pipeline=name))
         if bar is not None:
             bar.update(1)  # one frame, at every sigma
     if bar is not None:
         bar.close()
-    return rows, {"frames": n, "wall_s": time.perf_counter() - t0, "catalog": repr(cat),
-                  "kvector_build_s": cat.build_time_s, "peer_rows": peer_rows, "peer_notes": peer_notes}
+    names = list(procs)
+    cat = getattr(procs[names[0]], "catalog", None)
+    return rows[names[0]], {"frames": n, "wall_s": time.perf_counter() - t0, "catalog": repr(cat),
+                            "kvector_build_s": getattr(cat, "build_time_s", float("nan")), "pipelines": rows,
+                            "notes": notes, "peer_rows": {m: rows[m] for m in names[1:]}, "peer_notes": notes}
+
+
+def _make_processors(pipelines, camera, *, optional):
+    """``({name: processor}, {name: why not})``: every processor built for ``camera``; one in
+    ``optional`` that cannot be built is noted, any other raises its :class:`PluginError`."""
+    procs, notes = {}, {}
+    for p in pipelines:
+        if isinstance(p, str):
+            name = next((short for short, spec in BUILTIN.items() if spec == p), p)
+            try:
+                proc = load_image_processor(p, camera)
+            except PluginError as exc:
+                if p not in optional:
+                    raise
+                notes[name] = str(exc).split(": ", 1)[-1]
+                continue
+        else:
+            name, factory = p
+            proc = factory(camera)
+        while name in procs:  # the same processor twice: both run, told apart
+            name += "'"
+        procs[name] = proc
+    return procs, notes
 
 
 def summarise_peers(peer_rows, our_rows, sigma0):
-    """``peers.<name>.{solved_rate, error_arcsec_median, time_ms_median}`` plus our numbers on the
-    same frames (side by side)."""
+    """``peers.<name>.{solved_rate, wrong_rate, error_arcsec_median, time_ms_median}`` of other
+    processors' scores at ``sigma0``, plus our numbers on the frames both solve (side by side)."""
     out = {}
     ours = {r.frame: r for r in our_rows if r.sigma_km == float(sigma0)}
-    for name, rows in peer_rows.items():
+    for name, all_rows in peer_rows.items():
+        rows = [r for r in all_rows if r.sigma_km == float(sigma0)]
         n = len(rows)
-        e = np.array([r.error_arcsec for r in rows if r.solved])
-        out[name] = {"solved_rate": _rate(sum(r.solved for r in rows), n),
+        e = np.array([r.error_arcsec for r in rows if r.attitude != "none"])
+        out[name] = {"solved_rate": _rate(len(e), n),
                      "wrong_rate": _rate(int(np.sum(e > WRONG_ATTITUDE_ARCSEC)), n),
                      "error_arcsec_median": float(np.median(e)) if len(e) else float("nan"),
                      "time_ms_median": float(np.median([r.time_ms for r in rows])) if n else float("nan")}
         both = [(r.error_arcsec, ours[r.frame].error_arcsec) for r in rows
-                if r.solved and r.frame in ours and ours[r.frame].attitude == "correct"]
+                if r.attitude != "none" and r.frame in ours and ours[r.frame].attitude == "correct"]
         if both:
             b = np.array(both)
             out[name]["both_solved_frames"] = len(b)
@@ -344,6 +389,11 @@ def summarise(rows, *, frames, sigmas_km):
     }
     for r in s0:
         out["status_counts"][r.status] = out["status_counts"].get(r.status, 0) + 1
+    faults = {}
+    for r in rows:  # every sigma: a fault is the processor's, whatever the prediction
+        if r.fault:
+            faults[r.fault] = faults.get(r.fault, 0) + 1
+    out["faults"] = dict(sorted(faults.items(), key=lambda kv: -kv[1]))
     for s in sigmas_km:
         rs = [r for r in rows if r.sigma_km == float(s)]
         b = [bb for r in rs for bb in r.beacons]

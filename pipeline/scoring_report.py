@@ -18,7 +18,7 @@ import numpy as np
 from .references import IMAGE_PROCESSING, references_md
 from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_figure
 
-__all__ = ["write_report", "report_figures", "time_histogram_figure", "PAPER_TABLE3"]
+__all__ = ["write_report", "report_figures", "time_histogram_figure", "side_by_side_md", "PAPER_TABLE3"]
 
 # Andreis et al. (2023a), Table 3 (1031 scenes with a planet; 962 with an attitude): sigma_r km ->
 # (sigma_ErrRot arcsec, % wrong attitude, % no attitude, % wrong beacon (of 962),
@@ -36,8 +36,8 @@ PAPER_TABLE4 = {
     "1e+06": ((-0.0005, -0.0045), 9.94e-5),
     "1e+07": ((-0.0005, -0.0041), 7.05e-5),
 }
-CSV_FIELDS = ("frame", "sigma_km", "status", "attitude", "error_arcsec", "error_estimate_arcsec", "n_stars", "n_spots",
-              "method", "time_ms", "beacon_name", "beacon_outcome", "beacon_error_px")
+CSV_FIELDS = ("pipeline", "frame", "sigma_km", "status", "attitude", "error_arcsec", "error_estimate_arcsec", "n_stars", "n_spots",
+              "method", "time_ms", "beacon_name", "beacon_outcome", "beacon_error_px", "fault")
 
 
 def _clean(x):
@@ -96,7 +96,7 @@ def report_figures(rows, summary, sigmas):
     ax = fig.subplots(1, 2)
     if len(errs):
         ax[0].hist(np.clip(errs, 0, 200), bins=50, color="#4477aa", label=f"{len(errs)} frames with an attitude")
-        e = np.sort(errs)
+        e = np.sort(np.maximum(errs, 1e-3))  # an exact attitude (0") on the log axis
         ax[1].plot(e, 100.0 * np.arange(1, len(e) + 1) / len(e), color="#4477aa", label="attitude error")
         ax[1].set_xscale("log")
         ax[0].legend(loc="upper right", fontsize=8)
@@ -166,23 +166,67 @@ def _table_md(summary, sigmas):
     return "\n".join(lines)
 
 
-def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info):
-    """Write the four report files into ``out_dir`` (created)."""
+def _pct(v):
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{100 * v:.2f}"
+
+
+def _num(v, fmt=".2f"):
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def side_by_side_md(runs, sigmas_km, *, notes=None) -> list:
+    """Markdown lines: every processor of ``runs`` (``{name: (rows, summary)}``) on the same frames
+    and predicted states, with the published figures of Andreis et al. (2023a), Table 3 beside
+    them, then each processor's faults (the frames it failed on, and why)."""
+    k0 = f"{float(sigmas_km[0]):g}"
+    p = PAPER_TABLE3.get(k0)
+    md = ["## Side by side", "",
+          f"Every processor on the same frames with the same predicted states (σr = {k0} km per axis for the "
+          "attitude and beacon columns; time: the wall time of one call, every σr). Correct: attitude error "
+          "<= 500 arcsec; fault: the processor raised, returned no valid rotation or ran past the frame time limit.", "",
+          "| processor | correct % | wrong % | none % | faults | median error arcsec | p90 | 68th percentile | "
+          "time median ms | time p90 ms | beacons correct % | beacon failures with attitude % |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, (rows, s) in runs.items():
+        a, b = s["attitude"], s["beacon"].get(k0, {})
+        md.append(f"| {name} | {_pct(a['correct_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['none_rate'])} | "
+                  f"{sum(s.get('faults', {}).values())} | {_num(a['error_arcsec_median'])} | {_num(a['error_arcsec_p90'])} | "
+                  f"{_num(a['error_arcsec_1sigma'])} | {_num(s['time_ms']['median'])} | {_num(s['time_ms']['p90'])} | "
+                  f"{_pct(b.get('correct_rate'))} | {_pct(b.get('failure_rate_with_attitude'))} |")
+    if p:
+        md.append(f"| {IMAGE_PROCESSING.cite}, Table 3 (published) | {100 - p[1] - p[2]:.2f} | {p[1]} | {p[2]} | - | - | - | "
+                  f"{p[0]} (their σ_ErrRot) | - | - | - | {p[3]} |")
+    md += ["", "### Faults", ""]
+    for name, (rows, s) in runs.items():
+        faults = s.get("faults", {})
+        md.append(f"- {name}: " + ("none" if not faults else "; ".join(f"{n} x {why}" for why, n in faults.items())))
+    md += [f"- {name}: not run ({why})" for name, why in (notes or {}).items()]
+    return md + [""]
+
+
+def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info, others=None):
+    """Write the four report files into ``out_dir`` (created).
+
+    ``rows``/``summary``: the first processor's scores and :func:`~skynav.pipeline.scoring.summarise`;
+    ``others``: ``{name: (rows, summary)}`` of the processors benchmarked beside it (the same frames
+    and predicted states), shown side by side and written to ``results.csv`` after the first.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    others = others or {}
     with open(out / "results.csv", "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(CSV_FIELDS)
-        for r in rows:
-            base = [r.frame, f"{r.sigma_km:g}", r.status, r.attitude, f"{r.error_arcsec:.3f}",
+        for r in list(rows) + [r for rs, _ in others.values() for r in rs]:
+            base = [r.pipeline, r.frame, f"{r.sigma_km:g}", r.status, r.attitude, f"{r.error_arcsec:.3f}",
                     f"{r.error_estimate_arcsec:.3f}", r.n_stars, r.n_spots, r.method, f"{r.time_ms:.3f}"]
             if not r.beacons:
-                w.writerow(base + ["", "", ""])
+                w.writerow(base + ["", "", "", r.fault])
             for b in r.beacons:
-                w.writerow(base + [b.name, b.outcome, f"{b.error_px:.4f}"])
+                w.writerow(base + [b.name, b.outcome, f"{b.error_px:.4f}", r.fault])
     full = dict(summary)
     full["run"] = {"source": str(source), "mode": mode, "seed": int(seed), "sigmas_km": [float(s) for s in sigmas_km],
-                   **{k: v for k, v in info.items()}}
+                   **{k: v for k, v in info.items() if k not in ("pipelines", "peer_rows", "peer_notes")}}
     (out / "summary.json").write_text(json.dumps(_clean(full), indent=2, allow_nan=False) + "\n", encoding="utf-8")
     a = summary["attitude"]
     md = [f"# skynav bench ip: {source}", "",
@@ -209,7 +253,8 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info)
         md.append(f"| {k} | {b['beacons']} | {f(b['correct_rate'])} | {f(b['wrong_rate'])} | {f(b['none_rate'])} | "
                   f"{b['error_px_mean']:.3f} | ({b['error_mean_px'][0]:.4f}, {b['error_mean_px'][1]:.4f}) | "
                   f"{p4[0] if p4 else '-'} |")
-    md += ["", "## Peers", "", info.get("peers_note", "Peers not run (--peers not given)."), ""]
+    first = rows[0].pipeline if rows else mode
+    md += side_by_side_md({first: (rows, summary), **others}, sigmas_km, notes=info.get("notes", {}))
     refs = references_md([IMAGE_PROCESSING])
     (out / "report.md").write_text("\n".join(md + refs), encoding="utf-8")
     body = "".join(f"<h2>{html.escape(t)}</h2><img alt=\"{html.escape(t)}\" src=\"data:image/png;base64,{figure_base64_png(fig)}\">"

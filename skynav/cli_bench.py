@@ -2,16 +2,22 @@
 
 The group is extensible: :data:`SUBCOMMAND_MODULES` names modules (``skynav.cli_bench_*``) that
 expose ``add_parser(bench_subparsers)``; those present are registered, so ``nav`` (the EKF's
-``skynav/cli_bench_nav.py``) joins ``ip`` without an edit here.
+``skynav/cli_bench_nav.py``) joins ``ip`` without an edit here. ``bench score`` (results files
+written by any program) is a group of its own: ``ip`` is here, and a module of
+:data:`SUBCOMMAND_MODULES` with ``add_score_parser(score_subparsers)`` adds its own (``nav``).
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
+from pathlib import Path
 
 from skynav.pipeline.errors import BenchInputError
+from skynav.pipeline.plugins import BUILTIN, SkynavProcessor, load_factory
 from skynav.pipeline.process import ProcessOptions
-from skynav.pipeline.scoring import run_benchmark, summarise, summarise_peers
+from skynav.pipeline.scoring import DEFAULT_FRAME_TIMEOUT_S, run_benchmark, summarise, summarise_peers
+from skynav.pipeline.scoring_results_file import score_results_file
 from skynav.pipeline.scoring_report import write_report
 from skynav.scenes.overrides import dataclass_from_overrides
 
@@ -26,59 +32,121 @@ MAX_SIGMAS = 16
 SUBCOMMAND_MODULES = ("skynav.cli_bench_nav", "skynav.cli_bench_loop")
 
 
-def cmd_ip(args) -> int:
-    if args.mode not in ("paper", "improved"):
-        raise BenchInputError(f"--mode {args.mode!r}: give paper or improved")
+def _sigmas(args) -> tuple:
     if len(args.position_sigma_km) > MAX_SIGMAS:
         raise BenchInputError(f"--position-sigma-km: {len(args.position_sigma_km)} values; at most {MAX_SIGMAS} (every "
                               "frame is processed once per value)")
     if any(not (s > 0) for s in args.position_sigma_km):
         raise BenchInputError("--position-sigma-km: every sigma must be > 0 km")
-    sigmas = tuple(float(s) for s in args.position_sigma_km)
-    check_output(args.output, [("DATASET", args.dataset)])
+    return tuple(float(s) for s in args.position_sigma_km)
 
+
+def _pipelines(args, options) -> list:
+    """The processors of ``bench ip``: ``--pipeline`` in order (``skynav``: skynav's pipeline in
+    ``--mode`` with ``--set``), default ``skynav``; ``--peers`` adds tetra3rs and cedar-solve."""
+    specs = args.pipeline or ["skynav"]
+    if args.overrides and "skynav" not in specs:
+        raise BenchInputError("--set changes skynav's pipeline: add --pipeline skynav (the pipeline in --mode with "
+                              "these options) or leave --pipeline out")
+    out = [(f"skynav-{args.mode}", functools.partial(SkynavProcessor, mode=args.mode, options=options))
+           if spec == "skynav" else spec for spec in specs]
+    for spec in specs:
+        if spec != "skynav":
+            load_factory(spec)  # a bad import path: one line before any frame is read
+    return out + ([BUILTIN["tetra3rs"], BUILTIN["cedar-solve"]] if args.peers else [])
+
+
+def cmd_ip(args) -> int:
+    if args.mode not in ("paper", "improved"):
+        raise BenchInputError(f"--mode {args.mode!r}: give paper or improved")
+    sigmas = _sigmas(args)
+    check_output(args.output, [("DATASET", args.dataset)] + [("--results", r) for r in args.results])
     options = dataclass_from_overrides(ProcessOptions, args.overrides, what="ProcessOptions")
     rows, info = run_benchmark(args.dataset, sigmas_km=sigmas, mode=args.mode, seed=args.seed, progress=not args.quiet,
-                               limit=args.limit, peers=args.peers, options=options)
-    summary = summarise(rows, frames=info["frames"], sigmas_km=sigmas)
-    peer_rows = info.pop("peer_rows")
-    notes = info.pop("peer_notes")
+                               limit=args.limit, pipelines=_pipelines(args, options), frame_timeout_s=args.frame_timeout,
+                               peers=args.peers)
+    runs = info.pop("pipelines")
+    info.pop("peer_rows")
+    info.pop("peer_notes")
+    for path in args.results:
+        r_rows, _ = score_results_file(args.dataset, path, sigmas_km=sigmas, limit=args.limit)
+        runs[Path(path).name] = r_rows
     if args.peers:
-        summary["peers"] = summarise_peers(peer_rows, rows, sigmas[0])
-        lines = [f"- {name}: solved {100 * p['solved_rate']:.2f} %, wrong {100 * p['wrong_rate']:.2f} %, median "
-                 f"{p['error_arcsec_median']:.2f} arcsec, {p['time_ms_median']:.1f} ms per frame"
-                 + (f"; on the {p['both_solved_frames']} frames both solve: peer {p['both_solved_error_arcsec_median']['peer']:.2f}"
-                    f" vs ours {p['both_solved_error_arcsec_median']['ours']:.2f} arcsec median" if "both_solved_frames" in p else "")
-                 for name, p in summary["peers"].items()]
-        lines += [f"- {name}: not run ({why})" for name, why in notes.items()]
-        info["peers_note"] = "\n".join(lines)
-        say(args, *lines)
-    out = write_report(args.output, rows, summary, sigmas_km=sigmas, mode=args.mode, seed=args.seed, source=args.dataset,
-                       info=info)
-    a = summary["attitude"]
-    say(args, f"{summary['frames']} frames ({args.mode}): attitude correct {100 * a['correct_rate']:.2f} %, wrong "
-              f"{100 * a['wrong_rate']:.2f} %, none {100 * a['none_rate']:.2f} %, median {a['error_arcsec_median']:.2f} arcsec; "
-              f"time median {summary['time_ms']['median']:.2f} ms")
-    for s in sigmas:
-        b = summary["beacon"][f"{s:g}"]
-        say(args, f"  beacons sigma_r {s:g} km: {b['beacons']} beacons, correct {100 * (b['correct_rate'] or 0):.2f} %, "
-                  f"wrong {100 * (b['wrong_rate'] or 0):.2f} %, none {100 * (b['none_rate'] or 0):.2f} %")
+        summary_peers = summarise_peers({k: v for k, v in runs.items() if v is not rows}, rows, sigmas[0])
+        info["peers"] = summary_peers
+    return _report(args, runs, info, sigmas, source=args.dataset, mode=args.mode, seed=args.seed)
+
+
+def _report(args, runs, info, sigmas, *, source, mode, seed) -> int:
+    """Summaries of every processor's scores, the report, and the lines on stdout."""
+    names = list(runs)
+    summaries = {name: summarise(rs, frames=info["frames"], sigmas_km=sigmas) for name, rs in runs.items()}
+    summary = dict(summaries[names[0]])
+    summary["pipelines"] = summaries
+    if "peers" in info:
+        summary["peers"] = info.pop("peers")
+    out = write_report(args.output, runs[names[0]], summary, sigmas_km=sigmas, mode=mode, seed=seed, source=source,
+                       info=info, others={n: (runs[n], summaries[n]) for n in names[1:]})
+    for name in names:
+        s = summaries[name]
+        a = s["attitude"]
+        faults = sum(s["faults"].values())
+        say(args, f"{name}: {s['frames']} frames: attitude correct {100 * a['correct_rate']:.2f} %, wrong "
+                  f"{100 * a['wrong_rate']:.2f} %, none {100 * a['none_rate']:.2f} %, median {a['error_arcsec_median']:.2f} "
+                  f"arcsec; time median {s['time_ms']['median']:.2f} ms" + (f"; {faults} faulted runs" if faults else ""))
+        for why, k in s["faults"].items():
+            say(args, f"  fault x {k}: {why}")
+        for sig in sigmas:
+            b = s["beacon"][f"{sig:g}"]
+            say(args, f"  beacons sigma_r {sig:g} km: {b['beacons']} beacons, correct {100 * (b['correct_rate'] or 0):.2f} %, "
+                      f"wrong {100 * (b['wrong_rate'] or 0):.2f} %, none {100 * (b['none_rate'] or 0):.2f} %")
+    for name, why in info.get("notes", {}).items():
+        say(args, f"{name}: not run ({why})")
     say(args, f"report: {out}/report.html")
     return 0
 
 
+def cmd_score_ip(args) -> int:
+    sigmas = _sigmas(args) if args.position_sigma_km else None
+    check_output(args.output, [("DATASET", args.dataset)] + [("RESULTS", r) for r in args.results])
+    runs, info = {}, {}
+    for path in args.results:
+        rows, info = score_results_file(args.dataset, path, sigmas_km=sigmas, limit=args.limit)
+        sigmas = info["sigmas_km"]
+        runs[Path(path).name] = rows
+    info = {"frames": info["frames"], "results_files": [str(r) for r in args.results]}
+    return _report(args, runs, info, sigmas, source=args.dataset, mode="results file", seed=0)
+
+
+def _add_sigmas(p, default) -> None:
+    p.add_argument("--position-sigma-km", type=float_in(0, MAX_SIGMA_KM, low_open=True, unit="km"), nargs="+",
+                   default=default,
+                   help=f"predicted-position errors to test, km per axis, in (0, {MAX_SIGMA_KM:g}], at most {MAX_SIGMAS} values "
+                        + ("(default: 1e4 1e5 1e6 1e7)" if default else "(default: those the results name, else 1e4)"))
+
+
 def _add_ip(bsub) -> None:
     p = bsub.add_parser("ip", help="score the image processing (stars, attitude, beacons) on a dataset",
-                        description="Run the image-processing pipeline on every frame of DATASET (a skynav dataset or any "
-                        "folder of NNNNNN.png + .json frames in the frame schema) and score it against the truth. "
-                        "--set changes a field of the pipeline's options (skynav.pipeline.ProcessOptions: T, inlier_px, "
-                        "n_max, min_matches, refine_v_mag, track_window_px, ...), e.g. --set inlier_px=2.5.")
+                        description="Run image processors on every frame of DATASET (a skynav dataset or any "
+                        "folder of NNNNNN.png + .json frames in the frame schema), all on the same frames with the same "
+                        "predicted states, and score them against the truth side by side. --pipeline MODULE:FACTORY "
+                        "adds anyone's processor (FACTORY(camera) -> an object with process(observation, prediction); "
+                        "skynav.pipeline.protocols). --set changes a field of skynav's pipeline options "
+                        "(skynav.pipeline.ProcessOptions: T, inlier_px, n_max, min_matches, refine_v_mag, "
+                        "track_window_px, ...), e.g. --set inlier_px=2.5.")
     add_dataset_arg(p, "dataset folder, or a folder of NNNNNN.png + .json frames")
-    p.add_argument("--position-sigma-km", type=float_in(0, MAX_SIGMA_KM, low_open=True, unit="km"), nargs="+",
-                   default=[1e4, 1e5, 1e6, 1e7],
-                   help=f"predicted-position errors to test, km per axis, in (0, {MAX_SIGMA_KM:g}], at most {MAX_SIGMAS} values "
-                        "(default: 1e4 1e5 1e6 1e7)")
-    p.add_argument("--mode", default="improved", choices=("paper", "improved"), help="pipeline mode (default: improved)")
+    _add_sigmas(p, [1e4, 1e5, 1e6, 1e7])
+    p.add_argument("--mode", default="improved", choices=("paper", "improved"),
+                   help="skynav's pipeline mode (default: improved)")
+    p.add_argument("--pipeline", action="append", metavar="MODULE:FACTORY", default=None,
+                   help="an image processor to benchmark (repeatable; default: skynav). 'skynav' is skynav's pipeline "
+                        f"in --mode with --set; short names: {', '.join(BUILTIN)}")
+    p.add_argument("--results", action="append", metavar="RESULTS", default=[],
+                   help="a results file written by another program (JSON Lines, skynav.ip_results/1) to score beside "
+                        "the processors (repeatable)")
+    p.add_argument("--frame-timeout", type=float_in(0, 86400, low_open=True, unit="s"), default=DEFAULT_FRAME_TIMEOUT_S,
+                   help=f"a processor's time limit per frame, s (default {DEFAULT_FRAME_TIMEOUT_S:g}); a frame past it "
+                        "fails with that reason")
     p.add_argument("--peers", action="store_true", help="also run tetra3rs and cedar-solve (if installed)")
     add_seed_arg(p, default=0, help="seed of the predicted-state draws (default 0)")
     add_limit_arg(p)
@@ -86,6 +154,28 @@ def _add_ip(bsub) -> None:
     add_quiet(p)
     add_set_arg(p, "the pipeline options (ProcessOptions fields, e.g. inlier_px=2.5, n_max=16)")
     p.set_defaults(func=cmd_ip)
+
+
+def _add_score(bsub) -> None:
+    """``bench score``: results files written by other programs, scored against the truth. Modules
+    of :data:`SUBCOMMAND_MODULES` with ``add_score_parser(score_subparsers)`` add theirs (``nav``)."""
+    p = bsub.add_parser("score", help="score a results file written by any program against a dataset's truth",
+                        description="Score results files written by any program (JSON Lines, one record per frame, "
+                        "in the schemas published with skynav) against a dataset's truth.")
+    ssub = p.add_subparsers(dest="score_command", metavar="WHAT")
+    ip = ssub.add_parser("ip", help="image-processing results (skynav.ip_results/1): attitude and beacons per frame",
+                         description="Score image-processing results files (JSON Lines; schema "
+                         "skynav/datasets/schemas/ip_results.schema.json: frame, R_cam_icrs, optional sigma_km, status, "
+                         "time_ms, beacons) against DATASET's truth, side by side when several are given.")
+    add_dataset_arg(ip, "dataset folder, or a folder of NNNNNN.png + .json frames")
+    ip.add_argument("results", nargs="+", metavar="RESULTS", help="results file(s), JSON Lines")
+    _add_sigmas(ip, None)
+    add_limit_arg(ip)
+    add_output_arg(ip, help="report folder")
+    add_quiet(ip)
+    ip.set_defaults(func=cmd_score_ip)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    return ssub
 
 
 REGISTRARS = [_add_ip]
@@ -98,12 +188,17 @@ def add_parser(sub) -> None:
     bsub = b.add_subparsers(dest="bench_command", metavar="ACTION")
     for reg in REGISTRARS:
         reg(bsub)
+    mods = []
     for name in SUBCOMMAND_MODULES:
         try:
-            mod = importlib.import_module(name)
+            mods.append(importlib.import_module(name))
         except ImportError:
             continue
-        mod.add_parser(bsub)
+        mods[-1].add_parser(bsub)
+    ssub = _add_score(bsub)
+    for mod in mods:
+        if hasattr(mod, "add_score_parser"):
+            mod.add_score_parser(ssub)
     b.set_defaults(func=lambda args: (b.print_help(), 2)[1])
 
 

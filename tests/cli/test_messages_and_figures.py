@@ -106,7 +106,7 @@ def test_bench_ip_quiet_and_bar_counts_frames_not_frame_sigma(work):
     q = _ok(skynav("bench", "ip", "mc", "--position-sigma-km", "1e4", "1e7", "-o", "ipq", "-q", cwd=d))
     assert (q.stdout, q.stderr) == ("", "")
     p = _ok(skynav("bench", "ip", "mc", "--position-sigma-km", "1e4", "1e7", "-o", "ip", cwd=d))
-    assert bars(p.stderr) == {"bench ip (improved)": (3, 3, "frame")}  # 3 frames at 2 sigmas: 3, not 6
+    assert bars(p.stderr) == {"bench ip (skynav-improved)": (3, 3, "frame")}  # 3 frames at 2 sigmas: 3, not 6
     assert "report:" in p.stdout
     check_citations(d / "ip", cited=r"Andreis et al\. \(2023a\)")
 
