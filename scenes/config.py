@@ -462,8 +462,10 @@ def scene_spec_from_mapping(d) -> SceneSpec:
     if "epoch" not in d:
         raise ConfigValueError("epoch", None, "an ISO date in TDB, e.g. 2027-03-15T00:00:00")
     try:
-        epoch = to_time(str(d["epoch"]))
-        iso = epoch.tdb.isot
+        epoch = to_time(str(d["epoch"])).tdb
+        epoch.precision = 9  # the date as given, to the ns: milliseconds at least, trailing zeros cut
+        head, _, frac = epoch.isot.partition(".")
+        iso = f"{head}.{frac.rstrip('0').ljust(3, '0')}"
     except Exception:
         raise ConfigValueError("epoch", d["epoch"], "an ISO date in TDB, e.g. 2027-03-15T00:00:00") from None
     obs = _mapping(d.get("observer", {}), "observer")

@@ -117,7 +117,7 @@ def _epoch_tdb_s(epoch, kernel_lists) -> float:
         with kernel_pool(paths) as sp:
             if sp.expool("DELTET/DELTA_AT"):
                 try:
-                    return float(sp.str2et(text))
+                    return float(sp.str2et(text[:-3].strip()))  # str2et reads UTC by default
                 except Exception:
                     raise ConfigValueError("epoch", epoch, "a UTC date CSPICE reads, e.g. 2027-03-15T00:00:00 UTC") from None
     raise ConfigValueError("epoch", epoch, "a TDB date, or a UTC date with a leapseconds kernel (LSK) among the "
