@@ -9,7 +9,8 @@ Public API (each ``skynav dataset`` sub-command calls one of these):
 - recipes: :func:`preset_recipe`, :func:`validate_recipe`, :func:`load_recipe_file`, :func:`recipe_yaml`
   (a preset as a commented YAML file to edit);
 - training: :func:`stream` (a recipe's frames in batches, in memory, with their labels; adapters
-  :func:`torch_dataset` and :func:`jax_batches`);
+  :func:`torch_dataset` and :func:`jax_batches`); :func:`export_webdataset` (``export
+  --webdataset``) and :func:`hf_dataset` (a dataset folder for WebDataset and Hugging Face loaders);
 - files: :func:`write_frame` (a rendered frame's PNG/EXR/JSON/FITS), the schemas
   (:func:`load_schema`, :func:`validate_truth`, :func:`validate_manifest`).
 
@@ -46,6 +47,7 @@ _LAZY = {
     "VerifyReport": "integrity", "info": "integrity", "verify": "integrity",
     "write_frame": "frame_files",
     "stream": "training", "torch_dataset": "training", "jax_batches": "training",
+    "export_webdataset": "shards", "hf_dataset": "shards",
     "load_schema": "truth_schema", "validate_truth": "truth_schema", "validate_manifest": "truth_schema",
 }
 

@@ -1,4 +1,4 @@
-"""``skynav dataset``: generate, verify, info, preview (thin wrappers over skynav.datasets)."""
+"""``skynav dataset``: generate, verify, info, preview, export (thin wrappers over skynav.datasets)."""
 
 from __future__ import annotations
 
@@ -108,6 +108,18 @@ def cmd_preview(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    if not args.webdataset:
+        raise OutputPathError("dataset export: give the format of the export: --webdataset (tar shards)")
+    # the shard writer loads on first use: skynav --help loads no room
+    from skynav.datasets.shards import export_webdataset
+
+    shards = export_webdataset(args.dataset, args.output, frames_per_shard=args.frames_per_shard)
+    say(args, f"wrote {len(shards)} WebDataset shard(s) to {args.output} ({shards[0].name} .. {shards[-1].name}): "
+              "per frame NNNNNN.dn.npy, NNNNNN.electrons.npy, NNNNNN.json")
+    return 0
+
+
 def add_parser(sub) -> None:
     d = sub.add_parser("dataset", help=COMMAND_HELP["dataset"],
                        description="Datasets: folders of frames (PNG/EXR) with ground truth, reproducible frame by frame.")
@@ -155,4 +167,13 @@ def add_parser(sub) -> None:
     p.add_argument("--count", type=positive_int, default=16, help="frames on the sheet (default 16)")
     p.add_argument("--columns", type=positive_int, default=4, help="tiles per row (default 4)")
     p.set_defaults(func=cmd_preview)
+    e = dsub.add_parser("export", help="write a dataset as WebDataset tar shards for training loaders",
+                        description="Write a dataset as WebDataset tar shards (deterministic bytes): per frame the DN "
+                        "and the float electrons as .npy and the truth JSON as it is, and the manifest beside them.")
+    add_dataset_arg(e)
+    e.add_argument("--webdataset", action="store_true", help="tar shards for the webdataset package")
+    add_output_arg(e, help="folder of the shards (never inside the dataset)")
+    e.add_argument("--frames-per-shard", type=positive_int, default=1000, metavar="N", help="frames per shard (default 1000)")
+    add_quiet(e)
+    e.set_defaults(func=cmd_export)
     d.set_defaults(func=lambda args: (d.print_help(), 2)[1])

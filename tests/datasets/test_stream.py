@@ -9,7 +9,7 @@ import pytest
 
 import skynav.datasets as D
 from skynav.datasets.errors import DatasetError
-from skynav.datasets.training import LABELS
+from skynav.datasets.labels import LABELS
 from skynav.renderer import jit_backend
 
 from .conftest import small_recipe
