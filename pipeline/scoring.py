@@ -324,6 +324,8 @@ def _make_processors(pipelines, camera, *, optional):
     for p in pipelines:
         if isinstance(p, str):
             name = next((short for short, spec in BUILTIN.items() if spec == p), p)
+            if ".py:" in name:  # a file's plug-in by its file name, not its whole path
+                name = name.replace("\\", "/").rsplit("/", 1)[-1]
             try:
                 proc = load_image_processor(p, camera)
             except PluginError as exc:
