@@ -31,8 +31,10 @@ the nominal state plus ``sqrt(P0)`` times a standard normal draw, ``P0`` of Andr
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -244,13 +246,26 @@ def skynav_ekf(setup: FilterSetup) -> SkynavEKF:
 
 
 def load_filter_factory(spec: str):
-    """The factory ``MODULE:FACTORY`` names (a callable), or :class:`FilterPluginError` in one line."""
-    module, sep, name = str(spec).partition(":")
+    """The factory ``MODULE:FACTORY`` or ``path/to/file.py:FACTORY`` names (a callable), or
+    :class:`FilterPluginError` in one line."""
+    module, sep, name = str(spec).rpartition(":")
     if not sep or not module or not name.isidentifier():
-        raise FilterPluginError(f"--filter {spec}: give MODULE:FACTORY, e.g. {DEFAULT_FILTER}")
+        raise FilterPluginError(f"--filter {spec}: give MODULE:FACTORY or FILE.py:FACTORY, e.g. {DEFAULT_FILTER}")
     try:
-        mod = importlib.import_module(module)
-    except Exception as exc:   # noqa: BLE001 - anyone's module: any error is the user's to read in one line
+        if module.endswith(".py"):
+            path = Path(module)
+            if not path.is_file():
+                raise FilterPluginError(f"--filter {spec}: {module} is not a file")
+            loader = importlib.util.spec_from_file_location(f"skynav_filter_{path.stem}", path)
+            mod = importlib.util.module_from_spec(loader)
+            loader.loader.exec_module(mod)
+        else:
+            mod = importlib.import_module(module)
+    except FilterPluginError:
+        raise
+    except BaseException as exc:   # noqa: BLE001 - anyone's module: any error is the user's to read in one line
+        if isinstance(exc, KeyboardInterrupt):
+            raise
         raise FilterPluginError(f"--filter {spec}: cannot import {module} ({type(exc).__name__}: {exc})") from None
     factory = getattr(mod, name, None)
     if not callable(factory):

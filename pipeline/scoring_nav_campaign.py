@@ -50,6 +50,7 @@ class CampaignResult:
     sequences: int = 1           # independent image sequences behind the runs (run_realisations)
     faults: tuple = ()           # (R,) per run, (F,) per frame: the filter's fault in that step ("" none)
     filter_name: str = DEFAULT_FILTER   # the filter, MODULE:FACTORY
+    measured: np.ndarray | None = None  # (F,) bool: the filter was given the frame's centroid (run 0's worker)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -66,6 +67,7 @@ class ChunkResult:
     filter_time_s: float
     pairs: tuple
     faults: tuple = ()
+    measured: np.ndarray | None = None
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
@@ -79,6 +81,7 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
     cov = np.full((n_runs, F, 6, 6), np.nan)
     res = np.full((n_runs, F, 2), np.nan)
     acc = np.zeros((n_runs, F), dtype=bool)
+    given = np.zeros(F, dtype=bool)
     meas = np.full((F, 2), np.nan)
     faults = [[""] * F for _ in range(n_runs)]
     status = []
@@ -103,7 +106,7 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
                        replace_xy=None if synthetic_seed is None else _synthetic(plan, i, eph, phase_offset, synthetic_seed))
         status.append(step.status)
         if step.measurement is not None:
-            res[:, i], acc[:, i] = step.residual_px, step.accepted
+            res[:, i], acc[:, i], given[i] = step.residual_px, step.accepted, True
         if step.xy_px is not None:
             meas[i] = step.xy_px - plan.target_xy_px[i]
         x, P, _ = fc.estimate()
@@ -116,7 +119,7 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
             progress_q(1)
     return ChunkResult(error=err, cov=cov, residual_px=res, accepted=acc, measured_error_px=meas,
                        ip_status=tuple(status), ip_time_s=fc.ip_time_s + read_s, filter_time_s=fc.filter_time_s,
-                       pairs=tuple(pairs), faults=tuple(tuple(f) for f in faults))
+                       pairs=tuple(pairs), faults=tuple(tuple(f) for f in faults), measured=given)
 
 
 def _synthetic(plan, i, eph, phase_offset, synthetic_seed):
@@ -167,7 +170,8 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
                           cov=cat("cov"), residual_px=cat("residual_px"), accepted=cat("accepted"),
                           ip_status=outs[0].ip_status, measured_error_px=outs[0].measured_error_px,
                           ip_time_s=max(o.ip_time_s for o in outs), filter_time_s=max(o.filter_time_s for o in outs),
-                          pairs=outs[0].pairs, faults=sum((o.faults for o in outs), ()), filter_name=filter_spec)
+                          pairs=outs[0].pairs, faults=sum((o.faults for o in outs), ()), filter_name=filter_spec,
+                          measured=outs[0].measured)
 
 
 def _realisation_worker(args):
@@ -217,4 +221,5 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
                           residual_px=cat("residual_px"), accepted=cat("accepted"), ip_status=o0.ip_status,
                           measured_error_px=o0.measured_error_px, ip_time_s=sum(o.ip_time_s for o in outs),
                           filter_time_s=sum(o.filter_time_s for o in outs), pairs=o0.pairs,
-                          sequences=len(outs), faults=sum((o.faults for o in outs), ()), filter_name=filter_spec)
+                          sequences=len(outs), faults=sum((o.faults for o in outs), ()), filter_name=filter_spec,
+                          measured=o0.measured)

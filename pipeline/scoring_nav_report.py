@@ -21,6 +21,8 @@ import csv
 import html as _html
 import json
 import math
+from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +34,8 @@ from .references import NAVIGATION, VALIDATION, references_md
 from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_figure
 from .scoring_nav_plan import icrs_to_ecliptic
 
-__all__ = ["summarise", "write_report", "report_figures", "PAPER_002", "TARGETS"]
+__all__ = ["summarise", "write_report", "report_figures", "fault_summary", "nees_per_run", "usable_runs", "PAPER_002",
+           "TARGETS"]
 
 #: Andreis et al. (2024) (software images, case 1, 50 runs, 100-day Earth-Mars leg):
 #: final 3-sigma. The text available to us ranks the cases' RMSE 4 > 3 > 5 > 1 ~ 2 without values.
@@ -56,11 +59,40 @@ def _clean(x):
     return x
 
 
-def _nees(res):
+def nees_per_run(res) -> np.ndarray:
+    """``e^T P^-1 e`` per run and frame, (R, F); NaN where a filter's fault left no usable state."""
     e = res.error
     P = res.cov
-    sol = np.linalg.solve(P, e[..., None])[..., 0]
-    return np.einsum("rfi,rfi->rf", e, sol)
+    ok = np.all(np.isfinite(e), -1) & np.all(np.isfinite(P), (-2, -1))
+    if ok.all():
+        sol = np.linalg.solve(P, e[..., None])[..., 0]
+        return np.einsum("rfi,rfi->rf", e, sol)
+    out = np.full(e.shape[:2], np.nan)
+    out[ok] = np.einsum("ni,ni->n", e[ok], np.linalg.solve(P[ok], e[ok][..., None])[..., 0])
+    return out
+
+
+_nees = nees_per_run
+
+
+def fault_summary(res) -> dict:
+    """The filter's faults in a campaign: failed steps, runs hit, the reasons with their counts and
+    each run's first (:mod:`skynav.pipeline.flight`: a fault fails the step, the flight goes on)."""
+    steps = [(r, i, why) for r, run in enumerate(res.faults or ()) for i, why in enumerate(run) if why]
+    first = {}
+    for r, i, why in steps:
+        first.setdefault(r, {"run": r, "frame": i, "reason": why})
+    return {"steps_failed": len(steps), "runs_failed": len(first),
+            "reasons": dict(Counter(why for _, _, why in steps).most_common()), "first_per_run": list(first.values())}
+
+
+def usable_runs(res):
+    """``res`` restricted to the runs whose state was usable at every frame (all of them unless a
+    filter's fault left a non-finite state); ``res`` itself when none or all are."""
+    ok = np.all(np.isfinite(res.error), (1, 2)) & np.all(np.isfinite(res.cov), (1, 2, 3))
+    if ok.all() or not ok.any():
+        return res
+    return replace(res, error=res.error[ok], cov=res.cov[ok], residual_px=res.residual_px[ok], accepted=res.accepted[ok])
 
 
 def case_metrics(res, last_leg) -> dict:
@@ -74,6 +106,8 @@ def case_metrics(res, last_leg) -> dict:
 def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
     """The summary dict (its keys are fixed: readers of summary.json rely on them) from
     ``{case: CampaignResult}``."""
+    faults = fault_summary(results[primary])
+    results = {c: usable_runs(r) for c, r in results.items()}
     res = results[primary]
     R, F = res.error.shape[:2]
     e_last = res.error[:, -1]
@@ -85,6 +119,8 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
     m = res.measured_error_px
     mn = np.linalg.norm(m[np.all(np.isfinite(m), 1)], axis=1)
     resid = res.residual_px[np.isfinite(res.residual_px[..., 0])]
+    # frames whose centroid the filter was given (a filter may have no innovations in px)
+    measured = np.isfinite(res.residual_px[0, :, 0]) if res.measured is None else np.asarray(res.measured, bool)
     return {
         "runs": int(R),
         "frames": int(F),
@@ -114,14 +150,15 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
                                  "frames": int(mn.size)},
         "noise": {"sigma0_px": res.noise.sigma0_px, "kappa": res.noise.kappa, "frames": res.noise.frames,
                   "classes": {k: {"sigma_px": sig, "track_bias_px": sb, "frames": nf} for k, sig, nf, sb in res.noise.classes}},
-        "measurements": {"frames_with_centroid": int(np.sum(np.isfinite(res.residual_px[0, :, 0]))),
-                         "accepted_fraction": float(res.accepted.sum() / max(1, np.isfinite(res.residual_px[..., 0]).sum())),
+        "measurements": {"frames_with_centroid": int(measured.sum()),
+                         "accepted_fraction": float(res.accepted.sum() / max(1, R * int(measured.sum()))),
                          "residual_mean_px": resid.mean(0).tolist() if resid.size else None,
                          "residual_std_px": resid.std(0).tolist() if resid.size else None},
         "ip_status_counts": {s: res.ip_status.count(s) for s in sorted(set(res.ip_status))},
         "pairs": [{"leg": lg, "plan": list(pp), "optimal": None if op is None else list(op),
                    "same": None if op is None else sorted(pp) == sorted(op)} for lg, pp, op in res.pairs],
         "cases": {str(c): case_metrics(r, last_leg) for c, r in sorted(results.items())},
+        "faults": faults,
         "paper_002": PAPER_002,
         "targets": TARGETS,
         "time_s": float(time_s),
@@ -185,11 +222,13 @@ def report_figures(res, summary) -> list:
     return out
 
 
-def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, info: dict) -> Path:
-    """Write runs.csv, frames.csv, summary.json, report.md and report.html into ``out_dir``."""
+def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, info: dict, extra_md=(),
+                 extra_html=()) -> Path:
+    """Write runs.csv, frames.csv, summary.json, report.md and report.html into ``out_dir``
+    (``extra_md``: more markdown lines after the summary; ``extra_html``: more HTML after the figures)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    res = results[primary]
+    res = usable_runs(results[primary])
     nees_rf = _nees(res)
     with open(out / "runs.csv", "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
@@ -200,7 +239,7 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
             nr = _nees(r)
             for k in range(r.error.shape[0]):
                 e = r.error[k, -1]
-                meas = np.isfinite(r.residual_px[k, :, 0])
+                meas = np.isfinite(r.residual_px[k, :, 0]) if r.measured is None else np.asarray(r.measured, bool)
                 w.writerow([c, k, *(f"{v:.3f}" for v in e[:3]), *(f"{v * 1e3:.5f}" for v in e[3:]),
                             f"{np.linalg.norm(e[:3]):.3f}", f"{np.linalg.norm(e[3:]) * 1e3:.5f}",
                             f"{3 * math.sqrt(np.trace(r.cov[k, -1, :3, :3])):.3f}",
@@ -220,7 +259,7 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     full = dict(summary)
     full["run"] = info
     (out / "summary.json").write_text(json.dumps(_clean(full), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    md = _markdown(summary, info)
+    md = _markdown(summary, info) + list(extra_md)
     refs = references_md([VALIDATION, NAVIGATION])
     (out / "report.md").write_text("\n".join(md + [""] + refs), encoding="utf-8")
     html = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench nav</title>",
@@ -228,6 +267,7 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
     for title, fig in report_figures(res, summary):
         t = _html.escape(title)
         html.append(f"<h2>{t}</h2><img alt=\"{t}\" src=\"data:image/png;base64,{figure_base64_png(fig)}\">")
+    html += list(extra_html)
     html.append(markdown_to_html(refs))
     html.append("</body></html>")
     (out / "report.html").write_text("\n".join(html) + "\n", encoding="utf-8")
@@ -240,6 +280,14 @@ def _measurements_line(m: dict) -> str:
 
     return (f"- measurements: {m['frames_with_centroid']} frames with a centroid, {100 * m['accepted_fraction']:.1f} % "
             f"accepted by the gate; innovations mean {xy(m['residual_mean_px'])}, std {xy(m['residual_std_px'], '.3f')}")
+
+
+def _faults_line(faults) -> str:
+    if not faults or not faults["steps_failed"]:
+        return "- filter faults: none"
+    why = "; ".join(f"{k} ({v})" for k, v in faults["reasons"].items())
+    return (f"- filter faults: {faults['steps_failed']} failed steps in {faults['runs_failed']} runs: {why} (statistics "
+            "over the runs whose state stayed usable)")
 
 
 def _markdown(s: dict, info: dict) -> list:
@@ -276,7 +324,8 @@ def _markdown(s: dict, info: dict) -> list:
            f"over {me['frames']} frames (mean x, y: {me['mean_xy'][0]:+.3f}, {me['mean_xy'][1]:+.3f} px)"
            if me["frames"] else "- measured centroid error: no frame with a centroid"),
           _measurements_line(s["measurements"]),
-          f"- image-processing status counts: {s['ip_status_counts']}", "",
+          f"- image-processing status counts: {s['ip_status_counts']}",
+          _faults_line(s.get("faults")), "",
           "## Cases (RMSE over the runs and the last leg's frames)", "",
           f"| case | corrections | position RMSE [km] | velocity RMSE [m/s] | {NAVIGATION.cite} |", "|---|---|---|---|---|"]
     names = {"1": "light-time + aberration (model)", "2": "light-time (model) + aberration removed in IP",

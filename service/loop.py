@@ -181,7 +181,7 @@ class FlightSoftware:
         step = self.fc.step(observation(k, t, dn, self.camera), target, track=track)
         return {"status": step.status, "xy": None if step.xy_px is None else tuple(float(c) for c in step.xy_px),
                 "residual_px": tuple(float(c) for c in step.residual_px[0]), "accepted": bool(step.accepted[0]),
-                "fault": step.fault}
+                "fault": step.fault, "measured": step.measurement is not None}
 
 
 @dataclass
@@ -203,6 +203,7 @@ class LoopRun:
     filter_time_s: float = 0.0
     pairs: list = field(default_factory=list)
     faults: list = field(default_factory=list)   # (F,) the filter's fault in that step ("" none)
+    measured: list = field(default_factory=list)  # (F,) the filter was given the frame's centroid
 
 
 def track_frames(schedule) -> dict:
@@ -277,6 +278,7 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
         run.error[k] = np.concatenate([x[:3] - r_true, x[3:6] - v_true])
         run.cov[k] = P[:6, :6]
         run.faults.append(got["fault"])
+        run.measured.append(got["measured"])
         run.residual_px[k] = got["residual_px"]
         run.accepted[k] = got["accepted"]
         run.status.append(got["status"])
@@ -328,14 +330,16 @@ def nav_plan(sim: Simulator, runs: list):
                    target_xy_px=np.full((len(sched), 2), np.nan), plan_pairs=pairs)
 
 
-def campaign_result(runs: list, plan, *, noise, case: int = 1):
+def campaign_result(runs: list, plan, *, noise, case: int = 1, filter_name: str = DEFAULT_FILTER):
     """``bench nav``'s :class:`~skynav.pipeline.scoring_nav.CampaignResult` of the loop's runs."""
     return CampaignResult(case=case, noise=centroid_noise(noise), t_tdb_s=plan.t_tdb_s,
                           error=np.stack([r.error for r in runs]), cov=np.stack([r.cov for r in runs]),
                           residual_px=np.stack([r.residual_px for r in runs]),
                           accepted=np.stack([r.accepted for r in runs]), ip_status=tuple(runs[0].status),
                           measured_error_px=runs[0].measured_error_px, ip_time_s=sum(r.ip_time_s for r in runs),
-                          filter_time_s=sum(r.filter_time_s for r in runs), pairs=tuple(runs[0].pairs))
+                          filter_time_s=sum(r.filter_time_s for r in runs), pairs=tuple(runs[0].pairs),
+                          faults=tuple(tuple(r.faults) for r in runs), filter_name=filter_name,
+                          measured=np.array(runs[0].measured, dtype=bool))
 
 
 def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:

@@ -16,6 +16,7 @@ from skynav.datasets.recipes import recipe_camera
 from skynav.pipeline.ekf import initial_covariance
 from skynav.pipeline.flight import initial_states
 from skynav.pipeline.scoring_nav import NavInputError
+from skynav.pipeline.scoring_nav_filters import filter_specs, filters_figure_html, filters_lines, filters_markdown, filters_summary
 from skynav.pipeline.scoring_nav_report import summarise, write_report
 from skynav.pipeline.star_id import star_id_camera_check
 from skynav.service.client import Client, LocalServer
@@ -43,6 +44,7 @@ from .cli_args import (
     add_workers_arg,
     positive_int,
 )
+from .cli_bench_nav import add_filter_arg
 from .cli_common import ProgressBar, say, warn
 from .cli_dataset import recipe_from_args
 
@@ -85,24 +87,26 @@ def _noise(args, sim, client):
         return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal)
 
 
-def _fly(args, sim, client, noise, bias):
-    """The Monte Carlo runs, then (with a bias) the biased start pointed from the truth and from
-    the estimate: ``(runs, {pointing: run}, bias km or None)``."""
+def _fly(args, sim, client, noise, bias, filters):
+    """The Monte Carlo runs of every filter, then (with a bias) the first filter's biased start
+    pointed from the truth and from the estimate: ``({filter: runs}, {pointing: run}, bias km or None)``."""
     r0, v0 = sim.state(sim.schedule()[0][0])
     x0s, P0 = initial_states(r0, v0, args.runs, args.seed)   # as bench nav's runs (Andreis et al. (2024), Eq. 45)
     nominal = np.concatenate([r0, v0, np.zeros(6)])
     extra = 2 if bias is not None else 0
-    biased, b_km = {}, None
+    biased, b_km, flown = {}, None, {}
     with ProgressBar("closed loop", "frame", quiet=args.quiet) as bar:
         done = [0]
 
         def tick(n):
             done[0] += n
-            bar(done[0], sim.frames * (args.runs + extra))
+            bar(done[0], sim.frames * (args.runs * len(filters) + extra))
 
-        # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations
-        runs = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
-                         rendering=i, progress=tick) for i, x0 in enumerate(x0s)]
+        # run i sees a rendering of its own (run 0 the recipe's), as bench nav --realisations; every
+        # filter the same renderings and initial states
+        for spec in filters:
+            flown[spec] = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
+                                    rendering=i, progress=tick, filter_spec=spec) for i, x0 in enumerate(x0s)]
         if bias is not None:
             b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
             xb = nominal.copy()
@@ -110,8 +114,8 @@ def _fly(args, sim, client, noise, bias):
             Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
             for pointing in ("truth", "estimate"):
                 biased[pointing] = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case,
-                                            pointing=pointing, progress=tick)
-    return runs, biased, b_km
+                                            pointing=pointing, progress=tick, filter_spec=filters[0])
+    return flown, biased, b_km
 
 
 def _biased_summary(biased, b_km, camera) -> dict:
@@ -144,12 +148,15 @@ def _say_summary(args, summary, loop, noise, res, total, setup_s, out) -> None:
             v = b[key]
             say(args, f"  biased start ({b['bias_km']:.3g} km): {name}: target in the field "
                       f"{100 * v['target_in_field_fraction']:.0f} %, final error {v['final_position_error_km']:.0f} km")
+    for line in filters_lines(summary["filters"]):
+        say(args, "  " + line)
     say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {res.ip_time_s:.1f}, "
               f"filter and commands {res.filter_time_s:.1f})", f"report: {out}/report.html")
 
 
 def cmd_loop(args) -> int:
     bias = _bias_km(args)
+    filters = filter_specs(args.filter)   # a bad import path is one line before the service starts
     recipe = recipe_from_args(args.recipe, None, None, args.overrides)
     t0 = time.perf_counter()
     sim = Simulator(recipe, limit=args.limit)
@@ -165,20 +172,26 @@ def cmd_loop(args) -> int:
         client.wait_ready(60)
         noise = _noise(args, sim, client)
         setup_s = time.perf_counter() - t0
-        runs, biased, b_km = _fly(args, sim, client, noise, bias)
+        flown, biased, b_km = _fly(args, sim, client, noise, bias, filters)
         client.close()
     total = time.perf_counter() - t0
+    runs = flown[filters[0]]
     plan = nav_plan(sim, runs)
-    res = campaign_result(runs, plan, noise=noise, case=args.case)
+    by_filter = {spec: campaign_result(r, plan, noise=noise, case=args.case, filter_name=spec) for spec, r in flown.items()}
+    res = by_filter[filters[0]]
     summary = summarise({args.case: res}, primary=args.case, time_s=total, plan=plan)
+    summary["filters"] = filters_summary(by_filter, plan=plan)
     loop = loop_summary(runs, camera, realtime=args.realtime)
     if biased:
         loop["biased_initial_state"] = _biased_summary(biased, b_km, camera)
     summary["closed_loop"] = loop
     info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
             "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": noise.describe(),
-            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s}
-    out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info)
+            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s, "filters": filters}
+    side = len(by_filter) > 1
+    out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info,
+                       extra_md=filters_markdown(summary["filters"]) if side else (),
+                       extra_html=[filters_figure_html(by_filter)] if side else ())
     Path(out, "loop.json").write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
     _say_summary(args, summary, loop, noise, res, total, setup_s, out)
     return 0
@@ -211,6 +224,7 @@ def add_parser(sub) -> None:
     add_seed_arg(p, default=0,
                  help="seed of the initial states (the controller's pointing errors and the image noise come "
                         "from the recipe's seed, frame by frame as in its dataset: --set seed=N)")
+    add_filter_arg(p)
     add_limit_arg(p, minimum=2, help="only the first N frames of the plan (at least 2)")
     p.add_argument("--bias-km", default="auto", metavar="KM",
                    help="also run a start this far off (auto: 1.5 half-fields at the first target; none: skip)")

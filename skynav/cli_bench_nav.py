@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 import skynav.datasets as sdat
 from skynav.infra.count_cap import cap_count
 from skynav.pipeline.filter_dynamics import FilterDynamics
+from skynav.pipeline.flight import DEFAULT_FILTER
 from skynav.pipeline.references import NAVIGATION
 from skynav.pipeline.scoring_nav import (
     CentroidNoise,
@@ -26,6 +27,13 @@ from skynav.pipeline.scoring_nav import (
     load_plan,
     run_campaign,
     run_realisations,
+)
+from skynav.pipeline.scoring_nav_filters import (
+    filter_specs,
+    filters_figure_html,
+    filters_lines,
+    filters_markdown,
+    filters_summary,
 )
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
 from skynav.pipeline.star_id import star_id_camera_check
@@ -65,7 +73,47 @@ def cmd_nav(args) -> int:
     if args.sigma_px is not None and not args.sigma_px > 0:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     _dynamics(args)  # refuse a bad --set or --gm-sigma before reading the dataset
+    filters = filter_specs(args.filter)   # refuse a bad import path before reading the dataset
     t0 = time.perf_counter()
+    plan, realisations, calib = _datasets(args)
+    if args.sigma_px is None:
+        noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
+                                   phase_offset=not args.no_phase_offset)
+
+        noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
+    else:
+        noise = CentroidNoise(sigma0_px=float(args.sigma_px))
+    dynamics = _dynamics(args)
+    setup_s = time.perf_counter() - t0
+    results, by_filter = {}, {}
+    for spec in filters:   # the first filter flies every case; the others the first case, beside it
+        for c in (cases if spec == filters[0] else cases[:1]):
+            res = _campaign(args, plan, realisations, c, spec, noise, dynamics)
+            if spec == filters[0]:
+                results[c] = res
+            if c == cases[0]:
+                by_filter[spec] = res
+    ip_s = sum(r.ip_time_s for r in results.values()) + sum(r.ip_time_s for s, r in by_filter.items() if s != filters[0])
+    fl_s = sum(r.filter_time_s for r in results.values()) + sum(r.filter_time_s for s, r in by_filter.items()
+                                                                 if s != filters[0])
+    total = time.perf_counter() - t0
+    primary = cases[0]
+    summary = summarise(results, primary=primary, time_s=total, plan=plan)
+    summary["filters"] = filters_summary(by_filter, plan=plan)
+    info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
+            "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
+            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "dynamics": {k: getattr(dynamics or _default_dynamics(), k) for k in DYNAMICS_KEYS}, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
+            "filter_time_s": fl_s, "filters": filters}
+    side = len(by_filter) > 1
+    out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info,
+                       extra_md=filters_markdown(summary["filters"]) if side else (),
+                       extra_html=[filters_figure_html(by_filter)] if side else ())
+    _say_summary(args, summary, noise, total, setup_s, ip_s, fl_s, out)
+    return 0
+
+
+def _datasets(args):
+    """``(plan, realisations or None, calibration plans)`` of the command line, checked."""
     plan = load_plan(args.dataset, images=args.images, limit=args.limit)
     error, warning = star_id_camera_check(sdat.open(plan.root).camera)
     if error:
@@ -91,49 +139,34 @@ def cmd_nav(args) -> int:
             if Path(p.root).resolve() in navigated:
                 raise NavInputError(f"{p.root}: in both {'DATASET' if i == 0 else '--calibrate-on'} and "
                                     "--realisations; R must be calibrated out of sample (give other renderings)")
-    if args.sigma_px is None:
-        noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
-                                   phase_offset=not args.no_phase_offset)
+    return plan, realisations, calib
 
-        noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
+
+def _campaign(args, plan, realisations, case, spec, noise, dynamics):
+    """One campaign (case ``case``, filter ``spec``) with its progress bar."""
+    name = "" if spec == DEFAULT_FILTER else f", {spec}"
+    bar = None
+    if realisations is not None:
+        if not args.quiet:
+            bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {case}{name}, {args.runs} runs")
+        res = run_realisations(realisations, runs=args.runs, case=case, seed=args.seed, workers=args.workers,
+                               noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
+                               progress=None if bar is None else bar.update, filter_spec=spec)
     else:
-        noise = CentroidNoise(sigma0_px=float(args.sigma_px))
-    dynamics = _dynamics(args)
-    setup_s = time.perf_counter() - t0
-    results = {}
-    ip_s = fl_s = 0.0
-    for c in cases:
-        bar = None
-        if realisations is not None:
-            if not args.quiet:
-                bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {c}, {args.runs} runs")
-            results[c] = run_realisations(realisations, runs=args.runs, case=c, seed=args.seed, workers=args.workers,
-                                          noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
-                                          progress=None if bar is None else bar.update)
-            if bar is not None:
-                bar.close()
-            ip_s += results[c].ip_time_s
-            fl_s += results[c].filter_time_s
-            continue
         if not args.quiet and args.workers == 1:
-            bar = tqdm(total=plan.frames, unit="frame", desc=f"case {c}, {args.runs} runs")
-        results[c] = run_campaign(plan, runs=args.runs, case=c, seed=args.seed, workers=args.workers, noise=noise, dynamics=dynamics,
-                                  phase_offset=not args.no_phase_offset, progress=None if bar is None else bar.update)
-        if bar is not None:
-            bar.close()
-        ip_s += results[c].ip_time_s
-        fl_s += results[c].filter_time_s
-    total = time.perf_counter() - t0
-    primary = cases[0]
-    summary = summarise(results, primary=primary, time_s=total, plan=plan)
-    info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
-            "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
-            "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "dynamics": {k: getattr(dynamics or _default_dynamics(), k) for k in DYNAMICS_KEYS}, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
-            "filter_time_s": fl_s}
-    out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info)
+            bar = tqdm(total=plan.frames, unit="frame", desc=f"case {case}{name}, {args.runs} runs")
+        res = run_campaign(plan, runs=args.runs, case=case, seed=args.seed, workers=args.workers, noise=noise,
+                           dynamics=dynamics, phase_offset=not args.no_phase_offset,
+                           progress=None if bar is None else bar.update, filter_spec=spec)
+    if bar is not None:
+        bar.close()
+    return res
 
+
+def _say_summary(args, summary, noise, total, setup_s, ip_s, fl_s, out) -> None:
     f = summary["final"]
     n = summary["nees"]
+    primary = summary["case"]
     say(args, f"{summary['runs']} runs x {summary['frames']} frames, case {primary}: final 3-sigma "
               f"{f['position_3sigma_km']:.0f} km (filter {f['filter_position_3sigma_km']:.0f}), "
               f"{f['velocity_3sigma_m_s']:.3f} m/s (filter {f['filter_velocity_3sigma_m_s']:.3f}); {NAVIGATION.cite}: "
@@ -146,9 +179,10 @@ def cmd_nav(args) -> int:
           f"D: its predicted apparent diameter in px): {noise.describe()}")
     for c, v in summary["cases"].items():
         say(args, f"  case {c}: RMSE {v['position_rmse_km']:.0f} km, {v['velocity_rmse_m_s']:.3f} m/s")
+    for line in filters_lines(summary["filters"]):
+        say(args, "  " + line)
     say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})",
         f"report: {out}/report.html")
-    return 0
 
 
 #: FilterDynamics fields ``--set dynamics.FIELD=VALUE`` may change (the scalar ones)
@@ -176,6 +210,14 @@ def _dynamics(args):
             raise OverrideError(f"--set {text}: {name} = {value!r} is not allowed; expected a positive finite number")
         kw[path[1]] = float(value)
     return dataclasses.replace(FilterDynamics(), **kw) if kw else None
+
+
+def add_filter_arg(p) -> None:
+    """``--filter MODULE:FACTORY`` (repeatable), shared by ``bench nav`` and ``bench loop``."""
+    p.add_argument("--filter", action="append", metavar="MODULE:FACTORY", default=None,
+                   help=f"the navigation filter to fly, imported by path (docs/navigation.md, 'Bring your own filter'); "
+                        f"repeat it to compare several side by side on the same frames and initial states "
+                        f"(default {DEFAULT_FILTER}, skynav's EKF)")
 
 
 def add_parser(bsub) -> None:
@@ -215,6 +257,7 @@ def add_parser(bsub) -> None:
                    help="steady-state sigma of the filter's Gauss-Markov accelerations, km/s^2 (default 1e-11)")
     p.add_argument("--calibration-stride", type=positive_int, default=1,
                    help="frames between calibration frames (default 1: all)")
+    add_filter_arg(p)
     add_limit_arg(p)
     add_output_arg(p, help="report folder")
     add_quiet(p)

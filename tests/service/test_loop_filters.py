@@ -1,0 +1,40 @@
+"""``skynav bench loop --filter MODULE:FACTORY``: anyone's filter points the camera, through the same
+interface as skynav's EKF; a bad import path is one line before any frame is asked for."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from .test_loop import SMALL
+
+UKF = Path(__file__).resolve().parents[2] / "docs" / "examples" / "ukf_filter.py"
+EKF = "skynav.pipeline.flight:skynav_ekf"
+
+
+def test_the_example_ukf_flies_the_closed_loop_beside_the_ekf(server, tmp_path):
+    out = tmp_path / "r"
+    run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", "sequence", "-o", str(out), "-q",
+                          "--service", server.url, *SMALL, "--bias-km", "none", "--sigma-px", "0.1",
+                          "--filter", EKF, "--filter", f"{UKF}:make_filter"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    s = json.loads((out / "summary.json").read_text())
+    rows = {r["filter"]: r for r in s["filters"]}
+    assert list(rows) == [EKF, f"{UKF}:make_filter"]
+    for r in rows.values():
+        # the planet stayed in the field (the runs measured every frame) and nothing failed
+        assert r["faults"]["steps_failed"] == 0 and r["measurements_accepted_fraction"] > 0.9
+        assert r["final"]["position_3sigma_km"] < 3 * r["final"]["filter_position_3sigma_km"]
+    assert s["measurements"]["frames_with_centroid"] == s["frames"] == 12
+    assert "Filters side by side" in (out / "report.md").read_text()
+
+
+def test_a_bad_filter_is_one_line_before_the_service_is_asked(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", "sequence", "-o", "x", "--service",
+                          "http://127.0.0.1:9", "--filter", "no_such_module_xyz:make"],
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--filter no_such_module_xyz:make: cannot import" in lines[0], run.stderr
