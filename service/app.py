@@ -15,6 +15,7 @@ to the answer handed to uvicorn: the checks, the hand-over to the worker and bac
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import json
 import sys
@@ -113,9 +114,17 @@ def _check_media_type(request) -> None:
         raise _HTTPError(415, f"Content-Type {kind!r}: send the scene mapping as application/json")
 
 
-async def _read_body(request, bound: int) -> bytes:
+async def _read_body(request, bound: int, timeout_s: float) -> bytes:
     """The request's body, at most ``bound`` bytes (413 beyond, before reading it where the
-    Content-Length says so); ClientDisconnect when the client hangs up first."""
+    Content-Length says so), all of it within ``timeout_s`` (408 after, and the connection is
+    closed); ClientDisconnect when the client hangs up first."""
+    try:
+        return await asyncio.wait_for(_read_bounded(request, bound), timeout_s)
+    except asyncio.TimeoutError:
+        raise _HTTPError(408, f"request body: not received within {timeout_s:g} s (--body-timeout)") from None
+
+
+async def _read_bounded(request, bound: int) -> bytes:
     declared = request.headers.get("content-length")
     if declared is not None:
         try:
@@ -133,7 +142,8 @@ async def _read_body(request, bound: int) -> bytes:
     return b"".join(chunks)
 
 
-def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_facility: bool):
+def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_facility: bool,
+                    body_timeout_s: float = 10.0):
     """The endpoint of ``POST /v1/render``."""
     token_bytes = None if token is None else token.encode()
 
@@ -142,11 +152,14 @@ def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_
         try:
             _check_token(request, token_bytes)
             _check_media_type(request)
-            body = await _read_body(request, limits.max_request_bytes)
+            body = await _read_body(request, limits.max_request_bytes, body_timeout_s)
             outputs = parse_request(body, has_facility=has_facility)
             answer, queue_s = await pool.render(body, outputs, gone=request.is_disconnected)
         except _HTTPError as exc:
-            return _error(exc.status, exc.message)
+            answer = _error(exc.status, exc.message)
+            if exc.status == 408:   # the rest of the body is not read: the connection ends
+                answer.headers["connection"] = "close"
+            return answer
         except (ServiceBusy, WorkerDied) as exc:
             return _error(503, str(exc))
         except (ClientDisconnect, ClientGone):
@@ -164,7 +177,7 @@ def render_endpoint(pool: WorkerPool, *, token: str | None, limits: Limits, has_
 
 
 def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Limits(), on_ready=None,
-              host: str = "127.0.0.1", allow_origins=()) -> Starlette:
+              host: str = "127.0.0.1", allow_origins=(), body_timeout_s: float = 10.0) -> Starlette:
     """The ASGI application of protocol v1 around a started :class:`WorkerPool`; ``on_ready()``
     is called once it has started (its lifespan's startup). Requests from web pages are refused
     unless their origin is in ``allow_origins``, other ``Host`` names than ``host``'s too
@@ -190,8 +203,8 @@ def build_app(pool: WorkerPool, *, token: str | None = None, limits: Limits = Li
 
     routes = [Route(f"{API_PREFIX}/health", health, methods=["GET"]),
               Route(f"{API_PREFIX}/openapi.json", openapi, methods=["GET"]),
-              Route(f"{API_PREFIX}/render", render_endpoint(pool, token=token, limits=limits, has_facility=has_facility),
-                    methods=["POST"])]
+              Route(f"{API_PREFIX}/render", render_endpoint(pool, token=token, limits=limits, has_facility=has_facility,
+                                                            body_timeout_s=body_timeout_s), methods=["POST"])]
 
     @asynccontextmanager
     async def lifespan(app):

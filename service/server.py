@@ -17,6 +17,7 @@ import threading
 import uvicorn
 
 from .app import build_app
+from .guard import ConnectionLimits, Registry, RequestTracker, guarded_protocol
 from .pool import Limits, ServiceStartError, WorkerPool
 
 
@@ -63,8 +64,29 @@ def _stop_signals_noted():
             signal.signal(sig, handler)
 
 
+def uvicorn_config(app, connections: ConnectionLimits) -> uvicorn.Config:
+    """uvicorn's configuration of the server: its h11 protocol, whose request header is bounded
+    (``h11_max_incomplete_event_size``), under the guard of :mod:`skynav.service.guard`.
+
+    ``Config.load()`` resolves ``http="h11"`` to uvicorn's protocol class (``http_protocol_class``,
+    from which uvicorn makes each connection's protocol); the guard's class, which makes one of
+    those per connection and hands it every :class:`asyncio.Protocol` call, takes its place.
+    The connections are bounded by the guard (``limit_concurrency`` would refuse newcomers while
+    idle connections stay)."""
+    registry = Registry(connections)
+    # proxy_headers off: the server is not behind a proxy (a client's X-Forwarded-For means nothing
+    # here; scope["client"] is the connection's own address, by which the guard knows it)
+    config = uvicorn.Config(RequestTracker(app, registry), log_level="warning", access_log=False, lifespan="on",
+                            proxy_headers=False, timeout_graceful_shutdown=600, limit_concurrency=None, http="h11",
+                            h11_max_incomplete_event_size=connections.max_header_bytes)
+    config.load()
+    config.http_protocol_class = guarded_protocol(config.http_protocol_class, registry)
+    return config
+
+
 def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facility=None, token: str | None = None,
-          limits: Limits = Limits(), threads=None, ready=print, allow_origins=()) -> None:
+          limits: Limits = Limits(), threads=None, ready=print, allow_origins=(),
+          connections: ConnectionLimits = ConnectionLimits()) -> None:
     """Bind, warm the workers, print the ready line through ``ready``, serve until SIGINT/SIGTERM.
 
     On a signal uvicorn stops accepting, lets the running renders finish and answer, then the
@@ -82,12 +104,9 @@ def serve(*, host: str = "127.0.0.1", port: int = 8765, workers: int = 1, facili
             f"{', facility ' + str(pool.info['facility']) if pool.info.get('facility') else ''}; warm in {warm_s:.1f} s)")
     try:
         app = build_app(pool, token=token, limits=limits, on_ready=lambda: ready(line), host=host,
-                        allow_origins=allow_origins)
-        # proxy_headers off: the server is not behind a proxy (a client's X-Forwarded-For means nothing here)
-        config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="on", proxy_headers=False,
-                                timeout_graceful_shutdown=600, limit_concurrency=limits.max_queue * 4 + workers + 64)
+                        allow_origins=allow_origins, body_timeout_s=connections.body_timeout_s)
         with _stop_signals_noted():
-            uvicorn.Server(config).run(sockets=[sock])
+            uvicorn.Server(uvicorn_config(app, connections)).run(sockets=[sock])
     finally:
         pool.stop()
         sock.close()

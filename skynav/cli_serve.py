@@ -9,9 +9,10 @@ import threading
 from skynav.calibration.facility_io import load_facility
 from skynav.service.files import MAX_DATA_FILE_BYTES
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
+from skynav.service.guard import ConnectionLimits
 from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
 
-from .cli_args import MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_arg, int_in, positive_int
+from .cli_args import MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_arg, float_in, int_in, positive_int
 from .cli_common import COMMAND_HELP, fail
 
 
@@ -135,13 +136,40 @@ def _serve_http(args) -> int:
 
     try:
         serve(host=args.host, port=args.port, workers=args.workers, facility=args.facility, token=token,
-              limits=limits, threads=threads, ready=ready, allow_origins=tuple(args.allow_origin))
+              limits=limits, threads=threads, ready=ready, allow_origins=tuple(args.allow_origin),
+              connections=_connection_limits(args))
     except ServiceStartError as exc:
         return fail(str(exc))
     except KeyboardInterrupt:
         pass
     print("skynav serve: stopped", file=sys.stderr)
     return 0
+
+
+def _connection_limits(args) -> ConnectionLimits:
+    return ConnectionLimits(header_timeout_s=args.header_timeout, body_timeout_s=args.body_timeout,
+                            write_timeout_s=args.write_timeout, max_header_bytes=args.max_header_bytes,
+                            max_connections=args.max_connections,
+                            max_connections_per_client=args.max_connections_per_client)
+
+
+def _add_connection_args(s) -> None:
+    c, d = s.add_argument_group("Slow clients", "bounds per connection (docs/service.md, "
+                                "'Running the service safely')"), ConnectionLimits()
+    seconds = float_in(0, 3600, low_open=True, unit="s")
+    c.add_argument("--header-timeout", type=seconds, default=d.header_timeout_s, metavar="S", help="a request's "
+                   f"header must arrive within S of the connection's opening or the last answer (default {d.header_timeout_s:g})")
+    c.add_argument("--body-timeout", type=seconds, default=d.body_timeout_s, metavar="S",
+                   help=f"a request's body must arrive within S of its header (default {d.body_timeout_s:g})")
+    c.add_argument("--write-timeout", type=seconds, default=d.write_timeout_s, metavar="S", help="a client that "
+                   f"reads nothing of its answer for S loses the connection (default {d.write_timeout_s:g})")
+    c.add_argument("--max-header-bytes", type=int_in(1024, 1 << 20), default=d.max_header_bytes, metavar="N",
+                   help=f"largest request line and header (default {d.max_header_bytes})")
+    c.add_argument("--max-connections", type=int_in(8, 100000), default=d.max_connections, metavar="N",
+                   help=f"open connections in all; past it the oldest idle one is closed (default {d.max_connections})")
+    c.add_argument("--max-connections-per-client", type=int_in(1, 100000), default=d.max_connections_per_client,
+                   metavar="N", help="open connections from one address; past it its oldest idle one is closed "
+                   f"(default {d.max_connections_per_client})")
 
 
 def add_parser(sub) -> None:
@@ -174,6 +202,7 @@ def add_parser(sub) -> None:
     s.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN", help="a web origin "
                    "(e.g. https://lab.example) whose pages may call the server (CORS); repeatable (default: none)")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
+    _add_connection_args(s)
     v = s.add_argument_group("Vizard endpoint", "Basilisk's vizInterface (noDisplay) gets skynav frames "
                              "(docs/service.md); instead of HTTP, or beside it with --http")
     v.add_argument("--vizard", action="store_true", help="serve Basilisk's vizInterface as Vizard would: a "

@@ -38,7 +38,9 @@ def test_default_binds_loopback_and_help_names_the_bounds():
     run = _serve("--help")
     assert run.returncode == 0
     text = " ".join(run.stdout.split())
-    for words in ("127.0.0.1", "--max-request-bytes", "--max-camera-pixels", "--max-queue", "screen_png"):
+    for words in ("127.0.0.1", "--max-request-bytes", "--max-camera-pixels", "--max-queue", "screen_png",
+                  "--header-timeout S", "(default 10)", "--max-header-bytes N", "(default 16384)",
+                  "--max-connections-per-client N"):
         assert words in text
 
 
