@@ -12,6 +12,8 @@ Adapter module: the one place that knows the folder layout::
     <dataset>/legs.csv             (sequences) the leg timeline
     <dataset>/trajectory.oem       (sequences, ccsds extra) the cruise as a CCSDS OEM
     <dataset>/attitude.aem         (sequences, ccsds extra) the frames' attitudes as a CCSDS AEM
+    <dataset>/trajectory_oem.xml   (sequences, ccsds extra) the same OEM in XML
+    <dataset>/attitude_aem.xml     (sequences, ccsds extra) the same AEM in XML
 
 The manifest holds nothing that depends on how or when the dataset was made (no dates, hosts,
 worker counts), so the same recipe gives byte-identical folders whatever the parallelism.

@@ -43,7 +43,7 @@ from skynav.scenes.dynamics import ForceModel, SpacecraftSRP, propagate
 from skynav.scenes.ephemeris_jpl import default_ephemeris
 from skynav.scenes.errors import LambertError
 from skynav.scenes.lambert import solve_lambert
-from skynav.scenes.mission_ccsds import aem_kvn, ccsds_available, oem_kvn
+from skynav.scenes.mission_ccsds import aem_kvn, aem_xml, ccsds_available, oem_kvn, oem_xml
 from skynav.scenes.sky import sky_bodies
 from skynav.scenes.timescales import tdb_seconds
 
@@ -337,35 +337,41 @@ class SequencePlan:
             lines.append(f"{w.leg},{w.phase},{w.target or ''},{epoch_iso(t0)},{epoch_iso(t1)},{t0!r},{t1!r},{t1 - t0!r}")
         return "\n".join(lines) + "\n"
 
-    def trajectory_oem(self) -> str:
-        """``trajectory.oem``: the states of ``trajectory.csv`` as a CCSDS OEM (KVN; ICRF,
-        solar-system barycentre, TDB; :mod:`skynav.scenes.mission_ccsds`)."""
+    def trajectory_oem(self, fmt: str = "kvn") -> str:
+        """``trajectory.oem``: the states of ``trajectory.csv`` as a CCSDS OEM (``fmt`` kvn, or
+        xml: ``trajectory_oem.xml``; ICRF, solar-system barycentre, TDB;
+        :mod:`skynav.scenes.mission_ccsds`)."""
         step = self.s["trajectory_step_s"]
         t = np.arange(self.start_tdb_s, self.end_tdb_s + 0.5 * step, step)
         t = t[t <= self.end_tdb_s]
         r, v = self.trajectory.state(t)
-        return oem_kvn(t, np.atleast_2d(r), np.atleast_2d(v))
+        return (oem_xml if fmt == "xml" else oem_kvn)(t, np.atleast_2d(r), np.atleast_2d(v))
 
-    def attitude_aem(self) -> str:
+    def attitude_aem(self, fmt: str = "kvn") -> str:
         """``attitude.aem``: every frame's attitude (with its pointing error and jitter, as its
-        truth) and angular velocity as a CCSDS AEM (KVN; ICRF to the camera, TDB). The sampler's
-        draws come first in frame k's stream (docs/conventions.md), so drawing them here gives
-        the frames' own values."""
-        seed = int(self.recipe["seed"])
-        q, w = [], []
-        for k in range(self.n_frames):
-            req = self.frame_request(k, frame_rng(seed, k))
-            q.append(frames.dcm_to_quat(req.R_cam_icrs))
-            w.append(req.angular_velocity_rad_s)
-        return aem_kvn(self.frame_tdb_s, np.array(q), np.array(w))
+        truth) and angular velocity as a CCSDS AEM (``fmt`` kvn, or xml: ``attitude_aem.xml``;
+        ICRF to the camera, TDB). The sampler's draws come first in frame k's stream
+        (docs/conventions.md), so drawing them here gives the frames' own values."""
+        if "_attitudes" not in self.__dict__:  # both formats write the same, drawn once
+            seed = int(self.recipe["seed"])
+            q, w = [], []
+            for k in range(self.n_frames):
+                req = self.frame_request(k, frame_rng(seed, k))
+                q.append(frames.dcm_to_quat(req.R_cam_icrs))
+                w.append(req.angular_velocity_rad_s)
+            self._attitudes = (np.array(q), np.array(w))
+        return (aem_xml if fmt == "xml" else aem_kvn)(self.frame_tdb_s, *self._attitudes)
 
     def side_files(self) -> dict:
         """Extra dataset files ``{name: bytes}``: trajectory and leg timeline (CSV), and the
-        trajectory and attitudes as CCSDS OEM/AEM where the ``ccsds`` extra is installed."""
+        trajectory and attitudes as CCSDS OEM/AEM, KVN and XML, where the ``ccsds`` extra is
+        installed."""
         files = {"trajectory.csv": self.trajectory_csv().encode("ascii"), "legs.csv": self.legs_csv().encode("ascii")}
         if ccsds_available():
             files["trajectory.oem"] = self.trajectory_oem().encode("ascii")
             files["attitude.aem"] = self.attitude_aem().encode("ascii")
+            files["trajectory_oem.xml"] = self.trajectory_oem("xml").encode("utf-8")
+            files["attitude_aem.xml"] = self.attitude_aem("xml").encode("utf-8")
         else:
             warnings.warn("sequence datasets write trajectory.oem and attitude.aem with the ccsds extra: "
                           "pip install 'skynav[ccsds]'", SkynavWarning, stacklevel=2)

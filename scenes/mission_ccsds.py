@@ -34,7 +34,7 @@ from .constants import J2000_JD, SECONDS_PER_DAY
 from .errors import SceneFileError
 from .timescales import time_from_tdb_seconds, to_time
 
-__all__ = ["ccsds_available", "OemTable", "AemTable", "oem_kvn", "aem_kvn", "read_oem", "read_aem",
+__all__ = ["ccsds_available", "OemTable", "AemTable", "oem_kvn", "aem_kvn", "oem_xml", "aem_xml", "read_oem", "read_aem",
            "oem_state", "aem_attitude"]
 
 #: Name of skynav's camera frame in AEM files (``REF_FRAME_B``).
@@ -67,8 +67,7 @@ def _creation(t_tdb_s) -> str:
     return _iso([t_tdb_s])[0]
 
 
-def oem_kvn(t_tdb_s, position_km, velocity_km_s, *, object_name: str = "SKYNAV") -> str:
-    """An OEM (KVN text) of barycentric ICRS states at TDB seconds past J2000 (km, km/s)."""
+def _oem(t_tdb_s, position_km, velocity_km_s, object_name: str):
     C = _ndm()
     t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
     sv = np.hstack([np.atleast_2d(position_km), np.atleast_2d(velocity_km_s)]).astype(float)
@@ -76,14 +75,21 @@ def oem_kvn(t_tdb_s, position_km, velocity_km_s, *, object_name: str = "SKYNAV")
     md = C.OemMetadata(object_name=object_name, object_id="UNKNOWN", start_time=ep[0], stop_time=ep[-1],
                        center_name="SOLAR SYSTEM BARYCENTER", ref_frame="ICRF", time_system="TDB",
                        interpolation="HERMITE", interpolation_degree=3)
-    oem = C.Oem(C.OdmHeader(creation_date=ep[0], originator="skynav"),
-                [C.OemSegment(md, C.OemData.from_numpy(ep, sv))])
-    return oem.to_str("kvn")
+    return C.Oem(C.OdmHeader(creation_date=ep[0], originator="skynav"),
+                 [C.OemSegment(md, C.OemData.from_numpy(ep, sv))])
 
 
-def aem_kvn(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, *, object_name: str = "SKYNAV") -> str:
-    """An AEM (KVN text) of camera attitudes: ``q_cam_icrs`` scalar first (skynav's), the angular
-    velocity in the camera frame, rad/s (written in deg/s)."""
+def oem_kvn(t_tdb_s, position_km, velocity_km_s, *, object_name: str = "SKYNAV") -> str:
+    """An OEM (KVN text) of barycentric ICRS states at TDB seconds past J2000 (km, km/s)."""
+    return _oem(t_tdb_s, position_km, velocity_km_s, object_name).to_str("kvn")
+
+
+def oem_xml(t_tdb_s, position_km, velocity_km_s, *, object_name: str = "SKYNAV") -> str:
+    """The same OEM as :func:`oem_kvn`, in the standard's XML (NDM/XML)."""
+    return _oem(t_tdb_s, position_km, velocity_km_s, object_name).to_str("xml")
+
+
+def _aem(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, object_name: str):
     C = _ndm()
     t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
     q = np.atleast_2d(np.asarray(q_cam_icrs, dtype=float))
@@ -93,9 +99,19 @@ def aem_kvn(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, *, object_name: str = "
     md = C.AemMetadata(object_name=object_name, object_id="UNKNOWN", ref_frame_a="ICRF", ref_frame_b=CAMERA_FRAME,
                        start_time=ep[0], stop_time=ep[-1], time_system="TDB", attitude_type="QUATERNION/ANGVEL",
                        angvel_frame=CAMERA_FRAME, interpolation_method="LINEAR", interpolation_degree=1)
-    aem = C.Aem(C.AdmHeader(creation_date=ep[0], originator="skynav"),
-                [C.AemSegment(md, C.AemData.from_numpy(ep, rows, attitude_type="QUATERNION/ANGVEL"))])
-    return aem.to_str("kvn")
+    return C.Aem(C.AdmHeader(creation_date=ep[0], originator="skynav"),
+                 [C.AemSegment(md, C.AemData.from_numpy(ep, rows, attitude_type="QUATERNION/ANGVEL"))])
+
+
+def aem_kvn(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, *, object_name: str = "SKYNAV") -> str:
+    """An AEM (KVN text) of camera attitudes: ``q_cam_icrs`` scalar first (skynav's), the angular
+    velocity in the camera frame, rad/s (written in deg/s)."""
+    return _aem(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, object_name).to_str("kvn")
+
+
+def aem_xml(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, *, object_name: str = "SKYNAV") -> str:
+    """The same AEM as :func:`aem_kvn`, in the standard's XML (NDM/XML)."""
+    return _aem(t_tdb_s, q_cam_icrs, angular_velocity_rad_s, object_name).to_str("xml")
 
 
 @dataclass(frozen=True, eq=False)
