@@ -90,3 +90,19 @@ def test_a_bad_kernel_is_one_line_and_the_service_answers_on(kernel_server, tree
     assert msg.startswith(expected) and str(tree) not in msg and os.path.realpath(tree) not in msg
     status, _, _ = _post(kernel_server.url, json.dumps(_scene(["craft.bsp"])).encode())
     assert status == 200
+
+
+def test_a_planetary_spk_follows_the_same_rule(kernel_server, tree):
+    """``ephemeris: {spk: NAME}``: outside the folders the generic 400; inside but without the
+    planets (the craft's SPK) CSPICE's one line; the service answers on."""
+    m = small_scene(size=64)
+    m["outputs"] = ["truth"]
+    status, _, data = _post(kernel_server.url, json.dumps({**m, "ephemeris": {"spk": "../secret/craft.bsp"}}).encode())
+    assert _error(status, data) == (
+        "ephemeris.spk = '../secret/craft.bsp' is not allowed; expected the name of a SPICE kernel (a regular file) "
+        "inside the server's --data-dir folders, relative to them")
+    status, _, data = _post(kernel_server.url, json.dumps({**m, "ephemeris": {"spk": "craft.bsp"}}).encode())
+    msg = _error(status, data)
+    assert msg.startswith("craft.bsp: SPICE(SPKINSUFFDATA)") and str(tree) not in msg
+    status, _, _ = _post(kernel_server.url, json.dumps(m).encode())
+    assert status == 200
