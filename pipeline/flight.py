@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -253,13 +255,10 @@ def load_filter_factory(spec: str):
         raise FilterPluginError(f"--filter {spec}: give MODULE:FACTORY or FILE.py:FACTORY, e.g. {DEFAULT_FILTER}")
     try:
         if module.endswith(".py"):
-            path = Path(module)
-            if not path.is_file():
-                raise FilterPluginError(f"--filter {spec}: {module} is not a file")
-            loader = importlib.util.spec_from_file_location(f"skynav_filter_{path.stem}", path)
-            mod = importlib.util.module_from_spec(loader)
-            loader.loader.exec_module(mod)
+            mod = _module_of_file(spec, Path(module))
         else:
+            if os.getcwd() not in sys.path and "" not in sys.path:
+                sys.path.append(os.getcwd())   # a module in the current folder, as ``python -m`` finds it
             mod = importlib.import_module(module)
     except FilterPluginError:
         raise
@@ -271,6 +270,23 @@ def load_filter_factory(spec: str):
     if not callable(factory):
         raise FilterPluginError(f"--filter {spec}: {module} has no callable {name}")
     return factory
+
+
+def _module_of_file(spec: str, path: Path):
+    """The module of a ``.py`` file, executed once per process (kept in ``sys.modules``)."""
+    if not path.is_file():
+        raise FilterPluginError(f"--filter {spec}: {path} is not a file")
+    key = f"skynav_filter_{abs(hash(str(path.resolve())))}"
+    if key not in sys.modules:
+        loader = importlib.util.spec_from_file_location(key, path)
+        mod = importlib.util.module_from_spec(loader)
+        sys.modules[key] = mod
+        try:
+            loader.loader.exec_module(mod)
+        except BaseException:
+            del sys.modules[key]
+            raise
+    return sys.modules[key]
 
 
 def make_filter(spec: str, setup: FilterSetup) -> NavigationFilter:

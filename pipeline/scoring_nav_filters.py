@@ -39,11 +39,13 @@ def filter_specs(given) -> list:
     return specs
 
 
-def filters_summary(by_filter: dict, *, plan) -> list:
-    """Per filter (``{spec: CampaignResult}``, one case): the side-by-side figures (module docstring)."""
+def filters_summary(by_filter: dict, *, plan, plans=None) -> list:
+    """Per filter (``{spec: CampaignResult}``, one case): the side-by-side figures (module docstring).
+    ``plans``: ``{spec: plan}`` where a filter's frames are not ``plan``'s (results files)."""
     out = []
     for spec, res in by_filter.items():
-        s = summarise({res.case: res}, primary=res.case, time_s=res.ip_time_s + res.filter_time_s, plan=plan)
+        s = summarise({res.case: res}, primary=res.case, time_s=res.ip_time_s + res.filter_time_s,
+                      plan=(plans or {}).get(spec, plan))
         out.append({"filter": spec, "case": res.case, "runs": s["runs"], "final": s["final"],
                     "nees": {k: s["nees"][k] for k in ("mean", "band_low", "band_high", "fraction_inside", "final")},
                     "measurements_accepted_fraction": s["measurements"]["accepted_fraction"], "faults": s["faults"],
@@ -90,6 +92,14 @@ def filters_markdown(rows: list) -> list:
     return md + [""]
 
 
+def _runs_mean(a) -> np.ndarray:
+    """Mean over the runs (axis 0) of the finite values; NaN at a frame without any."""
+    a = np.asarray(a, dtype=float)
+    ok = np.isfinite(a)
+    n = ok.sum(0)
+    return np.where(n > 0, np.where(ok, a, 0.0).sum(0) / np.maximum(n, 1), np.nan)
+
+
 def filters_figure_html(by_filter: dict) -> str:
     """The error and 3-sigma along the cruise per filter: sample 3-sigma of the position error norm
     (``3 sqrt(mean_runs |e_r|^2)``, solid) and the filter's own (``3 sqrt(mean_runs tr P_rr)``,
@@ -99,13 +109,11 @@ def filters_figure_html(by_filter: dict) -> str:
     for k, (spec, res) in enumerate(by_filter.items()):
         days = (res.t_tdb_s - res.t_tdb_s[0]) / SECONDS_PER_DAY
         colour = f"C{k % 10}"
-        with np.errstate(invalid="ignore"):
-            s3 = 3 * np.sqrt(np.nanmean(np.sum(res.error[..., :3] ** 2, -1), 0))
-            f3 = 3 * np.sqrt(np.nanmean(np.trace(res.cov[..., :3, :3], axis1=-2, axis2=-1), 0))
+        s3 = 3 * np.sqrt(_runs_mean(np.sum(res.error[..., :3] ** 2, -1)))
+        f3 = 3 * np.sqrt(_runs_mean(np.trace(res.cov[..., :3, :3], axis1=-2, axis2=-1)))
         ax.semilogy(days, s3, color=colour, lw=1.4, label=f"{spec}: sample 3-sigma")
         ax.semilogy(days, f3, color=colour, lw=1.0, ls="--", label=f"{spec}: filter 3-sigma")
-        with np.errstate(invalid="ignore"):
-            bx.semilogy(days, np.nanmean(nees_per_run(res), 0), ".", ms=3, color=colour, label=spec)
+        bx.semilogy(days, _runs_mean(nees_per_run(res)), ".", ms=3, color=colour, label=spec)
     ax.axhline(PUBLISHED["position_3sigma_km"], color="gray", ls=":",
                label=f"{NAVIGATION.cite}: final 3-sigma {PUBLISHED['position_3sigma_km']:.0f} km")
     ax.set_ylabel("position 3-sigma (km)")

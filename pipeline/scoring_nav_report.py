@@ -189,7 +189,10 @@ def report_figures(res, summary) -> list:
             ax.plot(days, -f3, "k--", lw=1.0)
             ax.set_ylabel(f"{'xyz'[k]} error, ecliptic ({unit})")
             # symmetric log: the first legs (0.1 km/s initial sigma) span 100x the converged bounds
-            lin = float(np.nanmedian(f3[len(f3) // 2:])) or 1.0
+            # (the sample's when the filter gave no covariance: a results file)
+            bound = f3 if np.isfinite(f3).any() else s3
+            lin = float(np.nanmedian(bound[len(bound) // 2:])) if np.isfinite(bound).any() else 1.0
+            lin = lin if np.isfinite(lin) and lin > 0 else 1.0
             ax.set_yscale("symlog", linthresh=lin)
         axs[0].legend(loc="upper right", fontsize=8)
         axs[0].set_title(f"{key} error, ecliptic J2000 (case {res.case}, {err.shape[0]} runs)")

@@ -36,6 +36,7 @@ from skynav.pipeline.scoring_nav_filters import (
     filters_summary,
 )
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
+from skynav.pipeline.scoring_nav_results import NAV_RESULTS_SCHEMA, score_nav_results
 from skynav.pipeline.star_id import star_id_camera_check
 from skynav.scenes.overrides import OverrideError
 
@@ -183,6 +184,50 @@ def _say_summary(args, summary, noise, total, setup_s, ip_s, fl_s, out) -> None:
         say(args, "  " + line)
     say(args, f"  time {total:.1f} s (setup {setup_s:.1f}, image processing {ip_s:.1f}, filter {fl_s:.1f})",
         f"report: {out}/report.html")
+
+
+def cmd_score_nav(args) -> int:
+    """``bench score nav``: navigation states written by any program, scored as ``bench nav`` scores its runs."""
+    check_output(args.output, [("dataset", args.dataset)] + [("RESULTS", r) for r in args.results])
+    t0 = time.perf_counter()
+    plan = load_plan(args.dataset, limit=args.limit)
+    by_file, plans, infos = {}, {}, []
+    for path in dict.fromkeys(args.results):
+        res, sub, info = score_nav_results(plan, path)
+        by_file[str(path)], plans[str(path)] = res, sub
+        infos.append(info)
+    first = next(iter(by_file))
+    res, sub = by_file[first], plans[first]
+    summary = summarise({res.case: res}, primary=res.case, time_s=time.perf_counter() - t0, plan=sub)
+    summary["filters"] = filters_summary(by_file, plan=sub, plans=plans)
+    info = {"source": f"{args.dataset}: {', '.join(by_file)}", "seed": None, "noise": "not given (a results file)",
+            "results_files": infos, "schema": NAV_RESULTS_SCHEMA}
+    out = write_report(args.output, {res.case: res}, summary, primary=res.case, plan=sub, info=info,
+                       extra_md=filters_markdown(summary["filters"]), extra_html=[filters_figure_html(by_file)])
+    for row, i in zip(summary["filters"], infos):
+        f, n = row["final"], row["nees"]
+        nees = "no covariance" if not i["with_covariance"] else f"NEES mean {n['mean']:.2f} (band {n['band_low']:.2f}.."
+        nees += "" if not i["with_covariance"] else f"{n['band_high']:.2f})"
+        say(args, f"{row['filter']}: {i['runs']} runs x {i['frames_scored']} of {i['frames']} frames: final 3-sigma "
+                  f"{f['position_3sigma_km']:.0f} km, {f['velocity_3sigma_m_s']:.3f} m/s; RMS error over the last leg "
+                  f"{f['position_error_rms_km']:.0f} km; {nees}")
+    say(args, f"report: {out}/report.html")
+    return 0
+
+
+def add_score_parser(ssub) -> None:
+    """Register ``nav`` on the ``bench score`` sub-parsers."""
+    p = ssub.add_parser("nav", help=f"navigation states ({NAV_RESULTS_SCHEMA}) written by any program, per frame and run",
+                        description="Score navigation results files (JSON Lines; schema "
+                        "skynav/datasets/schemas/nav_results.schema.json: frame, run, position_km, velocity_km_s, "
+                        "optional t_tdb_s, covariance_km_km_s, status, time_ms) against a sequence dataset's truth, as "
+                        "bench nav scores its runs (final 3-sigma, RMS error, NEES), side by side when several are given.")
+    add_dataset_arg(p, "the 'sequence' dataset the states were estimated on")
+    p.add_argument("results", nargs="+", metavar="RESULTS", help="results file(s), JSON Lines")
+    add_limit_arg(p)
+    add_output_arg(p, help="report folder")
+    add_quiet(p)
+    p.set_defaults(func=cmd_score_nav)
 
 
 #: FilterDynamics fields ``--set dynamics.FIELD=VALUE`` may change (the scalar ones)
