@@ -291,5 +291,18 @@ def tetra3rs(camera) -> Tetra3rsProcessor:
 
 
 def cedar_solve(camera):
-    """cedar-solve: its release pins numpy < 2 and cannot be installed beside skynav (numpy >= 2)."""
-    raise PluginError("--pipeline cedar-solve: not installable here: its release pins numpy < 2, skynav needs numpy >= 2")
+    """cedar-solve: its release pins numpy < 2 and cannot be installed beside skynav (numpy >= 2).
+
+    Raises
+    ------
+    PluginError
+        Always here: not importable beside numpy >= 2, or (installed in some other way) without
+        an adapter to this interface.
+    """
+    try:
+        import cedar_solve as _cedar  # noqa: F401 - optional, and not installable beside numpy >= 2
+    except ImportError:
+        raise PluginError("--pipeline cedar-solve: not installable here: its release pins numpy < 2, skynav needs "
+                          "numpy >= 2") from None
+    raise PluginError("--pipeline cedar-solve: installed, but skynav has no adapter for it yet; wrap it in a "
+                      "plug-in of your own (docs/benchmark.md)")

