@@ -42,6 +42,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from skynav.infra.errors import SkynavError
+from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
 
 from .catalog import OnboardCatalog
@@ -216,8 +217,6 @@ class SkynavEKF:
     """
 
     def __init__(self, setup: FilterSetup, *, iterations: int = UPDATE_ITERATIONS, gate_k: float = 4.0):
-        from skynav.scenes.constants import SECONDS_PER_DAY
-
         self.setup = setup
         self.iterations, self.gate_k = int(iterations), float(gate_k)
         self._dyn = setup.dynamics.bind(setup.ephemeris, setup.t_start_tdb_s - SECONDS_PER_DAY,

@@ -60,7 +60,7 @@ class NavResultsFileError(NavInputError):
 
 @functools.lru_cache(maxsize=1)
 def _validator():
-    import jsonschema
+    import jsonschema  # only reading a results file validates: not loaded by bench nav itself
 
     schema = json.loads((files("skynav.datasets") / "schemas" / "nav_results.schema.json").read_text(encoding="utf-8"))
     return jsonschema.Draft202012Validator(schema), frozenset(schema["properties"])
