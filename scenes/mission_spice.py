@@ -127,12 +127,69 @@ def kernel_pool(paths: Sequence):
             sp.kclear()
             for p in paths:
                 try:
-                    sp.furnsh(str(p))
+                    meta = meta_kernel_entries(sp, p)
+                    for q in meta if meta is not None else [p]:
+                        sp.furnsh(str(q))
+                except SceneFileError:
+                    sp.kclear()
+                    raise
                 except Exception as exc:  # CSPICE's error, one line
                     sp.kclear()
                     raise _one_line(exc, [p]) from None
             _LOADED[0], _LOADED[1] = key, _loaded_files(sp)
         yield sp
+
+
+def _is_meta_kernel(path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return False
+    return head.startswith(b"KPL/") and b"KERNELS_TO_LOAD" in head
+
+
+def _pool_strings(sp, name: str) -> list:
+    try:
+        return list(sp.gcpool(name, 0, 10000))
+    except sp.exceptions.NotFoundError:  # no such character variable (expool is for numbers)
+        return []
+
+
+def meta_kernel_entries(sp, path):
+    """The kernels a meta-kernel lists (``KERNELS_TO_LOAD``, its ``PATH_SYMBOLS`` substituted and
+    ``+`` continuations joined), relative ones read beside the meta-kernel as every file is in
+    skynav (CSPICE would read them from the current folder); each a path whose ``given`` is the
+    entry as written. None when ``path`` is not a meta-kernel. Its other variables are loaded
+    (``ldpool``); call with the pool lock held."""
+    if not _is_meta_kernel(path):
+        return None
+    sp.ldpool(str(path))
+    entries, joined = [], ""
+    for e in _pool_strings(sp, "KERNELS_TO_LOAD"):
+        joined += e[:-1] if e.endswith("+") else e
+        if not e.endswith("+"):
+            entries.append(joined)
+            joined = ""
+    symbols = dict(zip(_pool_strings(sp, "PATH_SYMBOLS"), _pool_strings(sp, "PATH_VALUES")))
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    out = []
+    for e in entries:
+        name = e
+        for sym in sorted(symbols, key=len, reverse=True):
+            name = name.replace(f"${sym}", symbols[sym])
+        full = name if os.path.isabs(name) else os.path.join(folder, name)
+        if not os.path.isfile(full):
+            raise SceneFileError(f"{given_name(path)}: KERNELS_TO_LOAD names {e}, no such file beside it")
+        out.append(_Given(full, e))
+    return out
+
+
+class _Given(str):
+    def __new__(cls, path, given):
+        self = super().__new__(cls, path)
+        self.given = given
+        return self
 
 
 def release_kernels() -> None:
@@ -156,8 +213,23 @@ def _sha256(path: str) -> str:
 
 
 def kernel_records(paths) -> list:
-    """``[{"name": as given, "sha256": of the file}]`` of kernels, for the truth and the manifest."""
-    return [{"name": given_name(p), "sha256": _sha256(str(p))} for p in paths]
+    """``[{"name": as given, "sha256": of the file}]`` of kernels, for the truth and the manifest;
+    a meta-kernel's own kernels follow it, named as it writes them, with ``"via"``: its name."""
+    out = []
+    for p in paths:
+        out.append({"name": given_name(p), "sha256": _sha256(str(p))})
+        if _is_meta_kernel(str(p)):
+            with _POOL_LOCK:
+                sp = _spice()
+                _LOADED[0] = None  # ldpool adds to the pool: the next use reloads its set
+                try:
+                    listed = meta_kernel_entries(sp, str(p))
+                except SceneFileError:
+                    raise
+                except Exception as exc:
+                    raise _one_line(exc, [p]) from None
+            out += [{"name": given_name(q), "sha256": _sha256(str(q)), "via": given_name(p)} for q in listed]
+    return out
 
 
 def spice_state(paths, body, t_tdb_s: float):

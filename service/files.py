@@ -13,7 +13,8 @@ SPICE kernels (``observer.spice.kernels``, ``attitude.spice.kernels``, ``ephemer
 the same rule (:func:`kernel_path`), without the size bound: CSPICE reads a kernel by its path
 and only the parts it needs, so the resolved path is handed to it, checked to be a regular file
 inside a folder. The truth records each kernel's name as given and its SHA-256. A meta-kernel
-in a ``--data-dir`` folder is the operator's file: the kernels it names are loaded as written.
+in a ``--data-dir`` folder is the operator's file: the kernels it names are loaded beside it, or
+from where its absolute paths say.
 """
 
 from __future__ import annotations

@@ -142,3 +142,52 @@ def test_a_utc_epoch_without_a_leapseconds_kernel_names_what_is_missing(tmp_path
                                      "attitude: {ra_deg: 10, dec_deg: 5}\n")
     with pytest.raises(ConfigValueError, match="leapseconds kernel"):
         load_scene_file(tmp_path / "s.yaml")
+
+
+# ----------------------------------------------------------------------------- meta-kernels
+META = """KPL/MK
+\\begindata
+PATH_VALUES     = ( 'time' )
+PATH_SYMBOLS    = ( 'T' )
+KERNELS_TO_LOAD = ( '$T/leap.tls', 'cra+'
+                    'ft.bsp' )
+\\begintext
+"""
+
+
+def test_a_meta_kernel_stands_for_its_list_read_beside_it(tmp_path, monkeypatch):
+    """Its relative entries (after PATH_SYMBOLS, ``+`` continuations joined) are read beside the
+    meta-kernel, wherever skynav runs from; the truth's records follow it with each kernel."""
+    import hashlib
+
+    from astropy.time import Time
+
+    (tmp_path / "kernels" / "time").mkdir(parents=True)
+    (tmp_path / "kernels" / "time" / "leap.tls").write_text(LSK)
+    t = Time("2027-02-01T00:00:00", scale="utc").tdb
+    _spk(tmp_path / "kernels" / "craft.bsp", ((t.jd1 - 2451545.0) + t.jd2) * 86400.0)
+    (tmp_path / "kernels" / "mission.tm").write_text(META)
+    (tmp_path / "s.yaml").write_text("epoch: 2027-02-01T00:00:00 UTC\n"
+                                     "observer: {spice: {kernels: [kernels/mission.tm], body: '-999'}}\n"
+                                     "attitude: {ra_deg: 10, dec_deg: 5}\n")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    spec = load_scene_file(tmp_path / "s.yaml")
+    np.testing.assert_allclose(spec.position_km, [1.2e8, -4.0e7, 2.5e7], rtol=0, atol=1e-3)  # the SPK's t0, 1 m
+    sha = {n: hashlib.sha256((tmp_path / "kernels" / n).read_bytes()).hexdigest()
+           for n in ("mission.tm", "time/leap.tls", "craft.bsp")}
+    assert [(f["name"], f["sha256"], f.get("via")) for f in spec.data_files] == [
+        ("kernels/mission.tm", sha["mission.tm"], None), ("$T/leap.tls", sha["time/leap.tls"], "kernels/mission.tm"),
+        ("craft.bsp", sha["craft.bsp"], "kernels/mission.tm")]
+
+
+def test_a_meta_kernel_naming_a_missing_file_is_one_line(tmp_path, capsys):
+    from skynav.cli import main
+
+    (tmp_path / "mission.tm").write_text(META)
+    (tmp_path / "s.yaml").write_text("epoch: 2027-02-01T00:00:00\n"
+                                     "observer: {spice: {kernels: [mission.tm], body: '-999'}}\n"
+                                     "attitude: {ra_deg: 10, dec_deg: 5}\n")
+    assert main(["scene", str(tmp_path / "s.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mission.tm: KERNELS_TO_LOAD names $T/leap.tls, no such file" in err
