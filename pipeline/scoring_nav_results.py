@@ -33,7 +33,7 @@ from .planet_centroid import CentroidNoise
 from .scoring_nav_campaign import CampaignResult
 from .scoring_nav_plan import NavInputError
 
-__all__ = ["NAV_RESULTS_SCHEMA", "NavResultsFileError", "read_nav_results", "score_nav_results"]
+__all__ = ["NAV_RESULTS_SCHEMA", "NavResultsFileError", "read_nav_results", "score_nav_results", "write_nav_results"]
 
 NAV_RESULTS_SCHEMA = "skynav.nav_results/1"
 #: lines read at most (a results file of more lines than this is not one dataset's)
@@ -166,3 +166,23 @@ def score_nav_results(plan, results, *, case: int = 1):
     info = {"results_file": str(results), "runs": R, "frames_scored": F, "frames": int(plan.frames), "lines": len(got),
             "with_covariance": bool(all(v[1] is not None for v in got.values()))}
     return res, sub, info
+
+
+def write_nav_results(path, res, plan) -> Path:
+    """Write a campaign's states (``res``: a :class:`~skynav.pipeline.scoring_nav.CampaignResult`
+    on ``plan``'s frames) as a results file in the published schema, one line per run and frame:
+    the estimate is the error plus the truth (to float rounding, ~1e-8 km at 1 au)."""
+    path = Path(path)
+    truth = np.concatenate([plan.position_km, plan.velocity_km_s], 1)
+    with open(path, "w", encoding="utf-8") as f:
+        for r in range(res.error.shape[0]):
+            for k in range(res.error.shape[1]):
+                x = res.error[r, k] + truth[k]
+                if not np.all(np.isfinite(x)):
+                    continue
+                rec = {"frame": k, "run": r, "t_tdb_s": float(plan.t_tdb_s[k]), "position_km": x[:3].tolist(),
+                       "velocity_km_s": x[3:].tolist(), "status": res.ip_status[k]}
+                if np.all(np.isfinite(res.cov[r, k])):
+                    rec["covariance_km_km_s"] = res.cov[r, k].tolist()
+                f.write(json.dumps(rec) + "\n")
+    return path

@@ -36,7 +36,7 @@ from skynav.pipeline.scoring_nav_filters import (
     filters_summary,
 )
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
-from skynav.pipeline.scoring_nav_results import NAV_RESULTS_SCHEMA, score_nav_results
+from skynav.pipeline.scoring_nav_results import NAV_RESULTS_SCHEMA, score_nav_results, write_nav_results
 from skynav.pipeline.star_id import star_id_camera_check
 from skynav.scenes.overrides import OverrideError
 
@@ -109,6 +109,8 @@ def cmd_nav(args) -> int:
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info,
                        extra_md=filters_markdown(summary["filters"]) if side else (),
                        extra_html=[filters_figure_html(by_filter)] if side else ())
+    if args.write_states:
+        write_nav_results(Path(out, "states.jsonl"), results[primary], plan)
     _say_summary(args, summary, noise, total, setup_s, ip_s, fl_s, out)
     return 0
 
@@ -303,6 +305,9 @@ def add_parser(bsub) -> None:
     p.add_argument("--calibration-stride", type=positive_int, default=1,
                    help="frames between calibration frames (default 1: all)")
     add_filter_arg(p)
+    p.add_argument("--write-states", action="store_true",
+                   help=f"also write states.jsonl: every run's state at every frame (first filter, first case) in the "
+                        f"results-file schema {NAV_RESULTS_SCHEMA} that 'bench score nav' reads")
     add_limit_arg(p)
     add_output_arg(p, help="report folder")
     add_quiet(p)

@@ -106,3 +106,19 @@ def test_not_json_is_one_line(seq, tmp_path, capsys):
     assert main(["bench", "score", "nav", str(seq), str(res), "-o", str(tmp_path / "rep")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "line 1: not a JSON object (NaN is not JSON" in err[0], err
+
+
+def test_bench_nav_states_scored_from_their_file_give_bench_nav_figures(seq, tmp_path):
+    """bench nav --write-states writes the runs' states in the published schema; scored back by
+    bench score nav they give bench nav's figures (to the file's float rounding, 1e-8 km at 1 au:
+    relative 1e-9 here)."""
+    rep, back = tmp_path / "rep", tmp_path / "back"
+    assert main(["bench", "nav", str(seq), "--runs", "3", "--seed", "4", "--sigma-px", "0.1", "-q", "--write-states",
+                 "-o", str(rep)]) == 0
+    assert main(["bench", "score", "nav", str(seq), str(rep / "states.jsonl"), "-q", "-o", str(back)]) == 0
+    a, b = (json.loads((p / "summary.json").read_text()) for p in (rep, back))
+    for group in ("final", "nees"):
+        for key, v in a[group].items():
+            if isinstance(v, float):
+                assert b[group][key] == pytest.approx(v, rel=1e-9, abs=1e-9), (group, key)
+    assert (a["runs"], a["frames"]) == (b["runs"], b["frames"])
