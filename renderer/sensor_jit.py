@@ -224,7 +224,7 @@ def _jit_charge(mean, extra, key, index=None):
     import drjit as dr
 
     jt = _module_of(mean)
-    PCG32, Bool, Float, Float64, UInt32 = jt.PCG32, jt.Bool, jt.Float, jt.Float64, jt.UInt32
+    PCG32, Float, Float64, UInt32 = jt.PCG32, jt.Float, jt.Float64, jt.UInt32
     if index is None:
         index = dr.arange(UInt32, dr.width(mean))
     initstate, initseq = pixel_stream_seeds(key, index)
@@ -262,7 +262,22 @@ def _jit_charge(mean, extra, key, index=None):
 
     k_small, _, _ = dr.while_loop((k0, p0, p0), inv_cond, inv_body, labels=("k", "p", "f"), label="poisson_inversion")
 
-    # -- PTRS transformed rejection (means >= 10), Hoermann (1993), as in numpy's random_poisson_ptrs.
+    pcg, k_big = _jit_poisson_ptrs(pcg, lam, small)
+    n = dr.select(small, Float(k_small), k_big)
+    if extra is not None:
+        n = n + extra
+    return n, pcg
+
+
+def _jit_poisson_ptrs(pcg, lam, small):
+    """Poisson(lam) by PTRS transformed rejection (Hoermann 1993), lazy, in the lanes not ``small``
+    (the others' draw is 0 and their stream is not advanced): ``(pcg advanced, k)``."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    jt = _module_of(lam)
+    Bool, Float = jt.Bool, jt.Float
+    # As in numpy's random_poisson_ptrs.
     # Its constants are computed inside the loop body: only the few packets of lanes holding a
     # mean >= 10 (stars, bright bodies) enter the loop, so the dark sky does not pay for them.
     big_lam = dr.select(small, POISSON_INVERSION_MAX_MEAN, lam)
@@ -294,11 +309,7 @@ def _jit_charge(mean, extra, key, index=None):
         accept = fast | (~reject & (log_lhs <= log_pmf))
         return rng, dr.select(accept, kk, k), done | accept
 
-    pcg, k_big, _ = dr.while_loop((pcg, Float(0.0), Bool(small)), ptrs_cond, ptrs_body, labels=("rng", "k", "done"), label="poisson_ptrs")
-    n = dr.select(small, Float(k_small), k_big)
-    if extra is not None:
-        n = n + extra
-    return n, pcg
+    return dr.while_loop((pcg, Float(0.0), Bool(small)), ptrs_cond, ptrs_body, labels=("rng", "k", "done"), label="poisson_ptrs")[:2]
 
 
 #: Giles (2010) single-precision erfinv: its central polynomial in w - 2.5 (w < 5) and its tail

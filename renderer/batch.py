@@ -1,0 +1,334 @@
+"""Frames in batches: the sensor chain of many frames as one Dr.Jit program, the frames kept on
+the device until asked for.
+
+What is batched, and why: in the default frame (1024^2, stars to V 9) the sensor chain takes
+about three quarters of a render on the CPU (docs/performance.md, "Batched frames"), the optics
+(star splat with the PSF models and streaks, resolved bodies) most of the rest. This module runs
+the optics of each frame as :func:`~skynav.renderer.render.render` does
+(:func:`~skynav.renderer.expected.expected_image`, the numpy reference), draws each frame's
+cosmic rays and sensor key from the frame's stream at the same point as the per-frame path, and
+then runs the sensor chain of the whole batch (PRNU and dark current, Poisson charge, cosmic-ray
+charge, full well, read noise, gain, ADC) as one kernel over N x H x W lanes: one Python body
+traced for Dr.Jit's LLVM and CUDA backends (:func:`_batch_exposure`), as the per-frame sensor
+kernel is (:mod:`skynav.renderer.sensor_jit`).
+
+The kernel is the per-frame chain with one change: the Poisson inversion for means below
+:data:`~skynav.renderer.sensor_jit.POISSON_INVERSION_MAX_MEAN` makes its first eight terms with
+constant reciprocals, ``p(j) = p(j - 1) * (lam * (1 / j))``, unrolled before the loop, instead of
+eight float64 divisions in every lane (the loop then runs only in the packets that need more
+terms: for the dark sky's 2 e- means one pixel in four thousand). The pmf terms differ from the
+per-frame kernel's by a rounding, so a frame's DN equal the per-frame path's DN of the same seed
+except where ``u`` falls within a rounding of a cumulative sum (tested as statistics, with the
+EMVA 1288 checks of the sensor tests, and as that rare difference). The expected images, the
+cosmic rays and the truth are the per-frame path's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from skynav.infra.errors import ConfigValueError
+
+from . import cosmic_rays as cr
+from . import jit_backend
+from .detector import JIT_BACKENDS, PixelCharge, fixed_patterns
+from .expected import expected_image
+from .options import RenderOptions
+from .render import Detection, sensor_backend
+from .sensor_jit import (
+    POISSON_INVERSION_MAX_MEAN,
+    _INVERSION_MAX_K,
+    _INVERSION_TERMS_PER_TRIP,
+    _jit_module,
+    _jit_poisson_ptrs,
+    _jit_readout,
+    _module_of,
+    frame_key,
+    pixel_stream_seeds,
+)
+from .truth import frame_truth
+
+__all__ = ["FrameBatch", "render_batch", "expose_batch"]
+
+
+def _poisson_small(u, lam64, small):
+    """Poisson(lam) by sequential inversion in the ``small`` lanes (float64, lazy): the first
+    :data:`_INVERSION_TERMS_PER_TRIP` terms unrolled with constant reciprocals, then the
+    per-frame kernel's loop from there for the lanes whose ``u`` lies beyond them."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    Float64 = _module_of(u).Float64
+    p = dr.exp(-lam64)
+    f, k = Float64(p), Float64(0.0)
+    for j in range(1, _INVERSION_TERMS_PER_TRIP + 1):  # k counts the F(0 .. j - 1) below u
+        k = k + dr.select(u > f, 1.0, 0.0)
+        p = p * (lam64 * (1.0 / j))
+        f = f + p
+
+    def cond(k, p, f):
+        return small & (u > f) & (k < _INVERSION_MAX_K)
+
+    def body(k, p, f):  # a lane here has k = the terms made so far, all below u
+        step = Float64(0.0)
+        for j in range(1, _INVERSION_TERMS_PER_TRIP + 1):
+            step = step + dr.select(u > f, 1.0, 0.0)
+            p = p * (lam64 / (k + float(j)))
+            f = f + p
+        return k + step, p, f
+
+    return dr.while_loop((k, p, f), cond, body, labels=("k", "p", "f"), label="poisson_inversion_batch")[0]
+
+
+def _batch_charge(mean, extra, key, pixel):
+    """Poisson(mean) + extra over the batch's lanes, lazy, and the advanced PCG32 streams: lane j
+    draws from the stream of pixel ``pixel[j]`` under its frame's key ``key`` (four UInt32 per
+    lane), as the per-frame kernel's pixel does under that frame's key."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    jt = _module_of(mean)
+    initstate, initseq = pixel_stream_seeds(key, pixel)
+    pcg = jt.PCG32(dr.width(mean))
+    pcg.seed(initstate, initseq)
+    lam = dr.maximum(mean, 0.0)
+    small = lam < POISSON_INVERSION_MAX_MEAN
+    u = pcg.next_float64()
+    k_small = _poisson_small(u, jt.Float64(lam), small)
+    pcg, k_big = _jit_poisson_ptrs(pcg, lam, small)
+    n = dr.select(small, jt.Float(k_small), k_big)
+    return (n if extra is None else n + extra), pcg
+
+
+def _batch_exposure(sig, gain, dark, extra, t, key, full_well, readout, pixel, small_dn):
+    """The sensor chain (without blooming) over the batch's lanes: lazy DN."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    n, pcg = _batch_charge(dr.fma(sig, gain, dark * t), extra, key, pixel)
+    return _jit_readout(dr.minimum(n, full_well), pcg, *readout, small_dn=small_dn)
+
+
+@functools.lru_cache(maxsize=8)
+def _patterns(params, shape, backend):
+    """The PRNU and dark-current images of a sensor on a Dr.Jit backend (one copy per process)."""
+    Float = _jit_module(backend).Float
+    gain, dark = fixed_patterns(params, shape)
+    return Float(gain.ravel()), Float(dark.ravel())
+
+
+def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "llvm", charges=None):
+    """Digital numbers of a batch of exposures of one sensor, as a lazy Dr.Jit array.
+
+    Parameters
+    ----------
+    params : SensorParams
+        The sensor.
+    electrons : ndarray, shape (N, H, W), float32
+        Expected electrons of each frame, e-.
+    exposure_s : float
+    keys : sequence of N tuples of 4 int
+        Each frame's sensor key (:func:`~skynav.renderer.sensor_jit.frame_key` of its stream).
+    backend : {"llvm", "cuda"}
+    charges : sequence of N PixelCharge or None, optional
+        Each frame's cosmic-ray charge (added after the shot noise, before the full well).
+
+    Returns
+    -------
+    drjit UInt8 or UInt32 array, shape (N * H * W,)
+        DN in frame-major, row-major order, on ``backend``'s device (``.numpy()`` brings them over).
+
+    Raises
+    ------
+    ConfigValueError
+        ``electrons`` is not (N, H, W), ``keys`` not N keys, or the sensor blooms (its column
+        spreading is numpy's, per frame: :func:`~skynav.renderer.render.render`).
+    """
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    e = np.asarray(electrons)
+    if e.ndim != 3 or len(keys) != e.shape[0]:
+        raise ConfigValueError("electrons", f"shape {e.shape} with {len(keys)} keys", "(N, H, W) with N keys")
+    if params.blooming:
+        raise ConfigValueError("sensor.blooming", True, "False in a batch (a blooming sensor's frames: render())")
+    jit_backend.require(backend)
+    jt = _jit_module(backend)
+    n_frames, shape = e.shape[0], e.shape[1:]
+    hw = shape[0] * shape[1]
+    lanes = dr.arange(jt.UInt32, n_frames * hw)
+    frame, pixel = lanes // hw, lanes % hw
+    key_cols = np.asarray(keys, dtype=np.uint32).reshape(n_frames, 4)
+    key = tuple(dr.gather(jt.UInt32, jt.UInt32(key_cols[:, i].copy()), frame) for i in range(4))
+    gain_img, dark_img = _patterns(params, tuple(shape), backend)
+    gain, dark = dr.gather(jt.Float, gain_img, pixel), dr.gather(jt.Float, dark_img, pixel)
+    extra = None
+    if charges is not None and any(c is not None and len(c.index) for c in charges):
+        idx = [np.asarray(c.index, np.int64) + i * hw for i, c in enumerate(charges) if c is not None]
+        val = [np.asarray(c.electrons, np.float64) for c in charges if c is not None]
+        u, total = PixelCharge(index=np.concatenate(idx), electrons=np.concatenate(val)).per_pixel()
+        extra = dr.zeros(jt.Float, n_frames * hw)  # the few pixels hit: scattered on the device
+        dr.scatter(extra, jt.Float(total.astype(np.float32)), jt.UInt32(u.astype(np.uint32)))
+    op = functools.partial(dr.opaque, jt.Float)
+    readout = (op(float(np.hypot(params.read_noise_e, params.reset_noise_e))), op(params.gain_dn_per_e),
+               op(params.offset_dn + 0.5), op(float(params.max_dn)))
+    sig = jt.Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
+    return _batch_exposure(sig, gain, dark, extra, op(float(exposure_s)), key, op(params.full_well_e), readout,
+                           pixel, params.bit_depth <= 8)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FrameBatch:
+    """A batch of rendered frames; the DN stay on the device until asked for.
+
+    Attributes
+    ----------
+    dn_device : tuple of drjit arrays
+        Digital counts on the device (UInt8 for bit depths <= 8, else UInt32), one array per
+        launch of :func:`expose_batch` (``frames_per_launch`` frames each, frame-major).
+    shape : tuple of int
+        ``(N, H, W)``.
+    electrons : ndarray, shape (N, H, W), float32
+        Expected electrons plus cosmic-ray charge per frame (the per-frame path's), e-.
+    truths : list of dict
+        Each frame's ground truth (``skynav.frame/2``; ``render.sensor_program`` = ``"batch"``).
+    backend : str
+        The Dr.Jit backend of the sensor chain.
+    timings_s : dict
+        ``optics`` (expected images, cosmic rays, truths: numpy, this thread), ``launch`` (the
+        sensor's inputs to the device and its kernel launched) and ``sensor_wait`` (the wait for
+        the last launches once the optics are done), s.
+    dtype : numpy dtype
+        The DN's type on the host (uint8 or uint16).
+    """
+
+    dn_device: tuple
+    shape: tuple
+    electrons: np.ndarray
+    truths: list
+    backend: str
+    timings_s: dict
+    dtype: object = np.uint8
+
+    @property
+    def dn(self) -> np.ndarray:
+        """The DN as a numpy array (N, H, W) of the camera's type (copied from the device)."""
+        return np.concatenate([d.numpy() for d in self.dn_device]).reshape(self.shape).astype(self.dtype, copy=False)
+
+
+def render_batch(scenes, seeds, *, options: RenderOptions = RenderOptions(), frames_per_launch: int = 4) -> FrameBatch:
+    """Render a batch of frames of one camera: the optics per frame, the sensor as one program.
+
+    Frame i draws from ``numpy.random.default_rng(seeds[i])`` as :func:`render` does (the
+    expected image's draws, the cosmic rays, then the sensor key), so its expected image,
+    electrons, cosmic rays and truth are :func:`render`'s, and its DN are its sensor's statistics.
+
+    Parameters
+    ----------
+    scenes : sequence of Scene
+        The frames' scenes; every one with the same camera size and sensor.
+    seeds : sequence
+        Each frame's seed (int or ``numpy.random.SeedSequence``), recorded in its truth.
+    options : RenderOptions
+        As :func:`render`'s; ``backend`` names the Dr.Jit backend (``auto``: the one
+        :func:`render` would use; ``numpy`` is refused: the per-frame path is numpy's program).
+    frames_per_launch : int
+        Frames of one sensor launch: their optics are made, the kernel over their N x H x W
+        lanes is launched, and the next frames' optics are made while the device runs it (the
+        CPU's optics and the device's sensor overlap). The frames do not depend on it.
+
+    Returns
+    -------
+    FrameBatch
+
+    Raises
+    ------
+    ConfigValueError
+        No scene, scenes and seeds of different lengths, cameras of different sensors or sizes,
+        ``noise=False``, a backend that is not a Dr.Jit one.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from skynav.renderer import RenderOptions, jit_backend
+    >>> from skynav.renderer.batch import render_batch
+    >>> from skynav.scenes import build_from_spec, default_scene_spec
+    >>> spec = default_scene_spec()
+    >>> camera = spec.camera.replace(width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)
+    >>> scene = build_from_spec(dataclasses.replace(spec, camera=camera))
+    >>> if jit_backend.llvm_available():
+    ...     batch = render_batch([scene, scene], [1, 2])
+    ...     print(batch.dn.shape, batch.electrons.dtype.name, batch.truths[1]["seeds"]["frame"])
+    ... else:
+    ...     print((2, 64, 64), "float32", 2)
+    (2, 64, 64) float32 2
+    """
+    scenes, seeds = list(scenes), list(seeds)
+    if isinstance(frames_per_launch, bool) or not isinstance(frames_per_launch, int) or frames_per_launch < 1:
+        raise ConfigValueError("frames_per_launch", frames_per_launch, "an integer >= 1")
+    if not scenes or len(scenes) != len(seeds):
+        raise ConfigValueError("scenes", f"{len(scenes)} scenes and {len(seeds)} seeds", "one seed per scene, >= 1")
+    cam = scenes[0].camera
+    if any((s.camera.width, s.camera.height, s.camera.sensor) != (cam.width, cam.height, cam.sensor) for s in scenes):
+        raise ConfigValueError("scenes", "cameras of different sizes or sensors", "one camera size and sensor per batch")
+    if not options.noise:
+        raise ConfigValueError("options.noise", False, "True (the batch program draws the noise; "
+                               "noise-free frames: render())")
+    backend = sensor_backend(options.backend)
+    if backend not in JIT_BACKENDS:
+        raise ConfigValueError("options.backend", options.backend, "llvm, cuda or auto on a machine with one of them")
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    t0 = time.perf_counter()
+    shape = (cam.height, cam.width)
+    electrons = np.zeros((len(scenes), *shape), np.float32)
+    parts, launched, pending, t_launch = [], [], [], 0.0
+    for first in range(0, len(scenes), frames_per_launch):
+        ks = range(first, min(first + frames_per_launch, len(scenes)))
+        keys, charges, hits_e = [], [], []
+        for i in ks:
+            scene, seed = scenes[i], seeds[i]
+            rng = np.random.default_rng(seed)
+            support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
+            expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
+            hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
+                                       track_prob=options.cosmic_ray_track_prob)
+            keys.append(frame_key(rng))  # where the per-frame sensor draws it
+            charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
+                                 electrons=hits.pixel_electrons)
+            charges.append(charge)
+            drawn = np.concatenate(support) if support else np.zeros(0, np.int64)
+            # rounded to float32, as detect() does: the sensor's input (zero off the pixels drawn)
+            electrons[i].reshape(-1)[drawn] = expected.electrons.reshape(-1)[drawn]
+            hit, hit_e = charge.per_pixel()
+            hits_e.append((hit, expected.electrons.reshape(-1)[hit] + hit_e))  # summed in float64, as detect()
+            # the truth needs the sources' figures, not the float64 images: let them go
+            parts.append((scene, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits, seed))
+        t = time.perf_counter()
+        dn = expose_batch(cam.sensor, electrons[ks.start:ks.stop], cam.exposure_s, keys, backend=backend, charges=charges)
+        dr.eval(dn)  # launched; the device works on it while this thread makes the next frames' optics
+        launched.append(dn)
+        t_launch += time.perf_counter() - t
+        pending += zip(ks, hits_e)
+    truths = []
+    for scene, expected, hits, seed in parts:
+        det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
+        truth = frame_truth(scene, expected, det, seed=seed, options=options)
+        truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
+        truths.append(truth)
+    t1 = time.perf_counter()
+    dr.sync_thread()  # the launches are done
+    t2 = time.perf_counter()
+    # the sensor read ``electrons`` in place (the LLVM backend does not copy a numpy array): only
+    # now may the cosmic-ray charge be added to the frames' electrons
+    for i, (hit, value) in pending:
+        electrons[i].reshape(-1)[hit] = value
+    return FrameBatch(dn_device=tuple(launched), shape=(len(scenes), *shape), electrons=electrons, truths=truths,
+                      backend=backend, timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
+                      dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
