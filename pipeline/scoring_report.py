@@ -16,9 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from .references import IMAGE_PROCESSING, references_md
+from .scoring import WRONG_ATTITUDE_ARCSEC
 from .report_html import REPORT_CSS, figure_base64_png, markdown_to_html, new_figure
 
-__all__ = ["write_report", "report_figures", "time_histogram_figure", "side_by_side_md", "PAPER_TABLE3"]
+__all__ = ["write_report", "report_figures", "time_histogram_figure", "side_by_side_md", "side_by_side_figure",
+           "PAPER_TABLE3"]
 
 # Andreis et al. (2023a), Table 3 (1031 scenes with a planet; 962 with an attitude): sigma_r km ->
 # (sigma_ErrRot arcsec, % wrong attitude, % no attitude, % wrong beacon (of 962),
@@ -204,6 +206,27 @@ def side_by_side_md(runs, sigmas_km, *, notes=None) -> list:
     return md + [""]
 
 
+def side_by_side_figure(runs, sigma0):
+    """``(title, caption, figure)``: the cumulative attitude error of every processor of ``runs``
+    (``{name: rows}``) at ``sigma0``, each over all its frames (so a curve ends at its correct
+    share)."""
+    fig = new_figure((900, 420))
+    ax = fig.add_subplot()
+    for name, rows in runs.items():
+        s0 = [r for r in rows if r.sigma_km == float(sigma0)]
+        e = np.sort(np.maximum([r.error_arcsec for r in s0 if r.attitude != "none"], 1e-3))
+        if len(e):
+            ax.step(e, 100.0 * np.arange(1, len(e) + 1) / max(len(s0), 1), where="post", label=name)
+    ax.set_xscale("log")
+    ax.axvline(WRONG_ATTITUDE_ARCSEC, color="r", lw=0.8, label="wrong beyond 500 arcsec")
+    ax.set_xlabel("attitude error (arcsec)")
+    ax.set_ylabel("share of all frames with an error below (%)")
+    ax.set_ylim(0.0, 100.0)
+    ax.legend(loc="lower right", fontsize=8)
+    return ("attitude error, every processor side by side",
+            f"σr = {float(sigma0):g} km; frames a processor did not solve (or failed on) keep its curve below 100 %.", fig)
+
+
 def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info, others=None):
     """Write the four report files into ``out_dir`` (created).
 
@@ -229,8 +252,10 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info,
                    **{k: v for k, v in info.items() if k not in ("pipelines", "peer_rows", "peer_notes")}}
     (out / "summary.json").write_text(json.dumps(_clean(full), indent=2, allow_nan=False) + "\n", encoding="utf-8")
     a = summary["attitude"]
+    first = rows[0].pipeline if rows else mode
     md = [f"# skynav bench ip: {source}", "",
-          f"Mode `{mode}`, seed {seed}, {summary['frames']} frames, predicted-position errors σr "
+          f"Processors: {', '.join([f'`{first}`'] + [f'`{n}`' for n in others])} (up to \"Side by side\", the "
+          f"figures are `{first}`'s). Mode `{mode}`, seed {seed}, {summary['frames']} frames, predicted-position errors σr "
           f"{', '.join(f'{s:g}' for s in sigmas_km)} km per axis.", "",
           "## Attitude", "",
           f"- correct {100 * a['correct_rate']:.2f} %, wrong (> 500 arcsec) {100 * a['wrong_rate']:.2f} %, "
@@ -253,13 +278,14 @@ def write_report(out_dir, rows, summary, *, sigmas_km, mode, seed, source, info,
         md.append(f"| {k} | {b['beacons']} | {f(b['correct_rate'])} | {f(b['wrong_rate'])} | {f(b['none_rate'])} | "
                   f"{b['error_px_mean']:.3f} | ({b['error_mean_px'][0]:.4f}, {b['error_mean_px'][1]:.4f}) | "
                   f"{p4[0] if p4 else '-'} |")
-    first = rows[0].pipeline if rows else mode
     md += side_by_side_md({first: (rows, summary), **others}, sigmas_km, notes=info.get("notes", {}))
     refs = references_md([IMAGE_PROCESSING])
     (out / "report.md").write_text("\n".join(md + refs), encoding="utf-8")
     body = "".join(f"<h2>{html.escape(t)}</h2><img alt=\"{html.escape(t)}\" src=\"data:image/png;base64,{figure_base64_png(fig)}\">"
                    + (f"<p>{html.escape(c)}</p>" if c else "")
-                   for t, c, fig in report_figures(rows, summary, sigmas_km))
+                   for t, c, fig in report_figures(rows, summary, sigmas_km)
+                   + ([side_by_side_figure({first: rows, **{n: r for n, (r, _) in others.items()}}, sigmas_km[0])]
+                      if others else []))
 
     md_html = markdown_to_html("\n".join(md).splitlines())
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>skynav bench ip</title>"
