@@ -34,6 +34,9 @@ CAMERA_PRESETS = {"paper": paper_camera}
 #: Longest wavelength of a camera's response table, nm (far infrared: no optical camera reaches it;
 #: the radiometry integrates the band on a 0.25 nm grid, which a wider band would make unbounded).
 MAX_WAVELENGTH_NM = 1e5
+#: Shortest, nm (far ultraviolet, the PSF models' own lower bound): a tinier positive wavelength
+#: overflows the Planck spectra of the radiometry (exp(hc / lambda k T)).
+MIN_WAVELENGTH_NM = 100.0
 
 
 def _number(value, key, *, allowed="a finite number", integer=False):
@@ -121,9 +124,9 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         qe = [_number(v, f"{key}.response.qe_t[{i}]") for i, v in enumerate(qe)]
         if any(b <= a for a, b in zip(wl, wl[1:])):
             raise ConfigValueError(f"{key}.response.wavelengths_nm", wl[:3], "strictly increasing wavelengths")
-        if not (0 < wl[0] and wl[-1] <= MAX_WAVELENGTH_NM):
+        if not (MIN_WAVELENGTH_NM <= wl[0] and wl[-1] <= MAX_WAVELENGTH_NM):
             raise ConfigValueError(f"{key}.response.wavelengths_nm", [wl[0], wl[-1]],
-                                   f"wavelengths > 0 and <= {MAX_WAVELENGTH_NM:g} nm")
+                                   f"wavelengths in [{MIN_WAVELENGTH_NM:g}, {MAX_WAVELENGTH_NM:g}] nm")
         if any(not 0 <= v <= 1 for v in qe):
             raise ConfigValueError(f"{key}.response.qe_t", qe[:3], "values in [0, 1]")
         kw["response_wavelengths_nm"], kw["response_qe_t"] = tuple(wl), tuple(qe)
@@ -189,18 +192,26 @@ def _physical_memory_bytes() -> int:
 
 
 def _check_camera_limits(kw: dict, key: str) -> None:
-    """Refuse physically impossible camera values (one line naming the key the user wrote)."""
-    limits = {  # key: (low exclusive, high inclusive, what is allowed)
-        "focal_length_mm": (0.0, 1e5, "in (0, 1e5] mm (a 100 m focal length is already beyond any camera)"),
-        "pixel_pitch_um": (0.0, 1e3, "in (0, 1000] um"),
-        "pixel_pitch_y_um": (0.0, 1e3, "in (0, 1000] um"),
-        "f_number": (0.0, 1e3, "in (0, 1000]"),
+    """Refuse physically impossible camera values (one line naming the key the user wrote).
+
+    The lower bounds of the lengths and the f-number are physical, not only positive: a tiny
+    positive value (1e-308) passes ``> 0`` but overflows what is derived from it (the focal
+    length in pixels, the aperture's area, the diffraction pattern's sampling), so it is refused
+    here rather than failing downstream."""
+    limits = {  # key: (low, high inclusive, what is allowed); the low bound of the first four included, of the rest excluded
+        "focal_length_mm": (1e-3, 1e5, "in [0.001, 1e5] mm (a 100 m focal length is already beyond any camera; "
+                                       "1 um is below any lens)"),
+        "pixel_pitch_um": (1e-3, 1e3, "in [0.001, 1000] um"),
+        "pixel_pitch_y_um": (1e-3, 1e3, "in [0.001, 1000] um"),
+        "f_number": (0.1, 1e3, "in [0.1, 1000] (0.5 is the least a lens in air reaches)"),
         "exposure_s": (0.0, SECONDS_PER_DAY, "in (0, 86400] s (one day)"),
         "defocus_sigma_px": (-1e-300, 1e3, "in [0, 1000] px"),
     }
+    closed = ("focal_length_mm", "pixel_pitch_um", "pixel_pitch_y_um", "f_number")
     for name, (lo, hi, allowed) in limits.items():
-        if name in kw and kw[name] is not None and not lo < kw[name] <= hi:
-            raise ConfigValueError(f"{key}.{name}", kw[name], allowed)
+        v = kw.get(name)
+        if v is not None and not ((lo <= v if name in closed else lo < v) and v <= hi):
+            raise ConfigValueError(f"{key}.{name}", v, allowed)
     for name in ("width", "height"):
         if name in kw and not 1 <= kw[name] <= 100_000:
             raise ConfigValueError(f"{key}.{name}", kw[name], "an integer in 1..100000 px")
