@@ -114,14 +114,22 @@ def kernel_path(name, key: str, data_dirs) -> str:
 
 
 @contextlib.contextmanager
-def request_files(data_dirs=(), max_bytes: int = MAX_DATA_FILE_BYTES):
+def request_files(data_dirs=(), max_bytes: int = MAX_DATA_FILE_BYTES, max_total_bytes: int | None = None):
     """Within: the PSF files of the scenes built are read only as :func:`read_data_file` allows
     and their kernels loaded only as :func:`kernel_path` allows (none where ``data_dirs`` is
-    empty), their names kept as given."""
+    empty), their names kept as given, and the PSF files at most ``max_total_bytes`` in all (a
+    field grid may name one file at every point: each is read and held again; the request's
+    memory budget, :class:`skynav.service.budget.Budget`)."""
     folders = tuple(os.path.realpath(d) for d in data_dirs)
+    read = [0]
 
     def opener(name, key):
-        return io.BytesIO(read_data_file(name, key, folders, max_bytes))
+        data = read_data_file(name, key, folders, max_bytes)
+        read[0] += len(data)
+        if max_total_bytes is not None and read[0] > max_total_bytes:
+            raise ConfigValueError(key, name, f"files of at most {max_total_bytes} bytes in all in one request "
+                                              "(their tables are held in memory; skynav serve --max-request-memory)")
+        return io.BytesIO(data)
 
     token = PSF_FILE_OPENER.set(opener)
     # no folders: a request's kernel names get the scene layer's "cannot name a file"

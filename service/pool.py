@@ -8,7 +8,10 @@ that serves HTTP, through asyncio streams over the same socket, in the connectio
 ``recv`` and ``send``.
 Concurrency is bounded: ``n`` frames render at once, ``max_queue`` more wait for an idle worker,
 the next is refused (:class:`ServiceBusy`). A worker that dies (killed, out of memory) fails its
-request (:class:`WorkerDied`) and is replaced by a fresh one.
+request (:class:`WorkerDied`) and is replaced by a fresh one; so does one that reaches its
+address-space cap (``Limits.worker_memory``: it answers so and ends) or passes the request's wall
+deadline (``Limits.request_deadline``: it is killed). Other requests are not held up meanwhile:
+they go to the other workers, and the replacement warms up off the event loop.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from dataclasses import dataclass
 
 from skynav.infra.pool import WorkerThreads
 
+from .budget import MAX_REQUEST_MEMORY, MAX_REQUEST_SECONDS, Budget
 from .files import MAX_DATA_FILE_BYTES
 from .protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from .worker import worker_main
@@ -47,6 +51,16 @@ class ClientGone(Exception):
     """The client of a queued request hung up before a worker was free: the frame is not rendered."""
 
 
+#: Default address-space cap of each worker, bytes (``skynav serve --worker-memory``): a warm
+#: worker reserves about 1 GB of address space, the request budget adds 1 GiB at most.
+WORKER_MEMORY = 4 * 1024**3
+
+#: Default wall seconds a worker may spend on one request (``skynav serve --request-deadline``):
+#: beyond, it is killed and replaced. Six times the default time budget: a request within the
+#: budget finishes well before it, even on a loaded machine.
+REQUEST_DEADLINE_S = 60.0
+
+
 @dataclass
 class Limits:
     max_request_bytes: int = MAX_REQUEST_BYTES
@@ -54,19 +68,24 @@ class Limits:
     max_queue: int = MAX_QUEUE
     data_dirs: tuple = ()                       # folders whose files a request may name (--data-dir)
     max_data_file_bytes: int = MAX_DATA_FILE_BYTES
+    max_request_memory: float = MAX_REQUEST_MEMORY    # the estimate's budget (skynav.service.budget)
+    max_request_seconds: float = MAX_REQUEST_SECONDS
+    worker_memory: int | None = WORKER_MEMORY        # each worker's address-space cap, bytes (None: none)
+    request_deadline: float | None = REQUEST_DEADLINE_S  # wall seconds a worker may spend on one request
 
     def worker_bounds(self) -> dict:
         """The bounds a worker applies to each request (:func:`skynav.service.worker.answer`)."""
         return {"max_camera_pixels": self.max_camera_pixels, "data_dirs": tuple(self.data_dirs),
-                "max_data_file_bytes": self.max_data_file_bytes}
+                "max_data_file_bytes": self.max_data_file_bytes,
+                "budget": Budget(self.max_request_memory, self.max_request_seconds)}
 
 
 class _Worker:
     """One render process and the server's end of its pipe."""
 
-    def __init__(self, ctx, facility, threads):
+    def __init__(self, ctx, facility, threads, memory_cap=None):
         self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=worker_main, args=(child, facility, threads), daemon=True)
+        self.process = ctx.Process(target=worker_main, args=(child, facility, threads, memory_cap), daemon=True)
         # the spawned worker reads its thread budget from the environment it starts with: Dr.Jit
         # and OpenEXR (SKYNAV_THREADS) and OpenBLAS/OpenMP/MKL alike, so that N workers on N cores
         # do not each start a pool as wide as the machine
@@ -138,7 +157,8 @@ class WorkerPool:
         """Start the workers and wait until each has warmed up; seconds."""
         t0 = time.perf_counter()
         try:
-            self.workers = [_Worker(self._ctx, self.facility_arg, self.threads) for _ in range(self.n)]
+            self.workers = [_Worker(self._ctx, self.facility_arg, self.threads, self.limits.worker_memory)
+                            for _ in range(self.n)]
             infos = [w.wait_ready(timeout_s) for w in self.workers]
         except BaseException:
             self.stop()
@@ -208,9 +228,21 @@ class WorkerPool:
         return task
 
     async def _exchange(self, worker: _Worker, request: tuple) -> tuple:
+        """The worker's answer; the worker is replaced when it dies, when it passes the
+        request's deadline (killed here) and when it reached its memory cap (it ends itself)."""
         died = False
+        deadline = self.limits.request_deadline
         try:
-            return await worker.exchange(request)
+            answer = await asyncio.wait_for(worker.exchange(request), deadline)
+            if answer[0] == "cap":
+                died = True
+                raise WorkerDied(answer[1])
+            return answer
+        except asyncio.TimeoutError:
+            died = True
+            worker.process.kill()
+            raise WorkerDied(f"the render went past the server's deadline of {deadline:g} s (skynav serve "
+                             "--request-deadline); the worker was replaced; ask for a smaller frame, PSF or spp") from None
         except (EOFError, OSError):
             died = True
             raise WorkerDied("the render worker died while rendering this frame (out of memory?); "
@@ -236,7 +268,7 @@ class WorkerPool:
         self._idle.put_nowait(worker)
 
     def _respawn(self) -> _Worker:
-        w = _Worker(self._ctx, self.facility_arg, self.threads)
+        w = _Worker(self._ctx, self.facility_arg, self.threads, self.limits.worker_memory)
         w.wait_ready(600)
         return w
 

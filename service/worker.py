@@ -16,6 +16,7 @@ PNG, EXR and truth bytes are those of its files.
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import sys
 import time
@@ -33,14 +34,18 @@ from skynav.infra.errors import ConfigValueError, SkynavError
 from skynav.scenes.presets import preset_mapping
 from skynav.scenes.scene import build_from_spec
 
+from .budget import Budget, check_budget
 from .files import request_files
 from .protocol import OUTPUTS, answer_chunks, read_json
 
 
-def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None) -> tuple[dict, list]:
+def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: int | None = None,
+                   budget: Budget | None = None) -> tuple[dict, list]:
     """Render one scene mapping; ``({output: bytes}, [warning lines])``.
 
-    Raises a :class:`~skynav.infra.errors.SkynavError` for a bad mapping (the scene-file words).
+    Raises a :class:`~skynav.infra.errors.SkynavError` for a bad mapping (the scene-file words),
+    and for a scene whose estimated cost is above ``budget`` (:func:`skynav.service.budget.check_budget`,
+    before anything is drawn).
     """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -52,10 +57,12 @@ def render_outputs(mapping: dict, outputs, *, facility=None, max_camera_pixels: 
         scene = build_from_spec(spec)
         seed = spec.seed
         parts = {}
+        # as skynav.cli.cmd_render: noise on, backend auto, the scene's cosmic rays and spp
+        options = RenderOptions(noise=True, backend="auto", cosmic_rays_per_frame=spec.cosmic_rays_per_frame,
+                                mitsuba_spp=spec.mitsuba_spp)
+        if budget is not None:
+            check_budget(scene, options, budget, mapping)
         if any(o in outputs for o in ("png", "exr", "truth")):
-            # as skynav.cli.cmd_render: noise on, backend auto, the scene's cosmic rays and spp
-            options = RenderOptions(noise=True, backend="auto", cosmic_rays_per_frame=spec.cosmic_rays_per_frame,
-                                    mitsuba_spp=spec.mitsuba_spp)
             frame = render(scene, seed=seed, options=options)
             files = {"png": "png", "exr": "exr", "truth": "json"}
             for o in outputs:
@@ -89,33 +96,55 @@ def answer(msg, facility) -> tuple:
     """The answer to one request ``(JSON body, outputs, bounds)`` (bounds:
     :meth:`skynav.service.pool.Limits.worker_bounds`): ``("ok", content type,
     warning lines, render seconds, HTTP body)``, or ``(kind, one line)`` with kind ``bad`` (the
-    request's fault: a 400) or ``error`` (a bug: a 500, the traceback on this process's stderr)."""
+    request's fault: a 400), ``cap`` (the worker reached its memory cap: it ends, the server
+    replaces it and answers 503) or ``error`` (a bug: a 500, the traceback on this process's
+    stderr)."""
     body, outputs, bounds = msg
+    budget = bounds.get("budget")
     try:
         mapping = read_json(body)   # as the server read it (it checked the envelope)
         mapping.pop("outputs", None)
         t0 = time.perf_counter()
-        with request_files(bounds["data_dirs"], bounds["max_data_file_bytes"]):
+        with request_files(bounds["data_dirs"], bounds["max_data_file_bytes"],
+                           None if budget is None else budget.max_file_bytes):
             parts, lines = render_outputs(mapping, tuple(o for o in outputs if o in OUTPUTS), facility=facility,
-                                          max_camera_pixels=bounds["max_camera_pixels"])
+                                          max_camera_pixels=bounds["max_camera_pixels"], budget=budget)
         chunks, ctype = answer_chunks(parts)
         return "ok", ctype, lines, time.perf_counter() - t0, b"".join(chunks)
     except SkynavError as exc:
         return "bad", " ".join(str(exc).split())
     except MemoryError:
-        return "bad", "camera: the frame does not fit in the server's memory; ask for fewer pixels"
+        return "cap", ("the render reached the worker's memory cap (skynav serve --worker-memory); the worker "
+                       "was replaced; ask for a smaller frame, PSF or spp")
     except Exception as exc:  # noqa: BLE001 - a bug: logged here, one line to the client
         traceback.print_exc(file=sys.stderr)
         return "error", f"internal error while rendering ({exc.__class__.__name__}); see the server's log"
 
 
-def worker_main(conn, facility_arg, threads) -> None:
+def cap_address_space(max_bytes: int | None) -> None:
+    """This process's address space capped at ``max_bytes`` (``RLIMIT_AS``; None: no cap).
+
+    An address-space cap rather than an RSS cap: the kernel enforces it at each allocation, so a
+    request that would pass it gets a MemoryError (numpy) or dies (a native library) before it
+    holds the memory, where a watched RSS is seen only after the fact. It counts what is reserved
+    as well as what is touched: Dr.Jit and LLVM reserve address space for their JIT and thread
+    pools, and a warm one-thread worker holds about 0.95 GB of it (``VmSize``, measured with
+    ``python benchmarks/request_cost_bench.py``) for about 0.37 GB resident, which the cap leaves
+    room for."""
+    if max_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (int(max_bytes), int(max_bytes)))
+
+
+def worker_main(conn, facility_arg, threads, memory_cap=None) -> None:
     """Entry point of one worker process: warm up, say ready, then answer the requests on ``conn``
-    (a :class:`multiprocessing.connection.Connection`) until it closes or brings None."""
+    (a :class:`multiprocessing.connection.Connection`) until it closes or brings None. The process
+    runs under :func:`cap_address_space` (``memory_cap`` bytes); an answer of kind ``cap`` is its
+    last."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the server decides
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if threads:
         os.environ["SKYNAV_THREADS"] = str(threads)
+    cap_address_space(memory_cap)
 
     try:
         facility = None
@@ -140,4 +169,7 @@ def worker_main(conn, facility_arg, threads) -> None:
                 return
             if msg is None:
                 return
-            conn.send(answer(msg, facility))
+            reply = answer(msg, facility)
+            conn.send(reply)
+            if reply[0] == "cap":   # a MemoryError may leave a native library half-way: a fresh worker takes over
+                return

@@ -7,12 +7,15 @@ import sys
 import threading
 
 from skynav.calibration.facility_io import load_facility
+from skynav.service.budget import MAX_REQUEST_MEMORY, MAX_REQUEST_SECONDS
 from skynav.service.files import MAX_DATA_FILE_BYTES
+from skynav.service.pool import REQUEST_DEADLINE_S, WORKER_MEMORY
 from skynav.service.protocol import MAX_CAMERA_PIXELS, MAX_QUEUE, MAX_REQUEST_BYTES
 from skynav.service.guard import ConnectionLimits
 from skynav.service.server import Limits, ServiceStartError, is_loopback, serve
 
-from .cli_args import MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_arg, float_in, int_in, positive_int
+from .cli_args import (MAX_WORKERS, add_facility_arg, add_set_arg, add_workers_arg, float_in, int_in, non_negative_int,
+                       positive_int)
 from .cli_common import COMMAND_HELP, fail
 
 
@@ -128,7 +131,9 @@ def _serve_http(args) -> int:
             return fail(f"--data-dir {folder}: not a folder")
     limits = Limits(max_request_bytes=args.max_request_bytes, max_camera_pixels=args.max_camera_pixels,
                     max_queue=args.max_queue, data_dirs=tuple(os.path.realpath(d) for d in args.data_dir),
-                    max_data_file_bytes=args.max_data_file_bytes)
+                    max_data_file_bytes=args.max_data_file_bytes, max_request_memory=args.max_request_memory,
+                    max_request_seconds=args.max_request_seconds, worker_memory=args.worker_memory or None,
+                    request_deadline=args.request_deadline)
     threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
     def ready(line):
@@ -199,6 +204,18 @@ def add_parser(sub) -> None:
                    "(PSF images) requests may name, relative to it; repeatable (default: none, requests name no file)")
     s.add_argument("--max-data-file-bytes", type=positive_int, default=MAX_DATA_FILE_BYTES, metavar="N",
                    help=f"largest file a request may name (default {MAX_DATA_FILE_BYTES})")
+    s.add_argument("--max-request-memory", type=positive_int, default=MAX_REQUEST_MEMORY, metavar="BYTES",
+                   help="a request whose estimated memory (beyond the warm worker's) is larger gets 400 naming the key "
+                        f"behind it (default {MAX_REQUEST_MEMORY})")
+    s.add_argument("--max-request-seconds", type=float_in(0.0, 86400.0, low_open=True, unit="s"),
+                   default=MAX_REQUEST_SECONDS, metavar="S", help="a request whose estimated render time (one core) "
+                   f"is longer gets 400 naming the key behind it (default {MAX_REQUEST_SECONDS:g})")
+    s.add_argument("--worker-memory", type=non_negative_int, default=WORKER_MEMORY, metavar="BYTES",
+                   help="each worker's address-space cap (RLIMIT_AS); a request that reaches it gets 503 and the "
+                        f"worker is replaced (default {WORKER_MEMORY}; 0: none)")
+    s.add_argument("--request-deadline", type=float_in(0.0, 86400.0, low_open=True, unit="s"),
+                   default=REQUEST_DEADLINE_S, metavar="S", help="wall seconds a worker may spend on one request; "
+                   f"beyond, it is killed and replaced, and the request gets 503 (default {REQUEST_DEADLINE_S:g})")
     s.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN", help="a web origin "
                    "(e.g. https://lab.example) whose pages may call the server (CORS); repeatable (default: none)")
     s.add_argument("--threads", type=positive_int, default=None, help="threads per worker (default cores / workers)")
