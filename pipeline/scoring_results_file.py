@@ -30,9 +30,9 @@ from skynav.infra.errors import SkynavWarning
 from .errors import BenchInputError
 from .plugins import check_result
 from .protocols import BeaconSighting, ImageResult
-from .scoring import open_frames, score_frame
+from .scoring import open_frames, predicted_state, score_frame
 
-__all__ = ["RESULTS_SCHEMA", "ResultsFileError", "read_results_file", "score_results_file"]
+__all__ = ["RESULTS_SCHEMA", "ResultsFileError", "read_results_file", "score_results_file", "write_predictions"]
 
 RESULTS_SCHEMA = "skynav.ip_results/1"
 #: lines read at most (a results file of more lines than this is not one dataset's)
@@ -167,3 +167,30 @@ def score_results_file(dataset, results, *, sigmas_km=None, limit=None, name=Non
                                     pipeline=name))
     return rows, {"frames": n, "results_file": str(results), "sigmas_km": sigmas_km,
                   "lines": len(got)}
+
+
+def write_predictions(dataset, out, *, sigmas_km, seed=0, limit=None) -> int:
+    """Write the predicted states ``bench ip`` gives every processor, for a program that runs apart.
+
+    One JSON line per frame and sigma: ``frame``, ``sigma_km``, ``position_km``, ``velocity_km_s``
+    and ``position_cov_km2`` (ICRS, barycentric), drawn as :func:`~skynav.pipeline.scoring.run_benchmark`
+    draws them (``SeedSequence([seed, frame, i_sigma])``). A program that answers with the line's
+    ``sigma_km`` is scored at that sigma, on the prediction every plug-in had.
+
+    Returns
+    -------
+    int
+        The lines written.
+    """
+    src = open_frames(dataset)
+    n = len(src) if limit is None else min(limit, len(src))
+    lines = []
+    for k in range(n):
+        truth = src.truth(k)
+        for i, s in enumerate(sigmas_km):
+            ps = predicted_state(truth, float(s), np.random.default_rng(np.random.SeedSequence([int(seed), k, i])))
+            lines.append(json.dumps({"frame": k, "sigma_km": float(s), "position_km": ps.position_km.tolist(),
+                                     "velocity_km_s": ps.velocity_km_s.tolist(),
+                                     "position_cov_km2": ps.position_cov_km2.tolist()}))
+    Path(out).write_text("".join(line + "\n" for line in lines), encoding="utf-8")
+    return len(lines)

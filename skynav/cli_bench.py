@@ -17,7 +17,7 @@ from skynav.pipeline.errors import BenchInputError
 from skynav.pipeline.plugins import BUILTIN, SkynavProcessor, load_factory
 from skynav.pipeline.process import ProcessOptions
 from skynav.pipeline.scoring import DEFAULT_FRAME_TIMEOUT_S, run_benchmark, summarise, summarise_peers
-from skynav.pipeline.scoring_results_file import score_results_file
+from skynav.pipeline.scoring_results_file import score_results_file, write_predictions
 from skynav.pipeline.scoring_report import write_report
 from skynav.scenes.overrides import dataclass_from_overrides
 
@@ -118,6 +118,31 @@ def cmd_score_ip(args) -> int:
     return _report(args, runs, info, sigmas, source=args.dataset, mode="results file", seed=0)
 
 
+def cmd_predictions(args) -> int:
+    sigmas = _sigmas(args)
+    if Path(args.output).is_dir():
+        raise BenchInputError(f"-o {args.output}: is a folder; give a file name (e.g. {Path(args.output) / 'predictions.jsonl'})")
+    check_output(args.output, [("DATASET", args.dataset)], kind="file")
+    n = write_predictions(args.dataset, args.output, sigmas_km=sigmas, seed=args.seed, limit=args.limit)
+    say(args, f"{n} predicted states ({len(sigmas)} sigma(s) per frame): {args.output}")
+    return 0
+
+
+def _add_predictions(bsub) -> None:
+    p = bsub.add_parser("predictions", help="write the predicted states bench ip gives every processor (JSON Lines)",
+                        description="Write the on-board predicted states 'skynav bench ip' gives every processor, one "
+                        "JSON line per frame and sigma (frame, sigma_km, position_km, velocity_km_s, position_cov_km2), "
+                        "for a program that runs apart and writes a results file: a result line that repeats the "
+                        "sigma_km is scored at that sigma.")
+    add_dataset_arg(p, "dataset folder, or a folder of NNNNNN.png + .json frames")
+    _add_sigmas(p, [1e4, 1e5, 1e6, 1e7])
+    add_seed_arg(p, default=0, help="seed of the predicted-state draws (default 0, as bench ip's)")
+    add_limit_arg(p)
+    add_output_arg(p, help="the JSON Lines file to write")
+    add_quiet(p)
+    p.set_defaults(func=cmd_predictions)
+
+
 def _add_sigmas(p, default) -> None:
     p.add_argument("--position-sigma-km", type=float_in(0, MAX_SIGMA_KM, low_open=True, unit="km"), nargs="+",
                    default=default,
@@ -178,7 +203,7 @@ def _add_score(bsub) -> None:
     return ssub
 
 
-REGISTRARS = [_add_ip]
+REGISTRARS = [_add_ip, _add_predictions]
 
 
 def add_parser(sub) -> None:

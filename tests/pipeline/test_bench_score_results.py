@@ -166,3 +166,31 @@ def test_a_frame_missing_a_required_key_is_still_refused_in_one_line(foreign_fol
     assert main(["bench", "ip", str(bad), "--position-sigma-km", "1e4", "-q", "-o", str(tmp_path / "r")]) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if "warning" not in ln]
     assert len(err) == 1 and "000001.json" in err[0] and "camera.focal_length_mm" in err[0], err
+
+
+def test_predictions_are_bench_ips_and_a_line_at_their_sigma_is_scored_there(mc3, tmp_path, capsys):
+    """``bench predictions`` writes the predicted states every plug-in gets; a program that answers
+    with their ``sigma_km`` is scored at that sigma."""
+    from skynav.pipeline.scoring import open_frames, predicted_state
+
+    pred = tmp_path / "pred.jsonl"
+    assert main(["bench", "predictions", str(mc3), "--position-sigma-km", "1e4", "1e6", "--seed", "4", "-o",
+                 str(pred)]) == 0
+    lines = [json.loads(ln) for ln in pred.read_text().splitlines()]
+    assert [(d["frame"], d["sigma_km"]) for d in lines] == [(k, s) for k in range(3) for s in (1e4, 1e6)]
+    src = open_frames(mc3)
+    for d in lines:
+        i = (1e4, 1e6).index(d["sigma_km"])
+        ps = predicted_state(src.truth(d["frame"]), d["sigma_km"],
+                             np.random.default_rng(np.random.SeedSequence([4, d["frame"], i])))
+        assert d["position_km"] == ps.position_km.tolist() and d["velocity_km_s"] == ps.velocity_km_s.tolist()
+        assert d["position_cov_km2"] == ps.position_cov_km2.tolist()
+    ds = D.open(mc3)
+    recs = [{"frame": d["frame"], "sigma_km": d["sigma_km"],
+             "R_cam_icrs": np.asarray(ds.truth(d["frame"]).R_cam_icrs).tolist() if d["sigma_km"] == 1e4 else None}
+            for d in lines]
+    rows, info = score_results_file(mc3, _write(tmp_path / "r.jsonl", recs))
+    assert info["sigmas_km"] == (1e4, 1e6)
+    assert {(r.sigma_km, r.attitude) for r in rows} == {(1e4, "correct"), (1e6, "none")}
+    assert main(["bench", "predictions", str(mc3), "-o", str(tmp_path)]) == 2
+    assert "is a folder; give a file name" in capsys.readouterr().err
