@@ -16,7 +16,8 @@ measurement-noise calibration all fly through :class:`FlightComputer`:
 6. update the filter with a :class:`BeaconMeasurement`.
 
 A navigation filter is anyone's: an object with ``initialise``, ``propagate``, ``update`` and
-``state`` (:class:`NavigationFilter`), made by a factory ``FACTORY(setup) -> NavigationFilter``
+``state`` (:class:`skynav.pipeline.protocols.NavigationFilter`), made by a factory
+``FACTORY(setup) -> NavigationFilter``
 that ``--filter MODULE:FACTORY`` names. skynav's EKF is one through the same interface
 (:func:`skynav_ekf`, the default). A filter holds the N Monte Carlo runs of a campaign at once
 (they share the epochs and the frames; a filter of one run loops over them). A fault of the
@@ -35,9 +36,8 @@ import importlib.util
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -47,16 +47,15 @@ from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
 
 from .catalog import OnboardCatalog
 from .ekf import NavFilter, initial_covariance
-from .filter_dynamics import FilterDynamics
 from .measurement import CASES
 from .pairs import candidates_from_state, optimal_pair
 from .planet_centroid import CentroidNoise, centroid_usable, diameter_px, target_beacon
 from .process import process_frame
+from .protocols import BeaconMeasurement, FilterSetup, FilterUpdate, NavigationFilter
 from .results import PredictedState
 
-__all__ = ["UPDATE_ITERATIONS", "DEFAULT_FILTER", "BeaconMeasurement", "FilterSetup", "FilterUpdate",
-           "NavigationFilter", "FilterPluginError", "FlightComputer", "FlightStep", "SkynavEKF", "initial_states",
-           "load_filter_factory", "make_filter", "measure_target", "skynav_ekf"]
+__all__ = ["UPDATE_ITERATIONS", "DEFAULT_FILTER", "FilterPluginError", "FlightComputer", "FlightStep", "SkynavEKF",
+           "Sighting", "initial_states", "load_filter_factory", "make_filter", "measure_target", "skynav_ekf"]
 
 #: Iterated EKF update of skynav's filter: after the first 10-day propagation the position is known
 #: to ~1e5 km only and the first Earth fix is nonlinear over that spread; with the one-step EKF 2 of
@@ -70,142 +69,6 @@ DEFAULT_FILTER = "skynav.pipeline.flight:skynav_ekf"
 
 class FilterPluginError(SkynavError, ValueError):
     """``--filter MODULE:FACTORY`` names nothing importable, or the factory gives no filter."""
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class FilterSetup:
-    """What a filter factory is given: the on-board ephemeris, the span it will be propagated over,
-    skynav's force model and the measurement-model case (a filter may ignore what it does not use).
-
-    Attributes
-    ----------
-    ephemeris : skynav.scenes.ephemeris_jpl.Ephemeris
-        On-board ephemeris (``position(name, t_tdb_s)``, ``position_velocity``, ``gm_km3_s2`` ...).
-    t_start_tdb_s, t_end_tdb_s : float
-        The flight's first and last epochs, TDB s past J2000.
-    case : int
-        Light-effect case of the measurement model (Andreis et al. (2024), Sec. 5.2; 1..5).
-    dynamics : FilterDynamics
-        skynav's force and process-noise model (Andreis et al. (2023b), Eqs. 1-7).
-    """
-
-    ephemeris: object
-    t_start_tdb_s: float
-    t_end_tdb_s: float
-    case: int = 1
-    dynamics: FilterDynamics = field(default_factory=FilterDynamics)
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class BeaconMeasurement:
-    """One planet's centroid as the filter receives it: the pixel and the line of sight it gives.
-
-    Attributes
-    ----------
-    t_tdb_s : float
-        Epoch of the frame (mid-exposure), TDB s past J2000.
-    body : str
-        The planet (ephemeris name).
-    xy_px : ndarray, shape (2,)
-        The measured centroid, px (docs/conventions.md pixel convention).
-    sigma_px : float
-        Its noise per axis, px (1 sigma); ``xy_cov_px2 = sigma_px^2 I``.
-    line_of_sight_icrs : ndarray, shape (3,)
-        The observed (apparent: light-time delayed and aberrated) unit direction to the planet's
-        centre of light, ICRS: ``R_cam_icrs.T @ camera.line_of_sight(xy_px)``.
-    line_of_sight_cov_rad2 : ndarray, shape (3, 3)
-        Its covariance, rad^2: ``xy_cov_px2`` through the camera's back projection (rank 2; the
-        attitude's own error is not added: ``sigma_px`` is measured with the frame's attitude).
-    R_cam_icrs : ndarray, shape (3, 3)
-        The frame's attitude from the image processing (``v_cam = R_cam_icrs @ v_icrs``).
-    camera : skynav.scenes.camera.Camera
-        The calibrated camera.
-    body_position_km, body_velocity_km_s : ndarray, shape (3,)
-        The planet's geometric barycentric ICRS state at ``t_tdb_s`` (on-board ephemeris).
-    sun_position_km : ndarray, shape (3,)
-        The Sun's, for the photocentre.
-    body_radius_km : float
-        The planet's radius (0 when the benchmark models the planet's centre, ``--no-phase-offset``).
-    photocentre : str
-        ``"lambert"`` or ``"saturated"``: which centre of light the image shows
-        (:func:`skynav.pipeline.measurement.planet_pixel`).
-    """
-
-    t_tdb_s: float
-    body: str
-    xy_px: np.ndarray
-    sigma_px: float
-    line_of_sight_icrs: np.ndarray
-    line_of_sight_cov_rad2: np.ndarray
-    R_cam_icrs: np.ndarray
-    camera: object
-    body_position_km: np.ndarray
-    body_velocity_km_s: np.ndarray
-    sun_position_km: np.ndarray
-    body_radius_km: float
-    photocentre: str = "lambert"
-
-    @property
-    def xy_cov_px2(self) -> np.ndarray:
-        """Covariance of ``xy_px``, px^2, shape (2, 2)."""
-        return np.eye(2) * self.sigma_px**2
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class FilterUpdate:
-    """What :meth:`NavigationFilter.update` returns for the N runs.
-
-    Attributes
-    ----------
-    accepted : ndarray of bool, shape (N,)
-        The measurement corrected that run (False: rejected by the filter's own gate).
-    residual_px : ndarray, shape (N, 2), optional
-        Pre-fit innovation in px (NaN or None: the filter has none in px).
-    """
-
-    accepted: np.ndarray
-    residual_px: np.ndarray | None = None
-
-
-@runtime_checkable
-class NavigationFilter(Protocol):
-    """Anyone's navigation filter for N Monte Carlo runs that share epochs and measurements.
-
-    State layout: ``x[:, :3]`` barycentric ICRS position (km), ``x[:, 3:6]`` velocity (km/s);
-    further components are the filter's own (skynav's EKF: two Gauss-Markov accelerations, km/s^2).
-
-    Examples
-    --------
-    >>> class Coast:          # propagates nothing, measures nothing
-    ...     def initialise(self, t_tdb_s, x0, P0):
-    ...         self.x, self.P = x0[:, :6].copy(), np.broadcast_to(P0[:6, :6], (len(x0), 6, 6)).copy()
-    ...     def propagate(self, t_tdb_s):
-    ...         pass
-    ...     def update(self, measurement):
-    ...         return FilterUpdate(accepted=np.zeros(len(self.x), bool))
-    ...     def state(self):
-    ...         return self.x, self.P
-    >>> isinstance(Coast(), NavigationFilter)
-    True
-    """
-
-    def initialise(self, t_tdb_s: float, x0: np.ndarray, P0: np.ndarray) -> None:
-        """Start at ``t_tdb_s`` from ``x0`` (N, 12): position km, velocity km/s and two
-        accelerations km/s^2 (Andreis et al. (2023b), Table 2), with covariance ``P0`` (12, 12).
-        A filter with fewer states takes the leading block."""
-        ...
-
-    def propagate(self, t_tdb_s: float) -> None:
-        """Propagate every run to the epoch ``t_tdb_s`` (TDB s past J2000)."""
-        ...
-
-    def update(self, measurement: BeaconMeasurement) -> FilterUpdate:
-        """Correct every run with one planet's centroid."""
-        ...
-
-    def state(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(x (N, n), P (N, n, n))``, n >= 6, in the layout above."""
-        ...
 
 
 class SkynavEKF:
@@ -418,9 +281,12 @@ class FlightComputer:
         self.n_runs = 0
         self.ip_time_s = self.filter_time_s = 0.0
         self._faults: list = []
+        self._estimate = None
 
     # ---- the filter's calls, each guarded: a fault is a result of the step, not a crash
     def _call(self, what: str, fn, *args):
+        if what != "state":
+            self._estimate = None    # the filter may change: its state is read (and checked) again
         try:
             return fn(*args)
         except Exception as exc:   # noqa: BLE001 - anyone's filter: any exception fails the step
@@ -445,7 +311,12 @@ class FlightComputer:
 
     def estimate(self):
         """The filter's ``(x (N, n), P (N, n, n), reasons)``: per run ``""`` or why its state is
-        unusable (its x and P are then NaN)."""
+        unusable (its x and P are then NaN). Read once between two calls that may change the filter."""
+        if self._estimate is None:
+            self._estimate = self._read_estimate()
+        return self._estimate
+
+    def _read_estimate(self):
         got = self._call("state", self.nav.state)
         if got is None:
             reasons = [self._faults[-1]] * self.n_runs

@@ -49,9 +49,11 @@ import numpy as np
 if TYPE_CHECKING:  # the types of the signatures only; the pipeline sees observations, never opens them
     from skynav.datasets.observation import Observation
 
+    from .filter_dynamics import FilterDynamics
     from .results import PredictedState
 
-__all__ = ["BeaconSighting", "ImageProcessor", "ImageProcessorFactory", "ImageResult"]
+__all__ = ["BeaconMeasurement", "BeaconSighting", "FilterSetup", "FilterUpdate", "ImageProcessor", "ImageProcessorFactory",
+           "ImageResult", "NavigationFilter", "NavigationFilterFactory"]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -219,4 +221,154 @@ class ImageProcessorFactory(Protocol):
     """
 
     def __call__(self, camera) -> ImageProcessor:
+        ...
+
+
+# ----------------------------------------------------------------------------- navigation filters
+# The contract a benchmarked navigation filter fulfils (``bench nav --filter MODULE:FACTORY``,
+# ``bench loop --filter``): skynav's flight loop (:mod:`skynav.pipeline.flight`) calls it.
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FilterSetup:
+    """What a filter factory is given: the on-board ephemeris, the span it will be propagated over,
+    skynav's force model and the measurement-model case (a filter may ignore what it does not use).
+
+    Attributes
+    ----------
+    ephemeris : skynav.scenes.ephemeris_jpl.Ephemeris
+        On-board ephemeris (``position(name, t_tdb_s)``, ``position_velocity``, ``gm_km3_s2`` ...).
+    t_start_tdb_s, t_end_tdb_s : float
+        The flight's first and last epochs, TDB s past J2000.
+    case : int
+        Light-effect case of the measurement model (Andreis et al. (2024), Sec. 5.2; 1..5).
+    dynamics : skynav.pipeline.filter_dynamics.FilterDynamics
+        skynav's force and process-noise model (Andreis et al. (2023b), Eqs. 1-7); ``bind`` it to
+        the ephemeris over the span for its batched ``acceleration(t, r)``.
+    """
+
+    ephemeris: object
+    t_start_tdb_s: float
+    t_end_tdb_s: float
+    case: int = 1
+    dynamics: FilterDynamics
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class BeaconMeasurement:
+    """One planet's centroid as the filter receives it: the pixel and the line of sight it gives.
+
+    Attributes
+    ----------
+    t_tdb_s : float
+        Epoch of the frame (mid-exposure), TDB s past J2000.
+    body : str
+        The planet (ephemeris name).
+    xy_px : ndarray, shape (2,)
+        The measured centroid, px (docs/conventions.md pixel convention).
+    sigma_px : float
+        Its noise per axis, px (1 sigma); ``xy_cov_px2 = sigma_px^2 I``.
+    line_of_sight_icrs : ndarray, shape (3,)
+        The observed (apparent: light-time delayed and aberrated) unit direction to the planet's
+        centre of light, ICRS: ``R_cam_icrs.T @ camera.line_of_sight(xy_px)``.
+    line_of_sight_cov_rad2 : ndarray, shape (3, 3)
+        Its covariance, rad^2: ``xy_cov_px2`` through the camera's back projection (rank 2; the
+        attitude's own error is not added: ``sigma_px`` is measured with the frame's attitude).
+    R_cam_icrs : ndarray, shape (3, 3)
+        The frame's attitude from the image processing (``v_cam = R_cam_icrs @ v_icrs``).
+    camera : skynav.scenes.camera.Camera
+        The calibrated camera.
+    body_position_km, body_velocity_km_s : ndarray, shape (3,)
+        The planet's geometric barycentric ICRS state at ``t_tdb_s`` (on-board ephemeris).
+    sun_position_km : ndarray, shape (3,)
+        The Sun's, for the photocentre.
+    body_radius_km : float
+        The planet's radius (0 when the benchmark models the planet's centre, ``--no-phase-offset``).
+    photocentre : str
+        ``"lambert"`` or ``"saturated"``: which centre of light the image shows
+        (:func:`skynav.pipeline.measurement.planet_pixel`).
+    """
+
+    t_tdb_s: float
+    body: str
+    xy_px: np.ndarray
+    sigma_px: float
+    line_of_sight_icrs: np.ndarray
+    line_of_sight_cov_rad2: np.ndarray
+    R_cam_icrs: np.ndarray
+    camera: object
+    body_position_km: np.ndarray
+    body_velocity_km_s: np.ndarray
+    sun_position_km: np.ndarray
+    body_radius_km: float
+    photocentre: str = "lambert"
+
+    @property
+    def xy_cov_px2(self) -> np.ndarray:
+        """Covariance of ``xy_px``, px^2, shape (2, 2)."""
+        return np.eye(2) * self.sigma_px**2
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FilterUpdate:
+    """What :meth:`NavigationFilter.update` returns for the N runs.
+
+    Attributes
+    ----------
+    accepted : ndarray of bool, shape (N,)
+        The measurement corrected that run (False: rejected by the filter's own gate).
+    residual_px : ndarray, shape (N, 2), optional
+        Pre-fit innovation in px (NaN or None: the filter has none in px).
+    """
+
+    accepted: np.ndarray
+    residual_px: np.ndarray | None = None
+
+
+@runtime_checkable
+class NavigationFilter(Protocol):
+    """Anyone's navigation filter for N Monte Carlo runs that share epochs and measurements.
+
+    State layout: ``x[:, :3]`` barycentric ICRS position (km), ``x[:, 3:6]`` velocity (km/s);
+    further components are the filter's own (skynav's EKF: two Gauss-Markov accelerations, km/s^2).
+
+    Examples
+    --------
+    >>> class Coast:          # propagates nothing, measures nothing
+    ...     def initialise(self, t_tdb_s, x0, P0):
+    ...         self.x, self.P = x0[:, :6].copy(), np.broadcast_to(P0[:6, :6], (len(x0), 6, 6)).copy()
+    ...     def propagate(self, t_tdb_s):
+    ...         pass
+    ...     def update(self, measurement):
+    ...         return FilterUpdate(accepted=np.zeros(len(self.x), bool))
+    ...     def state(self):
+    ...         return self.x, self.P
+    >>> isinstance(Coast(), NavigationFilter)
+    True
+    """
+
+    def initialise(self, t_tdb_s: float, x0: np.ndarray, P0: np.ndarray) -> None:
+        """Start at ``t_tdb_s`` from ``x0`` (N, 12): position km, velocity km/s and two
+        accelerations km/s^2 (Andreis et al. (2023b), Table 2), with covariance ``P0`` (12, 12).
+        A filter with fewer states takes the leading block."""
+        ...
+
+    def propagate(self, t_tdb_s: float) -> None:
+        """Propagate every run to the epoch ``t_tdb_s`` (TDB s past J2000)."""
+        ...
+
+    def update(self, measurement: BeaconMeasurement) -> FilterUpdate:
+        """Correct every run with one planet's centroid."""
+        ...
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x (N, n), P (N, n, n))``, n >= 6, in the layout above."""
+        ...
+
+
+class NavigationFilterFactory(Protocol):
+    """``FACTORY(setup) -> NavigationFilter``: what ``--filter MODULE:FACTORY`` names; called once
+    per flight (per worker of a campaign) with a :class:`FilterSetup`."""
+
+    def __call__(self, setup: FilterSetup) -> NavigationFilter:
         ...

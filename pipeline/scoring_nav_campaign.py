@@ -22,9 +22,10 @@ from skynav.infra.pool import process_pool_map
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
 from .filter_dynamics import FilterDynamics
-from .flight import DEFAULT_FILTER, UPDATE_ITERATIONS, FilterSetup, FlightComputer, initial_states, make_filter
+from .flight import DEFAULT_FILTER, UPDATE_ITERATIONS, FlightComputer, initial_states, make_filter
 from .measurement import CASES, planet_pixel
 from .planet_centroid import CentroidNoise
+from .protocols import FilterSetup
 from .scoring_nav_plan import NavInputError, NavPlan, observation
 
 __all__ = ["UPDATE_ITERATIONS", "CampaignResult", "ChunkResult", "run_campaign", "run_realisations",

@@ -36,8 +36,9 @@ from skynav.datasets.samplers import make_plan
 from skynav.datasets.sequence import pointing_controller
 from skynav.pipeline import OnboardCatalog
 from skynav.pipeline.filter_dynamics import FilterDynamics
-from skynav.pipeline.flight import DEFAULT_FILTER, FilterSetup, FlightComputer, make_filter
+from skynav.pipeline.flight import DEFAULT_FILTER, FlightComputer, make_filter
 from skynav.pipeline.planet_centroid import CentroidNoise
+from skynav.pipeline.protocols import FilterSetup
 from skynav.pipeline.scoring_nav import CampaignResult, NavPlan, calibrate_sigma_px
 from skynav.scenes import frames
 from skynav.scenes.apparent import aberrate

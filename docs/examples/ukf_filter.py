@@ -5,7 +5,7 @@ Fly it through the benchmark by its file (or module) path, beside skynav's EKF:
     skynav bench nav DATASET --filter docs/examples/ukf_filter.py:make_filter \
         --filter skynav.pipeline.flight:skynav_ekf
 
-It fulfils skynav's navigation-filter protocol (``skynav.pipeline.flight.NavigationFilter``):
+It fulfils skynav's navigation-filter protocol (``skynav.pipeline.protocols.NavigationFilter``):
 ``initialise``, ``propagate``, ``update``, ``state``, for N Monte Carlo runs at once. State: position
 (km) and velocity (km/s), barycentric ICRS. Dynamics: the force model the benchmark hands over
 (``setup.dynamics``: the Sun, the planets and the Moon as point masses, solar radiation pressure),
