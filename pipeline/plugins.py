@@ -192,11 +192,12 @@ def call_processor(processor, observation, prediction, *, timeout_s: float | Non
     """
     use_alarm = (timeout_s is not None and hasattr(signal, "setitimer")
                  and threading.current_thread() is threading.main_thread())
-    old = None
+    old = outer = None
     if use_alarm:
         def _alarm(signum, frame):
             raise _Timeout
 
+        outer = signal.getitimer(signal.ITIMER_REAL)  # a caller's own timer, given back after
         old = signal.signal(signal.SIGALRM, _alarm)
         signal.setitimer(signal.ITIMER_REAL, float(timeout_s))
     t0 = time.perf_counter()
@@ -211,6 +212,8 @@ def call_processor(processor, observation, prediction, *, timeout_s: float | Non
         if use_alarm:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
             signal.signal(signal.SIGALRM, old)
+            if outer[0] > 0.0:
+                signal.setitimer(signal.ITIMER_REAL, max(outer[0] - (time.perf_counter() - t0), 1e-3), outer[1])
     wall_ms = (time.perf_counter() - t0) * 1e3
     if value is _Timeout or (timeout_s is not None and wall_ms > timeout_s * 1e3):
         return None, Fault("timeout", f"over the {timeout_s:g} s frame time limit"), wall_ms

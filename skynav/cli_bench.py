@@ -53,7 +53,8 @@ def _pipelines(args, options) -> list:
     for spec in specs:
         if spec != "skynav":
             load_factory(spec)  # a bad import path: one line before any frame is read
-    return out + ([BUILTIN["tetra3rs"], BUILTIN["cedar-solve"]] if args.peers else [])
+    peers = [p for p in ("tetra3rs", "cedar-solve") if args.peers and p not in specs and BUILTIN[p] not in specs]
+    return out + [BUILTIN[p] for p in peers]
 
 
 def cmd_ip(args) -> int:

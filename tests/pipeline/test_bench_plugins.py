@@ -198,3 +198,25 @@ def test_call_processor_times_a_call_that_returns_late_off_the_main_thread(mc4):
     assert res is None and fault.kind == "timeout" and ms >= 200.0
     res, fault, _ = call_processor(Slow(), None, None, timeout_s=5.0)
     assert fault is None and res.solved
+
+
+def test_a_callers_own_alarm_survives_a_call():
+    """``call_processor`` borrows SIGALRM for the frame's limit and gives a caller's timer back."""
+    import signal
+
+    fired = []
+    old = signal.signal(signal.SIGALRM, lambda *a: fired.append(1))
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+
+        class Quick:
+            def process(self, observation, prediction):
+                return ImageResult(R_cam_icrs=None)
+
+        res, fault, _ = call_processor(Quick(), None, None, timeout_s=10.0)
+        assert fault is None and 0.0 < signal.getitimer(signal.ITIMER_REAL)[0] <= 0.5
+        time.sleep(0.8)
+        assert fired == [1]
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, old)
