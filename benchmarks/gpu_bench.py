@@ -2,7 +2,7 @@
 backend, against the CPU's sensor paths, measured in one run.
 
     python benchmarks/gpu_bench.py [--repeat 15] [--workers 1 16] [--frames-per-worker 40]
-                                   [--backends cuda llvm numpy]
+                                   [--backends cuda llvm numpy] [--batch [--batch-sizes 1 2 4 ... 256]]
 
 1. **Default frame** (1024^2, stars to V 9, full noise, no disk writes): ``render`` with each
    sensor backend (``cuda``; ``llvm`` where libLLVM >= 19 works; ``numpy``), the backends taking
@@ -14,6 +14,12 @@ backend, against the CPU's sensor paths, measured in one run.
    steady-state frames/s for each ``W`` of ``--workers`` and each backend ``B``. The ``W`` workers
    share the one GPU, each with a CUDA context of its own. Resolved bodies are ray-traced by the
    variant the renderer picks: ``cuda_ad_spectral`` wherever CUDA works (the first line says).
+
+3. **Batched frames** (``--batch``): ``batch_bench.py``'s measurement (its CPU twin) on the first
+   Dr.Jit backend of ``--backends``: frames/s of ``render_batch`` for each batch size at 256, 512
+   and 1024 px, in memory and written as PNG + truth JSON, with the per-frame stage split,
+   against the per-frame path in the same run; ``nvidia-smi``'s GPU utilisation is sampled while
+   it runs.
 
 Every figure is printed with the GPU's name, the cores and the load average. Without a working
 CUDA backend (and ``cuda`` among ``--backends``) the script says why in one line and exits with 2;
@@ -119,6 +125,45 @@ def monte_carlo(backends, workers, per_worker: int, small: bool) -> None:
             print(f"  {w} worker{'s' if w > 1 else ''}: {line}")
 
 
+def gpu_utilisation() -> str:
+    """``nvidia-smi``'s GPU utilisation now, %, or why there is none."""
+    exe = shutil.which("nvidia-smi")
+    if exe is None:
+        return "no nvidia-smi"
+    out = subprocess.run([exe, "--query-gpu=utilization.gpu", "--format=csv,noheader"], capture_output=True, text=True,
+                         check=False).stdout.strip()
+    return out.splitlines()[0] if out else "nvidia-smi printed nothing"
+
+
+def batched_frames(backend, sizes, pxs) -> None:
+    """``batch_bench.py``'s measurement on ``backend``, GPU utilisation sampled every second."""
+    import threading
+
+    from batch_bench import measure  # this folder's: the CPU twin's measurement
+
+    if backend is None:
+        print("batched frames: no Dr.Jit backend among --backends")
+        return
+    samples, done = [], threading.Event()
+
+    def sample():
+        while not done.wait(1.0):
+            samples.append(gpu_utilisation())
+
+    watcher = threading.Thread(target=sample, daemon=True)
+    watcher.start()
+    try:
+        for px in pxs:
+            measure(px, sizes, 3, True, 32, backend)
+    finally:
+        done.set()
+        watcher.join()
+    used = [float(s.split()[0]) for s in samples if s.split() and s.split()[0].replace(".", "").isdigit()]
+    print(f"batched frames on {backend}: nvidia-smi GPU utilisation while measuring: "
+          + (f"median {np.median(used):.0f} %, max {max(used):.0f} % ({len(used)} samples)" if used
+             else (samples[-1] if samples else "not sampled")))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=15, help="default frame: rounds (default 15)")
@@ -129,6 +174,11 @@ def main(argv=None) -> int:
                     help="sensor backends, compared with the last (default: cuda llvm numpy)")
     ap.add_argument("--small", action="store_true", help="Monte Carlo on a 256 x 256 camera (the tests' recipe)")
     ap.add_argument("--no-monte-carlo", action="store_true", help="only the default frame")
+    ap.add_argument("--batch", action="store_true", help="also the batched frames (batch_bench.py's measurement)")
+    ap.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64, 128, 256],
+                    help="with --batch: batch sizes (default 1 .. 256)")
+    ap.add_argument("--batch-px", type=int, nargs="+", default=[256, 512, 1024],
+                    help="with --batch: image sizes (default 256 512 1024)")
     a = ap.parse_args(argv)
     backends = usable(a.backends)
     print(f"{gpu_name()}; {os.cpu_count()} cores; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}; "
@@ -136,6 +186,8 @@ def main(argv=None) -> int:
     default_frame(backends, a.repeat)
     if not a.no_monte_carlo:
         monte_carlo(backends, a.workers, a.frames_per_worker, a.small)
+    if a.batch:
+        batched_frames(next((b for b in backends if b != "numpy"), None), a.batch_sizes, a.batch_px)
     return 0
 
 

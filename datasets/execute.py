@@ -46,7 +46,7 @@ from .frame_files import encode_frame
 from .journal import write_record
 from .plan import frame_seed
 
-__all__ = ["FrameResult", "EncodedFrame", "produce_frame", "render_request", "make_frame", "commit_frame", "run_in_process",
+__all__ = ["FrameResult", "EncodedFrame", "produce_frame", "frame_scene", "dataset_truth", "render_request", "make_frame", "commit_frame", "run_in_process",
            "run_process_pool", "run_dask", "check_backends"]
 
 
@@ -139,16 +139,13 @@ class EncodedFrame:
     timings_s: dict  # sample, render, encode
 
 
-def render_request(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: float, render_options=None,
-                   before_render=None):
-    """Sample and render frame ``k`` in memory: ``(frame, draws, timings_s)``, the frame's truth with
-    its ``dataset`` section; what :func:`make_frame` encodes and :func:`skynav.datasets.stream.stream`
-    hands to a training loop (so a streamed frame is the dataset's frame of the same seed and index).
-    Parameters as :func:`produce_frame`; ``before_render``: as :func:`make_frame`."""
+def frame_scene(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: float, render_options=None):
+    """Sample frame ``k``: ``(scene, options, seed, rng, request)``, ``rng`` the frame's stream
+    after the sampler's draws (the renderer draws next from it) and ``options`` with the frame's
+    own render keys. Parameters as :func:`produce_frame`."""
     if isinstance(plan, (bytes, bytearray)):
         plan = _plan_from_bytes(bytes(plan))
     options = render_options or RenderOptions()
-    t0 = time.perf_counter()
     ss = frame_seed(master_seed, k)
     rng = np.random.default_rng(ss)
     req = plan.frame_request(k, rng)
@@ -165,18 +162,32 @@ def render_request(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: fl
     own = {k: getattr(req, k) for k in ("cosmic_rays_per_frame", "mitsuba_spp") if getattr(req, k) is not None}
     if own:  # a scene's own render keys (scenes recipes)
         options = dataclasses.replace(options, **own)
+    return scene, options, ss, rng, req
+
+
+def dataset_truth(truth: dict, req, master_seed: int) -> dict:
+    """A rendered frame's truth with its ``dataset`` section (the sampler's record, the seed)."""
+    out = dict(truth)
+    out["dataset"] = {**req.meta, "master_seed": int(master_seed),
+                      "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
+    return out
+
+
+def render_request(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: float, render_options=None,
+                   before_render=None):
+    """Sample and render frame ``k`` in memory: ``(frame, draws, timings_s)``, the frame's truth with
+    its ``dataset`` section; what :func:`make_frame` encodes and :func:`skynav.datasets.stream`
+    hands to a training loop (so a streamed frame is the dataset's frame of the same seed and index).
+    Parameters as :func:`produce_frame`; ``before_render``: as :func:`make_frame`."""
+    t0 = time.perf_counter()
+    scene, options, ss, rng, req = frame_scene(plan, k, master_seed=master_seed,
+                                               catalog_limiting_v_mag=catalog_limiting_v_mag, render_options=render_options)
     if before_render is not None:
         before_render()
     t1 = time.perf_counter()
     frame = render(scene, seed=ss, rng=rng, options=options)
     t2 = time.perf_counter()
-    truth = dict(frame.truth)
-    meta = {k: v for k, v in req.meta.items() if k != "data_files"}
-    if "data_files" in req.meta:  # the mission files the plan read (name as written, SHA-256)
-        truth["data_files"] = req.meta["data_files"]
-    truth["dataset"] = {**meta, "master_seed": int(master_seed),
-                        "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
-    frame = dataclasses.replace(frame, truth=truth)
+    frame = dataclasses.replace(frame, truth=dataset_truth(frame.truth, req, master_seed))
     return frame, req.meta.get("draws"), {"sample": t1 - t0, "render": t2 - t1}
 
 

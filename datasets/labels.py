@@ -73,13 +73,14 @@ def _body_labels(truths) -> dict:
             **{f"body_{key}": v for key, v in flags.items()}}
 
 
-def collate(frames, ks) -> dict:
+def collate(frames, ks, *, image=None) -> dict:
     """One batch mapping (:data:`LABELS`, numpy) of rendered frames (each with ``dn``,
-    ``electrons`` or None, and a JSON-type ``truth``) and their indices ``ks``."""
+    ``electrons`` or None, and a JSON-type ``truth``) and their indices ``ks``; ``image``: the
+    batch's DN as they are (an array on a device), instead of the frames' ``dn`` stacked."""
     truths = [f["truth"] for f in frames]
     stars = [t["stars"] for t in truths]
     width = max((len(s) for s in stars), default=0)
-    shape = frames[0]["dn"].shape
+    shape = (int(truths[0]["camera"]["height"]), int(truths[0]["camera"]["width"]))
     mask = np.zeros((len(frames), *shape), bool)
     for i, t in enumerate(truths):
         for hit in t["cosmic_rays"]:
@@ -87,7 +88,7 @@ def collate(frames, ks) -> dict:
                 mask[i, int(row), int(col)] = True
     out = {
         "frame": np.asarray(ks, dtype=np.int64),
-        "image": np.stack([f["dn"] for f in frames]),
+        "image": np.stack([f["dn"] for f in frames]) if image is None else image,
         "star_count": np.asarray([len(s) for s in stars], dtype=np.int64),
         "star_hip": _pad([[r["hip"] for r in s] for s in stars], width, (), -1, np.int64),
         "star_v_mag": _pad(_float_rows(stars, "v_mag"), width, (), np.nan, np.float64),

@@ -23,11 +23,12 @@ from collections.abc import Iterator, Mapping
 import numpy as np
 
 from skynav.renderer import jit_backend
+from skynav.renderer.batch import render_batch
 from skynav.renderer.options import RenderOptions
 from skynav.renderer.sensor_jit import _jit_module
 
 from .errors import DatasetError
-from .execute import render_request
+from .execute import dataset_truth, frame_scene, render_request
 from .labels import LABELS, collate
 from .recipe_checks import validate_recipe
 from .recipes import read_recipe_mapping
@@ -99,8 +100,12 @@ def stream(recipe, *, batch: int = 1, device: str = "cpu", electrons: bool = Fal
     batch : int
         Frames per batch; the last batch holds what is left.
     device : {"cpu", "llvm", "cuda"}
-        ``"cpu"``: numpy arrays, the sensor on ``render_options.backend`` (default ``auto``);
-        ``"llvm"``, ``"cuda"``: the sensor on that Dr.Jit backend and the arrays as its tensors.
+        ``"cpu"``: the dataset's per-frame path, numpy arrays, the sensor on
+        ``render_options.backend`` (default ``auto``): frame k is the dataset's frame k to the
+        bit. ``"llvm"``, ``"cuda"``: the batched frame program
+        (:func:`skynav.renderer.batch.render_batch`: the same expected images, electrons and
+        truth, the sensor chain of the batch as one launch on that backend, its DN the same
+        statistics) and the arrays as that backend's tensors, the DN never copied to the host.
     electrons : bool
         Add ``electrons``, the float32 expected electrons with the cosmic-ray charge.
     start, stop : int
@@ -145,12 +150,35 @@ def stream(recipe, *, batch: int = 1, device: str = "cpu", electrons: bool = Fal
         if b % count != index:
             continue
         ks = list(range(first, min(first + batch, stop)))
-        frames = []
-        for k in ks:
-            frame, _, _ = render_request(plan, k, master_seed=seed, catalog_limiting_v_mag=mag, render_options=options)
-            frames.append({"dn": frame.dn, "electrons": frame.electrons if electrons else None,
-                           "truth": truth_to_jsonable(frame.truth)})
-        yield _to_device(collate(frames, ks), device)
+        if device == "cpu":
+            frames = []
+            for k in ks:
+                frame, _, _ = render_request(plan, k, master_seed=seed, catalog_limiting_v_mag=mag, render_options=options)
+                frames.append({"dn": frame.dn, "electrons": frame.electrons if electrons else None,
+                               "truth": truth_to_jsonable(frame.truth)})
+            yield collate(frames, ks)
+        else:
+            yield _to_device(_device_batch(plan, ks, seed, mag, options, electrons, device), device)
+
+
+def _device_batch(plan, ks, seed: int, mag: float, options, electrons: bool, device: str) -> dict:
+    """The frames ``ks`` by the batched frame program (:func:`skynav.renderer.batch.render_batch`):
+    the optics per frame as the dataset's, the sensor chain of the batch as one launch on
+    ``device``, the DN left there as a tensor."""
+    drawn = [frame_scene(plan, k, master_seed=seed, catalog_limiting_v_mag=mag, render_options=options) for k in ks]
+    opts = drawn[0][1]
+    if any(d[1] != opts for d in drawn):  # a scenes recipe's own render keys differ between frames
+        raise DatasetError(f"frames {ks[0]}..{ks[-1]} have different render options (a scenes recipe's own render "
+                           f"keys); stream them with device='cpu' or batch=1")
+    out = render_batch([d[0] for d in drawn], [d[2] for d in drawn], rngs=[d[3] for d in drawn], options=opts,
+                       frames_per_launch=len(ks))
+    jt = _jit_module(device)
+    n, h, w = out.shape
+    tensor = jt.TensorXu8 if out.dtype == np.uint8 else jt.TensorXu
+    image = tensor(out.dn_device[0], shape=(n, h, w))
+    frames = [{"dn": None, "electrons": out.electrons[i] if electrons else None,
+               "truth": truth_to_jsonable(dataset_truth(out.truths[i], d[4], seed))} for i, d in enumerate(drawn)]
+    return collate(frames, ks, image=image)
 
 
 def _dlpack_tensors(batch: dict, from_dlpack) -> dict:

@@ -164,15 +164,19 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
     lanes = dr.arange(jt.UInt32, n_frames * hw)
     frame, pixel = lanes // hw, lanes % hw
     key_cols = np.asarray(keys, dtype=np.uint32).reshape(n_frames, 4)
-    key = tuple(dr.gather(jt.UInt32, jt.UInt32(key_cols[:, i].copy()), frame) for i in range(4))
+    if n_frames == 1:  # a one-element source would be gathered as a constant of the kernel: opaque
+        key = tuple(dr.opaque(jt.UInt32, int(k)) for k in key_cols[0])
+    else:
+        key = tuple(dr.gather(jt.UInt32, jt.UInt32(key_cols[:, i].copy()), frame) for i in range(4))
     gain_img, dark_img = _patterns(params, tuple(shape), backend)
     gain, dark = dr.gather(jt.Float, gain_img, pixel), dr.gather(jt.Float, dark_img, pixel)
-    extra = None
+    # the cosmic-ray charge: an image in memory even without a hit (one kernel for every batch,
+    # whether its frames were hit or not), the few pixels hit scattered into it on the device
+    extra = dr.opaque(jt.Float, 0.0, n_frames * hw)
     if charges is not None and any(c is not None and len(c.index) for c in charges):
         idx = [np.asarray(c.index, np.int64) + i * hw for i, c in enumerate(charges) if c is not None]
         val = [np.asarray(c.electrons, np.float64) for c in charges if c is not None]
         u, total = PixelCharge(index=np.concatenate(idx), electrons=np.concatenate(val)).per_pixel()
-        extra = dr.zeros(jt.Float, n_frames * hw)  # the few pixels hit: scattered on the device
         dr.scatter(extra, jt.Float(total.astype(np.float32)), jt.UInt32(u.astype(np.uint32)))
     op = functools.partial(dr.opaque, jt.Float)
     readout = (op(float(np.hypot(params.read_noise_e, params.reset_noise_e))), op(params.gain_dn_per_e),
@@ -221,7 +225,8 @@ class FrameBatch:
         return np.concatenate([d.numpy() for d in self.dn_device]).reshape(self.shape).astype(self.dtype, copy=False)
 
 
-def render_batch(scenes, seeds, *, options: RenderOptions = RenderOptions(), frames_per_launch: int = 4) -> FrameBatch:
+def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOptions(),
+                 frames_per_launch: int = 4) -> FrameBatch:
     """Render a batch of frames of one camera: the optics per frame, the sensor as one program.
 
     Frame i draws from ``numpy.random.default_rng(seeds[i])`` as :func:`render` does (the
@@ -234,6 +239,9 @@ def render_batch(scenes, seeds, *, options: RenderOptions = RenderOptions(), fra
         The frames' scenes; every one with the same camera size and sensor.
     seeds : sequence
         Each frame's seed (int or ``numpy.random.SeedSequence``), recorded in its truth.
+    rngs : sequence of numpy.random.Generator, optional
+        Each frame's stream (used if given, as :func:`render`'s ``rng``; ``seeds`` are then only
+        recorded).
     options : RenderOptions
         As :func:`render`'s; ``backend`` names the Dr.Jit backend (``auto``: the one
         :func:`render` would use; ``numpy`` is refused: the per-frame path is numpy's program).
@@ -271,7 +279,8 @@ def render_batch(scenes, seeds, *, options: RenderOptions = RenderOptions(), fra
     scenes, seeds = list(scenes), list(seeds)
     if isinstance(frames_per_launch, bool) or not isinstance(frames_per_launch, int) or frames_per_launch < 1:
         raise ConfigValueError("frames_per_launch", frames_per_launch, "an integer >= 1")
-    if not scenes or len(scenes) != len(seeds):
+    rngs = [np.random.default_rng(seed) for seed in seeds] if rngs is None else list(rngs)
+    if not scenes or len(scenes) != len(seeds) or len(rngs) != len(seeds):
         raise ConfigValueError("scenes", f"{len(scenes)} scenes and {len(seeds)} seeds", "one seed per scene, >= 1")
     cam = scenes[0].camera
     if any((s.camera.width, s.camera.height, s.camera.sensor) != (cam.width, cam.height, cam.sensor) for s in scenes):
@@ -293,8 +302,7 @@ def render_batch(scenes, seeds, *, options: RenderOptions = RenderOptions(), fra
         ks = range(first, min(first + frames_per_launch, len(scenes)))
         keys, charges, hits_e = [], [], []
         for i in ks:
-            scene, seed = scenes[i], seeds[i]
-            rng = np.random.default_rng(seed)
+            scene, seed, rng = scenes[i], seeds[i], rngs[i]
             support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
             expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
             hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,

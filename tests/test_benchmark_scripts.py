@@ -84,6 +84,20 @@ def test_gpu_bench_runs_without_a_gpu_on_the_cpu_backends_and_says_why_not_on_cu
     assert re.search(r" 1 worker , sensor numpy: +[0-9.]+ frames/s steady \(64 frames", out), out
 
 
+def test_batch_bench_prints_each_batch_against_the_per_frame_path():
+    from skynav.renderer import jit_backend
+
+    if not jit_backend.llvm_available():
+        pytest.skip("Dr.Jit's LLVM backend does not work here")
+    out = _run("batch_bench.py", "--px", "64", "--sizes", "1", "2", "--repeat", "1", "--baseline-frames", "2", "--written")
+    for mode in ("in memory", "written"):
+        assert re.search(rf"64 px, {mode}: per-frame path +[0-9.]+ frames/s wall", out), out
+        for n in (1, 2):
+            line = re.search(rf"64 px, {mode}: batch +{n}: +[0-9.]+ frames/s wall \( *([0-9.]+)x the per-frame path\), "
+                             r"+[0-9.]+ per CPU-s .*; per frame: optics [0-9.]+ ms, launch [0-9.]+ ms, sensor wait", out)
+            assert line and float(line.group(1)) > 0, out
+
+
 @pytest.mark.gpu
 def test_gpu_bench_prints_cuda_figures():
     out = _run("gpu_bench.py", "--backends", "cuda", "numpy", "--repeat", "2", "--workers", "1", "--frames-per-worker", "4",

@@ -1,0 +1,157 @@
+"""Frames/s of the batched frame program (renderer/batch.py) against the per-frame path.
+
+    python benchmarks/batch_bench.py [--backend llvm] [--sizes 1 2 4 ... 256] [--px 256 512 1024]
+                                     [--repeat 3] [--written] [--baseline-frames 32]
+
+For each image size (the default scene, its 20 deg field kept: the pixel pitch follows the
+width) and each batch size N: ``render_batch`` of N frames (seeds 0 .. N-1), the DN brought to
+the host, medians of ``--repeat`` rounds, as frames/s, with the per-frame stage split
+(``optics``: expected images, cosmic rays, truths, on this thread; ``launch``: the sensor's
+inputs to the device and its kernels launched; ``sensor wait``: the wait for the last launches),
+against ``render`` of ``--baseline-frames`` frames one after the other (the per-frame path), the
+two taking turns, wall time and CPU time (this process, all threads: the figure to compare on a
+machine other processes share). ``--written`` adds each frame written as PNG + truth JSON
+(encoded, then written atomically into a temporary folder), for both paths.
+
+This is the CPU twin of ``gpu_bench.py``'s batch section (``--backend cuda`` runs the same
+measurement on a GPU). Dr.Jit's pool has as many threads as the machine has cores unless
+``DRJIT_NUM_THREADS`` says otherwise (the line says which). A batch whose images would take more
+than a third of the free memory is skipped, and the line says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("DRJIT_NUM_THREADS", str(os.cpu_count() or 1))
+
+import numpy as np  # noqa: E402
+
+SIZES = (1, 2, 4, 8, 16, 32, 64, 128, 256)
+
+
+def scene_of_size(px: int):
+    from skynav.scenes import build_from_spec, default_scene_spec
+
+    spec = default_scene_spec()
+    cam = spec.camera
+    camera = cam.replace(width=px, height=px, pixel_pitch_um=cam.pixel_pitch_um * cam.width / px)
+    return build_from_spec(dataclasses.replace(spec, camera=camera))
+
+
+def _free_bytes() -> int:
+    try:
+        with open("/proc/meminfo") as f:
+            info = dict(line.split(":", 1) for line in f)
+        return int(info["MemAvailable"].split()[0]) * 1024
+    except (OSError, KeyError, ValueError):
+        return 8 << 30
+
+
+def _write(frames, folder: Path) -> None:
+    from skynav.datasets.frame_files import encode_frame, write_files
+
+    for k, frame in frames:
+        blobs = encode_frame(frame, ("png", "json"))
+        write_files((folder / f"{k:06d}.{fmt}", data) for fmt, data in blobs.items())
+
+
+def per_frame(scene, options, n: int, folder):
+    """The per-frame path: ``render`` of n frames (and their files when ``folder``)."""
+    from skynav.renderer.render import render
+
+    frames = [(k, render(scene, seed=k, options=options)) for k in range(n)]
+    if folder is not None:
+        _write(frames, folder)
+
+
+def batched(scene, options, n: int, folder, split: dict):
+    """``render_batch`` of n frames, the DN brought over (and their files when ``folder``)."""
+    from skynav.renderer.batch import render_batch
+    from skynav.renderer.render import Frame
+
+    b = render_batch([scene] * n, list(range(n)), options=options)
+    dn = b.dn
+    for key, v in b.timings_s.items():
+        split.setdefault(key, []).append(v / n)
+    if folder is not None:
+        _write([(k, Frame(dn=dn[k], electrons=b.electrons[k], irradiance_w_m2=None, truth=b.truths[k]))
+                for k in range(n)], folder)
+
+
+def timed(fn, repeat: int):
+    """Median wall and CPU time of ``fn()`` over ``repeat`` calls (after one warm-up), s."""
+    fn()
+    wall, cpu = [], []
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return float(np.median(wall)), float(np.median(cpu))
+
+
+def measure(px: int, sizes, repeat: int, written: bool, baseline: int, backend: str) -> dict:
+    from skynav.renderer.render import RenderOptions
+
+    scene = scene_of_size(px)
+    options = RenderOptions(backend=backend)
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        modes = [("in memory", None)] + ([("written", Path(tmp))] if written else [])
+        for mode, folder in modes:
+            bw, bc = timed(lambda: per_frame(scene, options, baseline, folder), repeat)
+            out[(mode, "per-frame")] = (baseline / bw, baseline / bc)
+            print(f"{px} px, {mode}: per-frame path {baseline / bw:8.1f} frames/s wall, {baseline / bc:8.1f} per CPU-s "
+                  f"({baseline} frames, medians of {repeat})", flush=True)
+            for n in sizes:
+                if n * px * px * 4 * 3 > _free_bytes() / 3:
+                    print(f"{px} px, {mode}: batch {n:3d}: skipped (its images would take over a third of the free "
+                          "memory)", flush=True)
+                    continue
+                split = {}
+                w, c = timed(lambda n=n: batched(scene, options, n, folder, split), repeat)
+                out[(mode, n)] = (n / w, n / c)
+                stages = ", ".join(f"{k.replace('_', ' ')} {1e3 * float(np.median(v)):.1f} ms" for k, v in split.items())
+                print(f"{px} px, {mode}: batch {n:3d}: {n / w:8.1f} frames/s wall ({n / w / (baseline / bw):5.2f}x the "
+                      f"per-frame path), {n / c:8.1f} per CPU-s ({n / c / (baseline / bc):5.2f}x); per frame: {stages}",
+                      flush=True)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", choices=("llvm", "cuda"), default="llvm", help="Dr.Jit backend (default llvm)")
+    ap.add_argument("--sizes", type=int, nargs="+", default=list(SIZES), help="batch sizes (default 1 .. 256)")
+    ap.add_argument("--px", type=int, nargs="+", default=[256, 512, 1024], help="image sizes (default 256 512 1024)")
+    ap.add_argument("--repeat", type=int, default=3, help="rounds; medians (default 3)")
+    ap.add_argument("--baseline-frames", type=int, default=32, help="frames of the per-frame path (default 32)")
+    ap.add_argument("--written", action="store_true", help="also write each frame as PNG + truth JSON")
+    a = ap.parse_args(argv)
+    from skynav.renderer import jit_backend
+
+    status = jit_backend.probe_cuda() if a.backend == "cuda" else jit_backend.configure_llvm()
+    if not status.available:
+        print(f"batch_bench: Dr.Jit's {a.backend} backend does not work here ({status.reason})", file=sys.stderr)
+        return 2
+    print(f"batched frames, backend {a.backend}; {os.cpu_count()} cores, DRJIT_NUM_THREADS="
+          f"{os.environ['DRJIT_NUM_THREADS']}; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}; "
+          f"{time.strftime('%Y-%m-%d %H:%M')}", flush=True)
+    for px in a.px:
+        out = measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend)
+        if (("in memory", 32) in out) and px == 1024:
+            w, c = out[("in memory", 32)]
+            bw, bc = out[("in memory", "per-frame")]
+            print(f"acceptance: batch of 32 default frames in memory / per-frame path: {w / bw:.2f}x wall, "
+                  f"{c / bc:.2f}x CPU (medians of {a.repeat})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
