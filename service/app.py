@@ -119,8 +119,11 @@ async def _read_body(request, bound: int, timeout_s: float) -> bytes:
     Content-Length says so), all of it within ``timeout_s`` (408 after, and the connection is
     closed); ClientDisconnect when the client hangs up first."""
     try:
+        if hasattr(asyncio, "timeout"):   # Python 3.11: a timer, no task of its own (as asyncio.wait_for makes)
+            async with asyncio.timeout(timeout_s):
+                return await _read_bounded(request, bound)
         return await asyncio.wait_for(_read_bounded(request, bound), timeout_s)
-    except asyncio.TimeoutError:
+    except (TimeoutError, asyncio.TimeoutError):
         raise _HTTPError(408, f"request body: not received within {timeout_s:g} s (--body-timeout)") from None
 
 
