@@ -231,24 +231,33 @@ def _line_of_sight(xy_px, sigma_px: float, R_cam_icrs, camera):
 
 
 def _fault_check(x, P, n_runs):
-    """Per run: ``""`` or why the state is unusable (shape, non-finite, covariance not SPD)."""
+    """Per run: ``""`` or why the state is unusable (shape, non-finite, covariance not symmetric
+    positive definite). All runs at once; one run at a time only to name the bad ones."""
     x, P = np.asarray(x), np.asarray(P)
     if x.ndim != 2 or x.shape[0] != n_runs or x.shape[1] < 6 or P.shape != (n_runs, x.shape[1], x.shape[1]):
         return [f"state of shape {x.shape}, covariance {P.shape}; expected (N, n >= 6), (N, n, n)"] * n_runs
-    out = []
-    for xi, Pi in zip(x, P):
-        if not (np.all(np.isfinite(xi)) and np.all(np.isfinite(Pi))):
-            out.append("non-finite state or covariance")
-            continue
-        scale = max(float(np.abs(Pi).max()), 1e-300)
-        if float(np.abs(Pi - Pi.T).max()) > 1e-6 * scale:
-            out.append("covariance not symmetric")
-            continue
+    finite = np.all(np.isfinite(x), 1) & np.all(np.isfinite(P), (1, 2))
+    scale = np.maximum(np.abs(P).max((1, 2), initial=0.0), 1e-300)
+    with np.errstate(invalid="ignore"):
+        symmetric = np.abs(P - np.swapaxes(P, 1, 2)).max((1, 2), initial=0.0) <= 1e-6 * scale
+    if finite.all() and symmetric.all():
         try:
-            np.linalg.cholesky(Pi)
-            out.append("")
+            np.linalg.cholesky(P)
+            return [""] * n_runs
         except np.linalg.LinAlgError:
-            out.append("covariance not positive definite")
+            pass
+    out = []
+    for Pi, fin, sym in zip(P, finite, symmetric):
+        if not fin:
+            out.append("non-finite state or covariance")
+        elif not sym:
+            out.append("covariance not symmetric")
+        else:
+            try:
+                np.linalg.cholesky(Pi)
+                out.append("")
+            except np.linalg.LinAlgError:
+                out.append("covariance not positive definite")
     return out
 
 
