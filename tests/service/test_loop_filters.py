@@ -38,3 +38,21 @@ def test_a_bad_filter_is_one_line_before_the_service_is_asked(tmp_path):
     assert run.returncode == 2, run.stderr
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "--filter no_such_module_xyz:make: cannot import" in lines[0], run.stderr
+
+
+FAULTY = Path(__file__).resolve().parents[1] / "pipeline" / "faulty_filters.py"
+
+
+def test_a_faulty_filter_fails_its_steps_and_the_closed_loop_completes(server, tmp_path):
+    """From its third update on the filter's covariance is not positive definite: those steps
+    fail with the reason, the flight software holds its last pointing command, the loop runs to
+    the last frame and writes its report."""
+    out = tmp_path / "r"
+    run = subprocess.run([sys.executable, "-m", "skynav", "bench", "loop", "sequence", "-o", str(out), "-q",
+                          "--service", server.url, *SMALL, "--bias-km", "none", "--sigma-px", "0.1",
+                          "--filter", f"{FAULTY}:not_positive_definite"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    s = json.loads((out / "summary.json").read_text())
+    assert list(s["faults"]["reasons"]) == ["covariance not positive definite"]
+    assert s["faults"]["runs_failed"] == 1 and s["faults"]["steps_failed"] == 12 - s["faults"]["first_per_run"][0]["frame"]
+    assert json.loads((out / "loop.json").read_text())["frames"] == 12
