@@ -76,12 +76,12 @@ def batched(scene, options, n: int, folder, split: dict):
     from skynav.renderer.batch import render_batch
     from skynav.renderer.render import Frame
 
-    b = render_batch([scene] * n, list(range(n)), options=options)
+    b = render_batch([scene] * n, list(range(n)), options=options, electrons=False)
     dn = b.dn
     for key, v in b.timings_s.items():
         split.setdefault(key, []).append(v / n)
     if folder is not None:
-        _write([(k, Frame(dn=dn[k], electrons=b.electrons[k], irradiance_w_m2=None, truth=b.truths[k]))
+        _write([(k, Frame(dn=dn[k], electrons=None, irradiance_w_m2=None, truth=b.truths[k]))
                 for k in range(n)], folder)
 
 

@@ -2,7 +2,7 @@
 the device until asked for.
 
 What is batched, and why: in the default frame (1024^2, stars to V 9) the sensor chain takes
-about three quarters of a render on the CPU (docs/performance.md, "Batched frames"), the optics
+the larger part of a render's CPU time (docs/performance.md, "Batched frames"), the optics
 (star splat with the PSF models and streaks, resolved bodies) most of the rest. This module runs
 the optics of each frame as :func:`~skynav.renderer.render.render` does
 (:func:`~skynav.renderer.expected.expected_image`, the numpy reference), draws each frame's
@@ -197,8 +197,9 @@ class FrameBatch:
         launch of :func:`expose_batch` (``frames_per_launch`` frames each, frame-major).
     shape : tuple of int
         ``(N, H, W)``.
-    electrons : ndarray, shape (N, H, W), float32
-        Expected electrons plus cosmic-ray charge per frame (the per-frame path's), e-.
+    electrons : ndarray, shape (N, H, W), float32, or None
+        Expected electrons plus cosmic-ray charge per frame (the per-frame path's), e-; None
+        when not asked for.
     truths : list of dict
         Each frame's ground truth (``skynav.frame/2``; ``render.sensor_program`` = ``"batch"``).
     backend : str
@@ -213,7 +214,7 @@ class FrameBatch:
 
     dn_device: tuple
     shape: tuple
-    electrons: np.ndarray
+    electrons: np.ndarray | None
     truths: list
     backend: str
     timings_s: dict
@@ -226,7 +227,7 @@ class FrameBatch:
 
 
 def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOptions(),
-                 frames_per_launch: int = 4) -> FrameBatch:
+                 frames_per_launch: int = 4, electrons: bool = True) -> FrameBatch:
     """Render a batch of frames of one camera: the optics per frame, the sensor as one program.
 
     Frame i draws from ``numpy.random.default_rng(seeds[i])`` as :func:`render` does (the
@@ -249,6 +250,10 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         Frames of one sensor launch: their optics are made, the kernel over their N x H x W
         lanes is launched, and the next frames' optics are made while the device runs it (the
         CPU's optics and the device's sensor overlap). The frames do not depend on it.
+    electrons : bool
+        Keep the frames' electrons (``FrameBatch.electrons``); False: None, and the sensor's
+        inputs are let go every :data:`_FRAMES_IN_FLIGHT` frames (a large batch's memory stays
+        that of a few frames but for its DN).
 
     Returns
     -------
@@ -296,47 +301,62 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
 
     t0 = time.perf_counter()
     shape = (cam.height, cam.width)
-    electrons = np.zeros((len(scenes), *shape), np.float32)
-    parts, launched, pending, t_launch = [], [], [], 0.0
+    chunks, truths, launched, pending, t_launch = [], [], [], [], 0.0
+    hold = max(1, _FRAMES_IN_FLIGHT // frames_per_launch)  # launches between waits, without electrons
     for first in range(0, len(scenes), frames_per_launch):
         ks = range(first, min(first + frames_per_launch, len(scenes)))
-        keys, charges, hits_e = [], [], []
-        for i in ks:
-            scene, seed, rng = scenes[i], seeds[i], rngs[i]
-            support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
-            expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
-            hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
-                                       track_prob=options.cosmic_ray_track_prob)
-            keys.append(frame_key(rng))  # where the per-frame sensor draws it
-            charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
-                                 electrons=hits.pixel_electrons)
-            charges.append(charge)
-            drawn = np.concatenate(support) if support else np.zeros(0, np.int64)
-            # rounded to float32, as detect() does: the sensor's input (zero off the pixels drawn)
-            electrons[i].reshape(-1)[drawn] = expected.electrons.reshape(-1)[drawn]
-            hit, hit_e = charge.per_pixel()
-            hits_e.append((hit, expected.electrons.reshape(-1)[hit] + hit_e))  # summed in float64, as detect()
-            # the truth needs the sources' figures, not the float64 images: let them go
-            parts.append((scene, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits, seed))
+        sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
+        made = [_frame_optics(scenes[i], rngs[i], options, sig[j]) for j, i in enumerate(ks)]
         t = time.perf_counter()
-        dn = expose_batch(cam.sensor, electrons[ks.start:ks.stop], cam.exposure_s, keys, backend=backend, charges=charges)
-        dr.eval(dn)  # launched; the device works on it while this thread makes the next frames' optics
+        dn = expose_batch(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend=backend,
+                          charges=[m[1] for m in made])
+        dr.eval(dn)  # launched: the device works on it while this thread goes on
         launched.append(dn)
         t_launch += time.perf_counter() - t
-        pending += zip(ks, hits_e)
-    truths = []
-    for scene, expected, hits, seed in parts:
-        det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
-        truth = frame_truth(scene, expected, det, seed=seed, options=options)
-        truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
-        truths.append(truth)
+        for i, (_, _, hit_e, expected, hits) in zip(ks, made):  # the truths, while the device runs
+            det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
+            truth = frame_truth(scenes[i], expected, det, seed=seeds[i], options=options)
+            truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
+            truths.append(truth)
+        chunks.append(sig)
+        pending.append([m[2] for m in made])
+        if not electrons and len(chunks) >= hold:  # the inputs read: let them go
+            dr.sync_thread()
+            chunks.clear()
     t1 = time.perf_counter()
     dr.sync_thread()  # the launches are done
     t2 = time.perf_counter()
-    # the sensor read ``electrons`` in place (the LLVM backend does not copy a numpy array): only
-    # now may the cosmic-ray charge be added to the frames' electrons
-    for i, (hit, value) in pending:
-        electrons[i].reshape(-1)[hit] = value
-    return FrameBatch(dn_device=tuple(launched), shape=(len(scenes), *shape), electrons=electrons, truths=truths,
-                      backend=backend, timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
+    if electrons:  # only now may the cosmic-ray charge join the inputs the device read in place
+        for sig, hits_e in zip(chunks, pending):
+            for j, (hit, value) in enumerate(hits_e):
+                sig[j].reshape(-1)[hit] = value
+    return FrameBatch(dn_device=tuple(launched), shape=(len(scenes), *shape),
+                      electrons=np.concatenate(chunks) if electrons else None, truths=truths, backend=backend,
+                      timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
                       dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
+
+
+#: Frames whose sensor inputs are kept in memory at once when the electrons are not asked for
+#: (render_batch waits for the device after that many, then lets the inputs go).
+_FRAMES_IN_FLIGHT = 16
+
+
+def _frame_optics(scene, rng, options, sig):
+    """One frame's optics as :func:`render` makes them: its expected electrons rounded to
+    float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
+    the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
+    charge), expected image without its images, hits)``."""
+    shape = sig.shape
+    support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
+    expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
+    hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
+                               track_prob=options.cosmic_ray_track_prob)
+    key = frame_key(rng)  # where the per-frame sensor draws it
+    charge = PixelCharge(index=np.asarray(hits.pixel_rows, dtype=np.int64) * shape[1] + hits.pixel_cols,
+                         electrons=hits.pixel_electrons)
+    drawn = np.concatenate(support) if support else np.zeros(0, np.int64)
+    sig.reshape(-1)[drawn] = expected.electrons.reshape(-1)[drawn]  # zero off the pixels drawn
+    hit, hit_e = charge.per_pixel()
+    hits_e = (hit, expected.electrons.reshape(-1)[hit] + hit_e)  # summed in float64, as detect()
+    # the truth needs the sources' figures, not the float64 images: let them go
+    return key, charge, hits_e, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits

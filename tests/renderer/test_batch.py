@@ -106,6 +106,20 @@ def test_batch_frames_are_the_per_frame_frames(scene256):
     assert differ <= 5 * dn[0].size * 1e-4
 
 
+def test_without_electrons_the_inputs_go_and_the_frames_stay(scene256):
+    """electrons=False lets the sensor's inputs go every few launches: the same DN and truths."""
+    spec = default_scene_spec()
+    small = build_from_spec(dataclasses.replace(spec, camera=spec.camera.replace(
+        width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)))
+    opts = RenderOptions(backend="llvm")
+    seeds = list(range(20))  # 20 one-frame launches: the inputs are let go after 16
+    kept = render_batch([small] * 20, seeds, options=opts, frames_per_launch=1)
+    gone = render_batch([small] * 20, seeds, options=opts, frames_per_launch=1, electrons=False)
+    assert gone.electrons is None and kept.electrons.shape == (20, 64, 64)
+    np.testing.assert_array_equal(gone.dn, kept.dn)
+    assert gone.truths == kept.truths
+
+
 def test_render_batch_refuses_what_it_cannot_do(scene256):
     for kwargs, words in (({"options": RenderOptions(backend="numpy")}, "options.backend"),
                           ({"options": RenderOptions(backend="llvm", noise=False)}, "options.noise"),
