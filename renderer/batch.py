@@ -177,6 +177,8 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
         idx = [np.asarray(c.index, np.int64) + i * hw for i, c in enumerate(charges) if c is not None]
         val = [np.asarray(c.electrons, np.float64) for c in charges if c is not None]
         u, total = PixelCharge(index=np.concatenate(idx), electrons=np.concatenate(val)).per_pixel()
+        if u.size == 1:  # a one-element array would be a constant of the kernel: write the pixel twice
+            u, total = np.repeat(u, 2), np.repeat(total, 2)
         dr.scatter(extra, jt.Float(total.astype(np.float32)), jt.UInt32(u.astype(np.uint32)))
     op = functools.partial(dr.opaque, jt.Float)
     readout = (op(float(np.hypot(params.read_noise_e, params.reset_noise_e))), op(params.gain_dn_per_e),
