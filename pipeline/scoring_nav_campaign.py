@@ -51,7 +51,7 @@ class CampaignResult:
     sequences: int = 1           # independent image sequences behind the runs (run_realisations)
     faults: tuple = ()           # (R,) per run, (F,) per frame: the filter's fault in that step ("" none)
     filter_name: str = DEFAULT_FILTER   # the filter, MODULE:FACTORY
-    measured: np.ndarray | None = None  # (F,) bool: the filter was given the frame's centroid (run 0's worker)
+    measured: np.ndarray | None = None  # (R, F) bool: the run's filter was given the frame's centroid
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -120,7 +120,8 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
             progress_q(1)
     return ChunkResult(error=err, cov=cov, residual_px=res, accepted=acc, measured_error_px=meas,
                        ip_status=tuple(status), ip_time_s=fc.ip_time_s + read_s, filter_time_s=fc.filter_time_s,
-                       pairs=tuple(pairs), faults=tuple(tuple(f) for f in faults), measured=given)
+                       pairs=tuple(pairs), faults=tuple(tuple(f) for f in faults),
+                       measured=np.broadcast_to(given, (n_runs, F)).copy())
 
 
 def _synthetic(plan, i, eph, phase_offset, synthetic_seed):
@@ -172,7 +173,7 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
                           ip_status=outs[0].ip_status, measured_error_px=outs[0].measured_error_px,
                           ip_time_s=max(o.ip_time_s for o in outs), filter_time_s=max(o.filter_time_s for o in outs),
                           pairs=outs[0].pairs, faults=sum((o.faults for o in outs), ()), filter_name=filter_spec,
-                          measured=outs[0].measured)
+                          measured=cat("measured"))
 
 
 def _realisation_worker(args):
@@ -223,4 +224,4 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
                           measured_error_px=o0.measured_error_px, ip_time_s=sum(o.ip_time_s for o in outs),
                           filter_time_s=sum(o.filter_time_s for o in outs), pairs=o0.pairs,
                           sequences=len(outs), faults=sum((o.faults for o in outs), ()), filter_name=filter_spec,
-                          measured=o0.measured)
+                          measured=cat("measured"))

@@ -92,7 +92,8 @@ def usable_runs(res):
     ok = np.all(np.isfinite(res.error), (1, 2)) & np.all(np.isfinite(res.cov), (1, 2, 3))
     if ok.all() or not ok.any():
         return res
-    return replace(res, error=res.error[ok], cov=res.cov[ok], residual_px=res.residual_px[ok], accepted=res.accepted[ok])
+    return replace(res, error=res.error[ok], cov=res.cov[ok], residual_px=res.residual_px[ok], accepted=res.accepted[ok],
+                   measured=None if res.measured is None else res.measured[ok])
 
 
 def case_metrics(res, last_leg) -> dict:
@@ -120,7 +121,7 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
     mn = np.linalg.norm(m[np.all(np.isfinite(m), 1)], axis=1)
     resid = res.residual_px[np.isfinite(res.residual_px[..., 0])]
     # frames whose centroid the filter was given (a filter may have no innovations in px)
-    measured = np.isfinite(res.residual_px[0, :, 0]) if res.measured is None else np.asarray(res.measured, bool)
+    measured = np.isfinite(res.residual_px[..., 0]) if res.measured is None else np.asarray(res.measured, bool)
     return {
         "runs": int(R),
         "frames": int(F),
@@ -150,8 +151,8 @@ def summarise(results: dict, *, primary: int, time_s: float, plan) -> dict:
                                  "frames": int(mn.size)},
         "noise": {"sigma0_px": res.noise.sigma0_px, "kappa": res.noise.kappa, "frames": res.noise.frames,
                   "classes": {k: {"sigma_px": sig, "track_bias_px": sb, "frames": nf} for k, sig, nf, sb in res.noise.classes}},
-        "measurements": {"frames_with_centroid": int(measured.sum()),
-                         "accepted_fraction": float(res.accepted.sum() / max(1, R * int(measured.sum()))),
+        "measurements": {"frames_with_centroid": int(measured[0].sum()),
+                         "accepted_fraction": float(res.accepted.sum() / max(1, int(measured.sum()))),
                          "residual_mean_px": resid.mean(0).tolist() if resid.size else None,
                          "residual_std_px": resid.std(0).tolist() if resid.size else None},
         "ip_status_counts": {s: res.ip_status.count(s) for s in sorted(set(res.ip_status))},
@@ -242,7 +243,7 @@ def write_report(out_dir, results: dict, summary: dict, *, primary: int, plan, i
             nr = _nees(r)
             for k in range(r.error.shape[0]):
                 e = r.error[k, -1]
-                meas = np.isfinite(r.residual_px[k, :, 0]) if r.measured is None else np.asarray(r.measured, bool)
+                meas = np.isfinite(r.residual_px[k, :, 0]) if r.measured is None else np.asarray(r.measured[k], bool)
                 w.writerow([c, k, *(f"{v:.3f}" for v in e[:3]), *(f"{v * 1e3:.5f}" for v in e[3:]),
                             f"{np.linalg.norm(e[:3]):.3f}", f"{np.linalg.norm(e[3:]) * 1e3:.5f}",
                             f"{3 * math.sqrt(np.trace(r.cov[k, -1, :3, :3])):.3f}",

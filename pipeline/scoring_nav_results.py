@@ -162,7 +162,7 @@ def score_nav_results(plan, results, *, case: int = 1):
     res = CampaignResult(case=case, noise=CentroidNoise(sigma0_px=float("nan")), t_tdb_s=sub.t_tdb_s, error=error,
                          cov=cov, residual_px=np.full((R, F, 2), np.nan), accepted=np.zeros((R, F), bool),
                          ip_status=status, measured_error_px=np.full((F, 2), np.nan), ip_time_s=0.0, filter_time_s=0.0,
-                         pairs=(), filter_name=str(results), measured=np.zeros(F, bool))
+                         pairs=(), filter_name=str(results), measured=np.zeros((R, F), bool))
     info = {"results_file": str(results), "runs": R, "frames_scored": F, "frames": int(plan.frames), "lines": len(got),
             "with_covariance": bool(all(v[1] is not None for v in got.values()))}
     return res, sub, info

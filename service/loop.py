@@ -340,7 +340,7 @@ def campaign_result(runs: list, plan, *, noise, case: int = 1, filter_name: str 
                           measured_error_px=runs[0].measured_error_px, ip_time_s=sum(r.ip_time_s for r in runs),
                           filter_time_s=sum(r.filter_time_s for r in runs), pairs=tuple(runs[0].pairs),
                           faults=tuple(tuple(r.faults) for r in runs), filter_name=filter_name,
-                          measured=np.array(runs[0].measured, dtype=bool))
+                          measured=np.array([r.measured for r in runs], dtype=bool))
 
 
 def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:
