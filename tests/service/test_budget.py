@@ -112,3 +112,12 @@ def test_without_the_cost_model_no_hostile_request_passes_the_cap_or_gets_a_500(
     for name, (status, peak_mib, cap_gib, line) in rows.items():
         assert status in (200, 400, 503) and peak_mib < cap_gib * 1024, (name, status, peak_mib, line)
     assert "all 200: True, identical bytes: True" in other, other
+
+
+def test_the_cost_bench_prints_each_estimate_beside_what_was_measured():
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "request_cost_bench.py"), "-k", "gaussian sigma 20"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    row = re.search(r"gaussian sigma 20 +([0-9.]+) +([0-9.]+) +([0-9.]+) +([0-9.]+) +([0-9.]+) +([0-9.]+) +([0-9.]+)",
+                    proc.stdout)
+    assert row and float(row.group(1)) > 0 and "WORST memory ratio" in proc.stdout, proc.stdout
