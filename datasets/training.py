@@ -17,6 +17,7 @@ the ``DataLoader``'s workers) and :func:`jax_batches` are the thin adapters (the
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from collections.abc import Iterator, Mapping
 
@@ -223,6 +224,14 @@ def torch_dataset(recipe, **kwargs):
     ...     print("Tensor", (2, 64, 64))
     Tensor (2, 64, 64)
     """
+    return _frame_stream_class()(recipe, kwargs)
+
+
+@functools.lru_cache(maxsize=1)
+def _frame_stream_class():
+    """The ``IterableDataset`` class of :func:`torch_dataset`, made on first use (PyTorch is
+    optional); the module's ``FrameStream`` (:func:`__getattr__`), so that a spawned
+    ``DataLoader`` worker unpickles it by name."""
     try:
         # PyTorch: the optional 'ml' extra, only for this adapter
         import torch
@@ -233,13 +242,24 @@ def torch_dataset(recipe, **kwargs):
     class FrameStream(IterableDataset):
         """The batches of a recipe, split over the DataLoader's workers."""
 
+        def __init__(self, recipe, kwargs):
+            super().__init__()
+            self.recipe, self.kwargs = recipe, dict(kwargs)
+
         def __iter__(self):
             info = get_worker_info()
             shard = (0, 1) if info is None else (info.id, info.num_workers)
-            for batch in stream(recipe, shard=shard, **kwargs):
+            for batch in stream(self.recipe, shard=shard, **self.kwargs):
                 yield _dlpack_tensors(batch, torch.from_dlpack)
 
-    return FrameStream()
+    FrameStream.__module__, FrameStream.__qualname__ = __name__, "FrameStream"
+    return FrameStream
+
+
+def __getattr__(name):
+    if name == "FrameStream":  # a DataLoader worker unpickling a torch_dataset
+        return _frame_stream_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def jax_batches(recipe, **kwargs) -> Iterator[dict]:

@@ -127,6 +127,18 @@ def test_torch_adapter_shares_the_arrays(streamed):
     assert np.shares_memory(torch.from_dlpack(arr).numpy(), arr)  # DLPack: no copy
 
 
+def test_torch_workers_share_the_batches_and_make_the_same_frames(streamed):
+    """Two spawned DataLoader workers: every batch once, each frame the one of its index."""
+    torch = pytest.importorskip("torch")
+    loader = torch.utils.data.DataLoader(D.torch_dataset(tiny_recipe(), batch=2), batch_size=None, num_workers=2,
+                                         multiprocessing_context="spawn")
+    got = {int(k): img.numpy() for b in loader for k, img in zip(b["frame"], b["image"])}
+    assert sorted(got) == list(range(5))
+    for b in streamed:
+        for i, k in enumerate(b["frame"]):
+            np.testing.assert_array_equal(got[int(k)], b["image"][i])
+
+
 def test_jax_adapter(streamed):
     pytest.importorskip("jax")
     b = next(D.jax_batches(tiny_recipe(), batch=3))
