@@ -79,9 +79,12 @@ def test_gpu_bench_runs_without_a_gpu_on_the_cpu_backends_and_says_why_not_on_cu
         assert re.fullmatch(r"gpu_bench: Dr\.Jit's CUDA backend does not work here \(.+\); run with --backends "
                             r"llvm numpy for the CPU's figures\n", proc.stderr), proc.stderr
     out = _run("gpu_bench.py", "--backends", "llvm", "numpy", "--repeat", "2", "--workers", "1", "--frames-per-worker", "4",
-               "--small")
+               "--small", "--batch", "--batch-sizes", "2", "--batch-px", "64")
     assert re.search(r"sensor numpy: frame +[0-9.]+ ms = +[0-9.]+ frames/s .* the sensor alone +[0-9.]+ ms", out), out
     assert re.search(r" 1 worker , sensor numpy: +[0-9.]+ frames/s steady \(64 frames", out), out
+    if "sensor llvm" in out:  # the batched frames on the first Dr.Jit backend there is
+        assert re.search(r"64 px, in memory: batch +2: +[0-9.]+ frames/s wall", out), out
+        assert re.search(r"batched frames on llvm: nvidia-smi GPU utilisation while measuring: .+", out), out
 
 
 def test_batch_bench_prints_each_batch_against_the_per_frame_path():
