@@ -94,6 +94,16 @@ def test_stream_refuses_bad_arguments():
         assert words in str(err.value) and "\n" not in str(err.value)
 
 
+def test_stream_on_a_missing_cuda_says_so_in_one_line():
+    if jit_backend.probe_cuda().available:
+        pytest.skip("CUDA works here")
+    from skynav.renderer import BackendUnavailableError
+
+    with pytest.raises(BackendUnavailableError) as err:
+        next(D.stream(tiny_recipe(), device="cuda"))
+    assert "cuda" in str(err.value) and "\n" not in str(err.value)
+
+
 @pytest.mark.skipif(not jit_backend.llvm_available(), reason="Dr.Jit's LLVM backend does not work here")
 def test_stream_on_the_llvm_device_runs_the_batched_program(streamed):
     """device='llvm': the batched frame program, its arrays Dr.Jit tensors: the dataset's
