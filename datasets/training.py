@@ -172,7 +172,7 @@ def _device_batch(plan, ks, seed: int, mag: float, options, electrons: bool, dev
         raise DatasetError(f"frames {ks[0]}..{ks[-1]} have different render options (a scenes recipe's own render "
                            f"keys); stream them with device='cpu' or batch=1")
     out = render_batch([d[0] for d in drawn], [d[2] for d in drawn], rngs=[d[3] for d in drawn], options=opts,
-                       frames_per_launch=len(ks))
+                       frames_per_launch=len(ks), electrons=electrons)
     jt = _jit_module(device)
     n, h, w = out.shape
     tensor = jt.TensorXu8 if out.dtype == np.uint8 else jt.TensorXu
