@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.mission_files import SceneFilePath
 from skynav.scenes.mission_spice import kernel_records, spice_attitudes, spice_coverage, spice_states
 from skynav.scenes.timescales import time_from_tdb_seconds
@@ -59,7 +60,7 @@ class KernelCruise:
         self.start_tdb_s = cover[0]
         if cover[1] < cover[0] + span_s:
             raise RecipeError("sequence.observer.spice.kernels", [str(k) for k in self.names],
-                              f"kernels covering body {self.body} over the legs, {span_s / 86400:.4g} days from "
+                              f"kernels covering body {self.body} over the legs, {span_s / SECONDS_PER_DAY:.4g} days from "
                               f"{_iso(cover[0])} TDB (to {_iso(cover[0] + span_s)}); they stop at {_iso(cover[1])}")
 
     def state(self, t_tdb_s):

@@ -31,6 +31,7 @@ from .catalog import OnboardCatalog
 from .errors import BenchInputError
 from .process import process_frame
 from .protocols import BeaconSighting, ImageProcessor, ImageResult
+from .scoring_peers import Tetra3rsPeer
 
 __all__ = ["BUILTIN", "Fault", "PluginError", "ROTATION_TOLERANCE", "SkynavProcessor", "Tetra3rsProcessor",
            "call_processor", "check_result", "image_result", "load_factory", "load_image_processor",
@@ -274,8 +275,6 @@ class Tetra3rsProcessor:
     there is one, for aberration): :class:`~skynav.pipeline.scoring_peers.Tetra3rsPeer`."""
 
     def __init__(self, camera):
-        from .scoring_peers import Tetra3rsPeer
-
         self.peer = Tetra3rsPeer(camera)
 
     def process(self, observation, prediction) -> ImageResult:

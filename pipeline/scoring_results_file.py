@@ -56,7 +56,7 @@ class ResultsFileError(BenchInputError):
 
 @functools.lru_cache(maxsize=1)
 def _validator():
-    import jsonschema
+    import jsonschema  # 0.1 s to import: only a results file being read needs it
 
     schema = json.loads((files("skynav.datasets") / "schemas" / "ip_results.schema.json").read_text(encoding="utf-8"))
     return jsonschema.Draft202012Validator(schema), frozenset(schema["properties"]), \

@@ -45,7 +45,8 @@ import numpy as np
 from skynav.infra.errors import ConfigValueError
 
 from . import frames
-from .errors import SceneFileError
+from .ephemeris_jpl import BODIES, BODY_NAIF_IDS, EpochStates
+from .errors import SceneFileError, UnknownBodyError
 
 __all__ = ["KERNEL_RESOLVER", "KernelName", "kernel_pool", "spice_states", "spice_attitudes", "spice_coverage", "release_kernels", "kernel_records", "given_name", "spice_state",
            "spice_attitude", "spice_source"]
@@ -354,9 +355,6 @@ class SpiceEphemeris:
         return hash((SpiceEphemeris, self.path))
 
     def _states(self, body, t_tdb_s, offset_s, velocity: bool):
-        from .ephemeris_jpl import BODIES, BODY_NAIF_IDS
-        from .errors import UnknownBodyError
-
         key = body.lower() if isinstance(body, str) else body
         if key not in BODY_NAIF_IDS:
             raise UnknownBodyError(body, BODIES)
@@ -382,14 +380,10 @@ class SpiceEphemeris:
 
     def states_at(self, t_tdb_s: float, bodies=None) -> dict:
         """``{body: (r, v)}`` at one epoch."""
-        from .ephemeris_jpl import BODIES
-
         return {b: self.position_velocity(b, float(t_tdb_s)) for b in (bodies or BODIES)}
 
     def epoch_states(self, t_tdb_s: float, bodies=None):
         """The states of several bodies at one epoch, as an ``EpochStates``."""
-        from .ephemeris_jpl import BODIES, EpochStates
-
         bodies = tuple(bodies or BODIES)
         states = [self.position_velocity(b, float(t_tdb_s)) for b in bodies]
         return EpochStates(bodies, np.array([r for r, _ in states]).reshape(-1, 3),
@@ -397,8 +391,6 @@ class SpiceEphemeris:
 
     def positions_at(self, t_tdb_s, bodies=None) -> np.ndarray:
         """Positions (N, bodies, 3) of several bodies at several epochs, km."""
-        from .ephemeris_jpl import BODIES
-
         bodies = tuple(bodies or BODIES)
         t = np.atleast_1d(np.asarray(t_tdb_s, dtype=float))
         return np.stack([self.position(b, t) for b in bodies], axis=1).reshape(t.size, len(bodies), 3)

@@ -179,6 +179,9 @@ class Scene:
         Faintest catalogue V magnitude included (the star catalogue cut).
     visibility : VisibilityCriteria
         The detection rule that set each body's ``visible`` flag.
+    data_files : tuple of dict
+        The mission files the scene was made from (SPICE kernels, CCSDS messages, a planetary
+        SPK), each as its name was given and its SHA-256: the truth's ``data_files``.
 
     Examples
     --------

@@ -19,6 +19,7 @@ from skynav.pipeline.process import ProcessOptions
 from skynav.pipeline.scoring import DEFAULT_FRAME_TIMEOUT_S, run_benchmark, summarise, summarise_peers
 from skynav.pipeline.scoring_results_file import score_results_file, write_predictions
 from skynav.pipeline.scoring_report import write_report
+from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.overrides import dataclass_from_overrides
 
 from .cli_args import add_dataset_arg, add_limit_arg, add_output_arg, add_quiet, add_seed_arg, add_set_arg, float_in
@@ -170,7 +171,7 @@ def _add_ip(bsub) -> None:
     p.add_argument("--results", action="append", metavar="RESULTS", default=[],
                    help="a results file written by another program (JSON Lines, skynav.ip_results/1) to score beside "
                         "the processors (repeatable)")
-    p.add_argument("--frame-timeout", type=float_in(0, 86400, low_open=True, unit="s"), default=DEFAULT_FRAME_TIMEOUT_S,
+    p.add_argument("--frame-timeout", type=float_in(0, SECONDS_PER_DAY, low_open=True, unit="s"), default=DEFAULT_FRAME_TIMEOUT_S,
                    help=f"a processor's time limit per frame, s (default {DEFAULT_FRAME_TIMEOUT_S:g}); a frame past it "
                         "fails with that reason")
     p.add_argument("--peers", action="store_true", help="also run tetra3rs and cedar-solve (if installed)")
