@@ -283,21 +283,8 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     ...     print((2, 64, 64), "float32", 2)
     (2, 64, 64) float32 2
     """
-    scenes, seeds = list(scenes), list(seeds)
-    if isinstance(frames_per_launch, bool) or not isinstance(frames_per_launch, int) or frames_per_launch < 1:
-        raise ConfigValueError("frames_per_launch", frames_per_launch, "an integer >= 1")
-    rngs = [np.random.default_rng(seed) for seed in seeds] if rngs is None else list(rngs)
-    if not scenes or len(scenes) != len(seeds) or len(rngs) != len(seeds):
-        raise ConfigValueError("scenes", f"{len(scenes)} scenes and {len(seeds)} seeds", "one seed per scene, >= 1")
+    scenes, seeds, rngs, backend = _checked_batch(scenes, seeds, rngs, options, frames_per_launch)
     cam = scenes[0].camera
-    if any((s.camera.width, s.camera.height, s.camera.sensor) != (cam.width, cam.height, cam.sensor) for s in scenes):
-        raise ConfigValueError("scenes", "cameras of different sizes or sensors", "one camera size and sensor per batch")
-    if not options.noise:
-        raise ConfigValueError("options.noise", False, "True (the batch program draws the noise; "
-                               "noise-free frames: render())")
-    backend = sensor_backend(options.backend)
-    if backend not in JIT_BACKENDS:
-        raise ConfigValueError("options.backend", options.backend, "llvm, cuda or auto on a machine with one of them")
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -336,6 +323,27 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
                       electrons=np.concatenate(chunks) if electrons else None, truths=truths, backend=backend,
                       timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
                       dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
+
+
+def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
+    """``(scenes, seeds, rngs, backend)`` of a batch :func:`render_batch` can make, as lists;
+    else the :class:`ConfigValueError` naming what is not."""
+    scenes, seeds = list(scenes), list(seeds)
+    if isinstance(frames_per_launch, bool) or not isinstance(frames_per_launch, int) or frames_per_launch < 1:
+        raise ConfigValueError("frames_per_launch", frames_per_launch, "an integer >= 1")
+    rngs = [np.random.default_rng(seed) for seed in seeds] if rngs is None else list(rngs)
+    if not scenes or len(scenes) != len(seeds) or len(rngs) != len(seeds):
+        raise ConfigValueError("scenes", f"{len(scenes)} scenes and {len(seeds)} seeds", "one seed per scene, >= 1")
+    cam = scenes[0].camera
+    if any((s.camera.width, s.camera.height, s.camera.sensor) != (cam.width, cam.height, cam.sensor) for s in scenes):
+        raise ConfigValueError("scenes", "cameras of different sizes or sensors", "one camera size and sensor per batch")
+    if not options.noise:
+        raise ConfigValueError("options.noise", False, "True (the batch program draws the noise; "
+                               "noise-free frames: render())")
+    backend = sensor_backend(options.backend)
+    if backend not in JIT_BACKENDS:
+        raise ConfigValueError("options.backend", options.backend, "llvm, cuda or auto on a machine with one of them")
+    return scenes, seeds, rngs, backend
 
 
 #: Frames whose sensor inputs are kept in memory at once when the electrons are not asked for
