@@ -34,14 +34,25 @@ CAMERA_PRESETS = {"paper": paper_camera}
 #: Longest wavelength of a camera's response table, nm (far infrared: no optical camera reaches it;
 #: the radiometry integrates the band on a 0.25 nm grid, which a wider band would make unbounded).
 MAX_WAVELENGTH_NM = 1e5
+#: Largest Brown-Conrady coefficient in magnitude (real lenses stay below 1; a larger one is warned
+#: of): beyond, the distorted coordinates of the frame's corners overflow.
+MAX_DISTORTION = 1e3
 #: Shortest, nm (far ultraviolet, the PSF models' own lower bound): a tinier positive wavelength
 #: overflows the Planck spectra of the radiometry (exp(hc / lambda k T)).
 MIN_WAVELENGTH_NM = 100.0
 
 
+#: Smallest magnitude of a non-zero number in a configuration: no quantity of a scene is smaller
+#: than this and not zero, and a smaller one (a subnormal such as 5e-324) overflows its reciprocal
+#: downstream (a rate of 5e-324 e-/s made the sensor's sampler spin).
+MIN_MAGNITUDE = 1e-300
+
+
 def _number(value, key, *, allowed="a finite number", integer=False):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigValueError(key, value, allowed)
+    if value != 0 and abs(value) < MIN_MAGNITUDE:
+        raise ConfigValueError(key, value, f"{allowed}, 0 or of magnitude at least {MIN_MAGNITUDE:g}")
     if integer:
         if int(value) != value:
             raise ConfigValueError(key, value, "an integer")
@@ -112,7 +123,12 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
     if "distortion" in d:
         dd = _mapping(d["distortion"], f"{key}.distortion")
         _check_keys(dd, f"{key}.distortion", _DIST_KEYS)
-        kw["distortion"] = BrownConrady(**{k: _number(v, f"{key}.distortion.{k}") for k, v in dd.items()})
+        coeffs = {k: _number(v, f"{key}.distortion.{k}") for k, v in dd.items()}
+        for k, v in coeffs.items():   # |k| > 10 is warned of below; far beyond, the projection overflows
+            if abs(v) > MAX_DISTORTION:
+                raise ConfigValueError(f"{key}.distortion.{k}", v, f"a coefficient in [-{MAX_DISTORTION:g}, "
+                                                                    f"{MAX_DISTORTION:g}] (real lenses: |{k}| < 1)")
+        kw["distortion"] = BrownConrady(**coeffs)
     if "response" in d:
         rd = _mapping(d["response"], f"{key}.response")
         _check_keys(rd, f"{key}.response", {"wavelengths_nm", "qe_t"})
@@ -143,10 +159,17 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
                 skw[k] = v
             elif k in ("bit_depth", "pattern_seed"):
                 skw[k] = _number(v, f"{key}.sensor.{k}", allowed="an integer", integer=True)
+                if k == "bit_depth" and not 1 <= skw[k] <= 16:
+                    raise ConfigValueError(f"{key}.sensor.bit_depth", v, "an integer in 1..16")
+                if k == "pattern_seed" and not 0 <= skw[k] <= 2**63 - 1:
+                    raise ConfigValueError(f"{key}.sensor.pattern_seed", v, "an integer in 0..2**63-1")
             else:
                 skw[k] = _number(v, f"{key}.sensor.{k}")
         base_sensor = base.sensor if base is not None else SensorParams()
-        kw["sensor"] = dataclasses.replace(base_sensor, **skw)
+        try:
+            kw["sensor"] = dataclasses.replace(base_sensor, **skw)
+        except ConfigValueError as exc:   # SensorParams names its own keys (sensor.*): the file's are under key
+            raise ConfigValueError(f"{key}.{exc.key}", exc.value, exc.allowed) from None
     if "fov_deg" in d:
         fov = _number(d["fov_deg"], f"{key}.fov_deg")
         if not 0 < fov < 180:
@@ -227,10 +250,13 @@ def _check_camera_limits(kw: dict, key: str) -> None:
     if sensor is not None:
         if sensor.full_well_e < 1.0:
             raise ConfigValueError(f"{key}.sensor.full_well_e", sensor.full_well_e, ">= 1 electron")
-        for name in ("read_noise_e", "reset_noise_e", "dark_current_e_per_s", "dsnu_e_per_s", "gain_dn_per_e"):
+        for name in ("read_noise_e", "reset_noise_e", "dark_current_e_per_s", "dsnu_e_per_s", "gain_dn_per_e",
+                     "full_well_e", "offset_dn"):
             v = getattr(sensor, name, None)
             if v is not None and v > 1e9:
                 raise ConfigValueError(f"{key}.sensor.{name}", v, "<= 1e9")
+        if sensor.prnu_fraction > 1.0:   # a fraction of the signal: beyond 1 the gain map goes negative
+            raise ConfigValueError(f"{key}.sensor.prnu_fraction", sensor.prnu_fraction, "in [0, 1]")
 
 
 def _warn_camera(camera: Camera, key: str) -> None:
