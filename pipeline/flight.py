@@ -8,8 +8,10 @@ measurement-noise calibration all fly through :class:`FlightComputer`:
 2. predict: the runs' mean state, with the runs' mean covariance plus their spread, widened by the
    target's radius (the image processing predicts the planet's centre; its spot is the centre of
    light, up to 0.9 radius away, :func:`skynav.pipeline.measurement.lambert_photocentre_offset`);
-3. process the frame (:func:`skynav.pipeline.process_frame`) with that prediction and the previous
-   frame's attitude;
+3. process the frame with that prediction through the image processor
+   (:class:`skynav.pipeline.protocols.ImageProcessor`, ``--pipeline MODULE:FACTORY``; by default
+   skynav's pipeline, :func:`skynav.pipeline.process_frame`, given the previous frame's attitude);
+   a fault of the processor is a failed measurement with its reason;
 4. pick the pointed planet's centroid and decide whether it is usable
    (:func:`skynav.pipeline.planet_centroid.centroid_usable`) and with which photocentre law;
 5. its noise ``sigma_px`` (:class:`~skynav.pipeline.planet_centroid.CentroidNoise`);
@@ -31,13 +33,8 @@ the nominal state plus ``sqrt(P0)`` times a standard normal draw, ``P0`` of Andr
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-import os
-import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -45,17 +42,17 @@ from skynav.infra.errors import SkynavError
 from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM
 
-from .catalog import OnboardCatalog
 from .ekf import NavFilter, initial_covariance
 from .measurement import CASES
 from .pairs import candidates_from_state, optimal_pair
 from .planet_centroid import CentroidNoise, centroid_usable, diameter_px, target_beacon
-from .process import process_frame
-from .protocols import BeaconMeasurement, FilterSetup, FilterUpdate, NavigationFilter
+from .plugins import PluginError, call_processor, load_factory, load_image_processor
+from .protocols import BeaconMeasurement, FilterSetup, FilterUpdate, ImageProcessor, ImageResult, NavigationFilter
 from .results import PredictedState
 
-__all__ = ["UPDATE_ITERATIONS", "DEFAULT_FILTER", "FilterPluginError", "FlightComputer", "FlightStep", "SkynavEKF",
-           "Sighting", "initial_states", "load_filter_factory", "make_filter", "measure_target", "skynav_ekf"]
+__all__ = ["UPDATE_ITERATIONS", "DEFAULT_FILTER", "DEFAULT_PIPELINE", "FilterPluginError", "FlightComputer", "FlightStep",
+           "SkynavEKF", "Sighting", "initial_states", "load_filter_factory", "make_filter", "measure_target",
+           "pipeline_spec", "skynav_ekf"]
 
 #: Iterated EKF update of skynav's filter: after the first 10-day propagation the position is known
 #: to ~1e5 km only and the first Earth fix is nonlinear over that spread; with the one-step EKF 2 of
@@ -65,6 +62,10 @@ UPDATE_ITERATIONS = 3
 
 #: The filter ``--filter`` names by default: skynav's EKF, through the plug-in interface.
 DEFAULT_FILTER = "skynav.pipeline.flight:skynav_ekf"
+
+#: The image processor ``--pipeline`` names by default: skynav's pipeline, each solved attitude
+#: passed to the next frame (:func:`skynav.pipeline.plugins.skynav_tracking`).
+DEFAULT_PIPELINE = "skynav.pipeline.plugins:skynav_tracking"
 
 
 class FilterPluginError(SkynavError, ValueError):
@@ -111,44 +112,28 @@ def skynav_ekf(setup: FilterSetup) -> SkynavEKF:
 
 def load_filter_factory(spec: str):
     """The factory ``MODULE:FACTORY`` or ``path/to/file.py:FACTORY`` names (a callable), or
-    :class:`FilterPluginError` in one line."""
-    module, sep, name = str(spec).rpartition(":")
-    if not sep or not module or not name.isidentifier():
-        raise FilterPluginError(f"--filter {spec}: give MODULE:FACTORY or FILE.py:FACTORY, e.g. {DEFAULT_FILTER}")
-    try:
-        if module.endswith(".py"):
-            mod = _module_of_file(spec, Path(module))
-        else:
-            if os.getcwd() not in sys.path and "" not in sys.path:
-                sys.path.append(os.getcwd())   # a module in the current folder, as ``python -m`` finds it
-            mod = importlib.import_module(module)
-    except FilterPluginError:
-        raise
-    except BaseException as exc:   # noqa: BLE001 - anyone's module: any error is the user's to read in one line
-        if isinstance(exc, KeyboardInterrupt):
-            raise
-        raise FilterPluginError(f"--filter {spec}: cannot import {module} ({type(exc).__name__}: {exc})") from None
-    factory = getattr(mod, name, None)
-    if not callable(factory):
-        raise FilterPluginError(f"--filter {spec}: {module} has no callable {name}")
-    return factory
+    :class:`FilterPluginError` in one line (the plug-in loader, :func:`skynav.pipeline.plugins.load_factory`)."""
+    return load_factory(spec, option="--filter", error=FilterPluginError, shortcuts={}, example=DEFAULT_FILTER,
+                        makes="setup -> filter")
 
 
-def _module_of_file(spec: str, path: Path):
-    """The module of a ``.py`` file, executed once per process (kept in ``sys.modules``)."""
-    if not path.is_file():
-        raise FilterPluginError(f"--filter {spec}: {path} is not a file")
-    key = f"skynav_filter_{abs(hash(str(path.resolve())))}"
-    if key not in sys.modules:
-        loader = importlib.util.spec_from_file_location(key, path)
-        mod = importlib.util.module_from_spec(loader)
-        sys.modules[key] = mod
-        try:
-            loader.loader.exec_module(mod)
-        except BaseException:
-            del sys.modules[key]
-            raise
-    return sys.modules[key]
+def pipeline_spec(given) -> str:
+    """The one image processor of a flight from the ``--pipeline`` values (None or ``"skynav"``:
+    :data:`DEFAULT_PIPELINE`), imported now so that a bad path is one line before any frame is read.
+
+    Raises
+    ------
+    PluginError
+        More than one processor (a flight has one image processing; compare processors with
+        ``skynav bench ip``), or a bad import path.
+    """
+    specs = list(dict.fromkeys(given or ["skynav"]))
+    if len(specs) > 1:
+        raise PluginError(f"--pipeline {' '.join(specs)}: a flight has one image processor; give --pipeline once "
+                          "(compare image processors side by side with 'skynav bench ip')")
+    spec = DEFAULT_PIPELINE if specs[0] == "skynav" else specs[0]
+    load_factory(spec)
+    return spec
 
 
 def make_filter(spec: str, setup: FilterSetup) -> NavigationFilter:
@@ -178,30 +163,43 @@ def initial_states(position_km, velocity_km_s, runs: int, seed: int, P0=None):
 
 @dataclass(frozen=True, eq=False)
 class Sighting:
-    """The image processing's view of one frame's target: the frame result, the target's beacon
-    result (None: not found or no attitude) and how the filter may use it (None: not at all)."""
+    """The image processing's view of one frame's target: the processor's result (None: it
+    faulted), the target's beacon (None: not found or no attitude), how the filter may use it
+    (None: not at all) and the processor's fault (``""``: none; else its kind and reason)."""
 
-    frame: object
+    result: ImageResult | None
     beacon: object
     use: str | None
+    fault: str = ""
+
+    @property
+    def R_cam_icrs(self):
+        """The frame's attitude (None: not solved, or the processor faulted)."""
+        return None if self.result is None else self.result.R_cam_icrs
 
 
-def measure_target(obs, target: str, *, t: float, predicted_state, previous_attitude, catalog, ephemeris) -> Sighting:
-    """Process ``obs`` with ``predicted_state`` (None: lost in space, no beacon); the target's
-    centroid and its photocentre law (:func:`~skynav.pipeline.planet_centroid.centroid_usable` at
-    the predicted position)."""
-    fr = process_frame(obs, catalog=catalog, predicted_state=predicted_state, previous_attitude=previous_attitude)
-    b = target_beacon(fr, target)
-    use = None if b is None or predicted_state is None else centroid_usable(obs, fr, b, target, t=t, position_km=predicted_state.position_km,
-                                                 ephemeris=ephemeris)
-    return Sighting(fr, b, use)
+def measure_target(obs, target: str, *, t: float, predicted_state, processor: ImageProcessor, ephemeris,
+                   timeout_s: float | None = None) -> Sighting:
+    """Process ``obs`` with ``processor`` (:func:`skynav.pipeline.plugins.call_processor`: its faults
+    are a :attr:`Sighting.fault`, never an exception) and ``predicted_state`` (None: lost in space,
+    no beacon); the target's centroid and its photocentre law
+    (:func:`~skynav.pipeline.planet_centroid.centroid_usable` at the predicted position)."""
+    result, fault, _ = call_processor(processor, obs, predicted_state, timeout_s=timeout_s)
+    if fault is not None:
+        return Sighting(None, None, None, str(fault))
+    b = target_beacon(result, target)
+    use = None if b is None or predicted_state is None else centroid_usable(
+        obs, result, b, target, t=t, position_km=predicted_state.position_km, ephemeris=ephemeris)
+    return Sighting(result, b, use)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class FlightStep:
     """What one frame's step did, for the N runs (the filter's state after it: :meth:`FlightComputer.estimate`).
 
-    ``status``: the image processing's (``"blended"``: the centroid was found but not usable);
+    ``status``: the image processing's (``"blended"``: the centroid was found but not usable;
+    ``"processor fault (KIND: REASON)"``: the processor raised, returned no rotation or ran past
+    the frame time limit: no measurement, the flight goes on);
     ``xy_px``: the target's centroid (None: not found); ``measurement``: what the filter was given
     (None: nothing, it only propagated); ``fault``: the filter's fault in this step, with its
     reason (``""``: none), ``failed`` (N,) the runs it hit.
@@ -262,8 +260,8 @@ def _fault_check(x, P, n_runs):
 
 
 class FlightComputer:
-    """The flight software of one flight: a navigation filter, the image processing, the on-board
-    catalogue and ephemeris, the measurement noise. Sees images, never the truth.
+    """The flight software of one flight: a navigation filter, an image processor, the on-board
+    ephemeris, the measurement noise. Sees images, never the truth.
 
     Parameters
     ----------
@@ -278,15 +276,23 @@ class FlightComputer:
         a track-constant error gets ``n sigma_b^2``, :meth:`CentroidNoise.sigma_px`).
     phase_offset : bool
         Aim the measurement at the planet's centre of light (default) or at its centre.
+    processor : ImageProcessor, optional
+        The image processing (:class:`skynav.pipeline.protocols.ImageProcessor`); default: the one
+        ``pipeline`` names, made with the first frame's calibrated camera.
+    pipeline : str
+        ``MODULE:FACTORY`` of the image processor when ``processor`` is None (default
+        :data:`DEFAULT_PIPELINE`, skynav's pipeline).
+    frame_timeout_s : float, optional
+        The processor's time limit per frame (None: none); a frame over it is a failed measurement.
     """
 
     def __init__(self, nav, *, noise: CentroidNoise, ephemeris, track_frames: dict | None = None,
-                 phase_offset: bool = True, catalog=None):
+                 phase_offset: bool = True, processor: ImageProcessor | None = None, pipeline: str = DEFAULT_PIPELINE,
+                 frame_timeout_s: float | None = None):
         self.nav, self.noise, self.eph = nav, noise, ephemeris
         self.track_frames = dict(track_frames or {})
         self.phase_offset = bool(phase_offset)
-        self.catalog = catalog
-        self.previous_attitude = None
+        self.processor, self.pipeline, self.frame_timeout_s = processor, pipeline, frame_timeout_s
         self.n_runs = 0
         self.ip_time_s = self.filter_time_s = 0.0
         self._faults: list = []
@@ -373,27 +379,29 @@ class FlightComputer:
         image, pick the target's centroid, its sigma, update the filter.
 
         ``track``: the frame's ``(leg, phase)`` in the observation plan. ``replace_xy``: a callable
-        ``(observation, frame_result, photocentre, sigma_px) -> xy`` that replaces the centroid the filter is given
+        ``(observation, image_result, photocentre, sigma_px) -> xy`` that replaces the centroid the filter is given
         (the benchmark's synthetic reference mode), or None.
         """
         t = float(obs.epoch_tdb_s)
-        if self.catalog is None:
-            self.catalog = OnboardCatalog.load(camera=obs.camera)
+        if self.processor is None:
+            self.processor = load_image_processor(self.pipeline, obs.camera)
         c0 = time.perf_counter()
         ps = self.predicted_state(target)
-        sight = measure_target(obs, target, t=t, predicted_state=ps, previous_attitude=self.previous_attitude,
-                               catalog=self.catalog, ephemeris=self.eph)
-        fr, b, use = sight.frame, sight.beacon, sight.use
-        self.previous_attitude = fr.attitude.R_cam_icrs
+        sight = measure_target(obs, target, t=t, predicted_state=ps, processor=self.processor, ephemeris=self.eph,
+                               timeout_s=self.frame_timeout_s)
+        res, b, use = sight.result, sight.beacon, sight.use
         c1 = time.perf_counter()
         self.ip_time_s += c1 - c0
-        status = "blended" if b is not None and use is None else fr.status
+        if sight.fault:
+            status = f"processor fault ({sight.fault})"
+        else:
+            status = "blended" if b is not None and use is None else res.status
         residual = np.full((self.n_runs, 2), np.nan)
         accepted = np.zeros(self.n_runs, dtype=bool)
         xy = None if b is None else np.asarray(b.xy_px, dtype=float)
         meas = None
         if use is not None:
-            meas = self._measurement(obs, fr, xy, target, use, ps.position_km, track, replace_xy)
+            meas = self._measurement(obs, res, xy, target, use, ps.position_km, track, replace_xy)
             xy = meas.xy_px
             u = self._call("update", self.nav.update, meas)
             if u is not None:
@@ -403,17 +411,17 @@ class FlightComputer:
         self.filter_time_s += time.perf_counter() - c1
         failed = np.array([bool(r) for r in reasons])
         return FlightStep(status=status, xy_px=xy, measurement=meas, residual_px=residual, accepted=accepted & ~failed,
-                          fault=next((r for r in reasons if r), ""), failed=failed, attitude=fr.attitude.R_cam_icrs)
+                          fault=next((r for r in reasons if r), ""), failed=failed, attitude=sight.R_cam_icrs)
 
-    def _measurement(self, obs, fr, xy, target, use, position_km, track, replace_xy) -> BeaconMeasurement:
+    def _measurement(self, obs, res, xy, target, use, position_km, track, replace_xy) -> BeaconMeasurement:
         t = float(obs.epoch_tdb_s)
         rp, vp = self.eph.position_velocity(target, t)
         radius = BODY_RADII_KM[target]
         sigma_px = self.noise.sigma_px(diameter_px(radius, float(np.linalg.norm(rp - position_km)), obs.camera),
                                        f"{target}/{use}", self.track_frames.get(tuple(track), 1))
         if replace_xy is not None:
-            xy = np.asarray(replace_xy(obs, fr, use, sigma_px), dtype=float)
-        R = np.asarray(fr.attitude.R_cam_icrs, dtype=float)
+            xy = np.asarray(replace_xy(obs, res, use, sigma_px), dtype=float)
+        R = np.asarray(res.R_cam_icrs, dtype=float)
         los, los_cov = _line_of_sight(xy, sigma_px, R, obs.camera)
         return BeaconMeasurement(t_tdb_s=t, body=target, xy_px=xy, sigma_px=float(sigma_px), line_of_sight_icrs=los,
                                  line_of_sight_cov_rad2=los_cov, R_cam_icrs=R, camera=obs.camera, body_position_km=rp,

@@ -77,15 +77,16 @@ def diameter_px(radius_km: float, distance_km: float, camera) -> float:
 BLEND_PX = 8.0
 
 
-def centroid_usable(obs, fr, beacon, target, *, t, position_km, ephemeris):
+def centroid_usable(obs, result, beacon, target, *, t, position_km, ephemeris):
     """How the filter may use the target's centroid: None (not at all: another body is predicted
     within :data:`BLEND_PX`), else the photocentre law of
     :func:`skynav.pipeline.measurement.planet_pixel` (``"saturated"`` when the disc is resolved,
     wider than four PSF sigmas, and its spot has pixels at full scale; else ``"lambert"``).
-    On-board knowledge only: the image, the estimate ``position_km``, the ephemeris, the camera.
+    On-board knowledge only: the image, the frame's attitude ``result.R_cam_icrs`` (an
+    :class:`~skynav.pipeline.protocols.ImageResult`), the estimate ``position_km``, the ephemeris, the camera.
     """
     cam = obs.camera
-    R = fr.attitude.R_cam_icrs
+    R = result.R_cam_icrs
     r = np.asarray(position_km, dtype=float)
 
     def pixel(name):
@@ -108,11 +109,12 @@ def centroid_usable(obs, fr, beacon, target, *, t, position_km, ephemeris):
     return "lambert"
 
 
-def target_beacon(fr, target):
-    """The frame's beacon result for ``target`` when found (and the attitude solved), else None."""
-    if fr.status != "ok" or fr.attitude.R_cam_icrs is None:
+def target_beacon(result, target):
+    """The beacon of ``target`` in an image processor's result (an
+    :class:`~skynav.pipeline.protocols.ImageResult`) when found and the attitude solved, else None."""
+    if result.status != "ok" or result.R_cam_icrs is None:
         return None
-    for b in fr.beacons:
+    for b in result.beacons:
         if b.name == target and b.status == "found" and b.xy_px is not None:
             return b
     return None

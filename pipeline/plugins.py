@@ -9,8 +9,9 @@ limit comes back as a :class:`Fault` naming the reason.
 
 The processors skynav ships are plug-ins through the same door (the benchmark has no special
 case for any of them): ``skynav.pipeline.plugins:skynav_improved`` and ``:skynav_paper`` (the
-pipeline, :func:`~skynav.pipeline.process_frame`, in its two modes), ``:tetra3rs`` (the
-``peers`` extra) and ``:cedar_solve``.
+pipeline, :func:`~skynav.pipeline.process_frame`, in its two modes), ``:skynav_tracking`` (the
+improved mode passing each attitude to the next frame: the default of ``bench nav`` and ``bench
+loop``), ``:tetra3rs`` (the ``peers`` extra) and ``:cedar_solve``.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from .scoring_peers import Tetra3rsPeer
 
 __all__ = ["BUILTIN", "Fault", "PluginError", "ROTATION_TOLERANCE", "SkynavProcessor", "Tetra3rsProcessor",
            "call_processor", "check_result", "image_result", "load_factory", "load_image_processor",
-           "skynav_improved", "skynav_paper", "tetra3rs", "cedar_solve"]
+           "skynav_improved", "skynav_paper", "skynav_tracking", "tetra3rs", "cedar_solve"]
 
 #: ``max |R R^T - I|`` a returned attitude may have: 1e-6 (a shear of 0.2 arcsec); a matrix
 #: rounded to float32 (1e-7) passes, a matrix that is not a rotation does not.
@@ -44,6 +45,7 @@ ROTATION_TOLERANCE = 1e-6
 #: Short names of skynav's plug-ins (``--pipeline skynav-paper`` = ``skynav.pipeline.plugins:skynav_paper``).
 BUILTIN = {"skynav-improved": "skynav.pipeline.plugins:skynav_improved",
            "skynav-paper": "skynav.pipeline.plugins:skynav_paper",
+           "skynav-tracking": "skynav.pipeline.plugins:skynav_tracking",
            "tetra3rs": "skynav.pipeline.plugins:tetra3rs",
            "cedar-solve": "skynav.pipeline.plugins:cedar_solve"}
 
@@ -73,39 +75,46 @@ class Fault:
         return f"{self.kind}: {self.message}"
 
 
-def load_factory(spec: str):
+def load_factory(spec: str, *, option: str = "--pipeline", error: type = PluginError, shortcuts: dict | None = None,
+                 example: str = "mypkg.tracker:make, or my_tracker.py:make", makes: str = "camera -> processor"):
     """The factory ``spec`` names: ``MODULE:FACTORY`` (a module importable from the current folder
-    or the installed packages), ``path/to/file.py:FACTORY``, or a short name of :data:`BUILTIN`.
+    or the installed packages), ``path/to/file.py:FACTORY``, or a short name of ``shortcuts``
+    (default :data:`BUILTIN`).
+
+    The one loader of skynav's plug-ins: image processors (``--pipeline``) and navigation filters
+    (``--filter``, :func:`skynav.pipeline.flight.load_filter_factory`); ``option`` names the flag
+    in the message, ``error`` its error class.
 
     Raises
     ------
     PluginError
-        Not ``MODULE:FACTORY``, a module that does not import, or no callable of that name.
+        (or ``error``) Not ``MODULE:FACTORY``, a module that does not import, or no callable of that name.
     """
-    path = BUILTIN.get(spec, spec)
+    shortcuts = BUILTIN if shortcuts is None else shortcuts
+    path = shortcuts.get(spec, spec)
     mod_name, sep, attr = str(path).rpartition(":")
     if not sep or not mod_name or not attr:
-        raise PluginError(f"--pipeline {spec}: give MODULE:FACTORY (e.g. mypkg.tracker:make, or my_tracker.py:make) "
-                          f"or one of {', '.join(BUILTIN)}")
-    mod = _import(spec, mod_name)
+        raise error(f"{option} {spec}: give MODULE:FACTORY (e.g. {example})"
+                    + (f" or one of {', '.join(shortcuts)}" if shortcuts else ""))
+    mod = _import(spec, mod_name, option, error)
     obj = mod
     for part in attr.split("."):
         obj = getattr(obj, part, None)
         if obj is None:
-            raise PluginError(f"--pipeline {spec}: {mod_name} has no {attr!r}")
+            raise error(f"{option} {spec}: {mod_name} has no {attr!r}")
     if not callable(obj):
-        raise PluginError(f"--pipeline {spec}: {mod_name}:{attr} is not callable (give a factory: camera -> processor)")
+        raise error(f"{option} {spec}: {mod_name}:{attr} is not callable (give a factory: {makes})")
     return obj
 
 
-def _import(spec, mod_name):
-    """The module of a spec: a ``.py`` file by its path, else by name (the current folder last on
-    ``sys.path``, as ``python -m`` would find it)."""
+def _import(spec, mod_name, option, error):
+    """The module of a spec: a ``.py`` file by its path (executed once per process), else by name
+    (the current folder last on ``sys.path``, as ``python -m`` would find it)."""
     try:
         if mod_name.endswith(".py"):
             file = Path(mod_name)
             if not file.is_file():
-                raise PluginError(f"--pipeline {spec}: no such file {mod_name}")
+                raise error(f"{option} {spec}: no such file {mod_name}")
             key = f"skynav_plugin_{abs(hash(str(file.resolve())))}"
             if key not in sys.modules:
                 loader_spec = importlib.util.spec_from_file_location(key, file)
@@ -120,12 +129,14 @@ def _import(spec, mod_name):
         if os.getcwd() not in sys.path and "" not in sys.path:
             sys.path.append(os.getcwd())
         return importlib.import_module(mod_name)
-    except PluginError:
+    except error:
+        raise
+    except KeyboardInterrupt:
         raise
     except ModuleNotFoundError as exc:
-        raise PluginError(f"--pipeline {spec}: no module named {exc.name!r}") from None
-    except Exception as exc:  # noqa: BLE001 - the user's module failing on import is one line too
-        raise PluginError(f"--pipeline {spec}: importing {mod_name} failed ({type(exc).__name__}: {_one_line(exc)})") from None
+        raise error(f"{option} {spec}: no module named {exc.name!r}") from None
+    except BaseException as exc:  # noqa: BLE001 - the user's module failing on import (even sys.exit) is one line too
+        raise error(f"{option} {spec}: importing {mod_name} failed ({type(exc).__name__}: {_one_line(exc)})") from None
 
 
 def load_image_processor(spec: str, camera) -> ImageProcessor:
@@ -263,6 +274,12 @@ class SkynavProcessor:
 def skynav_improved(camera) -> SkynavProcessor:
     """skynav's pipeline in its improved mode, each frame on its own."""
     return SkynavProcessor(camera, mode="improved")
+
+
+def skynav_tracking(camera) -> SkynavProcessor:
+    """skynav's pipeline in its improved mode, each solved attitude passed to the next frame: the
+    image processing of ``bench nav`` and ``bench loop`` by default (a sequence, frame after frame)."""
+    return SkynavProcessor(camera, mode="improved", tracking=True)
 
 
 def skynav_paper(camera) -> SkynavProcessor:

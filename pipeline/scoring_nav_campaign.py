@@ -22,7 +22,7 @@ from skynav.infra.pool import process_pool_map
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
 from .filter_dynamics import FilterDynamics
-from .flight import DEFAULT_FILTER, UPDATE_ITERATIONS, FlightComputer, initial_states, make_filter
+from .flight import DEFAULT_FILTER, DEFAULT_PIPELINE, UPDATE_ITERATIONS, FlightComputer, initial_states, make_filter
 from .measurement import CASES, planet_pixel
 from .planet_centroid import CentroidNoise
 from .protocols import FilterSetup
@@ -72,7 +72,7 @@ class ChunkResult:
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
-               progress_q=None, synthetic_seed=None, filter_spec: str = DEFAULT_FILTER):
+               progress_q=None, synthetic_seed=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE):
     ds = sdat.open(plan.root)
     eph = default_ephemeris()
     t = plan.t_tdb_s
@@ -90,7 +90,7 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
     for lg, ph in zip(plan.leg, plan.phase):
         track_frames[(int(lg), ph)] = track_frames.get((int(lg), ph), 0) + 1
     fc = FlightComputer(make_filter(filter_spec, setup), noise=noise, ephemeris=eph,
-                        track_frames=track_frames, phase_offset=phase_offset)
+                        track_frames=track_frames, phase_offset=phase_offset, pipeline=pipeline)
     fc.start(t[0], x0, P0)
     pairs = []
     read_s = 0.0
@@ -127,11 +127,11 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
 def _synthetic(plan, i, eph, phase_offset, synthetic_seed):
     """Reference mode: the exact model (case 1, this photocentre law) at the TRUE state plus white
     noise of exactly the filter's R; the same draw in every worker."""
-    def replace_xy(obs, fr, use, sigma_px):
+    def replace_xy(obs, result, use, sigma_px):
         t = plan.t_tdb_s[i]
         rp, vp = eph.position_velocity(plan.target[i], t)
         radius = BODY_RADII_KM[plan.target[i]]
-        m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs,
+        m_true = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, result.R_cam_icrs,
                               obs.camera, corrections=CASES[1], sun_position_km=eph.position("sun", t),
                               planet_radius_km=radius if phase_offset else 0.0, photocentre=use)
         g = np.random.default_rng(np.random.SeedSequence([int(synthetic_seed), 0x5E, i]))
@@ -145,7 +145,8 @@ def _chunk_worker(args):
 
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
-                 progress=None, synthetic_seed: int | None = None, filter_spec: str = DEFAULT_FILTER) -> CampaignResult:
+                 progress=None, synthetic_seed: int | None = None, filter_spec: str = DEFAULT_FILTER,
+                 pipeline: str = DEFAULT_PIPELINE) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (Andreis et al. (2024), Eq. 45-46 initial errors; Andreis et al. (2023b), Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
@@ -153,6 +154,7 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     measurement model at the true state plus white noise of the filter's own R (seeded): what a
     consistent filter shows on ONE realisation shared by the runs (``benchmarks/nav_consistency.py``).
     ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`).
+    ``pipeline``: the image processor, ``MODULE:FACTORY`` (one per worker).
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
@@ -163,10 +165,11 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     workers = max(1, min(int(workers), runs))
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
-        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed, filter_spec)]
+        outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed, filter_spec,
+                           pipeline)]
     else:
         outs = process_pool_map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None,
-                                                 synthetic_seed, filter_spec) for c in chunks], workers)
+                                                 synthetic_seed, filter_spec, pipeline) for c in chunks], workers)
     cat = lambda k: np.concatenate([getattr(o, k) for o in outs], 0)  # noqa: E731
     return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("error"),
                           cov=cat("cov"), residual_px=cat("residual_px"), accepted=cat("accepted"),
@@ -191,7 +194,8 @@ def check_realisations(plans, reference: NavPlan) -> None:
 
 def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers: int = 1, noise: CentroidNoise,
                      dynamics: FilterDynamics | None = None, phase_offset: bool = True, progress=None,
-                     reference: NavPlan | None = None, filter_spec: str = DEFAULT_FILTER) -> CampaignResult:
+                     reference: NavPlan | None = None, filter_spec: str = DEFAULT_FILTER,
+                     pipeline: str = DEFAULT_PIPELINE) -> CampaignResult:
     """The Monte Carlo with independent measurement noise: ``plans`` are renderings of ONE cruise
     (the same trajectory, another dataset seed: other image noise, cosmic rays and pointing), the
     ``runs`` are dealt round-robin over them (``runs == len(plans)``: every run has images of its
@@ -206,7 +210,8 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
     check_realisations(plans, reference if reference is not None else plans[0])
     counts = [len(c) for c in np.array_split(np.arange(runs), len(plans))]
     jobs = [(p, dict(runs=n, case=case, seed=int(np.random.SeedSequence([seed, 0x5EA, k]).generate_state(1)[0]),
-                     noise=noise, dynamics=dynamics, phase_offset=phase_offset, filter_spec=filter_spec))
+                     noise=noise, dynamics=dynamics, phase_offset=phase_offset, filter_spec=filter_spec,
+                     pipeline=pipeline))
             for k, (p, n) in enumerate(zip(plans, counts)) if n > 0]
     if workers > 1 and len(jobs) > 1:
         outs = process_pool_map(_realisation_worker, jobs, min(workers, len(jobs)),

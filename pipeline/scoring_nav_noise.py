@@ -21,9 +21,9 @@ from scipy.optimize import nnls
 import skynav.datasets as sdat
 from skynav.scenes.ephemeris_jpl import BODY_RADII_KM, default_ephemeris
 
-from .catalog import OnboardCatalog
-from .flight import measure_target
+from .flight import DEFAULT_PIPELINE, measure_target
 from .measurement import CASES, planet_pixel
+from .plugins import load_image_processor
 from .planet_centroid import CentroidNoise, diameter_px
 from .results import PredictedState
 from .scoring_nav_plan import NavInputError, observation
@@ -37,7 +37,8 @@ MIN_CLASS_FRAMES = 9
 
 
 def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
-                       sigma_velocity_km_s: float = 0.1, phase_offset: bool = True, observations=None):
+                       sigma_velocity_km_s: float = 0.1, phase_offset: bool = True, observations=None,
+                       pipeline: str = DEFAULT_PIPELINE):
     """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
 
     The error is the image processing's target centroid minus the measurement model (case 1,
@@ -52,11 +53,13 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
     ``observations``: where the frames come from when they are not a dataset's files (the closed
     loop asks the render service for them): a callable ``(rendering, i) -> Observation`` for frame
     ``i`` of ``plan[rendering]``; default: frame ``i`` of the dataset at ``plan.root``.
+
+    ``pipeline``: the image processor whose centroids are measured, ``MODULE:FACTORY`` (the
+    flight's, :mod:`skynav.pipeline.flight`); a new one per rendering, made with its first frame's camera.
     """
     eph = default_ephemeris()
     plans = list(plan) if isinstance(plan, (list, tuple)) else [plan]
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
-    cat = None
     errs = []
     diam = []
     keys = []
@@ -70,14 +73,14 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
         else:
             def get(i, ip=ip):
                 return observations(ip, i)
-        cat = _calibrate_rendering(plan, get, ip, stride=stride, rng=rng, cat=cat, eph=eph, out=(errs, diam, keys, tracks),
-                                   sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
-                                   phase_offset=phase_offset)
+        _calibrate_rendering(plan, get, ip, stride=stride, rng=rng, pipeline=pipeline, eph=eph, out=(errs, diam, keys, tracks),
+                             sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
+                             phase_offset=phase_offset)
     return replace(_fit_noise(plans[0], errs, diam, keys, tracks), renderings=len(plans))
 
 
 def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigma_velocity_km_s: float = 0.1,
-                    phase_offset: bool = True) -> tuple[np.ndarray, tuple]:
+                    phase_offset: bool = True, pipeline: str = DEFAULT_PIPELINE) -> tuple[np.ndarray, tuple]:
     """Frame by frame, the centroid error :func:`calibrate_sigma_px` measures on ``plan``'s frames
     (its predicted states drawn from ``seed`` as it draws them, so that two plans of one cruise
     with different images see the same ones): ``(errors (F, 2) px, NaN where the target's centroid
@@ -86,7 +89,7 @@ def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigm
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
     ds = sdat.open(plan.root)
     out = ([], [], [], [], [])
-    _calibrate_rendering(plan, lambda i: observation(ds, plan, i), 0, stride=1, rng=rng, cat=None, eph=eph, out=out,
+    _calibrate_rendering(plan, lambda i: observation(ds, plan, i), 0, stride=1, rng=rng, pipeline=pipeline, eph=eph, out=out,
                          sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
                          phase_offset=phase_offset)
     errs, _, keys, _, idx = out
@@ -97,28 +100,27 @@ def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigm
     return e, tuple(k)
 
 
-def _calibrate_rendering(plan, get, ip, *, stride, rng, cat, eph, out, sigma_position_km, sigma_velocity_km_s, phase_offset):
+def _calibrate_rendering(plan, get, ip, *, stride, rng, pipeline, eph, out, sigma_position_km, sigma_velocity_km_s,
+                         phase_offset):
     errs, diam, keys, tracks = out[:4]
-    prev = None
+    proc = None
     for i in range(0, plan.frames, max(1, stride)):
         if not np.all(np.isfinite(plan.target_xy_px[i])):
             continue
         obs = get(i)
-        if cat is None:
-            cat = OnboardCatalog.load(camera=obs.camera)
+        if proc is None:
+            proc = load_image_processor(pipeline, obs.camera)
         ps = PredictedState(position_km=plan.position_km[i] + sigma_position_km * rng.standard_normal(3),
                             velocity_km_s=plan.velocity_km_s[i] + sigma_velocity_km_s * rng.standard_normal(3),
                             position_cov_km2=np.eye(3) * sigma_position_km**2)
         # the flight step's image part (pipeline.flight); the filter's view (an estimate drawn about
         # the truth) decides blends and the photocentre law
-        sight = measure_target(obs, plan.target[i], t=plan.t_tdb_s[i], predicted_state=ps, previous_attitude=prev,
-                               catalog=cat, ephemeris=eph)
-        fr, b, use = sight.frame, sight.beacon, sight.use
-        prev = fr.attitude.R_cam_icrs
+        sight = measure_target(obs, plan.target[i], t=plan.t_tdb_s[i], predicted_state=ps, processor=proc, ephemeris=eph)
+        b, use = sight.beacon, sight.use
         if use is not None:
             t = plan.t_tdb_s[i]
             rp, vp = eph.position_velocity(plan.target[i], t)
-            m = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, fr.attitude.R_cam_icrs, obs.camera,
+            m = planet_pixel(plan.position_km[i], plan.velocity_km_s[i], rp, vp, sight.R_cam_icrs, obs.camera,
                              corrections=CASES[1], sun_position_km=eph.position("sun", t),
                              planet_radius_km=BODY_RADII_KM[plan.target[i]] if phase_offset else 0.0,
                              photocentre=use)
@@ -128,7 +130,6 @@ def _calibrate_rendering(plan, get, ip, *, stride, rng, cat, eph, out, sigma_pos
             if len(out) > 4:
                 out[4].append(i)
             diam.append(diameter_px(BODY_RADII_KM[plan.target[i]], np.linalg.norm(rp - plan.position_km[i]), obs.camera))
-    return cat
 
 
 def _fit_noise(plan, errs, diam, keys, tracks):

@@ -34,10 +34,10 @@ from skynav.datasets.plan import epoch_iso
 from skynav.datasets.recipes import recipe_camera
 from skynav.datasets.samplers import make_plan
 from skynav.datasets.sequence import pointing_controller
-from skynav.pipeline import OnboardCatalog
 from skynav.pipeline.filter_dynamics import FilterDynamics
-from skynav.pipeline.flight import DEFAULT_FILTER, FlightComputer, make_filter
+from skynav.pipeline.flight import DEFAULT_FILTER, DEFAULT_PIPELINE, FlightComputer, make_filter
 from skynav.pipeline.planet_centroid import CentroidNoise
+from skynav.pipeline.plugins import load_image_processor
 from skynav.pipeline.protocols import FilterSetup
 from skynav.pipeline.scoring_nav import CampaignResult, NavPlan, calibrate_sigma_px
 from skynav.scenes import frames
@@ -150,13 +150,14 @@ class FlightSoftware:
     with anyone's navigation filter, and pointing commands. No truth."""
 
     def __init__(self, camera, x0, P0, t0: float, t_end: float, *, noise, case: int = 1, dynamics=None,
-                 twist_rad: float = 0.0, track_frames: dict | None = None, filter_spec: str = DEFAULT_FILTER):
+                 twist_rad: float = 0.0, track_frames: dict | None = None, filter_spec: str = DEFAULT_FILTER,
+                 pipeline: str = DEFAULT_PIPELINE):
         self.camera, self.twist_rad = camera, float(twist_rad)
         self.eph = default_ephemeris()
         setup = FilterSetup(ephemeris=self.eph, t_start_tdb_s=float(t0), t_end_tdb_s=float(t_end), case=case,
                             dynamics=dynamics or FilterDynamics())
         self.fc = FlightComputer(make_filter(filter_spec, setup), noise=centroid_noise(noise), ephemeris=self.eph,
-                                 track_frames=track_frames, catalog=OnboardCatalog.load(camera=camera))
+                                 track_frames=track_frames, processor=load_image_processor(pipeline, camera))
         self.fc.start(t0, np.atleast_2d(x0), P0)
         self._last_command = np.eye(3)
 
@@ -217,10 +218,11 @@ def track_frames(schedule) -> dict:
 
 def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: str = "estimate",
              realtime: float | None = None, rendering: int = 0, dynamics=None,
-             progress=None, filter_spec: str = DEFAULT_FILTER) -> LoopRun:
+             progress=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE) -> LoopRun:
     """One closed-loop run over the simulator's frames, the frames asked of ``client``.
 
-    ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`).
+    ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`);
+    ``pipeline``: the image processor, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.plugins`).
     ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.planet_centroid.CentroidNoise`
     (:func:`calibrate_loop_noise`, as ``bench nav`` calibrates it) or a sigma in px.
     ``rendering``: which rendering of the cruise the run sees, its controller errors and image
@@ -236,7 +238,8 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
     camera = recipe_camera(sim.recipe)
     twist = math.radians(sim.recipe["sequence"]["twist_deg"]) if "twist_deg" in sim.recipe["sequence"] else 0.0
     fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], noise=noise, case=case, dynamics=dynamics,
-                         twist_rad=twist, track_frames=track_frames(sched), filter_spec=filter_spec)
+                         twist_rad=twist, track_frames=track_frames(sched), filter_spec=filter_spec,
+                         pipeline=pipeline)
     run = LoopRun(error=np.full((F, 6), np.nan), cov=np.full((F, 6, 6), np.nan), residual_px=np.full((F, 2), np.nan),
                   accepted=np.zeros(F, bool), status=[], in_field=np.zeros(F, bool), offset_px=np.full(F, np.inf),
                   measured_error_px=np.full((F, 2), np.nan), latency_s=np.zeros(F), step_s=np.zeros(F),
@@ -362,8 +365,9 @@ def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:
 
 
 def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings: int = 1, seed: int = 0,
-                         phase_offset: bool = True, progress=None):
-    """The filter's measurement noise, measured as ``bench nav`` measures it.
+                         phase_offset: bool = True, progress=None, pipeline: str = DEFAULT_PIPELINE):
+    """The filter's measurement noise, measured as ``bench nav`` measures it (of the image processor
+    ``pipeline``, ``MODULE:FACTORY``).
 
     ``bench nav`` calibrates R on a dataset (:func:`skynav.pipeline.scoring_nav.calibrate_sigma_px`);
     here the same function runs on a rendering of the cruise asked of ``client``: every
@@ -393,4 +397,5 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings:
         return observation(k, t, frame.dn, camera)
 
     plans = [plan] * int(renderings) if renderings > 1 else plan
-    return calibrate_sigma_px(plans, stride=stride, seed=seed, phase_offset=phase_offset, observations=render)
+    return calibrate_sigma_px(plans, stride=stride, seed=seed, phase_offset=phase_offset, observations=render,
+                              pipeline=pipeline)

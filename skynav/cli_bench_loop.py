@@ -14,7 +14,7 @@ import numpy as np
 
 from skynav.datasets.recipes import recipe_camera
 from skynav.pipeline.ekf import initial_covariance
-from skynav.pipeline.flight import initial_states
+from skynav.pipeline.flight import initial_states, pipeline_spec
 from skynav.pipeline.scoring_nav import NavInputError
 from skynav.pipeline.scoring_nav_filters import filter_specs, filters_figure_html, filters_lines, filters_markdown, filters_summary
 from skynav.pipeline.scoring_nav_report import summarise, write_report
@@ -44,7 +44,7 @@ from .cli_args import (
     add_workers_arg,
     positive_int,
 )
-from .cli_bench_nav import add_filter_arg
+from .cli_bench_nav import add_filter_arg, add_pipeline_arg
 from .cli_common import ProgressBar, say, warn
 from .cli_dataset import recipe_from_args
 
@@ -84,7 +84,7 @@ def _noise(args, sim, client):
             done_cal[0] += n
             bar(done_cal[0], n_cal)
 
-        return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal)
+        return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal, pipeline=args.pipeline)
 
 
 def _fly(args, sim, client, noise, bias, filters):
@@ -106,7 +106,8 @@ def _fly(args, sim, client, noise, bias, filters):
         # filter the same renderings and initial states
         for spec in filters:
             flown[spec] = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
-                                    rendering=i, progress=tick, filter_spec=spec) for i, x0 in enumerate(x0s)]
+                                    rendering=i, progress=tick, filter_spec=spec, pipeline=args.pipeline)
+                          for i, x0 in enumerate(x0s)]
         if bias is not None:
             b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
             xb = nominal.copy()
@@ -114,7 +115,8 @@ def _fly(args, sim, client, noise, bias, filters):
             Pb = initial_covariance(sigma_position_km=b_km)   # the filter knows how uncertain it is
             for pointing in ("truth", "estimate"):
                 biased[pointing] = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case,
-                                            pointing=pointing, progress=tick, filter_spec=filters[0])
+                                            pointing=pointing, progress=tick, filter_spec=filters[0],
+                                            pipeline=args.pipeline)
     return flown, biased, b_km
 
 
@@ -157,6 +159,7 @@ def _say_summary(args, summary, loop, noise, res, total, setup_s, out) -> None:
 def cmd_loop(args) -> int:
     bias = _bias_km(args)
     filters = filter_specs(args.filter)   # a bad import path is one line before the service starts
+    args.pipeline = pipeline_spec(args.pipeline)
     recipe = recipe_from_args(args.recipe, None, None, args.overrides)
     t0 = time.perf_counter()
     sim = Simulator(recipe, limit=args.limit)
@@ -187,7 +190,8 @@ def cmd_loop(args) -> int:
     summary["closed_loop"] = loop
     info = {"source": f"{args.recipe} (closed loop through {'the service at ' + args.service if args.service else 'a local skynav serve'})",
             "seed": int(args.seed), "runs": int(args.runs), "cases": [args.case], "noise": noise.describe(),
-            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s, "filters": filters}
+            "setup_time_s": setup_s, "ip_time_s": res.ip_time_s, "filter_time_s": res.filter_time_s, "filters": filters,
+            "pipeline": args.pipeline}
     side = len(by_filter) > 1
     out = write_report(args.output, {args.case: res}, summary, primary=args.case, plan=plan, info=info,
                        extra_md=filters_markdown(summary["filters"]) if side else (),
@@ -225,6 +229,7 @@ def add_parser(sub) -> None:
                  help="seed of the initial states (the controller's pointing errors and the image noise come "
                         "from the recipe's seed, frame by frame as in its dataset: --set seed=N)")
     add_filter_arg(p)
+    add_pipeline_arg(p)
     add_limit_arg(p, minimum=2, help="only the first N frames of the plan (at least 2)")
     p.add_argument("--bias-km", default="auto", metavar="KM",
                    help="also run a start this far off (auto: 1.5 half-fields at the first target; none: skip)")

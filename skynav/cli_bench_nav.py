@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 import skynav.datasets as sdat
 from skynav.infra.count_cap import cap_count
 from skynav.pipeline.filter_dynamics import FilterDynamics
-from skynav.pipeline.flight import DEFAULT_FILTER
+from skynav.pipeline.flight import DEFAULT_FILTER, DEFAULT_PIPELINE, pipeline_spec
 from skynav.pipeline.references import NAVIGATION
 from skynav.pipeline.scoring_nav import (
     CentroidNoise,
@@ -75,11 +75,12 @@ def cmd_nav(args) -> int:
         raise NavInputError(f"--sigma-px {args.sigma_px}: give a positive number of pixels")
     _dynamics(args)  # refuse a bad --set or --gm-sigma before reading the dataset
     filters = filter_specs(args.filter)   # refuse a bad import path before reading the dataset
+    args.pipeline = pipeline_spec(args.pipeline)
     t0 = time.perf_counter()
     plan, realisations, calib = _datasets(args)
     if args.sigma_px is None:
         noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
-                                   phase_offset=not args.no_phase_offset)
+                                   phase_offset=not args.no_phase_offset, pipeline=args.pipeline)
 
         noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
     else:
@@ -104,7 +105,7 @@ def cmd_nav(args) -> int:
     info = {"source": str(args.dataset), "realisations": [str(d) for d in args.realisations or []],
             "phase_offset": not args.no_phase_offset, "images": args.images, "seed": int(args.seed), "workers": int(args.workers),
             "cases": cases, "calibrated_on": [str(p.root) for p in calib], "gm_sigma_km_s2": args.gm_sigma, "dynamics": {k: getattr(dynamics or _default_dynamics(), k) for k in DYNAMICS_KEYS}, "noise": noise.describe(), "setup_time_s": setup_s, "ip_time_s": ip_s,
-            "filter_time_s": fl_s, "filters": filters}
+            "filter_time_s": fl_s, "filters": filters, "pipeline": args.pipeline}
     side = len(by_filter) > 1
     out = write_report(args.output, results, summary, primary=primary, plan=plan, info=info,
                        extra_md=filters_markdown(summary["filters"]) if side else (),
@@ -154,13 +155,13 @@ def _campaign(args, plan, realisations, case, spec, noise, dynamics):
             bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {case}{name}, {args.runs} runs")
         res = run_realisations(realisations, runs=args.runs, case=case, seed=args.seed, workers=args.workers,
                                noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
-                               progress=None if bar is None else bar.update, filter_spec=spec)
+                               progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline)
     else:
         if not args.quiet and args.workers == 1:
             bar = tqdm(total=plan.frames, unit="frame", desc=f"case {case}{name}, {args.runs} runs")
         res = run_campaign(plan, runs=args.runs, case=case, seed=args.seed, workers=args.workers, noise=noise,
                            dynamics=dynamics, phase_offset=not args.no_phase_offset,
-                           progress=None if bar is None else bar.update, filter_spec=spec)
+                           progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline)
     if bar is not None:
         bar.close()
     return res
@@ -267,13 +268,22 @@ def add_filter_arg(p) -> None:
                         f"(default {DEFAULT_FILTER}, skynav's EKF)")
 
 
+def add_pipeline_arg(p) -> None:
+    """``--pipeline MODULE:FACTORY`` (once), shared by ``bench nav`` and ``bench loop``."""
+    p.add_argument("--pipeline", action="append", metavar="MODULE:FACTORY", default=None,
+                   help=f"the image processor of the flight, imported by path (docs/benchmark.md, 'Bring your own "
+                        f"image processing'; the noise calibration measures its centroids); one per run (compare "
+                        f"processors side by side with 'skynav bench ip') (default skynav: {DEFAULT_PIPELINE})")
+
+
 def add_parser(bsub) -> None:
     """Register ``nav`` on the ``bench`` sub-parsers."""
     p = bsub.add_parser("nav", help="Monte Carlo EKF navigation campaign on a sequence dataset",
                         description="Run the image processing on every frame of a 'sequence' dataset and the EKF "
                         "(planet centroids, first-order light-time and aberration) over Monte Carlo initial errors; "
                         "score against the truth and write runs.csv, frames.csv, summary.json, report.md, report.html. "
-                        "--set dynamics.FIELD=VALUE changes the filter's force and noise model; the image processing "
+                        "--set dynamics.FIELD=VALUE changes the filter's force and noise model; --pipeline MODULE:FACTORY "
+                        "flies anyone's image processor; skynav's image processing "
                         "runs with the pipeline's default ProcessOptions (try others on single frames with "
                         "'skynav bench ip --set'; change the images with 'skynav dataset generate --set').")
     add_dataset_arg(p, "a 'sequence' dataset folder")
@@ -305,6 +315,7 @@ def add_parser(bsub) -> None:
     p.add_argument("--calibration-stride", type=positive_int, default=1,
                    help="frames between calibration frames (default 1: all)")
     add_filter_arg(p)
+    add_pipeline_arg(p)
     p.add_argument("--write-states", action="store_true",
                    help=f"also write states.jsonl: every run's state at every frame (first filter, first case) in the "
                         f"results-file schema {NAV_RESULTS_SCHEMA} that 'bench score nav' reads")

@@ -46,12 +46,12 @@ def test_a_filter_fault_fails_the_step_with_its_reason_and_the_run_completes(seq
 
 
 @pytest.mark.parametrize("spec, words", [
-    ("nosuch_module_xyz:make", "cannot import nosuch_module_xyz"),
-    ("skynav.pipeline.flight:no_such_factory", "has no callable no_such_factory"),
+    ("nosuch_module_xyz:make", "--filter nosuch_module_xyz:make: no module named 'nosuch_module_xyz'"),
+    ("skynav.pipeline.flight:no_such_factory", "has no 'no_such_factory'"),
     ("skynav.pipeline.flight", "give MODULE:FACTORY"),
     (f"{FAULTY}:failing_factory", "the factory failed (RuntimeError: no licence for this filter)"),
     (f"{FAULTY}:not_a_filter", "has no initialise, propagate, update, state"),
-    ("missing/dir/filter.py:make", "is not a file"),
+    ("missing/dir/filter.py:make", "no such file missing/dir/filter.py"),
 ])
 def test_a_bad_filter_path_is_one_line_exit_2(seq, tmp_path, capsys, spec, words):
     assert _nav(seq, tmp_path / "r", "--filter", spec) == 2

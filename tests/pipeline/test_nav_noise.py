@@ -65,7 +65,7 @@ def test_centroid_usable_blend_gate_and_photocentre_law():
     cam = paper_camera()
     ifov = 1.0 / cam.fx_px
     R = np.eye(3)                        # camera axes = ICRS: +z is the boresight
-    fr = SimpleNamespace(attitude=SimpleNamespace(R_cam_icrs=R))
+    fr = SimpleNamespace(R_cam_icrs=R)   # the image processor's result (ImageResult): its attitude
     dn = np.zeros((cam.height, cam.width), dtype=np.uint8)
     obs = SimpleNamespace(camera=cam, dn=dn)
     centre = np.array([cam.cx, cam.cy])
