@@ -1,6 +1,7 @@
 """Navigation filters as plug-ins (``bench nav --filter MODULE:FACTORY``): faults are results, a bad
 import path is one line, anyone's filter flies beside skynav's EKF."""
 
+import csv
 import json
 from pathlib import Path
 
@@ -97,3 +98,62 @@ def test_the_line_of_sight_and_its_covariance_through_the_camera():
     xy1 = np.array([900.3, 120.7])
     u1, _ = _line_of_sight(xy1, 0.1, R, cam)
     assert np.allclose(cam.project((R @ u1).reshape(1, 3))[0], xy1, atol=1e-6)
+
+
+# ---- the image processor of the flight (``--pipeline MODULE:FACTORY``), through the same door
+PROCESSORS = HERE / "faulty_processors.py"
+IP_PLUGIN = REPO / "docs" / "examples" / "ip_plugin.py"
+
+
+def _frames(out):
+    with open(out / "frames.csv", newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("factory, reason", [
+    ("raising", "processor fault (exception: RuntimeError: the detector's driver crashed)"),
+    ("reflection", "processor fault (not_rotation: R_cam_icrs is a reflection (det = -1), not a rotation)"),
+    ("wrong_type", "processor fault (wrong_type: returned str; expected skynav.pipeline.ImageResult)"),
+])
+def test_a_processor_fault_is_a_failed_measurement_with_its_reason_and_the_flight_goes_on(seq, tmp_path, factory,
+                                                                                         reason):
+    """The third frame's processor faults: that frame gives the filter nothing (its status says
+    why); every other frame is measured exactly as skynav's default pipeline measures it."""
+    ref, out = tmp_path / "ref", tmp_path / "r"
+    assert _nav(seq, ref) == 0
+    assert _nav(seq, out, "--pipeline", f"{PROCESSORS}:{factory}") == 0
+    s, s_ref = (json.loads((d / "summary.json").read_text()) for d in (out, ref))
+    assert s["run"]["pipeline"] == f"{PROCESSORS}:{factory}"
+    rows, rows_ref = _frames(out), _frames(ref)
+    assert [r["ip_status"] for r in rows] == [reason if i == 2 else r["ip_status"] for i, r in enumerate(rows_ref)]
+    assert s["ip_status_counts"][reason] == 1 and s["faults"]["steps_failed"] == 0   # the filter did not fault
+    assert rows[2]["measured_dx_px"] == "nan" != rows_ref[2]["measured_dx_px"]
+    assert [r["measured_dx_px"] for r in rows[:2]] == [r["measured_dx_px"] for r in rows_ref[:2]]
+    assert s["measurements"]["frames_with_centroid"] == s_ref["measurements"]["frames_with_centroid"] - 1
+    assert reason in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--pipeline", "nosuch_tracker_xyz:make"], "--pipeline nosuch_tracker_xyz:make: no module named 'nosuch_tracker_xyz'"),
+    (["--pipeline", "skynav", "--pipeline", f"{IP_PLUGIN}:make"], "a flight has one image processor"),
+    (["--pipeline", f"{PROCESSORS}:failing_factory"], "the factory raised RuntimeError: no licence for this tracker"),
+    (["--pipeline", "missing/dir/tracker.py:make"], "no such file missing/dir/tracker.py"),
+])
+def test_a_bad_pipeline_is_one_line_exit_2(seq, tmp_path, capsys, args, words):
+    assert _nav(seq, tmp_path / "r", *args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and "Traceback" not in err[0], err
+
+
+def test_the_documented_plugin_and_ukf_fly_bench_nav_unchanged(seq, tmp_path):
+    """docs/examples/ip_plugin.py (scikit-image centroids, tetra3rs) is the image processing and
+    docs/examples/ukf_filter.py the filter: the flight completes. The plug-in finds no planet
+    (it returns attitudes only), so the filter is never given a centroid: it only propagates."""
+    pytest.importorskip("tetra3rs")
+    pytest.importorskip("skimage")
+    out = tmp_path / "r"
+    assert _nav(seq, out, "--pipeline", f"{IP_PLUGIN}:make", "--filter", f"{UKF}:make_filter") == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["run"]["pipeline"] == f"{IP_PLUGIN}:make" and s["frames"] == 6
+    assert s["faults"]["steps_failed"] == 0 and s["measurements"]["frames_with_centroid"] == 0
+    assert not any(k.startswith("processor fault") for k in s["ip_status_counts"]), s["ip_status_counts"]
