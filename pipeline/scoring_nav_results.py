@@ -32,12 +32,11 @@ from skynav.infra.errors import SkynavWarning
 from .planet_centroid import CentroidNoise
 from .scoring_nav_campaign import CampaignResult
 from .scoring_nav_plan import NavInputError
+from .scoring_results_file import json_lines
 
 __all__ = ["NAV_RESULTS_SCHEMA", "NavResultsFileError", "read_nav_results", "score_nav_results", "write_nav_results"]
 
 NAV_RESULTS_SCHEMA = "skynav.nav_results/1"
-#: lines read at most (a results file of more lines than this is not one dataset's)
-MAX_LINES = 10_000_000
 #: a line's ``t_tdb_s`` may differ from its frame's epoch by this much, s (the truth's epochs are
 #: written with 17 significant digits: ~1e-7 s at 8e8 s past J2000)
 EPOCH_TOLERANCE_S = 1e-3
@@ -66,10 +65,6 @@ def _validator():
     return jsonschema.Draft202012Validator(schema), frozenset(schema["properties"])
 
 
-def _no_constant(name):
-    raise ValueError(f"{name} is not JSON (write null)")
-
-
 def _covariance(rec, where):
     if "covariance_km_km_s" not in rec:
         return None
@@ -91,26 +86,10 @@ def read_nav_results(path, *, epochs_tdb_s) -> dict:
     ``epochs_tdb_s``: the dataset's frame epochs (F,), TDB s; a line for frame >= F is refused.
     Raises :class:`NavResultsFileError` on the first bad line, named.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise NavResultsFileError(f"{path}: not a readable results file ({type(exc).__name__})") from None
     epochs = np.asarray(epochs_tdb_s, dtype=float)
     validator, known = _validator()
     out, unknown = {}, set()
-    for n, line in enumerate(text.splitlines()[:MAX_LINES], start=1):
-        if not line.strip():
-            continue
-        where = f"{path} line {n}"
-        try:
-            rec = json.loads(line, parse_constant=_no_constant)
-        except ValueError as exc:
-            raise NavResultsFileError(f"{where}: not a JSON object ({str(exc).splitlines()[0]})") from None
-        err = next(iter(sorted(validator.iter_errors(rec), key=lambda e: len(e.absolute_path))), None)
-        if err is not None:
-            at = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err.absolute_path)
-            raise NavResultsFileError(f"{where}: {'$' + at + ': ' if at else ''}{err.message[:200]}")
+    for n, where, rec in json_lines(path, validator, NavResultsFileError):
         unknown |= {k for k in rec if k not in known}
         k, run = rec["frame"], rec.get("run", 0)
         if k >= len(epochs):

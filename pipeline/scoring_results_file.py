@@ -67,6 +67,31 @@ def _no_constant(name):
     raise ValueError(f"{name} is not JSON (write null)")
 
 
+def json_lines(path, validator, error):
+    """``(n, where, record)`` of each non-blank line of the JSON Lines file ``path`` (at most
+    :data:`MAX_LINES`), ``where`` naming the file and line, each record valid under the JSON
+    Schema ``validator``; the first unreadable file, line that is not JSON (NaN and Infinity
+    included) or record the schema refuses raises ``error`` with one line naming it."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: not a readable results file ({type(exc).__name__})") from None
+    for n, line in enumerate(text.splitlines()[:MAX_LINES], start=1):
+        if not line.strip():
+            continue
+        where = f"{path} line {n}"
+        try:
+            rec = json.loads(line, parse_constant=_no_constant)
+        except ValueError as exc:
+            raise error(f"{where}: not a JSON object ({str(exc).splitlines()[0]})") from None
+        err = next(iter(sorted(validator.iter_errors(rec), key=lambda e: len(e.absolute_path))), None)
+        if err is not None:
+            at = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err.absolute_path)
+            raise error(f"{where}: {'$' + at + ': ' if at else ''}{err.message[:200]}")
+        yield n, where, rec
+
+
 def read_results_file(path, *, frames: int) -> dict:
     """``{(frame, sigma_km or None): (ImageResult, time_ms, line number)}`` of a results file.
 
@@ -82,27 +107,11 @@ def read_results_file(path, *, frames: int) -> dict:
     ResultsFileError
         The first bad line, named.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ResultsFileError(f"{path}: not a readable results file ({type(exc).__name__})") from None
     validator, known, beacon_known = _validator()
     out, unknown = {}, set()
     every = {}   # frame -> line of its sigma-less record
     some = {}    # frame -> line of a record with a sigma
-    for n, line in enumerate(text.splitlines()[:MAX_LINES], start=1):
-        if not line.strip():
-            continue
-        where = f"{path} line {n}"
-        try:
-            rec = json.loads(line, parse_constant=_no_constant)
-        except ValueError as exc:
-            raise ResultsFileError(f"{where}: not a JSON object ({str(exc).splitlines()[0]})") from None
-        err = next(iter(sorted(validator.iter_errors(rec), key=lambda e: len(e.absolute_path))), None)
-        if err is not None:
-            at = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err.absolute_path)
-            raise ResultsFileError(f"{where}: {'$' + at + ': ' if at else ''}{err.message[:200]}")
+    for n, where, rec in json_lines(path, validator, ResultsFileError):
         unknown |= {k for k in rec if k not in known}
         unknown |= {f"beacons[].{k}" for b in rec.get("beacons", ()) for k in b if k not in beacon_known}
         k, sigma = rec["frame"], rec.get("sigma_km")

@@ -130,46 +130,10 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
                                                                     f"{MAX_DISTORTION:g}] (real lenses: |{k}| < 1)")
         kw["distortion"] = BrownConrady(**coeffs)
     if "response" in d:
-        rd = _mapping(d["response"], f"{key}.response")
-        _check_keys(rd, f"{key}.response", {"wavelengths_nm", "qe_t"})
-        wl = rd.get("wavelengths_nm")
-        qe = rd.get("qe_t")
-        if not isinstance(wl, list) or not isinstance(qe, list) or len(wl) != len(qe) or len(wl) < 2:
-            raise ConfigValueError(f"{key}.response", "...", "wavelengths_nm and qe_t lists of equal length >= 2")
-        wl = [_number(v, f"{key}.response.wavelengths_nm[{i}]") for i, v in enumerate(wl)]
-        qe = [_number(v, f"{key}.response.qe_t[{i}]") for i, v in enumerate(qe)]
-        if any(b <= a for a, b in zip(wl, wl[1:])):
-            raise ConfigValueError(f"{key}.response.wavelengths_nm", wl[:3], "strictly increasing wavelengths")
-        if not (MIN_WAVELENGTH_NM <= wl[0] and wl[-1] <= MAX_WAVELENGTH_NM):
-            raise ConfigValueError(f"{key}.response.wavelengths_nm", [wl[0], wl[-1]],
-                                   f"wavelengths in [{MIN_WAVELENGTH_NM:g}, {MAX_WAVELENGTH_NM:g}] nm")
-        if any(not 0 <= v <= 1 for v in qe):
-            raise ConfigValueError(f"{key}.response.qe_t", qe[:3], "values in [0, 1]")
-        kw["response_wavelengths_nm"], kw["response_qe_t"] = tuple(wl), tuple(qe)
-    sensor_d = dict(_mapping(d.get("sensor", {}), f"{key}.sensor"))
-    if "bit_depth" in d:
-        sensor_d.setdefault("bit_depth", d["bit_depth"])
-    if sensor_d:
-        _check_keys(sensor_d, f"{key}.sensor", _SENSOR_KEYS)
-        skw = {}
-        for k, v in sensor_d.items():
-            if k == "blooming":
-                if not isinstance(v, bool):
-                    raise ConfigValueError(f"{key}.sensor.blooming", v, "true or false")
-                skw[k] = v
-            elif k in ("bit_depth", "pattern_seed"):
-                skw[k] = _number(v, f"{key}.sensor.{k}", allowed="an integer", integer=True)
-                if k == "bit_depth" and not 1 <= skw[k] <= 16:
-                    raise ConfigValueError(f"{key}.sensor.bit_depth", v, "an integer in 1..16")
-                if k == "pattern_seed" and not 0 <= skw[k] <= 2**63 - 1:
-                    raise ConfigValueError(f"{key}.sensor.pattern_seed", v, "an integer in 0..2**63-1")
-            else:
-                skw[k] = _number(v, f"{key}.sensor.{k}")
-        base_sensor = base.sensor if base is not None else SensorParams()
-        try:
-            kw["sensor"] = dataclasses.replace(base_sensor, **skw)
-        except ConfigValueError as exc:   # SensorParams names its own keys (sensor.*): the file's are under key
-            raise ConfigValueError(f"{key}.{exc.key}", exc.value, exc.allowed) from None
+        kw["response_wavelengths_nm"], kw["response_qe_t"] = _response(d["response"], f"{key}.response")
+    sensor = _sensor(d, key, base.sensor if base is not None else SensorParams())
+    if sensor is not None:
+        kw["sensor"] = sensor
     if "fov_deg" in d:
         fov = _number(d["fov_deg"], f"{key}.fov_deg")
         if not 0 < fov < 180:
@@ -189,6 +153,55 @@ def camera_from_mapping(d: dict, key: str = "camera") -> Camera:
         _check_K(d["K"], camera, key)
     _warn_camera(camera, key)
     return camera
+
+
+def _response(rd, key: str) -> tuple:
+    """``(wavelengths_nm, qe_t)`` of a camera's ``response`` mapping (``key`` names it)."""
+    rd = _mapping(rd, key)
+    _check_keys(rd, key, {"wavelengths_nm", "qe_t"})
+    wl = rd.get("wavelengths_nm")
+    qe = rd.get("qe_t")
+    if not isinstance(wl, list) or not isinstance(qe, list) or len(wl) != len(qe) or len(wl) < 2:
+        raise ConfigValueError(key, "...", "wavelengths_nm and qe_t lists of equal length >= 2")
+    wl = [_number(v, f"{key}.wavelengths_nm[{i}]") for i, v in enumerate(wl)]
+    qe = [_number(v, f"{key}.qe_t[{i}]") for i, v in enumerate(qe)]
+    if any(b <= a for a, b in zip(wl, wl[1:])):
+        raise ConfigValueError(f"{key}.wavelengths_nm", wl[:3], "strictly increasing wavelengths")
+    if not (MIN_WAVELENGTH_NM <= wl[0] and wl[-1] <= MAX_WAVELENGTH_NM):
+        raise ConfigValueError(f"{key}.wavelengths_nm", [wl[0], wl[-1]],
+                               f"wavelengths in [{MIN_WAVELENGTH_NM:g}, {MAX_WAVELENGTH_NM:g}] nm")
+    if any(not 0 <= v <= 1 for v in qe):
+        raise ConfigValueError(f"{key}.qe_t", qe[:3], "values in [0, 1]")
+    return tuple(wl), tuple(qe)
+
+
+def _sensor(d: dict, key: str, base_sensor: SensorParams):
+    """The camera's :class:`SensorParams` from its ``sensor`` mapping (and the shorthand
+    ``bit_depth``) over ``base_sensor``; None where neither is given."""
+    sensor_d = dict(_mapping(d.get("sensor", {}), f"{key}.sensor"))
+    if "bit_depth" in d:
+        sensor_d.setdefault("bit_depth", d["bit_depth"])
+    if not sensor_d:
+        return None
+    _check_keys(sensor_d, f"{key}.sensor", _SENSOR_KEYS)
+    skw = {}
+    for k, v in sensor_d.items():
+        if k == "blooming":
+            if not isinstance(v, bool):
+                raise ConfigValueError(f"{key}.sensor.blooming", v, "true or false")
+            skw[k] = v
+        elif k in ("bit_depth", "pattern_seed"):
+            skw[k] = _number(v, f"{key}.sensor.{k}", allowed="an integer", integer=True)
+            if k == "bit_depth" and not 1 <= skw[k] <= 16:
+                raise ConfigValueError(f"{key}.sensor.bit_depth", v, "an integer in 1..16")
+            if k == "pattern_seed" and not 0 <= skw[k] <= 2**63 - 1:
+                raise ConfigValueError(f"{key}.sensor.pattern_seed", v, "an integer in 0..2**63-1")
+        else:
+            skw[k] = _number(v, f"{key}.sensor.{k}")
+    try:
+        return dataclasses.replace(base_sensor, **skw)
+    except ConfigValueError as exc:   # SensorParams names its own keys (sensor.*): the file's are under key
+        raise ConfigValueError(f"{key}.{exc.key}", exc.value, exc.allowed) from None
 
 
 def _check_K(K, camera: Camera, key: str) -> None:

@@ -43,6 +43,8 @@ import math
 from dataclasses import dataclass
 
 from skynav.infra.errors import ConfigValueError
+from skynav.renderer.crop_geometry import CROP_MARGIN_PX, CROP_QUANTUM_PX, MAX_CROP_PX
+from skynav.renderer.optics import DEFAULT_OVERSAMPLING, fine_sampling, lambda_f_px, spectral_nodes
 
 #: Default budget of one request: peak memory beyond the warm worker's, bytes, and seconds of one
 #: core. Two workers (a 2-core machine) each at their budget stay within ~3 GB with their warm
@@ -148,8 +150,6 @@ def _tables(scene, options, mapping) -> list:
     model = cam.psf
     if model.model == "gaussian":
         return []
-    from skynav.renderer.optics import DEFAULT_OVERSAMPLING, fine_sampling, lambda_f_px, spectral_nodes
-
     h = int(model.half_size_px(options.flux_fraction_lost, cam))
     if model.model == "tabulated":
         n = model.oversampling * max(1, math.ceil(DEFAULT_OVERSAMPLING / model.oversampling))
@@ -168,8 +168,6 @@ def _mitsuba(scene, options) -> list:
     """The part of the resolved bodies (Mitsuba); a wavefront Mitsuba cannot render is refused."""
     if not options.resolved:
         return []
-    from skynav.renderer.crop_geometry import CROP_MARGIN_PX, CROP_QUANTUM_PX, MAX_CROP_PX
-
     spp = math.ceil(math.sqrt(options.mitsuba_spp)) ** 2   # the stratified sampler's square
     streak = _streak_px(scene)
     parts = []
