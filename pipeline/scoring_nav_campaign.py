@@ -1,7 +1,7 @@
 """The navigation campaign: Monte Carlo EKF runs along a ``sequence`` dataset (``skynav bench nav``).
 
-Scoring module. The filter (:mod:`skynav.pipeline.ekf`) sees the images through
-:func:`skynav.pipeline.process_frame` (attitude and planet centroid), the calibrated camera, the
+Scoring module. The filter (anyone's; skynav's EKF by default) sees the images through an image
+processor (skynav's pipeline by default: attitude and planet centroid), the calibrated camera, the
 on-board DE421 and the commanded pointing plan, never the truth; the truth gives the initial
 states (Andreis et al. (2024), Eq. 45-46) and the scores. The image processing runs once per frame for all the
 runs of a worker (the predicted state it gets is the runs' mean, with the runs' mean covariance
@@ -72,7 +72,8 @@ class ChunkResult:
 
 
 def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics: FilterDynamics, phase_offset: bool,
-               progress_q=None, synthetic_seed=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE):
+               progress_q=None, synthetic_seed=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE,
+               frame_timeout_s: float | None = None):
     ds = sdat.open(plan.root)
     eph = default_ephemeris()
     t = plan.t_tdb_s
@@ -90,7 +91,8 @@ def _run_chunk(plan: NavPlan, x0, P0, case: int, noise: CentroidNoise, dynamics:
     for lg, ph in zip(plan.leg, plan.phase):
         track_frames[(int(lg), ph)] = track_frames.get((int(lg), ph), 0) + 1
     fc = FlightComputer(make_filter(filter_spec, setup), noise=noise, ephemeris=eph,
-                        track_frames=track_frames, phase_offset=phase_offset, pipeline=pipeline)
+                        track_frames=track_frames, phase_offset=phase_offset, pipeline=pipeline,
+                        frame_timeout_s=frame_timeout_s)
     fc.start(t[0], x0, P0)
     pairs = []
     read_s = 0.0
@@ -146,7 +148,7 @@ def _chunk_worker(args):
 def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0, workers: int = 1,
                  noise: CentroidNoise, dynamics: FilterDynamics | None = None, phase_offset: bool = True,
                  progress=None, synthetic_seed: int | None = None, filter_spec: str = DEFAULT_FILTER,
-                 pipeline: str = DEFAULT_PIPELINE) -> CampaignResult:
+                 pipeline: str = DEFAULT_PIPELINE, frame_timeout_s: float | None = None) -> CampaignResult:
     """Monte Carlo EKF runs along the plan (Andreis et al. (2024), Eq. 45-46 initial errors; Andreis et al. (2023b), Table 2 sigmas).
 
     ``progress``: a callable ``progress(n_frames_done)`` (in-process only) or None.
@@ -154,7 +156,8 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     measurement model at the true state plus white noise of the filter's own R (seeded): what a
     consistent filter shows on ONE realisation shared by the runs (``benchmarks/nav_consistency.py``).
     ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`).
-    ``pipeline``: the image processor, ``MODULE:FACTORY`` (one per worker).
+    ``pipeline``: the image processor, ``MODULE:FACTORY`` (one per worker); ``frame_timeout_s``: its
+    time limit per frame (None: none), a frame past it a failed measurement.
     """
     if case not in CASES:
         raise NavInputError(f"--case {case}: give 1, 2, 3, 4 or 5")
@@ -166,10 +169,11 @@ def run_campaign(plan: NavPlan, *, runs: int = 50, case: int = 1, seed: int = 0,
     chunks = np.array_split(np.arange(runs), workers)
     if workers == 1:
         outs = [_run_chunk(plan, x0, P0, case, noise, dynamics, phase_offset, progress, synthetic_seed, filter_spec,
-                           pipeline)]
+                           pipeline, frame_timeout_s)]
     else:
         outs = process_pool_map(_chunk_worker, [(plan, x0[c], P0, case, noise, dynamics, phase_offset, None,
-                                                 synthetic_seed, filter_spec, pipeline) for c in chunks], workers)
+                                                 synthetic_seed, filter_spec, pipeline, frame_timeout_s)
+                                                for c in chunks], workers)
     cat = lambda k: np.concatenate([getattr(o, k) for o in outs], 0)  # noqa: E731
     return CampaignResult(case=case, noise=noise, t_tdb_s=plan.t_tdb_s, error=cat("error"),
                           cov=cat("cov"), residual_px=cat("residual_px"), accepted=cat("accepted"),
@@ -195,7 +199,7 @@ def check_realisations(plans, reference: NavPlan) -> None:
 def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers: int = 1, noise: CentroidNoise,
                      dynamics: FilterDynamics | None = None, phase_offset: bool = True, progress=None,
                      reference: NavPlan | None = None, filter_spec: str = DEFAULT_FILTER,
-                     pipeline: str = DEFAULT_PIPELINE) -> CampaignResult:
+                     pipeline: str = DEFAULT_PIPELINE, frame_timeout_s: float | None = None) -> CampaignResult:
     """The Monte Carlo with independent measurement noise: ``plans`` are renderings of ONE cruise
     (the same trajectory, another dataset seed: other image noise, cosmic rays and pointing), the
     ``runs`` are dealt round-robin over them (``runs == len(plans)``: every run has images of its
@@ -211,7 +215,7 @@ def run_realisations(plans, *, runs: int, case: int = 1, seed: int = 0, workers:
     counts = [len(c) for c in np.array_split(np.arange(runs), len(plans))]
     jobs = [(p, dict(runs=n, case=case, seed=int(np.random.SeedSequence([seed, 0x5EA, k]).generate_state(1)[0]),
                      noise=noise, dynamics=dynamics, phase_offset=phase_offset, filter_spec=filter_spec,
-                     pipeline=pipeline))
+                     pipeline=pipeline, frame_timeout_s=frame_timeout_s))
             for k, (p, n) in enumerate(zip(plans, counts)) if n > 0]
     if workers > 1 and len(jobs) > 1:
         outs = process_pool_map(_realisation_worker, jobs, min(workers, len(jobs)),

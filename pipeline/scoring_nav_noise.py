@@ -38,7 +38,7 @@ MIN_CLASS_FRAMES = 9
 
 def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_km: float = 1e4,
                        sigma_velocity_km_s: float = 0.1, phase_offset: bool = True, observations=None,
-                       pipeline: str = DEFAULT_PIPELINE):
+                       pipeline: str = DEFAULT_PIPELINE, frame_timeout_s: float | None = None):
     """Measured planet-centroid error, a :class:`CentroidNoise` (module docstring).
 
     The error is the image processing's target centroid minus the measurement model (case 1,
@@ -55,7 +55,8 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
     ``i`` of ``plan[rendering]``; default: frame ``i`` of the dataset at ``plan.root``.
 
     ``pipeline``: the image processor whose centroids are measured, ``MODULE:FACTORY`` (the
-    flight's, :mod:`skynav.pipeline.flight`); a new one per rendering, made with its first frame's camera.
+    flight's, :mod:`skynav.pipeline.flight`); a new one per rendering, made with its first frame's camera;
+    ``frame_timeout_s`` its time limit per frame (None: none; a frame past it is not measured).
     """
     eph = default_ephemeris()
     plans = list(plan) if isinstance(plan, (list, tuple)) else [plan]
@@ -73,7 +74,8 @@ def calibrate_sigma_px(plan, *, stride: int = 1, seed: int = 0, sigma_position_k
         else:
             def get(i, ip=ip):
                 return observations(ip, i)
-        _calibrate_rendering(plan, get, ip, stride=stride, rng=rng, pipeline=pipeline, eph=eph, out=(errs, diam, keys, tracks),
+        _calibrate_rendering(plan, get, ip, stride=stride, rng=rng, pipeline=pipeline, timeout_s=frame_timeout_s, eph=eph,
+                             out=(errs, diam, keys, tracks),
                              sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
                              phase_offset=phase_offset)
     return replace(_fit_noise(plans[0], errs, diam, keys, tracks), renderings=len(plans))
@@ -89,7 +91,8 @@ def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigm
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA1]))
     ds = sdat.open(plan.root)
     out = ([], [], [], [], [])
-    _calibrate_rendering(plan, lambda i: observation(ds, plan, i), 0, stride=1, rng=rng, pipeline=pipeline, eph=eph, out=out,
+    _calibrate_rendering(plan, lambda i: observation(ds, plan, i), 0, stride=1, rng=rng, pipeline=pipeline, timeout_s=None,
+                         eph=eph, out=out,
                          sigma_position_km=sigma_position_km, sigma_velocity_km_s=sigma_velocity_km_s,
                          phase_offset=phase_offset)
     errs, _, keys, _, idx = out
@@ -100,7 +103,7 @@ def centroid_errors(plan, *, seed: int = 0, sigma_position_km: float = 1e4, sigm
     return e, tuple(k)
 
 
-def _calibrate_rendering(plan, get, ip, *, stride, rng, pipeline, eph, out, sigma_position_km, sigma_velocity_km_s,
+def _calibrate_rendering(plan, get, ip, *, stride, rng, pipeline, timeout_s, eph, out, sigma_position_km, sigma_velocity_km_s,
                          phase_offset):
     errs, diam, keys, tracks = out[:4]
     proc = None
@@ -115,7 +118,8 @@ def _calibrate_rendering(plan, get, ip, *, stride, rng, pipeline, eph, out, sigm
                             position_cov_km2=np.eye(3) * sigma_position_km**2)
         # the flight step's image part (pipeline.flight); the filter's view (an estimate drawn about
         # the truth) decides blends and the photocentre law
-        sight = measure_target(obs, plan.target[i], t=plan.t_tdb_s[i], predicted_state=ps, processor=proc, ephemeris=eph)
+        sight = measure_target(obs, plan.target[i], t=plan.t_tdb_s[i], predicted_state=ps, processor=proc, ephemeris=eph,
+                               timeout_s=timeout_s)
         b, use = sight.beacon, sight.use
         if use is not None:
             t = plan.t_tdb_s[i]

@@ -151,13 +151,14 @@ class FlightSoftware:
 
     def __init__(self, camera, x0, P0, t0: float, t_end: float, *, noise, case: int = 1, dynamics=None,
                  twist_rad: float = 0.0, track_frames: dict | None = None, filter_spec: str = DEFAULT_FILTER,
-                 pipeline: str = DEFAULT_PIPELINE):
+                 pipeline: str = DEFAULT_PIPELINE, frame_timeout_s: float | None = None):
         self.camera, self.twist_rad = camera, float(twist_rad)
         self.eph = default_ephemeris()
         setup = FilterSetup(ephemeris=self.eph, t_start_tdb_s=float(t0), t_end_tdb_s=float(t_end), case=case,
                             dynamics=dynamics or FilterDynamics())
         self.fc = FlightComputer(make_filter(filter_spec, setup), noise=centroid_noise(noise), ephemeris=self.eph,
-                                 track_frames=track_frames, processor=load_image_processor(pipeline, camera))
+                                 track_frames=track_frames, processor=load_image_processor(pipeline, camera),
+                                 frame_timeout_s=frame_timeout_s)
         self.fc.start(t0, np.atleast_2d(x0), P0)
         self._last_command = np.eye(3)
 
@@ -218,11 +219,13 @@ def track_frames(schedule) -> dict:
 
 def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: str = "estimate",
              realtime: float | None = None, rendering: int = 0, dynamics=None,
-             progress=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE) -> LoopRun:
+             progress=None, filter_spec: str = DEFAULT_FILTER, pipeline: str = DEFAULT_PIPELINE,
+             frame_timeout_s: float | None = None) -> LoopRun:
     """One closed-loop run over the simulator's frames, the frames asked of ``client``.
 
     ``filter_spec``: the navigation filter, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.flight`);
-    ``pipeline``: the image processor, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.plugins`).
+    ``pipeline``: the image processor, ``MODULE:FACTORY`` (:mod:`skynav.pipeline.plugins`), and
+    ``frame_timeout_s`` its time limit per frame (None: none).
     ``noise``: the filter's measurement noise, a :class:`~skynav.pipeline.planet_centroid.CentroidNoise`
     (:func:`calibrate_loop_noise`, as ``bench nav`` calibrates it) or a sigma in px.
     ``rendering``: which rendering of the cruise the run sees, its controller errors and image
@@ -239,7 +242,7 @@ def run_loop(sim: Simulator, client, *, x0, P0, noise, case: int = 1, pointing: 
     twist = math.radians(sim.recipe["sequence"]["twist_deg"]) if "twist_deg" in sim.recipe["sequence"] else 0.0
     fsw = FlightSoftware(camera, x0, P0, sched[0][0], sched[-1][0], noise=noise, case=case, dynamics=dynamics,
                          twist_rad=twist, track_frames=track_frames(sched), filter_spec=filter_spec,
-                         pipeline=pipeline)
+                         pipeline=pipeline, frame_timeout_s=frame_timeout_s)
     run = LoopRun(error=np.full((F, 6), np.nan), cov=np.full((F, 6, 6), np.nan), residual_px=np.full((F, 2), np.nan),
                   accepted=np.zeros(F, bool), status=[], in_field=np.zeros(F, bool), offset_px=np.full(F, np.inf),
                   measured_error_px=np.full((F, 2), np.nan), latency_s=np.zeros(F), step_s=np.zeros(F),
@@ -365,7 +368,8 @@ def loop_summary(runs: list, camera, *, realtime: float | None) -> dict:
 
 
 def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings: int = 1, seed: int = 0,
-                         phase_offset: bool = True, progress=None, pipeline: str = DEFAULT_PIPELINE):
+                         phase_offset: bool = True, progress=None, pipeline: str = DEFAULT_PIPELINE,
+                         frame_timeout_s: float | None = None):
     """The filter's measurement noise, measured as ``bench nav`` measures it (of the image processor
     ``pipeline``, ``MODULE:FACTORY``).
 
@@ -398,4 +402,4 @@ def calibrate_loop_noise(sim: Simulator, client, *, stride: int = 1, renderings:
 
     plans = [plan] * int(renderings) if renderings > 1 else plan
     return calibrate_sigma_px(plans, stride=stride, seed=seed, phase_offset=phase_offset, observations=render,
-                              pipeline=pipeline)
+                              pipeline=pipeline, frame_timeout_s=frame_timeout_s)

@@ -84,7 +84,8 @@ def _noise(args, sim, client):
             done_cal[0] += n
             bar(done_cal[0], n_cal)
 
-        return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal, pipeline=args.pipeline)
+        return calibrate_loop_noise(sim, client, stride=stride, seed=args.seed, progress=tick_cal, pipeline=args.pipeline,
+                                    frame_timeout_s=args.frame_timeout)
 
 
 def _fly(args, sim, client, noise, bias, filters):
@@ -106,7 +107,8 @@ def _fly(args, sim, client, noise, bias, filters):
         # filter the same renderings and initial states
         for spec in filters:
             flown[spec] = [run_loop(sim, client, x0=x0, P0=P0, noise=noise, case=args.case, realtime=args.realtime,
-                                    rendering=i, progress=tick, filter_spec=spec, pipeline=args.pipeline)
+                                    rendering=i, progress=tick, filter_spec=spec, pipeline=args.pipeline,
+                                    frame_timeout_s=args.frame_timeout)
                           for i, x0 in enumerate(x0s)]
         if bias is not None:
             b_km = bias_for_lost_planet(sim) if bias == "auto" else bias
@@ -116,7 +118,7 @@ def _fly(args, sim, client, noise, bias, filters):
             for pointing in ("truth", "estimate"):
                 biased[pointing] = run_loop(sim, client, x0=xb, P0=Pb, noise=noise, case=args.case,
                                             pointing=pointing, progress=tick, filter_spec=filters[0],
-                                            pipeline=args.pipeline)
+                                            pipeline=args.pipeline, frame_timeout_s=args.frame_timeout)
     return flown, biased, b_km
 
 

@@ -19,6 +19,7 @@ from skynav.infra.count_cap import cap_count
 from skynav.pipeline.filter_dynamics import FilterDynamics
 from skynav.pipeline.flight import DEFAULT_FILTER, DEFAULT_PIPELINE, pipeline_spec
 from skynav.pipeline.references import NAVIGATION
+from skynav.pipeline.scoring import DEFAULT_FRAME_TIMEOUT_S
 from skynav.pipeline.scoring_nav import (
     CentroidNoise,
     NavInputError,
@@ -38,6 +39,7 @@ from skynav.pipeline.scoring_nav_filters import (
 from skynav.pipeline.scoring_nav_report import PAPER_002, summarise, write_report
 from skynav.pipeline.scoring_nav_results import NAV_RESULTS_SCHEMA, score_nav_results, write_nav_results
 from skynav.pipeline.star_id import star_id_camera_check
+from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.scenes.overrides import OverrideError
 
 from .cli_args import (
@@ -80,7 +82,8 @@ def cmd_nav(args) -> int:
     plan, realisations, calib = _datasets(args)
     if args.sigma_px is None:
         noise = calibrate_sigma_px(calib, stride=args.calibration_stride, seed=args.seed,
-                                   phase_offset=not args.no_phase_offset, pipeline=args.pipeline)
+                                   phase_offset=not args.no_phase_offset, pipeline=args.pipeline,
+                                   frame_timeout_s=args.frame_timeout)
 
         noise = replace(noise, track_bias_in_r=bool(args.track_bias_in_r))
     else:
@@ -155,13 +158,15 @@ def _campaign(args, plan, realisations, case, spec, noise, dynamics):
             bar = tqdm(total=len(realisations), unit="sequence", desc=f"case {case}{name}, {args.runs} runs")
         res = run_realisations(realisations, runs=args.runs, case=case, seed=args.seed, workers=args.workers,
                                noise=noise, phase_offset=not args.no_phase_offset, reference=plan, dynamics=dynamics,
-                               progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline)
+                               progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline,
+                               frame_timeout_s=args.frame_timeout)
     else:
         if not args.quiet and args.workers == 1:
             bar = tqdm(total=plan.frames, unit="frame", desc=f"case {case}{name}, {args.runs} runs")
         res = run_campaign(plan, runs=args.runs, case=case, seed=args.seed, workers=args.workers, noise=noise,
                            dynamics=dynamics, phase_offset=not args.no_phase_offset,
-                           progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline)
+                           progress=None if bar is None else bar.update, filter_spec=spec, pipeline=args.pipeline,
+                           frame_timeout_s=args.frame_timeout)
     if bar is not None:
         bar.close()
     return res
@@ -274,6 +279,10 @@ def add_pipeline_arg(p) -> None:
                    help=f"the image processor of the flight, imported by path (docs/benchmark.md, 'Bring your own "
                         f"image processing'; the noise calibration measures its centroids); one per run (compare "
                         f"processors side by side with 'skynav bench ip') (default skynav: {DEFAULT_PIPELINE})")
+    p.add_argument("--frame-timeout", type=float_in(0, SECONDS_PER_DAY, low_open=True, unit="s"),
+                   default=DEFAULT_FRAME_TIMEOUT_S,
+                   help=f"the image processor's time limit per frame, s (default {DEFAULT_FRAME_TIMEOUT_S:g}); a frame "
+                        "past it is a failed measurement with that reason")
 
 
 def add_parser(bsub) -> None:

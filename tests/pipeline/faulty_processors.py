@@ -2,6 +2,7 @@
 skynav's pipeline (tracking, as the flight's default) that faults on its third frame, in one way
 each; and a factory that fails."""
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +11,7 @@ from skynav.pipeline.plugins import skynav_tracking
 
 
 class FaultOnThirdFrame:
-    """skynav's pipeline, except that the third call raises, returns a reflection or a string."""
+    """skynav's pipeline, except that the third call raises, runs 30 s, returns a reflection or a string."""
 
     def __init__(self, camera, kind):
         self.inner, self.kind, self.calls = skynav_tracking(camera), kind, 0
@@ -22,6 +23,8 @@ class FaultOnThirdFrame:
             return result
         if self.kind == "raising":
             raise RuntimeError("the detector's driver crashed")
+        if self.kind == "slow":
+            time.sleep(30.0)     # past any --frame-timeout the tests give; the alarm cuts it short
         if self.kind == "reflection":
             return replace(result, R_cam_icrs=-np.eye(3))
         return "not a result"
@@ -33,6 +36,10 @@ def raising(camera):
 
 def reflection(camera):
     return FaultOnThirdFrame(camera, "reflection")
+
+
+def slow(camera):
+    return FaultOnThirdFrame(camera, "slow")
 
 
 def wrong_type(camera):

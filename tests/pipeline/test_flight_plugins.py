@@ -114,6 +114,7 @@ def _frames(out):
     ("raising", "processor fault (exception: RuntimeError: the detector's driver crashed)"),
     ("reflection", "processor fault (not_rotation: R_cam_icrs is a reflection (det = -1), not a rotation)"),
     ("wrong_type", "processor fault (wrong_type: returned str; expected skynav.pipeline.ImageResult)"),
+    ("slow", "processor fault (timeout: over the 5 s frame time limit)"),
 ])
 def test_a_processor_fault_is_a_failed_measurement_with_its_reason_and_the_flight_goes_on(seq, tmp_path, factory,
                                                                                          reason):
@@ -121,7 +122,7 @@ def test_a_processor_fault_is_a_failed_measurement_with_its_reason_and_the_fligh
     why); every other frame is measured exactly as skynav's default pipeline measures it."""
     ref, out = tmp_path / "ref", tmp_path / "r"
     assert _nav(seq, ref) == 0
-    assert _nav(seq, out, "--pipeline", f"{PROCESSORS}:{factory}") == 0
+    assert _nav(seq, out, "--pipeline", f"{PROCESSORS}:{factory}", "--frame-timeout", "5") == 0
     s, s_ref = (json.loads((d / "summary.json").read_text()) for d in (out, ref))
     assert s["run"]["pipeline"] == f"{PROCESSORS}:{factory}"
     rows, rows_ref = _frames(out), _frames(ref)
