@@ -122,8 +122,10 @@ class _Worker:
         self.writer.close()
 
     def alive(self) -> bool:
-        """The process runs and its end of the pipe is open (no answer is pending: the worker is idle)."""
-        return not self.reader.at_eof() and self.process.is_alive()
+        """The process runs and its end of the pipe is open: an idle worker's pipe has nothing to
+        read, so anything readable is its end (asked of the pipe itself, as the event loop may
+        not have read that end yet; and ``is_alive`` alone errs once the process is reaped)."""
+        return not self.reader.at_eof() and not self.conn.poll(0) and self.process.is_alive()
 
     def stop(self, timeout_s: float = 30.0) -> None:
         try:
