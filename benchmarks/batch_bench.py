@@ -14,7 +14,8 @@ machine other processes share). ``--written`` adds each frame written as PNG + t
 (encoded, then written atomically into a temporary folder), for both paths.
 
 ``--acceptance`` then times a batch of 32 default frames (1024 px) in memory against 32 frames
-of the per-frame path, the two taking turns in each round, and prints the ratio.
+of the per-frame path, the stars drawn per frame by numpy and by Dr.Jit on the device
+(``star_splat``), the three taking turns in each round, and prints the ratios.
 
 This is the CPU twin of ``gpu_bench.py``'s batch section (``--backend cuda`` runs the same
 measurement on a GPU). Dr.Jit's pool has as many threads as the machine has cores unless
@@ -74,12 +75,12 @@ def per_frame(scene, options, n: int, folder):
         _write(frames, folder)
 
 
-def batched(scene, options, n: int, folder, split: dict):
+def batched(scene, options, n: int, folder, split: dict, star_splat: str = "auto"):
     """``render_batch`` of n frames, the DN brought over (and their files when ``folder``)."""
     from skynav.renderer.batch import render_batch
     from skynav.renderer.render import Frame
 
-    b = render_batch([scene] * n, list(range(n)), options=options, electrons=False)
+    b = render_batch([scene] * n, list(range(n)), options=options, electrons=False, star_splat=star_splat)
     dn = b.dn
     for key, v in b.timings_s.items():
         split.setdefault(key, []).append(v / n)
@@ -162,7 +163,8 @@ def acceptance(repeat: int, backend: str) -> None:
 
     scene, options = scene_of_size(1024), RenderOptions(backend=backend)
     runs = {"per-frame": lambda: per_frame(scene, options, 32, None),
-            "batch": lambda: batched(scene, options, 32, None, {})}
+            "batch": lambda: batched(scene, options, 32, None, {}, "host"),
+            "device stars": lambda: batched(scene, options, 32, None, {}, "device")}
     for fn in runs.values():
         fn()
     wall, cpu = {k: [] for k in runs}, {k: [] for k in runs}
@@ -178,6 +180,10 @@ def acceptance(repeat: int, backend: str) -> None:
           f"per-frame path's {w['per-frame']:.1f}: {w['batch'] / w['per-frame']:.2f}x wall, "
           f"{c['batch'] / c['per-frame']:.2f}x CPU (taking turns, medians of {repeat}; load average "
           f"{os.getloadavg()[0]:.1f})")
+    print(f"acceptance: the same batch with its stars drawn by Dr.Jit (star_splat='device'): "
+          f"{w['device stars']:.1f} frames/s, {w['device stars'] / w['per-frame']:.2f}x wall, "
+          f"{c['device stars'] / c['per-frame']:.2f}x CPU; {w['device stars'] / w['batch']:.2f}x the numpy splat's "
+          "batch (wall)")
 
 
 if __name__ == "__main__":

@@ -51,6 +51,7 @@ from .sensor_jit import (
     frame_key,
     pixel_stream_seeds,
 )
+from .splat_jit import frame_optics, gaussian_stars, splat_stars
 from .truth import frame_truth
 
 __all__ = ["FrameBatch", "render_batch", "expose_batch"]
@@ -122,7 +123,8 @@ def _patterns(params, shape, backend):
     return Float(gain.ravel()), Float(dark.ravel())
 
 
-def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "llvm", charges=None):
+def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "llvm", charges=None, stars=None,
+                 background_e: float = 0.0):
     """Digital numbers of a batch of exposures of one sensor, as a lazy Dr.Jit array.
 
     Parameters
@@ -137,6 +139,10 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
     backend : {"llvm", "cuda"}
     charges : sequence of N PixelCharge or None, optional
         Each frame's cosmic-ray charge (added after the shot noise, before the full well).
+    stars : sequence of N StarPoints or None, optional
+        Each frame's stars, drawn into ``electrons`` on the device with ``background_e`` e- per
+        pixel (:func:`~skynav.renderer.splat_jit.splat_stars`).
+    background_e : float
 
     Returns
     -------
@@ -149,6 +155,12 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
         ``electrons`` is not (N, H, W), ``keys`` not N keys, or the sensor blooms (its column
         spreading is numpy's, per frame: :func:`~skynav.renderer.render.render`).
     """
+    return _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e)[0]
+
+
+def _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e):
+    """:func:`expose_batch`'s DN and the sensor's input on the device (the expected electrons
+    with the stars drawn, before the cosmic rays), both lazy."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -184,8 +196,11 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
     readout = (op(float(np.hypot(params.read_noise_e, params.reset_noise_e))), op(params.gain_dn_per_e),
                op(params.offset_dn + 0.5), op(float(params.max_dn)))
     sig = jt.Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
-    return _batch_exposure(sig, gain, dark, extra, op(float(exposure_s)), key, op(params.full_well_e), readout,
-                           pixel, params.bit_depth <= 8)
+    if stars is not None or background_e:
+        sig = splat_stars(sig, [] if stars is None else stars, tuple(shape), background_e)
+    dn = _batch_exposure(sig, gain, dark, extra, op(float(exposure_s)), key, op(params.full_well_e), readout,
+                         pixel, params.bit_depth <= 8)
+    return dn, sig
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -229,7 +244,7 @@ class FrameBatch:
 
 
 def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOptions(),
-                 frames_per_launch: int = 4, electrons: bool = True) -> FrameBatch:
+                 frames_per_launch: int = 4, electrons: bool = True, star_splat: str = "auto") -> FrameBatch:
     """Render a batch of frames of one camera: the optics per frame, the sensor as one program.
 
     Frame i draws from ``numpy.random.default_rng(seeds[i])`` as :func:`render` does (the
@@ -256,6 +271,12 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         Keep the frames' electrons (``FrameBatch.electrons``); False: None, and the sensor's
         inputs are let go every :data:`_FRAMES_IN_FLIGHT` frames (a large batch's memory stays
         that of a few frames but for its DN).
+    star_splat : {"auto", "device", "host"}
+        Where the stars are drawn: ``device``, by Dr.Jit into the sensor's input
+        (:mod:`~skynav.renderer.splat_jit`; a Gaussian PSF only, else ``host``); ``host``, per
+        frame by numpy (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device``
+        on CUDA (no image crosses to the device but the bodies'), ``host`` on LLVM (where the
+        numpy splat is as fast: docs/performance.md, "Batched frames").
 
     Returns
     -------
@@ -285,6 +306,7 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     """
     scenes, seeds, rngs, backend = _checked_batch(scenes, seeds, rngs, options, frames_per_launch)
     cam = scenes[0].camera
+    psf = _device_stars(star_splat, backend, scenes[0], options)
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -295,19 +317,20 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     for first in range(0, len(scenes), frames_per_launch):
         ks = range(first, min(first + frames_per_launch, len(scenes)))
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
-        made = [_frame_optics(scenes[i], rngs[i], options, sig[j]) for j, i in enumerate(ks)]
+        made = [_frame_optics(scenes[i], rngs[i], options, sig[j], psf) for j, i in enumerate(ks)]
         t = time.perf_counter()
-        dn = expose_batch(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend=backend,
-                          charges=[m[1] for m in made])
-        dr.eval(dn)  # launched: the device works on it while this thread goes on
+        dn, sig_d = _expose(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend, [m[1] for m in made],
+                            None if psf is None else [m[5] for m in made], options.background_e_per_px_s * cam.exposure_s
+                            if psf is not None else 0.0)
+        dr.eval(dn, sig_d) if psf is not None and electrons else dr.eval(dn)  # launched: the device works on it
         launched.append(dn)
         t_launch += time.perf_counter() - t
-        for i, (_, _, hit_e, expected, hits) in zip(ks, made):  # the truths, while the device runs
+        for i, (_, _, _, expected, hits, _) in zip(ks, made):  # the truths, while the device runs
             det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
             truth = frame_truth(scenes[i], expected, det, seed=seeds[i], options=options)
             truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
             truths.append(truth)
-        chunks.append(sig)
+        chunks.append(sig if psf is None else sig_d)
         pending.append([m[2] for m in made])
         if not electrons and len(chunks) >= hold:  # the inputs read: let them go
             dr.sync_thread()
@@ -315,14 +338,35 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     t1 = time.perf_counter()
     dr.sync_thread()  # the launches are done
     t2 = time.perf_counter()
-    if electrons:  # only now may the cosmic-ray charge join the inputs the device read in place
-        for sig, hits_e in zip(chunks, pending):
-            for j, (hit, value) in enumerate(hits_e):
-                sig[j].reshape(-1)[hit] = value
     return FrameBatch(dn_device=tuple(launched), shape=(len(scenes), *shape),
-                      electrons=np.concatenate(chunks) if electrons else None, truths=truths, backend=backend,
+                      electrons=_electrons(chunks, pending, psf is not None, shape) if electrons else None,
+                      truths=truths, backend=backend,
                       timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
                       dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
+
+
+def _electrons(chunks, pending, on_device, shape):
+    """The frames' electrons (N, H, W), float32: the sensor's inputs (``on_device``: brought
+    from the device, where the stars were drawn into them) with each frame's cosmic-ray charge
+    (``pending``: per launch, per frame, (hit pixels, electrons there with the charge; on the
+    device, the charge alone)). Only once the launches are done: the device read the inputs in
+    place."""
+    if on_device:
+        chunks = [np.array(c.numpy(), np.float32).reshape(-1, *shape) for c in chunks]
+    for sig, hits_e in zip(chunks, pending):
+        for j, (hit, value) in enumerate(hits_e):
+            flat = sig[j].reshape(-1)
+            flat[hit] = flat[hit] + value if on_device else value
+    return np.concatenate(chunks)
+
+
+def _device_stars(star_splat, backend, scene, options):
+    """The Gaussian PSF the device draws the stars with (:func:`render_batch`'s ``star_splat``),
+    or None: the stars drawn on the host."""
+    if star_splat not in ("auto", "device", "host"):
+        raise ConfigValueError("star_splat", star_splat, "auto, device or host")
+    on_device = star_splat == "device" or (star_splat == "auto" and backend == "cuda")
+    return gaussian_stars(scene, options) if on_device else None
 
 
 def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
@@ -351,14 +395,21 @@ def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
 _FRAMES_IN_FLIGHT = 16
 
 
-def _frame_optics(scene, rng, options, sig):
+def _frame_optics(scene, rng, options, sig, psf=None):
     """One frame's optics as :func:`render` makes them: its expected electrons rounded to
     float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
     the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
-    charge), expected image without its images, hits)``."""
+    charge), expected image without its images, hits, star points)``. With ``psf`` (a Gaussian),
+    the stars and the background are left out of ``sig`` for the device
+    (:func:`~skynav.renderer.splat_jit.frame_optics`; star points, else None), and the hit
+    pixels' electrons are the charge alone (the device's input is added to it)."""
     shape = sig.shape
     support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
-    expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
+    points = None
+    if psf is None:
+        expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
+    else:
+        expected, points = frame_optics(scene, rng, options, psf, support)
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
     key = frame_key(rng)  # where the per-frame sensor draws it
@@ -367,6 +418,9 @@ def _frame_optics(scene, rng, options, sig):
     drawn = np.concatenate(support) if support else np.zeros(0, np.int64)
     sig.reshape(-1)[drawn] = expected.electrons.reshape(-1)[drawn]  # zero off the pixels drawn
     hit, hit_e = charge.per_pixel()
-    hits_e = (hit, expected.electrons.reshape(-1)[hit] + hit_e)  # summed in float64, as detect()
+    if points is None:
+        hits_e = (hit, expected.electrons.reshape(-1)[hit] + hit_e)  # summed in float64, as detect()
+    else:
+        hits_e = (hit, hit_e)
     # the truth needs the sources' figures, not the float64 images: let them go
-    return key, charge, hits_e, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits
+    return key, charge, hits_e, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits, points
