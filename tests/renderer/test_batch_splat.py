@@ -34,11 +34,12 @@ def _scene(px: int, rate_rad_s=(0.0, 0.0, 0.0)):
 
 
 #: Relative difference per pixel allowed against the reference, on the pixels above 1e-3 of the
-#: frame's peak. Both round the expected electrons to float32 (6e-8); the device sums each
-#: pixel's stamps in float32 (a streak's pixel sums ~10 sub-samples: ~1e-6 at worst) and writes
-#: the erf differences without the reference's ``0.5 (1 + erf)``, whose cancellation in the far
-#: tails (weights < 1e-3 of the peak: 1e-16 absolute of a 1e-12 weight) is why fainter pixels are
-#: left out.
+#: frame's peak or above 1 e- (the frame's peak may be Mars, a thousand times a star's: the 1 e-
+#: floor keeps the stars' stamps in the check). Both round the expected electrons to float32
+#: (6e-8); the device sums each pixel's stamps in float32 (a streak's pixel sums tens of
+#: sub-samples: measured 7e-7) and writes the erf differences without the reference's
+#: ``0.5 (1 + erf)``, whose cancellation in the far tails (1e-16 of a star's electrons, absolute)
+#: is why fainter pixels are left out.
 REL_TOL = 1e-5
 
 
@@ -54,10 +55,11 @@ def test_device_stars_are_the_reference_expected_image(px, rate, background):
     for i, seed in enumerate(seeds):
         ref = expected_image(scene, rng=np.random.default_rng(seed), options=opts).electrons
         got = batch.electrons[i].astype(float)
-        bright = ref > 1e-3 * ref.max()
+        bright = ref > min(1e-3 * ref.max(), 1.0)
+        assert np.count_nonzero(bright) > 2000  # the stars' stamps are in the check
         rel = np.abs(got[bright] - ref[bright]) / ref[bright]
         assert rel.max() < REL_TOL, (rel.max(), int(bright.sum()))
-        assert np.all(got[~bright] < 2e-3 * ref.max())  # nothing drawn where the reference has no light
+        assert np.all(got[~bright] < 1.01)  # nothing drawn where the reference has no light
         # the stars' truth (electrons, centres of light) is the per-frame path's, to roundings
         for a, b in zip(batch.truths[i]["stars"], host.truths[i]["stars"]):
             assert a["electrons"] == b["electrons"] and a["hip"] == b["hip"]
