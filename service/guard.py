@@ -120,105 +120,111 @@ class RequestTracker:
             self.registry.finished(peer)
 
 
+class GuardedProtocol(asyncio.Protocol):
+    """A connection of :attr:`inner_class` (made with the same arguments) under the bounds of
+    :attr:`registry`; :func:`guarded_protocol` makes the class for a pair."""
+
+    inner_class: type = None
+    registry: Registry = None
+
+    def __init__(self, *args, **kwargs):
+        self.inner = self.inner_class(*args, **kwargs)
+        self.limits = self.registry.limits
+        self.transport = None
+        self.admitted = False
+        self.in_flight = 0
+        self.partial = False     # bytes came since the header deadline was set
+        self.timer = None
+        self.stall = None
+
+    # ---------------------------------------------------------------- the event loop's calls
+    def connection_made(self, transport):
+        self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.peer = (str(peer[0]), int(peer[1])) if isinstance(peer, (tuple, list)) else (str(peer), id(self))
+        self.host = self.peer[0]
+        if not self.registry.admit(self):
+            transport.write(_answer("503 Service Unavailable", (
+                f"too many connections ({self.limits.max_connections} in all, "
+                f"{self.limits.max_connections_per_client} per client), each with a request in progress; try again")))
+            transport.close()
+            return
+        self.admitted = True
+        self.inner.connection_made(transport)
+        self._idle()
+
+    def data_received(self, data):
+        if not self.in_flight:
+            self.partial = True
+        self.inner.data_received(data)
+
+    def eof_received(self):
+        return self.inner.eof_received() if self.admitted else None
+
+    def connection_lost(self, exc):
+        self._cancel()
+        self._unstall()
+        if self.admitted:
+            self.registry.forget(self)
+            self.inner.connection_lost(exc)
+
+    def pause_writing(self):
+        self._unstall()
+        self.stall = asyncio.get_running_loop().call_later(self.limits.write_timeout_s, self._stalled)
+        self.inner.pause_writing()
+
+    def resume_writing(self):
+        self._unstall()
+        self.inner.resume_writing()
+
+    # ---------------------------------------------------------------- the guard's own
+    def request_started(self):
+        self.in_flight += 1
+        self._cancel()
+        self.registry.idle.pop(self, None)
+
+    def request_finished(self):
+        self.in_flight -= 1
+        if not self.in_flight and not self.transport.is_closing():
+            self._idle()
+
+    def shed(self):
+        """Closed to make room for a new connection (this one is idle)."""
+        self.registry.forget(self)
+        self.transport.close()
+
+    def _idle(self):
+        self.partial = False
+        self.registry.idle[self] = None
+        self.registry.idle.move_to_end(self)
+        self._cancel()
+        self.timer = asyncio.get_running_loop().call_later(self.limits.header_timeout_s, self._header_late)
+
+    def _cancel(self):
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+
+    def _header_late(self):
+        self.timer = None
+        if self.in_flight or self.transport.is_closing():
+            return
+        if self.partial:
+            self.transport.write(_answer("408 Request Timeout", (
+                f"request header: not received within {self.limits.header_timeout_s:g} s (--header-timeout)")))
+        self.transport.close()
+
+    def _unstall(self):
+        if self.stall is not None:
+            self.stall.cancel()
+            self.stall = None
+
+    def _stalled(self):
+        self.stall = None
+        self.transport.abort()   # the answer's bytes cannot be delivered: no graceful close
+
+
 def guarded_protocol(inner_class: type, registry: Registry) -> type:
     """An :class:`asyncio.Protocol` class whose connections are those of ``inner_class`` (made with
     the same arguments) under the bounds of ``registry``."""
-
-    class GuardedProtocol(asyncio.Protocol):
-        def __init__(self, *args, **kwargs):
-            self.inner = inner_class(*args, **kwargs)
-            self.registry, self.limits = registry, registry.limits
-            self.transport = None
-            self.admitted = False
-            self.in_flight = 0
-            self.partial = False     # bytes came since the header deadline was set
-            self.timer = None
-            self.stall = None
-
-        # ---------------------------------------------------------------- the event loop's calls
-        def connection_made(self, transport):
-            self.transport = transport
-            peer = transport.get_extra_info("peername")
-            self.peer = (str(peer[0]), int(peer[1])) if isinstance(peer, (tuple, list)) else (str(peer), id(self))
-            self.host = self.peer[0]
-            if not self.registry.admit(self):
-                transport.write(_answer("503 Service Unavailable", (
-                    f"too many connections ({self.limits.max_connections} in all, "
-                    f"{self.limits.max_connections_per_client} per client), each with a request in progress; try again")))
-                transport.close()
-                return
-            self.admitted = True
-            self.inner.connection_made(transport)
-            self._idle()
-
-        def data_received(self, data):
-            if not self.in_flight:
-                self.partial = True
-            self.inner.data_received(data)
-
-        def eof_received(self):
-            return self.inner.eof_received() if self.admitted else None
-
-        def connection_lost(self, exc):
-            self._cancel()
-            self._unstall()
-            if self.admitted:
-                self.registry.forget(self)
-                self.inner.connection_lost(exc)
-
-        def pause_writing(self):
-            self._unstall()
-            self.stall = asyncio.get_running_loop().call_later(self.limits.write_timeout_s, self._stalled)
-            self.inner.pause_writing()
-
-        def resume_writing(self):
-            self._unstall()
-            self.inner.resume_writing()
-
-        # ---------------------------------------------------------------- the guard's own
-        def request_started(self):
-            self.in_flight += 1
-            self._cancel()
-            self.registry.idle.pop(self, None)
-
-        def request_finished(self):
-            self.in_flight -= 1
-            if not self.in_flight and not self.transport.is_closing():
-                self._idle()
-
-        def shed(self):
-            """Closed to make room for a new connection (this one is idle)."""
-            self.registry.forget(self)
-            self.transport.close()
-
-        def _idle(self):
-            self.partial = False
-            self.registry.idle[self] = None
-            self.registry.idle.move_to_end(self)
-            self._cancel()
-            self.timer = asyncio.get_running_loop().call_later(self.limits.header_timeout_s, self._header_late)
-
-        def _cancel(self):
-            if self.timer is not None:
-                self.timer.cancel()
-                self.timer = None
-
-        def _header_late(self):
-            self.timer = None
-            if self.in_flight or self.transport.is_closing():
-                return
-            if self.partial:
-                self.transport.write(_answer("408 Request Timeout", (
-                    f"request header: not received within {self.limits.header_timeout_s:g} s (--header-timeout)")))
-            self.transport.close()
-
-        def _unstall(self):
-            if self.stall is not None:
-                self.stall.cancel()
-                self.stall = None
-
-        def _stalled(self):
-            self.stall = None
-            self.transport.abort()   # the answer's bytes cannot be delivered: no graceful close
-
-    return GuardedProtocol
+    return type("GuardedProtocol", (GuardedProtocol,), {"inner_class": inner_class, "registry": registry})
