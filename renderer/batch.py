@@ -21,6 +21,11 @@ per-frame kernel's by a rounding, so a frame's DN equal the per-frame path's DN 
 except where ``u`` falls within a rounding of a cumulative sum (tested as statistics, with the
 EMVA 1288 checks of the sensor tests, and as that rare difference). The expected images, the
 cosmic rays and the truth are the per-frame path's.
+
+The stars may be drawn on the device too (``star_splat``; CUDA's default): for a Gaussian PSF
+:mod:`~skynav.renderer.splat_jit` scatter-adds their stamps, streaks included, into the sensor's
+input, the bodies (and every other PSF model's stars) drawn per frame by numpy as above; the
+expected images then equal the per-frame path's to roundings (float32 sums), not to the bit.
 """
 
 from __future__ import annotations

@@ -32,6 +32,8 @@ import math
 
 import numpy as np
 
+from skynav.scenes.psf import GaussianPSFModel
+
 from .expected import expected_image, source_paths
 from .kernels import GaussianKernel, stamp_origin
 from .optics import is_polychromatic, kernel_for
@@ -66,7 +68,7 @@ def gaussian_stars(scene, options) -> GaussianKernel | None:
     """The camera's PSF if its stars can be drawn by :func:`splat_stars` (a Gaussian of sigma >
     0, not polychromatic), else None."""
     cam = scene.camera
-    if is_polychromatic(cam):
+    if not isinstance(cam.psf, GaussianPSFModel) or is_polychromatic(cam):  # before a table kernel is built
         return None
     psf = kernel_for(cam, None, options.flux_fraction_lost)
     return psf if isinstance(psf, GaussianKernel) and psf.sigma_px > 0.0 else None

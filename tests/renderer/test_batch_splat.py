@@ -12,7 +12,7 @@ import pytest
 from scipy.special import erf
 
 from skynav.infra.errors import ConfigValueError
-from skynav.renderer.batch import render_batch
+from skynav.renderer.batch import _device_stars, render_batch
 from skynav.renderer.expected import expected_image, source_paths
 from skynav.renderer.render import RenderOptions
 from skynav.renderer.splat_jit import StarPoints, splat_stars
@@ -112,3 +112,15 @@ def test_device_stars_keep_the_sensor_statistics():
 def test_star_splat_is_checked():
     with pytest.raises(ConfigValueError, match="star_splat"):
         render_batch([_scene(64)], [1], star_splat="gpu")
+
+
+def test_other_psf_models_keep_the_host_splat():
+    """An Airy camera's stars are drawn by numpy even when asked for the device; a Gaussian's by
+    the device when asked, by numpy on LLVM by default."""
+    scene = _scene(64)
+    airy = dataclasses.replace(scene, camera=scene.camera.replace(psf={"model": "airy", "wavelength_nm": 550}))
+    opts = RenderOptions(backend="llvm")
+    assert _device_stars("device", "llvm", airy, opts) is None
+    assert _device_stars("device", "llvm", scene, opts) is not None
+    assert _device_stars("auto", "llvm", scene, opts) is None
+    assert _device_stars("auto", "cuda", scene, opts) is not None
