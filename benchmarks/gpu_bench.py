@@ -79,14 +79,14 @@ def usable(backends) -> list:
 def default_frame(backends, repeat: int) -> None:
     from skynav.renderer import jit_backend
     from skynav.renderer.detector import Sensor
-    from skynav.renderer.render import RenderOptions, render
+    from skynav.renderer.render import RenderOptions, float32_image, render
     from skynav.scenes import presets
     from skynav.scenes.scene import build_from_spec
 
     scene = build_from_spec(presets.default_scene_spec())
     cam = scene.camera
     rng = np.random.default_rng(1)
-    electrons = render(scene, seed=1, options=RenderOptions(noise=False)).electrons.astype(np.float32)
+    electrons = float32_image(render(scene, seed=1, options=RenderOptions(noise=False)).electrons, None)
     sensor = Sensor(cam.sensor, (cam.height, cam.width))
     frames, sensors = {}, {}
     for b in backends:

@@ -64,6 +64,12 @@ class ExpectedImage:
         stamps), px; NaN for a star not drawn.
     body_centre_of_light : dict of str -> ndarray, shape (2,)
         The same for each drawn body (a resolved one: its blurred crop's first moment).
+    support : ndarray of int, or None
+        Flat indices (an index may repeat) holding every nonzero pixel of ``electrons`` and
+        ``irradiance_w_m2`` as :func:`expected_image` drew them (None: not known; every pixel
+        with a background), so that a dark image is converted to float32 without a full pass
+        (:func:`float32_image`). A caller who draws more into the images must drop it
+        (``dataclasses.replace(expected, support=None)``) before :func:`detect`.
     star_fraction_drawn : ndarray, shape (N,), or None
         The fraction of each star's electrons its stamps hold (a truncated kernel's: every model
         but the Gaussian draws its PSF as it is, the light beyond the stamps not drawn); NaN for
@@ -100,6 +106,7 @@ class ExpectedImage:
     projection: object
     star_centre_of_light: np.ndarray | None = None
     body_centre_of_light: dict | None = None
+    support: np.ndarray | None = None
     star_fraction_drawn: np.ndarray | None = None
     body_fraction_drawn: dict | None = None
 
@@ -188,7 +195,8 @@ def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
 
 
 def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions(),
-                   own_size: bool = False, with_irradiance: bool = True, support: list | None = None) -> ExpectedImage:
+                   own_size: bool = False, with_irradiance: bool = True, support: list | None = None,
+                   zeros: tuple | None = None) -> ExpectedImage:
     """Noise-free electrons and pupil irradiance of a scene through a projection.
 
     Parameters
@@ -213,6 +221,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     support : list, optional
         Arrays of flat indices are appended to it that hold every nonzero pixel of ``electrons``
         (the point sources' stamps, the resolved bodies' crops; every pixel with a background).
+    zeros : (ndarray, ndarray), optional
+        Two float64 zero images of the image's shape, C-contiguous, drawn into as the electrons
+        and the irradiance (:func:`render` hands back images it has used, set to zero again).
 
     Returns
     -------
@@ -238,7 +249,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     True
     """
     proj = _check_projection(scene, projection, own_size)
-    support = [] if support is None else support  # the pixels drawn, for a caller that asks (a screen frame)
+    support = [] if support is None else support  # the pixels drawn: ExpectedImage.support (and the caller's list)
     cam = scene.camera
     shape = (int(proj.height), int(proj.width)) if own_size else (cam.height, cam.width)
     rad = Radiometry.for_camera(cam)
@@ -257,7 +268,10 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
               for b in scene.bodies}
     body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
                 for b in scene.bodies}
-    electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
+    if zeros is not None:
+        electrons, irradiance = zeros[0], zeros[1] if with_irradiance else None
+    else:
+        electrons, irradiance = np.zeros(shape), np.zeros(shape) if with_irradiance else None
     drawn = _draw_point_sources(scene, proj, options, psf, points, track, (star_e, star_irr), (body_e, body_irr),
                                 (electrons, irradiance), support)
     star_centre, body_centre, body_photocentre, star_fraction, body_fraction = drawn
@@ -270,11 +284,13 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     if background:
         electrons += options.background_e_per_px_s * T
         support.append(np.arange(electrons.size))
+    sparse = not background and sum(a.size for a in support) * 4 < electrons.size
     return ExpectedImage(electrons=electrons, irradiance_w_m2=irradiance, exposure_s=T, star_electrons=star_e,
                          body_electrons=body_e, body_photocentre=body_photocentre, resolved=resolved,
                          mitsuba_variant=variant, projection=proj, star_centre_of_light=star_centre,
                          body_centre_of_light=body_centre, star_fraction_drawn=star_fraction,
-                         body_fraction_drawn=body_fraction)
+                         body_fraction_drawn=body_fraction,
+                         support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
 
 
 def _draw_point_sources(scene, proj, options, psf, points, track, star_light, body_light, images, support):

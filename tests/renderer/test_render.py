@@ -185,19 +185,46 @@ def test_same_seed_same_frame_with_resolved_bodies(departure):
 
 
 def test_support_holds_every_lit_pixel(scene, departure):
-    """The ``support`` list a caller hands :func:`expected_image` (a screen frame does, to run the
-    display curve over the lit pixels only) holds every nonzero pixel of the electrons and
-    irradiance images (stars, point bodies, the ray-traced Earth and Moon): a pixel missed would
-    be a star left dark on the screen."""
-    from skynav.renderer import expected_image
+    """``ExpectedImage.support`` lists every nonzero pixel of the electrons and irradiance images
+    (stars, point bodies, the ray-traced Earth and Moon), so the float32 images converted over
+    it alone equal the full conversion: a pixel missed would be a star's charge lost from the
+    frame's EXR and from the sensor's input. With a background every pixel is lit: no support,
+    the full conversion."""
+    from skynav.renderer.render import expected_image, float32_image
 
     for sc in (scene, departure):
-        support = []
-        exp = expected_image(sc, rng=np.random.default_rng(2), options=RenderOptions(), support=support)
-        held = np.concatenate(support)
+        exp = expected_image(sc, rng=np.random.default_rng(2), options=RenderOptions())
+        assert exp.support is not None
         for img in (exp.electrons, exp.irradiance_w_m2):
             lit = np.flatnonzero(img)
-            assert lit.size > 1000 and np.isin(lit, held).all()
+            assert lit.size > 1000 and np.isin(lit, exp.support).all()
+            np.testing.assert_array_equal(float32_image(img, exp.support), img.astype(np.float32))
+    assert expected_image(scene, rng=np.random.default_rng(2), options=RenderOptions(background_e_per_px_s=1.0)).support is None
+
+
+def test_a_frame_after_others_is_the_frame_alone(scene, departure):
+    """``render`` draws each frame into the float64 images of the frame before it, set back to
+    zero where that one drew (``_ZERO_IMAGES``): a pixel left over would add one frame's stars,
+    or the ray-traced Earth, to the next. Each frame of a run (stars; resolved bodies; a
+    background, which lights every pixel and is not reused; stars again) equals the same frame
+    rendered with no images kept from before."""
+    import importlib
+
+    render_module = importlib.import_module("skynav.renderer.render")
+    runs = [(departure, 3, RenderOptions()), (scene, 4, RenderOptions()), (departure, 5, RenderOptions(noise=False)),
+            (scene, 6, RenderOptions(background_e_per_px_s=2.0)), (scene, 7, RenderOptions()),
+            (scene, 8, RenderOptions(backend="numpy"))]
+    alone = []
+    for sc, seed, options in runs:
+        render_module._ZERO_IMAGES.clear()
+        alone.append(render(sc, seed=seed, options=options))
+    kept = 0
+    for (sc, seed, options), ref in zip(runs, alone):
+        kept += bool(render_module._ZERO_IMAGES)
+        got = render(sc, seed=seed, options=options)
+        for name in ("dn", "electrons", "irradiance_w_m2"):
+            assert np.array_equal(getattr(got, name), getattr(ref, name)), (seed, name)
+    assert kept >= 3  # the images were reused
 
 
 # ----------------------------------------------------------------------------- truth
