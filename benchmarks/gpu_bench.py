@@ -79,7 +79,8 @@ def usable(backends) -> list:
 def default_frame(backends, repeat: int) -> None:
     from skynav.renderer import jit_backend
     from skynav.renderer.detector import Sensor
-    from skynav.renderer.render import RenderOptions, float32_image, render
+    from skynav.renderer.render import RenderOptions, render
+    from skynav.renderer.sparse_images import float32_image
     from skynav.scenes import presets
     from skynav.scenes.scene import build_from_spec
 

@@ -68,7 +68,7 @@ class ExpectedImage:
         Flat indices (an index may repeat) holding every nonzero pixel of ``electrons`` and
         ``irradiance_w_m2`` as :func:`expected_image` drew them (None: not known; every pixel
         with a background), so that a dark image is converted to float32 without a full pass
-        (:func:`float32_image`). A caller who draws more into the images must drop it
+        (:func:`~skynav.renderer.sparse_images.float32_image`). A caller who draws more into the images must drop it
         (``dataclasses.replace(expected, support=None)``) before :func:`detect`.
     star_fraction_drawn : ndarray, shape (N,), or None
         The fraction of each star's electrons its stamps hold (a truncated kernel's: every model

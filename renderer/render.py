@@ -33,6 +33,7 @@ from . import jit_backend
 from .detector import JIT_BACKENDS, PixelCharge, Sensor
 from .expected import ExpectedImage, expected_image
 from .options import RenderOptions
+from .sparse_images import float32_image, keep_zero_images, take_zero_images
 from .truth import frame_truth
 
 
@@ -70,18 +71,6 @@ class Frame:
     electrons: np.ndarray
     irradiance_w_m2: np.ndarray
     truth: dict
-
-
-def float32_image(image: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
-    """``image.astype(np.float32)``, reading only ``support`` (flat indices holding every nonzero
-    pixel; None: every pixel): a float32 zero image with those pixels converted, the same bits.
-    A dark frame's stamps are ~3 % of its pixels, so reading only those saves the full 8 MB read
-    of the float64 image when it is not in the cache."""
-    if support is None:
-        return image.astype(np.float32)
-    out = np.zeros(image.shape, np.float32)
-    out.reshape(-1)[support] = image.reshape(-1)[support]
-    return out
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -259,26 +248,11 @@ def render(scene: Scene, *, seed=None, rng: np.random.Generator | None = None,
     """
     if rng is None:
         rng = np.random.default_rng(seed)
-    shape = (scene.camera.height, scene.camera.width)
-    zeros = _ZERO_IMAGES.pop(shape, None)
+    zeros = take_zero_images((scene.camera.height, scene.camera.width))
     expected = expected_image(scene, projection=projection, rng=rng, options=options, zeros=zeros)
     detection = detect(expected, scene.camera, rng, options)
     truth = frame_truth(scene, expected, detection, seed=seed, options=options)
     frame = Frame(dn=detection.dn, electrons=detection.electrons,
                   irradiance_w_m2=float32_image(expected.irradiance_w_m2, expected.support), truth=truth)
-    if expected.support is not None:  # zero again where it drew, for the next frame
-        for image in (expected.electrons, expected.irradiance_w_m2):
-            image.reshape(-1)[expected.support] = 0.0
-        _ZERO_IMAGES.clear()
-        _ZERO_IMAGES[shape] = (expected.electrons, expected.irradiance_w_m2)
+    keep_zero_images(expected)
     return frame
-
-
-#: ``{(H, W): (electrons, irradiance)}``: the float64 images :func:`render` drew its last frame
-#: into, set back to zero over the frame's support, for its next frame of that size (one size
-#: kept). A fresh pair is 16 MB of zeros written each frame; a frame draws ~3 % of the pixels, so
-#: zeroing only those writes far less, and the cache keeps what the frame
-#: reads next (tests/renderer/test_render.py: a frame after others is the frame alone). Frames
-#: with a background (every pixel lit, no support) are not kept. A pair is taken out while a
-#: frame uses it, so two threads never draw into the same images.
-_ZERO_IMAGES: dict = {}

@@ -190,7 +190,8 @@ def test_support_holds_every_lit_pixel(scene, departure):
     it alone equal the full conversion: a pixel missed would be a star's charge lost from the
     frame's EXR and from the sensor's input. With a background every pixel is lit: no support,
     the full conversion."""
-    from skynav.renderer.render import expected_image, float32_image
+    from skynav.renderer.render import expected_image
+    from skynav.renderer.sparse_images import float32_image
 
     for sc in (scene, departure):
         exp = expected_image(sc, rng=np.random.default_rng(2), options=RenderOptions())
@@ -210,7 +211,7 @@ def test_a_frame_after_others_is_the_frame_alone(scene, departure):
     rendered with no images kept from before."""
     import importlib
 
-    render_module = importlib.import_module("skynav.renderer.render")
+    render_module = importlib.import_module("skynav.renderer.sparse_images")
     runs = [(departure, 3, RenderOptions()), (scene, 4, RenderOptions()), (departure, 5, RenderOptions(noise=False)),
             (scene, 6, RenderOptions(background_e_per_px_s=2.0)), (scene, 7, RenderOptions()),
             (scene, 8, RenderOptions(backend="numpy"))]
