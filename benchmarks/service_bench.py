@@ -129,11 +129,11 @@ def part_overhead(frames: int, repeats: int, pause_s: float) -> None:
     print(f"OVERHEAD per request: median {100 * (rm / lm - 1):+.1f} %, p99 "
           f"{100 * (_pct(remote, 99) / _pct(local, 99) - 1):+.1f} %; paired: median of the differences "
           f"{1e3 * float(np.median(np.subtract(remote, local))):+.2f} ms")
-    print(f"OWN TIME per frame (round trip less the worker's render; target <= 2 ms): median "
+    print(f"ROUND TRIP less the worker's render (the client's time, the transfer and the server's): median "
           f"{1e3 * float(np.median(own)):.2f} ms = {100 * float(np.median(own)) / lm:.1f} % of the in-process median, lower quartile "
           f"{1e3 * _pct(own, 25):.2f} ms, p99 {1e3 * _pct(own, 99):.2f} ms; "
           f"CPU per frame: server process {1e3 * cpu_server:.2f} ms, client {1e3 * cpu_client:.2f} ms")
-    print(f"  of which the server's own (Server-Timing service): median {1e3 * float(np.median(in_server)):.2f} ms, "
+    print(f"OWN TIME of the service (its Server-Timing 'service'; target <= 2 ms): median {1e3 * float(np.median(in_server)):.2f} ms, "
           f"p99 {1e3 * _pct(in_server, 99):.2f} ms")
     print(f"  skynav render (fresh process, one frame and its files): median {float(np.median(cli)):.2f} s "
           f"= {float(np.median(cli)) / rm:.0f} x a service frame")
