@@ -57,11 +57,14 @@ def _read_at_most(fd: int, n: int) -> bytes:
     return b"".join(chunks)
 
 
-def read_data_file(name, key: str, data_dirs, max_bytes: int) -> bytes:
-    """The bytes of the file ``name`` in the first of ``data_dirs`` (resolved, absolute folders)
-    that holds it as the module says; :func:`refused` where none does."""
-    if not isinstance(name, str) or not name or "\x00" in name or os.path.isabs(name):
-        raise refused(key, name, data_dirs, max_bytes)
+def _relative_name(name) -> bool:
+    """A name a request may give: a non-empty relative path without NUL."""
+    return isinstance(name, str) and bool(name) and "\x00" not in name and not os.path.isabs(name)
+
+
+def _opened_inside(name: str, data_dirs):
+    """``(path, fd)`` for each of ``data_dirs`` where ``name``, symlinks resolved, stays inside the
+    folder and opens (read-only, without blocking on a FIFO); the caller closes ``fd``."""
     for folder in data_dirs:
         path = os.path.realpath(os.path.join(folder, name))
         if not _inside(path, folder):
@@ -70,6 +73,15 @@ def read_data_file(name, key: str, data_dirs, max_bytes: int) -> bytes:
             fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
         except OSError:
             continue
+        yield path, fd
+
+
+def read_data_file(name, key: str, data_dirs, max_bytes: int) -> bytes:
+    """The bytes of the file ``name`` in the first of ``data_dirs`` (resolved, absolute folders)
+    that holds it as the module says; :func:`refused` where none does."""
+    if not _relative_name(name):
+        raise refused(key, name, data_dirs, max_bytes)
+    for _, fd in _opened_inside(name, data_dirs):
         try:
             st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode) or st.st_size > max_bytes:
@@ -94,16 +106,9 @@ def kernel_refused(key: str, name, data_dirs) -> ConfigValueError:
 def kernel_path(name, key: str, data_dirs) -> str:
     """The resolved path of the kernel ``name`` in the first of ``data_dirs`` (resolved, absolute
     folders) where it is a regular file inside the folder; :func:`kernel_refused` where none."""
-    if not isinstance(name, str) or not name or "\x00" in name or os.path.isabs(name):
+    if not _relative_name(name):
         raise kernel_refused(key, name, data_dirs)
-    for folder in data_dirs:
-        path = os.path.realpath(os.path.join(folder, name))
-        if not _inside(path, folder):
-            continue
-        try:
-            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-        except OSError:
-            continue
+    for path, fd in _opened_inside(name, data_dirs):
         try:
             regular = stat.S_ISREG(os.fstat(fd).st_mode)
         finally:
