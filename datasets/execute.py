@@ -168,7 +168,10 @@ def frame_scene(plan, k: int, *, master_seed: int, catalog_limiting_v_mag: float
 def dataset_truth(truth: dict, req, master_seed: int) -> dict:
     """A rendered frame's truth with its ``dataset`` section (the sampler's record, the seed)."""
     out = dict(truth)
-    out["dataset"] = {**req.meta, "master_seed": int(master_seed),
+    meta = {k: v for k, v in req.meta.items() if k != "data_files"}
+    if "data_files" in req.meta:  # the mission files the plan read (name as written, SHA-256)
+        out["data_files"] = req.meta["data_files"]
+    out["dataset"] = {**meta, "master_seed": int(master_seed),
                       "seed_scheme": "numpy SeedSequence([master_seed, frame]); sampler draws, then renderer"}
     return out
 

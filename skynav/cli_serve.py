@@ -7,6 +7,7 @@ import sys
 import threading
 
 from skynav.calibration.facility_io import load_facility
+from skynav.scenes.constants import SECONDS_PER_DAY
 from skynav.service.budget import MAX_REQUEST_MEMORY, MAX_REQUEST_SECONDS
 from skynav.service.files import MAX_DATA_FILE_BYTES
 from skynav.service.pool import REQUEST_DEADLINE_S, WORKER_MEMORY
@@ -207,13 +208,13 @@ def add_parser(sub) -> None:
     s.add_argument("--max-request-memory", type=positive_int, default=MAX_REQUEST_MEMORY, metavar="BYTES",
                    help="a request whose estimated memory (beyond the warm worker's) is larger gets 400 naming the key "
                         f"behind it (default {MAX_REQUEST_MEMORY})")
-    s.add_argument("--max-request-seconds", type=float_in(0.0, 86400.0, low_open=True, unit="s"),
+    s.add_argument("--max-request-seconds", type=float_in(0.0, SECONDS_PER_DAY, low_open=True, unit="s"),
                    default=MAX_REQUEST_SECONDS, metavar="S", help="a request whose estimated render time (one core) "
                    f"is longer gets 400 naming the key behind it (default {MAX_REQUEST_SECONDS:g})")
     s.add_argument("--worker-memory", type=non_negative_int, default=WORKER_MEMORY, metavar="BYTES",
                    help="each worker's address-space cap (RLIMIT_AS); a request that reaches it gets 503 and the "
                         f"worker is replaced (default {WORKER_MEMORY}; 0: none)")
-    s.add_argument("--request-deadline", type=float_in(0.0, 86400.0, low_open=True, unit="s"),
+    s.add_argument("--request-deadline", type=float_in(0.0, SECONDS_PER_DAY, low_open=True, unit="s"),
                    default=REQUEST_DEADLINE_S, metavar="S", help="wall seconds a worker may spend on one request; "
                    f"beyond, it is killed and replaced, and the request gets 503 (default {REQUEST_DEADLINE_S:g})")
     s.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN", help="a web origin "
