@@ -13,6 +13,7 @@ from skynav.scenes.config import scene_spec_from_mapping  # noqa: E402
 from skynav.scenes.mission_spice import spice_state  # noqa: E402
 from skynav.scenes.scene_files import load_scene_file  # noqa: E402
 from skynav.scenes.timescales import tdb_seconds  # noqa: E402
+from .spice_texts import FK, SCLK  # noqa: E402
 
 T0 = float(tdb_seconds("2027-02-01T00:00:00"))
 R0 = np.array([1.2e8, -4.0e7, 2.5e7])
@@ -93,31 +94,6 @@ def test_spice_state_against_the_analytic_motion_at_many_epochs(tmp_path):
 
 
 # ----------------------------------------------------------------------------- attitude from a CK
-SCLK = """KPL/SCLK
-\\begindata
-SCLK_KERNEL_ID           = ( @2027-01-01/00:00 )
-SCLK_DATA_TYPE_999       = ( 1 )
-SCLK01_TIME_SYSTEM_999   = ( 1 )
-SCLK01_N_FIELDS_999      = ( 2 )
-SCLK01_MODULI_999        = ( 4294967296 65536 )
-SCLK01_OFFSETS_999       = ( 0 0 )
-SCLK01_OUTPUT_DELIM_999  = ( 1 )
-SCLK_PARTITION_START_999 = ( 0.0 )
-SCLK_PARTITION_END_999   = ( 2.8147497671065E+14 )
-SCLK01_COEFFICIENTS_999  = ( 0.0 {et0} 1.0 )
-\\begintext
-"""
-FK = """KPL/FK
-\\begindata
-FRAME_SKYNAV_CAM         = -999000
-FRAME_-999000_NAME       = 'SKYNAV_CAM'
-FRAME_-999000_CLASS      = 3
-FRAME_-999000_CLASS_ID   = -999000
-FRAME_-999000_CENTER     = -999
-CK_-999000_SCLK          = -999
-CK_-999000_SPK           = -999
-\\begintext
-"""
 W_CAM = np.array([1e-3, -2e-3, 5e-4])  # rad/s, camera frame
 
 
