@@ -138,6 +138,17 @@ def _max_sweep_px(scene: Scene, projection, w: np.ndarray) -> float:
     return T * scale * (math.hypot(w[0], w[1]) + abs(w[2]) * sin_corner)
 
 
+def path_samples(scene: Scene, projection, n_sources: int, options: RenderOptions) -> int:
+    """Instants a path of :func:`source_paths` is sampled at: 0 for a still camera (or no
+    source: each path is one point, twice), else one every ``options.path_step_px`` along the
+    largest sweep, 2 to 512."""
+    w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
+    if float(np.linalg.norm(w)) == 0.0 or n_sources == 0:
+        return 0
+    sweep_px = _max_sweep_px(scene, projection, w)
+    return int(min(512, max(2, math.ceil(sweep_px / options.path_step_px) + 1)))
+
+
 def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, projection=None) -> np.ndarray:
     """Pixel paths of apparent directions over the exposure.
 
@@ -160,12 +171,10 @@ def source_paths(scene: Scene, u_icrs: np.ndarray, options: RenderOptions, proje
     proj = scene.camera if projection is None else projection
     u = np.atleast_2d(np.asarray(u_icrs, dtype=float))
     w = np.asarray(scene.angular_velocity_rad_s, dtype=float)
-    rate = float(np.linalg.norm(w))
-    if rate == 0.0 or len(u) == 0:
+    n = path_samples(scene, proj, len(u), options)
+    if n == 0:
         xy = proj.project(u @ scene.R_cam_icrs.T)
         return np.stack([xy, xy], axis=1)
-    sweep_px = _max_sweep_px(scene, proj, w)
-    n = int(min(512, max(2, math.ceil(sweep_px / options.path_step_px) + 1)))
     Rs = frames.propagate_attitude(scene.R_cam_icrs, w, sample_times(scene.camera.exposure_s, n))
     v = np.einsum("sij,nj->nsi", Rs, u)
     return proj.project(v)

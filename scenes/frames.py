@@ -302,6 +302,20 @@ def rotation_vector_to_dcm(phi_rad):
     return np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K
 
 
+def rotation_vectors_to_dcm(phi_rad):
+    """:func:`rotation_vector_to_dcm` of many rotation vectors at once: ``phi_rad`` (..., 3)
+    gives (..., 3, 3), each matrix by the same formula (the second-order series below 1e-8 rad)."""
+    phi = np.asarray(phi_rad, dtype=float)
+    theta = np.sqrt(np.sum(phi * phi, axis=-1))[..., None, None]
+    K = skew(phi)
+    KK = K @ K
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * K + b * KK
+
+
 def propagate_attitude(R_cam_icrs, angular_velocity_rad_s, dt_s):
     """Attitude after ``dt_s`` seconds at constant body rate: ``R(t) = exp(-[w x] dt) R0``.
 
