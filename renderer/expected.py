@@ -32,7 +32,8 @@ from .options import RenderOptions
 from .radiometry import Radiometry
 from .raster import rasterize
 
-__all__ = ["ExpectedImage", "expected_image", "source_paths", "sample_times", "blur_crop"]
+__all__ = ["ExpectedImage", "expected_image", "source_paths", "sample_times", "blur_crop", "TracedBody",
+           "record_resolved_body"]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -205,7 +206,7 @@ def _body_track_xy(scene: Scene, projection, body) -> np.ndarray:
 
 def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, options: RenderOptions = RenderOptions(),
                    own_size: bool = False, with_irradiance: bool = True, support: list | None = None,
-                   zeros: tuple | None = None) -> ExpectedImage:
+                   zeros: tuple | None = None, traced_out: list | None = None) -> ExpectedImage:
     """Noise-free electrons and pupil irradiance of a scene through a projection.
 
     Parameters
@@ -233,6 +234,9 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     zeros : (ndarray, ndarray), optional
         Two float64 zero images of the image's shape, C-contiguous, drawn into as the electrons
         and the irradiance (:func:`render` hands back images it has used, set to zero again).
+    traced_out : list, optional
+        Resolved bodies traced (same ``rng`` draws) but not blurred, drawn nor recorded: appended
+        to it as :class:`TracedBody` for the caller (:mod:`~skynav.renderer.bodies_jit`; no irradiance).
 
     Returns
     -------
@@ -286,8 +290,8 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     star_centre, body_centre, body_photocentre, star_fraction, body_fraction = drawn
 
     # --- resolved bodies (Mitsuba), blurred by the same PSF; seeds from a child of the frame stream
-    resolved, variant = _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, (body_e, body_irr),
-                                              (electrons, irradiance), support, body_centre, body_fraction)
+    resolved, variant = _resolved_bodies(scene, proj, options, psf, traced, track, rng, (body_e, body_irr),
+                                         (electrons, irradiance), support, body_centre, body_fraction, traced_out)
 
     background = options.background_e_per_px_s > 0
     if background:
@@ -353,41 +357,91 @@ def _draw_point_sources(scene, proj, options, psf, points, track, star_light, bo
     return star_centre, body_centre, body_photocentre, star_fraction, body_fraction
 
 
-def _draw_resolved_bodies(scene, proj, options, psf, traced, track, rng, body_light, images, support, body_centre,
-                          body_fraction):
-    """The ray-traced bodies (``traced``): Mitsuba's crops, seeded from a child of the frame's
-    stream, blurred by the PSF and added to ``images`` = (electrons, irradiance or None); fills
-    ``body_centre``, ``body_fraction`` (if not None) and the body electrons (``body_light[0]``,
-    each the crop's total); returns ({body: ResolvedBodyImage}, Mitsuba variant or None)."""
-    cam = scene.camera
-    ffl = options.flux_fraction_lost
-    (body_e, body_irr), (electrons, irradiance) = body_light, images
-    resolved = {}
-    variant = None
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TracedBody:
+    """A ray-traced body of a frame before its blur: what :func:`expected_image` hands a caller
+    who draws the bodies itself (its ``traced_out``).
+
+    Attributes
+    ----------
+    name : str
+    image : ResolvedBodyImage
+        Mitsuba's crop (electrons, e-) and where it lies.
+    kernel : Kernel
+        The PSF the crop is blurred with (a polychromatic camera's: the body's own).
+    at_xy : ndarray, shape (2,), px
+        The body's pixel at mid-exposure (the field point of a varying PSF).
+    """
+
+    name: str
+    image: object
+    kernel: object
+    at_xy: np.ndarray
+
+
+def _trace_resolved_bodies(scene, proj, options, psf, traced, track, rng):
+    """The ray-traced bodies (``traced``) as :class:`TracedBody`: Mitsuba's crops, seeded from a
+    child of the frame's stream (one ``rng.spawn`` when any body is traced), and their kernels."""
     if not traced:
-        return resolved, variant
+        return []
+    cam = scene.camera
     poly = is_polychromatic(cam)
     body_rng = rng.spawn(1)[0]
+    out = []
     for b in traced:
         img = render_resolved_body(scene, b, spp=options.mitsuba_spp, time_samples=options.mitsuba_time_samples,
                                    rng=body_rng, projection=proj)
-        kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
-        crop, pad = blur_crop(img.electrons, kern, ffl, at_xy=track[b.name][0])
+        kern = kernel_for(cam, ("body", b.name), options.flux_fraction_lost) if poly else psf
+        out.append(TracedBody(name=b.name, image=img, kernel=kern, at_xy=track[b.name][0]))
+    return out
+
+
+def _resolved_bodies(scene, proj, options, psf, traced, track, rng, body_light, images, support, body_centre,
+                     body_fraction, traced_out):
+    """The ray-traced bodies (``traced``) traced, then drawn into ``images`` with their truth
+    (:func:`_draw_resolved_bodies`), or handed to the caller in ``traced_out`` (a list; the
+    irradiance not asked for); returns ({body: ResolvedBodyImage}, Mitsuba variant or None)."""
+    if traced_out is not None and images[1] is not None:
+        raise ConfigValueError("traced_out", "with the irradiance", "with_irradiance=False (the caller draws the bodies)")
+    bodies = _trace_resolved_bodies(scene, proj, options, psf, traced, track, rng)
+    if traced_out is None:
+        _draw_resolved_bodies(bodies, options, body_light, images, support, body_centre, body_fraction)
+    else:  # the caller blurs and draws them, and records their truth (record_resolved_body)
+        traced_out.extend(bodies)
+    return {t.name: t.image for t in bodies}, (bodies[-1].image.variant if bodies else None)
+
+
+def _draw_resolved_bodies(bodies, options, body_light, images, support, body_centre, body_fraction):
+    """The traced ``bodies`` blurred by their PSF and added to ``images`` = (electrons,
+    irradiance or None); fills ``body_centre``, ``body_fraction`` (if not None) and the body
+    electrons (``body_light[0]``: :func:`record_resolved_body`)."""
+    (body_e, body_irr), (electrons, irradiance) = body_light, images
+    for t in bodies:
+        img = t.image
+        crop, pad = blur_crop(img.electrons, t.kernel, options.flux_fraction_lost, at_xy=t.at_xy)
         _add_crop(electrons, crop, img.x0 - pad, img.y0 - pad, support=support)
-        tot = float(crop.sum())
-        if tot > 0:
-            yy, xx = np.indices(crop.shape)
-            body_centre[b.name] = np.array([(crop * xx).sum() / tot + img.x0 - pad,
-                                            (crop * yy).sum() / tot + img.y0 - pad])
-        scale = body_irr[b.name] / body_e[b.name] if body_e[b.name] > 0 else 0.0
+        yy, xx = np.indices(crop.shape)
+        scale = body_irr[t.name] / body_e[t.name] if body_e[t.name] > 0 else 0.0
         if irradiance is not None:
             _add_crop(irradiance, crop * scale, img.x0 - pad, img.y0 - pad)
-        body_e[b.name] = float(img.electrons_total)
-        if body_fraction is not None and body_e[b.name] > 0:
-            body_fraction[b.name] = tot / body_e[b.name]
-        resolved[b.name] = img
-        variant = img.variant
-    return resolved, variant
+        moments = (float(crop.sum()), (crop * xx).sum(), (crop * yy).sum())
+        record_resolved_body(t, moments, pad, body_e, body_centre, body_fraction)
+
+
+def record_resolved_body(body: TracedBody, moments, pad: int, body_e: dict, body_centre: dict,
+                         body_fraction: dict | None) -> None:
+    """A ray-traced body's truth from its blurred crop's moments ``(total, sum x, sum y)`` (e-,
+    e- px, with x, y the column and row within the blurred crop, padded by ``pad`` px): its
+    centre of light into ``body_centre``, its electrons (the ray-traced crop's total) into
+    ``body_e``, and the fraction the blurred crop holds of them into ``body_fraction`` (if not
+    None)."""
+    tot, m1x, m1y = moments
+    img = body.image
+    if tot > 0:
+        body_centre[body.name] = np.array([m1x / tot + img.x0 - pad, m1y / tot + img.y0 - pad])
+    body_e[body.name] = float(img.electrons_total)
+    if body_fraction is not None and body_e[body.name] > 0:
+        body_fraction[body.name] = tot / body_e[body.name]
 
 
 def blur_crop(crop: np.ndarray, psf, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):

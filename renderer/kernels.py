@@ -200,15 +200,29 @@ class GaussianKernel:
         n = np.size(flux_e)
         return np.full(n, self.half_size_px(flux_fraction_lost), dtype=np.int64)
 
+    def blur_stamp(self, flux_fraction_lost: float, at_xy=None, wavelength_nm=None) -> np.ndarray:
+        """The kernel :meth:`blur_crop` convolves a crop with, shape (2h+1, 2h+1): the outer
+        product of the pixel-integrated Gaussian's erf differences over ``2h + 1`` px (``h`` from
+        ``flux_fraction_lost``), normalised to 1; ``[[1.0]]`` for sigma 0 (``at_xy`` and
+        ``wavelength_nm``: the same everywhere)."""
+        k = self._blur_1d(flux_fraction_lost)
+        return np.outer(k, k)
+
+    def _blur_1d(self, flux_fraction_lost: float) -> np.ndarray:
+        """The 1-D factor of :meth:`blur_stamp` (its rows and columns are these weights)."""
+        if self.sigma_px <= 0.0:
+            return np.ones(1)
+        h = int(self.half_size_px(flux_fraction_lost))
+        k = np.asarray(self.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
+        return k / k.sum()
+
     def blur_crop(self, crop: np.ndarray, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
-        """A pixel-binned crop convolved with the pixel-integrated Gaussian (separable: erf
-        differences over ``2h + 1`` px, ``h`` from ``flux_fraction_lost``, normalised to 1, so
+        """A pixel-binned crop convolved with :meth:`blur_stamp` (separably, by its 1-D factor:
         the crop's total is kept), padded by ``h``; returns (blurred crop, h)."""
         if self.sigma_px <= 0.0:
             return crop, 0
-        h = int(self.half_size_px(flux_fraction_lost))
-        k = np.asarray(self.integrate_1d(np.arange(-h - 0.5, h + 1.0, 1.0)), dtype=float)
-        k /= k.sum()
+        k = self._blur_1d(flux_fraction_lost)
+        h = k.size // 2
         padded = np.pad(np.asarray(crop, dtype=float), h)
         out = convolve1d(convolve1d(padded, k, axis=0, mode="constant"), k, axis=1, mode="constant")
         return out, h

@@ -131,15 +131,19 @@ class TableKernel:
     #: at ``max_half_px``) is not drawn, and the truth records the fraction drawn per source.
     truncated = True
 
-    def blur_crop(self, crop: np.ndarray, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
-        """A pixel-binned crop convolved, by FFT, with the stamp of a point at the centre of the
-        pixel ``at_xy`` (px; the body's pixel, for a field grid; default (0, 0)), as it is: the
-        crop's light beyond the stamp is not drawn, as for a point. Padded by :attr:`half`;
-        returns (blurred crop, half)."""
-        h = self.half
+    def blur_stamp(self, flux_fraction_lost: float, at_xy=None, wavelength_nm=None) -> np.ndarray:
+        """The kernel :meth:`blur_crop` convolves a crop with, shape (2 half + 1, 2 half + 1):
+        the stamp of a point at the centre of the pixel ``at_xy`` (px; the body's pixel, for a
+        field grid; default (0, 0)), as it is (``wavelength_nm``: a polychromatic kernel's)."""
         at = np.zeros(2) if at_xy is None or not np.all(np.isfinite(at_xy)) else np.round(np.asarray(at_xy, dtype=float))
-        k = self.stamp(at, h, wavelength_nm)
-        return np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0), h  # FFT ringing < 0
+        return self.stamp(at, self.half, wavelength_nm)
+
+    def blur_crop(self, crop: np.ndarray, flux_fraction_lost: float, at_xy=None, wavelength_nm=None):
+        """A pixel-binned crop convolved, by FFT, with :meth:`blur_stamp`: the crop's light
+        beyond the stamp is not drawn, as for a point. Padded by :attr:`half`; returns (blurred
+        crop, half)."""
+        k = self.blur_stamp(flux_fraction_lost, at_xy, wavelength_nm)
+        return np.maximum(fftconvolve(np.asarray(crop, dtype=float), k, mode="full"), 0.0), self.half  # FFT ringing < 0
 
     def _blocks(self, k_table: int, h: int) -> tuple:
         """The table as phase blocks ``B[my, mx] = P[c + ky n + my, c + kx n + mx]`` for
