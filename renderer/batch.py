@@ -22,10 +22,13 @@ except where ``u`` falls within a rounding of a cumulative sum (tested as statis
 EMVA 1288 checks of the sensor tests, and as that rare difference). The expected images, the
 cosmic rays and the truth are the per-frame path's.
 
-The stars may be drawn on the device too (``star_splat``; CUDA's default): for a Gaussian PSF
-:mod:`~skynav.renderer.splat_jit` scatter-adds their stamps, streaks included, into the sensor's
-input, the bodies (and every other PSF model's stars) drawn per frame by numpy as above; the
-expected images then equal the per-frame path's to roundings (float32 sums), not to the bit.
+The point sources may be drawn on the device too (``star_splat``; CUDA's default): for every
+PSF model :mod:`~skynav.renderer.splat_jit` scatter-adds the stamps of the stars and of the
+bodies drawn as points, streaks included, into the sensor's input, and their moments (the
+truth's centres of light and fractions drawn) into small arrays brought back with the launch;
+the ray-traced bodies are drawn per frame by numpy as above. The expected images then equal
+the per-frame path's to roundings (a float64 sum in another order, rounded to float32 once), not
+to the bit; a launch's truths are made once the next launch is under way.
 """
 
 from __future__ import annotations
@@ -56,7 +59,7 @@ from .sensor_jit import (
     frame_key,
     pixel_stream_seeds,
 )
-from .splat_jit import frame_optics, gaussian_stars, splat_stars
+from .splat_jit import frame_moments, frame_optics, splat_points, with_moments
 from .truth import frame_truth
 
 __all__ = ["FrameBatch", "render_batch", "expose_batch"]
@@ -144,9 +147,9 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
     backend : {"llvm", "cuda"}
     charges : sequence of N PixelCharge or None, optional
         Each frame's cosmic-ray charge (added after the shot noise, before the full well).
-    stars : sequence of N StarPoints or None, optional
-        Each frame's stars, drawn into ``electrons`` on the device with ``background_e`` e- per
-        pixel (:func:`~skynav.renderer.splat_jit.splat_stars`).
+    stars : sequence of N FramePoints or None, optional
+        Each frame's point sources (stars, bodies drawn as points), drawn into ``electrons`` on
+        the device with ``background_e`` e- per pixel (:func:`~skynav.renderer.splat_jit.splat_points`).
     background_e : float
 
     Returns
@@ -164,8 +167,9 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
 
 
 def _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e):
-    """:func:`expose_batch`'s DN and the sensor's input on the device (the expected electrons
-    with the stars drawn, before the cosmic rays), both lazy."""
+    """:func:`expose_batch`'s DN, the sensor's input on the device (the expected electrons with
+    the point sources drawn, before the cosmic rays) and the point sources' moments
+    (:func:`~skynav.renderer.splat_jit.splat_points`; None without), all lazy."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -201,11 +205,12 @@ def _expose(params, electrons, exposure_s, keys, backend, charges, stars, backgr
     readout = (op(float(np.hypot(params.read_noise_e, params.reset_noise_e))), op(params.gain_dn_per_e),
                op(params.offset_dn + 0.5), op(float(params.max_dn)))
     sig = jt.Float(np.ascontiguousarray(e, dtype=np.float32).ravel())
+    moments = None
     if stars is not None or background_e:
-        sig = splat_stars(sig, [] if stars is None else stars, tuple(shape), background_e)
+        sig, moments = splat_points(sig, [] if stars is None else stars, tuple(shape), background_e)
     dn = _batch_exposure(sig, gain, dark, extra, op(float(exposure_s)), key, op(params.full_well_e), readout,
                          pixel, params.bit_depth <= 8)
-    return dn, sig
+    return dn, sig, moments
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -277,11 +282,11 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         inputs are let go every :data:`_FRAMES_IN_FLIGHT` frames (a large batch's memory stays
         that of a few frames but for its DN).
     star_splat : {"auto", "device", "host"}
-        Where the stars are drawn: ``device``, by Dr.Jit into the sensor's input
-        (:mod:`~skynav.renderer.splat_jit`; a Gaussian PSF only, else ``host``); ``host``, per
-        frame by numpy (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device``
-        on CUDA (no image crosses to the device but the bodies'), ``host`` on LLVM (where the
-        numpy splat is as fast: docs/performance.md, "Batched frames").
+        Where the point sources (stars, bodies drawn as points) are drawn: ``device``, by Dr.Jit
+        into the sensor's input (:mod:`~skynav.renderer.splat_jit`, every PSF model); ``host``,
+        per frame by numpy (:func:`~skynav.renderer.expected.expected_image`); ``auto``:
+        ``device`` on CUDA (no image crosses to the device but the ray-traced bodies'), ``host``
+        on LLVM (where the numpy splat is as fast: docs/performance.md, "Batched frames").
 
     Returns
     -------
@@ -311,43 +316,63 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     """
     scenes, seeds, rngs, backend = _checked_batch(scenes, seeds, rngs, options, frames_per_launch)
     cam = scenes[0].camera
-    psf = _device_stars(star_splat, backend, scenes[0], options)
+    device = _device_stars(star_splat, backend, scenes[0], options)
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     t0 = time.perf_counter()
     shape = (cam.height, cam.width)
-    chunks, truths, launched, pending, t_launch = [], [], [], [], 0.0
+    chunks, truths, launched, pending, t_launch, waiting = [], [], [], [], 0.0, None
     hold = max(1, _FRAMES_IN_FLIGHT // frames_per_launch)  # launches between waits, without electrons
     for first in range(0, len(scenes), frames_per_launch):
         ks = range(first, min(first + frames_per_launch, len(scenes)))
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
-        made = [_frame_optics(scenes[i], rngs[i], options, sig[j], psf) for j, i in enumerate(ks)]
+        made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device) for j, i in enumerate(ks)]
         t = time.perf_counter()
-        dn, sig_d = _expose(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend, [m[1] for m in made],
-                            None if psf is None else [m[5] for m in made], options.background_e_per_px_s * cam.exposure_s
-                            if psf is not None else 0.0)
-        dr.eval(dn, sig_d) if psf is not None and electrons else dr.eval(dn)  # launched: the device works on it
+        dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend,
+                                     [m[1] for m in made], [m[5] for m in made] if device else None,
+                                     options.background_e_per_px_s * cam.exposure_s if device else 0.0)
+        dr.eval(dn, *([sig_d] if device and electrons else []), *([] if moments is None else [moments]))  # launched
         launched.append(dn)
         t_launch += time.perf_counter() - t
-        for i, (_, _, _, expected, hits, _) in zip(ks, made):  # the truths, while the device runs
-            det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
-            truth = frame_truth(scenes[i], expected, det, seed=seeds[i], options=options)
-            truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
-            truths.append(truth)
-        chunks.append(sig if psf is None else sig_d)
+        if waiting is not None:  # the last launch's truths, while the device runs this one
+            truths += _truths(scenes, seeds, options, backend, frames_per_launch, *waiting)
+        waiting = (ks, made, moments)
+        chunks.append(sig_d if device else sig)
         pending.append([m[2] for m in made])
         if not electrons and len(chunks) >= hold:  # the inputs read: let them go
             dr.sync_thread()
             chunks.clear()
+    truths += _truths(scenes, seeds, options, backend, frames_per_launch, *waiting)
     t1 = time.perf_counter()
     dr.sync_thread()  # the launches are done
     t2 = time.perf_counter()
     return FrameBatch(dn_device=tuple(launched), shape=(len(scenes), *shape),
-                      electrons=_electrons(chunks, pending, psf is not None, shape) if electrons else None,
+                      electrons=_electrons(chunks, pending, device, shape) if electrons else None,
                       truths=truths, backend=backend,
                       timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
                       dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
+
+
+def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, moments):
+    """The truths of one launch's frames ``ks`` (their optics ``made``); with the point sources
+    drawn on the device, their centres of light and fractions drawn from the launch's
+    ``moments`` (brought over: the launch's splat is done)."""
+    figures = None
+    if moments is not None:
+        figures = frame_moments([m[5] for m in made], moments.numpy())
+    out = []
+    for j, i in enumerate(ks):
+        expected, hits, points = made[j][3], made[j][4], made[j][5]
+        if points is not None:
+            n = points.n_sources
+            m0, m1 = figures[j] if figures is not None else (np.zeros(n), np.zeros((n, 2)))
+            expected = with_moments(expected, points, m0, m1)
+        det = Detection(dn=None, electrons=None, hits=hits, backend=backend)
+        truth = frame_truth(scenes[i], expected, det, seed=seeds[i], options=options)
+        truth["render"] = {**truth["render"], "sensor_program": "batch", "frames_per_launch": frames_per_launch}
+        out.append(truth)
+    return out
 
 
 def _electrons(chunks, pending, on_device, shape):
@@ -365,13 +390,11 @@ def _electrons(chunks, pending, on_device, shape):
     return np.concatenate(chunks)
 
 
-def _device_stars(star_splat, backend, scene, options):
-    """The Gaussian PSF the device draws the stars with (:func:`render_batch`'s ``star_splat``),
-    or None: the stars drawn on the host."""
+def _device_stars(star_splat, backend, scene, options) -> bool:
+    """Whether the device draws the point sources (:func:`render_batch`'s ``star_splat``)."""
     if star_splat not in ("auto", "device", "host"):
         raise ConfigValueError("star_splat", star_splat, "auto, device or host")
-    on_device = star_splat == "device" or (star_splat == "auto" and backend == "cuda")
-    return gaussian_stars(scene, options) if on_device else None
+    return star_splat == "device" or (star_splat == "auto" and backend == "cuda")
 
 
 def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
@@ -400,21 +423,22 @@ def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
 _FRAMES_IN_FLIGHT = 16
 
 
-def _frame_optics(scene, rng, options, sig, psf=None):
+def _frame_optics(scene, rng, options, sig, device=False):
     """One frame's optics as :func:`render` makes them: its expected electrons rounded to
     float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
     the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
-    charge), expected image without its images, hits, star points)``. With ``psf`` (a Gaussian),
-    the stars and the background are left out of ``sig`` for the device
-    (:func:`~skynav.renderer.splat_jit.frame_optics`; star points, else None), and the hit
-    pixels' electrons are the charge alone (the device's input is added to it)."""
+    charge), expected image without its images, hits, point sources)``. With ``device``, the
+    point sources (stars, bodies drawn as points) and the background are left out of ``sig``
+    for the device (:func:`~skynav.renderer.splat_jit.frame_optics`: FramePoints, else None; the
+    expected image then lacks their centres of light), and the hit pixels' electrons are the
+    charge alone (the device's input is added to it)."""
     shape = sig.shape
     support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
     points = None
-    if psf is None:
+    if not device:
         expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
     else:
-        expected, points = frame_optics(scene, rng, options, psf, support)
+        expected, points = frame_optics(scene, rng, options, support)
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
     key = frame_key(rng)  # where the per-frame sensor draws it

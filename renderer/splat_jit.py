@@ -1,28 +1,34 @@
-"""The stars of a batch of frames drawn by Dr.Jit: the Gaussian PSF's pixel-integrated stamps
-along each star's streak, added into the batch's sensor input on the device.
+"""The point sources of a batch of frames drawn by Dr.Jit: the stars and the bodies drawn as
+points, every PSF model's pixel-integrated stamps along each source's streak, added into the
+batch's sensor input on the device, with each source's centre of light and the charge drawn.
 
-What it computes: the stars of :func:`~skynav.renderer.expected.expected_image` for a camera
-whose PSF is a :class:`~skynav.renderer.kernels.GaussianKernel` (sigma > 0) and not
-polychromatic (the default camera's). The host cuts each star's path into the sub-samples of
-:func:`~skynav.renderer.raster.streak_subsamples` (one point for a static star; two
-Gauss-Legendre nodes per panel of ``psf.quadrature_step_px()`` along a streak), as
-:func:`~skynav.renderer.raster.rasterize` does. Then one kernel runs over every (frame,
-sub-sample, stamp pixel) lane: its weight is the pixel-integrated Gaussian, the product of two
-erf differences (as :meth:`GaussianKernel.stamps`), in float64, times the sub-sample's
-electrons, rounded to float32 and scatter-added into the (N * H * W) float32 sensor input
-(the pixels off the image dropped, as the reference drops them). No per-frame image of the
-stars is made on the host.
+What it computes: the point sources of :func:`~skynav.renderer.expected.expected_image` (the
+numpy reference), for every kernel of the renderer (:func:`~skynav.renderer.optics.kernel_for`:
+the Gaussian; the Airy, optical, tabulated and field-grid tables; a polychromatic camera's
+spectral nodes for the stars at their effective wavelengths and each body's own table). The
+host makes, per frame (:func:`frame_optics`), the sources' electrons and paths (each body drawn
+as a point at its photocentre), sizes each source's stamps by its charge
+(``half_sizes_px``: a faint source of a table kernel gets a smaller stamp, the light beyond not
+drawn), keeps the sources that may touch the image and cuts their paths into the sub-samples
+of :func:`~skynav.renderer.raster.streak_subsamples` with the kernel's quadrature step, as
+:func:`~skynav.renderer.raster.rasterize` does; the points are grouped by kernel and half size
+(:class:`PointGroup`). Then :func:`splat_points` runs one kernel per group of the whole batch
+over its (point, stamp pixel) lanes: the stamp value (:mod:`~skynav.renderer.splat_tables_jit`),
+in float64, times the point's electrons, rounded to float32 and scatter-added into the (N * H * W)
+float32 sensor input (the pixels off the image dropped, as the reference drops them), and, in
+float64, scatter-added per source into its zeroth and first moments (the parts off the image
+included, as the reference's). The moments come back with the launch; :func:`with_moments`
+makes the truth's centres of light (first moments over zeroth) and fractions drawn of them.
 
-What stays per frame, in numpy (:func:`frame_optics`): every other PSF model (airy, optical,
-tabulated, polychromatic: their stamps are tables, :mod:`~skynav.renderer.table_kernels`), the
-bodies drawn as points, the ray-traced bodies (Mitsuba) and their blur, composited into the same
-input; and the stars' truth (electrons, centre of light: the first moments of the same stamps,
-from the separable 1-D erf differences on the host).
+What stays per frame, in numpy: the ray-traced bodies (Mitsuba) and their blur, composited into
+the same input (:func:`~skynav.renderer.expected.expected_image` of the scene without its stars
+and point-drawn bodies, with the same ``rng`` draws: only the ray-traced bodies draw).
 
 The result differs from the numpy reference by roundings: the float32 sums of the stamps (the
-reference sums in float64 and rounds once), the erf differences written without the reference's
-``0.5 (1 + erf)`` form (tested to 1e-5 relative per pixel, tests/renderer/test_batch_splat.py).
-One Python body is traced for Dr.Jit's LLVM and CUDA backends.
+reference sums in float64 and rounds once), the Gaussian's erf differences written without the
+reference's ``0.5 (1 + erf)``, and the moments' float64 sums in another order (tested to 1e-5
+relative per pixel, tests/renderer/test_batch_splat.py and test_batch_tables.py). One Python body
+is traced for Dr.Jit's LLVM and CUDA backends.
 """
 
 from __future__ import annotations
@@ -32,141 +38,266 @@ import math
 
 import numpy as np
 
-from skynav.scenes.psf import GaussianPSFModel
-
-from .expected import expected_image, source_paths
-from .kernels import GaussianKernel, stamp_origin
-from .optics import is_polychromatic, kernel_for
+from .brdf import photocentre_offset_xy
+from .expected import _body_track_xy, _near_image, expected_image, source_paths
+from .kernels import stamp_origin
+from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
 from .radiometry import Radiometry
 from .raster import _touching, streak_subsamples
 from .sensor_jit import _module_of
+from .splat_tables_jit import stamp_values
 
-__all__ = ["StarPoints", "gaussian_stars", "star_points", "splat_stars", "frame_optics"]
+__all__ = ["PointGroup", "FramePoints", "star_points", "frame_optics", "splat_points", "with_moments"]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True, eq=False)
-class StarPoints:
-    """A frame's stars cut into the sub-samples the splat draws.
+class PointGroup:
+    """Sub-samples of a frame's sources drawn with one kernel and one stamp half size.
 
     Attributes
     ----------
+    kernel : GaussianKernel or TableKernel
+    half : int
+        The stamps' half size, px (``2 half + 1`` a side).
     xy : ndarray, shape (M, 2), px
     flux_e : ndarray, shape (M,), e-
-    sigma_px : float
-        The Gaussian PSF's standard deviation, px.
-    half : int
-        The stamps' half size, px.
+    source : ndarray, shape (M,), int
+        Each point's source, among the frame's (:class:`FramePoints`).
+    wavelength_nm : ndarray, shape (M,), or None
+        Each point's effective wavelength, nm (a kernel of spectral nodes).
     """
 
+    kernel: object
+    half: int
     xy: np.ndarray
     flux_e: np.ndarray
-    sigma_px: float
-    half: int
+    source: np.ndarray
+    wavelength_nm: np.ndarray | None = None
 
 
-def gaussian_stars(scene, options) -> GaussianKernel | None:
-    """The camera's PSF if its stars can be drawn by :func:`splat_stars` (a Gaussian of sigma >
-    0, not polychromatic), else None."""
+@dataclasses.dataclass(frozen=True, kw_only=True, eq=False)
+class FramePoints:
+    """A frame's point sources as the splat draws them: the stars, then the bodies drawn as
+    points (``bodies``, by name).
+
+    Attributes
+    ----------
+    groups : tuple of PointGroup
+    electrons : ndarray, shape (S,), e-
+        Each source's electrons.
+    drawn : ndarray, shape (S,), bool
+        The sources that may touch the image (their stamps drawn).
+    n_stars : int
+    bodies : tuple of str
+    truncated : bool
+        Whether the kernels are table kernels (the truth records the fraction drawn).
+    """
+
+    groups: tuple
+    electrons: np.ndarray
+    drawn: np.ndarray
+    n_stars: int
+    bodies: tuple = ()
+    truncated: bool = False
+
+    @property
+    def n_sources(self) -> int:
+        return int(self.electrons.size)
+
+
+def _groups(kernel, paths, e, index, lam, shape, flux_fraction_lost):
+    """The :class:`PointGroup` of sources ``index`` (their ``paths``, electrons ``e``, effective
+    wavelengths ``lam`` or None) drawn with ``kernel``, one per stamp half size, as
+    :func:`~skynav.renderer.raster.rasterize` with ``stamp_e`` cuts them; and which of them are
+    drawn (bool, like ``index``)."""
+    sizes = kernel.half_sizes_px(e, flux_fraction_lost)
+    step = float(kernel.quadrature_step_px())
+    groups, drawn = [], np.zeros(e.size, bool)
+    for h in np.unique(sizes).tolist():
+        sel = np.flatnonzero(sizes == h)
+        ok = sel[_touching(paths[sel], e[sel], int(h), shape)]
+        if not ok.size:
+            continue
+        xy, flux, src = streak_subsamples(paths[ok], e[ok], step)
+        groups.append(PointGroup(kernel=kernel, half=int(h), xy=xy, flux_e=flux, source=index[ok][src],
+                                 wavelength_nm=None if lam is None else lam[ok][src]))
+        drawn[ok] = True
+    return groups, drawn
+
+
+def star_points(scene, options, bodies=(), paths=None, body_paths=None) -> FramePoints:
+    """A frame's stars, and ``bodies`` (drawn as points: ``body_paths`` (B, S, 2), px, at their
+    photocentres), as :class:`FramePoints`; ``paths``: the stars' paths (N, S, 2), px
+    (default :func:`~skynav.renderer.expected.source_paths` of the scene's stars)."""
     cam = scene.camera
-    if not isinstance(cam.psf, GaussianPSFModel) or is_polychromatic(cam):  # before a table kernel is built
-        return None
-    psf = kernel_for(cam, None, options.flux_fraction_lost)
-    return psf if isinstance(psf, GaussianKernel) and psf.sigma_px > 0.0 else None
-
-
-def star_points(scene, options, psf: GaussianKernel):
-    """A frame's stars as :class:`StarPoints`, with their electrons (N,) and centres of light
-    (N, 2, px; NaN where not drawn), as :func:`~skynav.renderer.expected.expected_image`
-    records them."""
-    cam = scene.camera
+    ffl = options.flux_fraction_lost
     stars = scene.stars
-    star_e = np.asarray(Radiometry.for_camera(cam).star_electrons_per_s(stars.v_mag, stars.teff_k), dtype=float)
-    star_e = star_e * cam.exposure_s
-    half = int(psf.half_size_px(options.flux_fraction_lost))
-    centre = np.full((len(star_e), 2), np.nan)
-    shape = (cam.height, cam.width)
-    empty = StarPoints(xy=np.zeros((0, 2)), flux_e=np.zeros(0), sigma_px=psf.sigma_px, half=half)
-    if len(star_e) == 0:
-        return empty, star_e, centre
-    paths = source_paths(scene, stars.u_icrs.reshape(-1, 3), options)
-    ok = _touching(paths, star_e, half, shape)
-    if not np.any(ok):
-        return empty, star_e, centre
-    xy, flux, source = streak_subsamples(paths[ok], star_e[ok], float(psf.quadrature_step_px()))
-    centre[np.flatnonzero(ok)] = _centres_of_light(psf, xy, flux, source, int(np.count_nonzero(ok)), half)
-    return StarPoints(xy=xy, flux_e=flux, sigma_px=psf.sigma_px, half=half), star_e, centre
+    rad = Radiometry.for_camera(cam)
+    star_e = np.asarray(rad.star_electrons_per_s(stars.v_mag, stars.teff_k), dtype=float) * cam.exposure_s
+    body_e = np.array([float(rad.body_electrons_per_s(b.name, b.v_mag)) * cam.exposure_s if np.isfinite(b.v_mag)
+                       else 0.0 for b in bodies])
+    n_s, shape = star_e.size, (cam.height, cam.width)
+    if paths is None:
+        paths = source_paths(scene, stars.u_icrs.reshape(-1, 3), options)
+    psf = kernel_for(cam, None, ffl)
+    poly = is_polychromatic(cam)
+    groups, drawn = [], np.zeros(n_s + len(bodies), bool)
+    if n_s:
+        lam = star_effective_wavelengths_nm(cam, stars.teff_k) if poly else None
+        g, d = _groups(psf, np.asarray(paths, dtype=float), star_e, np.arange(n_s), lam, shape, ffl)
+        groups += g
+        drawn[:n_s] = d
+    for j, b in enumerate(bodies):  # a polychromatic camera draws each body with its own spectrum's table
+        kern = kernel_for(cam, ("body", b.name), ffl) if poly else psf
+        g, d = _groups(kern, body_paths[j:j + 1], body_e[j:j + 1], np.array([n_s + j]), None, shape, ffl)
+        groups += g
+        drawn[n_s + j] = d[0]
+    return FramePoints(groups=tuple(groups), electrons=np.concatenate([star_e, body_e]), drawn=drawn, n_stars=n_s,
+                       bodies=tuple(b.name for b in bodies), truncated=bool(psf.truncated))
 
 
-def _centres_of_light(psf, xy, flux, source, n_sources, half):
-    """First moments of the points' stamps per source over their zeroth (as the rasteriser's
-    ``centre_of_light``), from the separable 1-D weights of each stamp's columns and rows."""
-    origin = stamp_origin(xy, half)
-    k = np.arange(2 * half + 2, dtype=float) - 0.5
-    wx = psf.integrate_1d(origin[:, 0:1] + k[None, :] - xy[:, 0:1])
-    wy = psf.integrate_1d(origin[:, 1:2] + k[None, :] - xy[:, 1:2])
-    sx, sy = wx.sum(axis=1), wy.sum(axis=1)
-    kk = np.arange(2 * half + 1, dtype=float)
-    sw = flux * sx * sy
-    m0 = np.bincount(source, weights=sw, minlength=n_sources)
-    m1x = np.bincount(source, weights=flux * sy * (wx @ kk) + origin[:, 0] * sw, minlength=n_sources)
-    m1y = np.bincount(source, weights=flux * sx * (wy @ kk) + origin[:, 1] * sw, minlength=n_sources)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.stack([m1x / m0, m1y / m0], axis=1)
+def _point_bodies(scene, options):
+    """The bodies :func:`~skynav.renderer.expected.expected_image` draws as points (not
+    ray-traced, near the image, at a finite position), as it picks them, and their paths at
+    their photocentres ((B, S, 2), px) and photocentres ({name: (2,)})."""
+    cam = scene.camera
+    track = {b.name: _body_track_xy(scene, cam, b) for b in scene.bodies}
+    near = {b.name: _near_image(cam, track[b.name], b) for b in scene.bodies}
+    traced = {b.name for b in scene.bodies if b.resolved and options.resolved and near[b.name]}
+    bodies = [b for b in scene.bodies if b.name not in traced and near[b.name]
+              and all(map(math.isfinite, track[b.name][0].tolist()))]
+    if not bodies:
+        return [], None, {}
+    paths = source_paths(scene, np.array([b.u_icrs for b in bodies]).reshape(-1, 3), options)
+    photocentre = {}
+    for j, b in enumerate(bodies):  # drawn at the photocentre, as the reference draws it
+        off = np.asarray(photocentre_offset_xy(cam, scene.R_cam_icrs, b), dtype=float)
+        if np.all(np.isfinite(off)):
+            paths[j] += off
+            photocentre[b.name] = track[b.name][0] + off
+    return bodies, paths, photocentre
 
 
-def frame_optics(scene, rng, options, psf, support):
-    """A frame's optics with its stars left to :func:`splat_stars`: the rest of its expected
-    image (bodies, no background) into ``support`` and the returned image, as
-    :func:`~skynav.renderer.expected.expected_image` makes it (same ``rng`` draws); returns
-    ``(expected image for the truth, star points)``, the image's stars' electrons and centres
-    of light filled in."""
+def frame_optics(scene, rng, options, support, paths=None):
+    """A frame's optics with its point sources left to :func:`splat_points`: the ray-traced
+    bodies (no background) into the returned image and ``support``, as
+    :func:`~skynav.renderer.expected.expected_image` makes them (same ``rng`` draws); returns
+    ``(expected image for the truth, FramePoints)``, the point sources' electrons and
+    photocentres filled in, their centres of light and fractions drawn left to
+    :func:`with_moments`. ``paths``: the stars' paths, px (default: projected here)."""
+    bodies, body_paths, photocentre = _point_bodies(scene, options)
+    names = {b.name for b in bodies}
     stars = scene.stars
     no_stars = dataclasses.replace(stars, **{f.name: getattr(stars, f.name)[:0] for f in dataclasses.fields(stars)})
-    rest = expected_image(dataclasses.replace(scene, stars=no_stars), rng=rng,
-                          options=dataclasses.replace(options, background_e_per_px_s=0.0),
+    rest_scene = dataclasses.replace(scene, stars=no_stars, bodies=tuple(b for b in scene.bodies if b.name not in names))
+    rest = expected_image(rest_scene, rng=rng, options=dataclasses.replace(options, background_e_per_px_s=0.0),
                           with_irradiance=False, support=support)
-    points, star_e, centre = star_points(scene, options, psf)
-    return dataclasses.replace(rest, star_electrons=star_e, star_centre_of_light=centre), points
+    points = star_points(scene, options, bodies, paths, body_paths)
+    body_e = dict(rest.body_electrons)
+    body_e.update({name: float(e) for name, e in zip(points.bodies, points.electrons[points.n_stars:])})
+    return dataclasses.replace(rest, star_electrons=points.electrons[:points.n_stars], body_electrons=body_e,
+                               body_photocentre={**rest.body_photocentre, **photocentre}), points
 
 
-def splat_stars(sig, points, shape, background_e: float = 0.0):
-    """Add the stars' stamps of each frame (``points``, one :class:`StarPoints` per frame, one
-    sigma and half size) and ``background_e`` per pixel into the batch's sensor input ``sig``
-    (a Dr.Jit Float of N * H * W, frame-major); returns the new input (lazy)."""
+def with_moments(expected, points: FramePoints, m0, m1):
+    """``expected`` with its point sources' centres of light (``m1 / m0``, NaN where not drawn)
+    and, for table kernels, fractions drawn (``m0`` over the electrons; NaN without light), from
+    each source's zeroth ``m0`` (S,) and first moments ``m1`` (S, 2) of its drawn stamps."""
+    centre = np.full((points.n_sources, 2), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centre[points.drawn] = m1[points.drawn] / m0[points.drawn, None]
+    n_s = points.n_stars
+    body_centre = dict(expected.body_centre_of_light or {})
+    body_centre.update({name: centre[n_s + j] for j, name in enumerate(points.bodies)})
+    star_fraction, body_fraction = None, expected.body_fraction_drawn
+    if points.truncated:
+        e = points.electrons
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fraction = np.where(e > 0, np.where(points.drawn, m0, 0.0) / e, np.nan)
+        star_fraction = fraction[:n_s]
+        body_fraction = dict(body_fraction or {})
+        body_fraction.update({name: float(fraction[n_s + j]) for j, name in enumerate(points.bodies)})
+    return dataclasses.replace(expected, star_centre_of_light=centre[:n_s], body_centre_of_light=body_centre,
+                               star_fraction_drawn=star_fraction, body_fraction_drawn=body_fraction)
+
+
+def _batch_groups(frames):
+    """The groups of every frame, joined by (kernel, half size): ``{(kernel, half): [(frame,
+    source offset, group), ...]}``, and each frame's first source in the batch's moments."""
+    joined, first, total = {}, [], 0
+    for i, fp in enumerate(frames):
+        first.append(total)
+        for g in fp.groups:
+            joined.setdefault((g.kernel, g.half), []).append((i, total, g))
+        total += fp.n_sources
+    return joined, first, total
+
+
+def splat_points(sig, frames, shape, background_e: float = 0.0):
+    """Add the point sources of each frame (``frames``, one :class:`FramePoints` per frame) and
+    ``background_e`` per pixel into the batch's sensor input ``sig`` (a Dr.Jit Float of N * H *
+    W, frame-major). Returns ``(new input, moments)``, both lazy: ``moments`` a Float64 of the
+    batch's sources' zeroth, then first x, then first y moments (see :func:`frame_moments`), or
+    None without a source."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     jt = _module_of(sig)
-    if background_e:
-        sig = sig + jt.Float(background_e)
-    pts = [p for p in points if p.flux_e.size]
-    if not pts:
-        return sig
+    joined, _, total = _batch_groups(frames)
+    if total == 0:
+        return (sig + jt.Float(background_e) if background_e else sig), None
+    # the stamps summed in float64 (a pixel of a streak sums hundreds of sub-samples), rounded once
+    acc = dr.zeros(jt.Float64, dr.width(sig))
+    n_m = max(total, 2)  # a one-element array would be a constant of the kernel
+    moments = dr.zeros(jt.Float64, 3 * n_m)
+    backend = "cuda" if jt.__name__.endswith("cuda") else "llvm"
+    for (kernel, half), parts in joined.items():
+        _splat_group(jt, acc, moments, n_m, kernel, half, parts, shape, backend)
+    return jt.Float(jt.Float64(sig) + acc + background_e), moments
+
+
+def _splat_group(jt, acc, moments, n_m, kernel, h, parts, shape, backend):
+    """One kernel over the (point, stamp pixel) lanes of a joined group (``parts``: (frame,
+    source offset, PointGroup)): the stamps into ``acc`` (float64), the moments into ``moments``."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
     h_img, w_img = shape
-    half, sigma = pts[0].half, pts[0].sigma_px
-    n_side = 2 * half + 1
+    n_side = 2 * h + 1
     per_point = n_side * n_side
-    frames = np.concatenate([np.full(p.flux_e.size, i, np.uint32) for i, p in enumerate(points) if p.flux_e.size])
-    xy = np.concatenate([p.xy for p in pts])
-    flux = np.concatenate([p.flux_e for p in pts])
+    xy = np.concatenate([g.xy for _, _, g in parts])
+    flux = np.concatenate([g.flux_e for _, _, g in parts])
+    frame = np.concatenate([np.full(g.flux_e.size, i, np.uint32) for i, _, g in parts])
+    source = np.concatenate([(g.source + off).astype(np.uint32) for _, off, g in parts])
+    lam = None if parts[0][2].wavelength_nm is None else np.concatenate([g.wavelength_nm for _, _, g in parts])
     if flux.size == 1:  # a one-element source would be a constant of the kernel: draw it twice, each half
-        xy, flux, frames = np.repeat(xy, 2, axis=0), np.repeat(0.5 * flux, 2), np.repeat(frames, 2)
-    origin = stamp_origin(xy, half)
+        xy, flux, frame, source = np.repeat(xy, 2, axis=0), np.repeat(0.5 * flux, 2), np.repeat(frame, 2), np.repeat(source, 2)
+        lam = None if lam is None else np.repeat(lam, 2)
+    origin = stamp_origin(xy, h)
     lane = dr.arange(jt.UInt32, flux.size * per_point)
     point, cell = lane // per_point, lane % per_point
     row = dr.gather(jt.Int32, jt.Int32(origin[:, 1].astype(np.int32)), point) + jt.Int32(cell // n_side)
     col = dr.gather(jt.Int32, jt.Int32(origin[:, 0].astype(np.int32)), point) + jt.Int32(cell % n_side)
-    scale = 1.0 / (math.sqrt(2.0) * sigma)
-    x = dr.gather(jt.Float64, jt.Float64(xy[:, 0].copy()), point)
-    y = dr.gather(jt.Float64, jt.Float64(xy[:, 1].copy()), point)
-    dx = (jt.Float64(col) - 0.5 - x) * scale
-    dy = (jt.Float64(row) - 0.5 - y) * scale
-    wx = dr.erf(dx + scale) - dr.erf(dx)
-    wy = dr.erf(dy + scale) - dr.erf(dy)
-    e = dr.gather(jt.Float64, jt.Float64(flux.copy()), point) * (0.25 * wx * wy)
+    value = stamp_values(jt, kernel, xy, lam, h, point, cell, col, row, backend)
+    e = dr.gather(jt.Float64, jt.Float64(flux), point) * value
     inside = (row >= 0) & (row < h_img) & (col >= 0) & (col < w_img)
-    frame = dr.gather(jt.UInt32, jt.UInt32(frames), point)
-    index = frame * (h_img * w_img) + jt.UInt32(row) * w_img + jt.UInt32(col)
-    sig = jt.Float(sig)
-    dr.scatter_add(sig, jt.Float(e), index, inside)
-    return sig
+    f = dr.gather(jt.UInt32, jt.UInt32(frame), point)
+    dr.scatter_add(acc, e, f * (h_img * w_img) + jt.UInt32(row) * w_img + jt.UInt32(col), inside)
+    src = dr.gather(jt.UInt32, jt.UInt32(source), point)
+    local = dr.ReduceMode.Local  # a point's lanes are neighbours: summed in the packet, then one atomic
+    dr.scatter_add(moments, e, src, mode=local)
+    dr.scatter_add(moments, e * jt.Float64(col), src + n_m, mode=local)
+    dr.scatter_add(moments, e * jt.Float64(row), src + 2 * n_m, mode=local)
+
+
+def frame_moments(frames, moments):
+    """Each frame's sources' zeroth (S,) and first (S, 2) moments out of :func:`splat_points`'s
+    ``moments`` (a numpy array, brought from the device), as ``[(m0, m1), ...]``."""
+    _, first, total = _batch_groups(frames)
+    n_m = max(total, 2)
+    m = np.asarray(moments, dtype=float).reshape(3, n_m)
+    out = []
+    for fp, a in zip(frames, first):
+        s = slice(a, a + fp.n_sources)
+        out.append((m[0, s], np.stack([m[1, s], m[2, s]], axis=1)))
+    return out

@@ -15,7 +15,8 @@ from skynav.infra.errors import ConfigValueError
 from skynav.renderer.batch import _device_stars, render_batch
 from skynav.renderer.expected import expected_image, source_paths
 from skynav.renderer.render import RenderOptions
-from skynav.renderer.splat_jit import StarPoints, splat_stars
+from skynav.renderer.kernels import GaussianKernel
+from skynav.renderer.splat_jit import FramePoints, PointGroup, frame_moments, splat_points
 from skynav.scenes import build_from_spec, default_scene_spec
 from tests.renderer.conftest import llvm_or_skip
 
@@ -83,9 +84,10 @@ def test_a_star_holds_its_electrons_by_the_gaussian_closed_form():
 
     shape, sigma, half, flux = (32, 32), 0.7, 3, 5000.0
     xy = np.array([[12.3, 17.8]])
-    pts = StarPoints(xy=xy, flux_e=np.array([flux]), sigma_px=sigma, half=half)
-    sig = splat_stars(Float(np.zeros(2 * 32 * 32, np.float32)), [StarPoints(xy=np.zeros((0, 2)), flux_e=np.zeros(0),
-                                                                            sigma_px=sigma, half=half), pts], shape)
+    group = PointGroup(kernel=GaussianKernel(sigma), half=half, xy=xy, flux_e=np.array([flux]), source=np.array([0]))
+    frames = [FramePoints(groups=(), electrons=np.zeros(0), drawn=np.zeros(0, bool), n_stars=0),
+              FramePoints(groups=(group,), electrons=np.array([flux]), drawn=np.array([True]), n_stars=1)]
+    sig, moments = splat_points(Float(np.zeros(2 * 32 * 32, np.float32)), frames, shape)
     img = sig.numpy().reshape(2, *shape)
     assert img[0].sum() == 0.0  # the other frame untouched
     lo = np.floor(xy[0] + 0.5) - half - 0.5 - xy[0]  # the stamp's edges about the star, px
@@ -95,6 +97,14 @@ def test_a_star_holds_its_electrons_by_the_gaussian_closed_form():
     assert abs(float(img[1].sum(dtype=float)) - flux * inside) < 1e-6 * flux
     cy, cx = np.unravel_index(np.argmax(img[1]), shape)
     assert (cx, cy) == (12, 18)
+    # its moments: the charge drawn, and the centre of light by the closed form's pixel weights
+    # (the erf differences of each column and row, scipy's erf, about the pixel centres)
+    m0, m1 = frame_moments(frames, moments.numpy())[1]
+    assert abs(m0[0] - flux * inside) < 1e-9 * flux
+    for axis in range(2):
+        centres = np.floor(xy[0, axis] + 0.5) - half + np.arange(2 * half + 1)
+        w = 0.5 * (erf((centres + 0.5 - xy[0, axis]) / s2) - erf((centres - 0.5 - xy[0, axis]) / s2))
+        assert abs(m1[0, axis] / m0[0] - (w @ centres) / w.sum()) < 1e-9
 
 
 def test_device_stars_keep_the_sensor_statistics():
@@ -112,15 +122,3 @@ def test_device_stars_keep_the_sensor_statistics():
 def test_star_splat_is_checked():
     with pytest.raises(ConfigValueError, match="star_splat"):
         render_batch([_scene(64)], [1], star_splat="gpu")
-
-
-def test_other_psf_models_keep_the_host_splat():
-    """An Airy camera's stars are drawn by numpy even when asked for the device; a Gaussian's by
-    the device when asked, by numpy on LLVM by default."""
-    scene = _scene(64)
-    airy = dataclasses.replace(scene, camera=scene.camera.replace(psf={"model": "airy", "wavelength_nm": 550}))
-    opts = RenderOptions(backend="llvm")
-    assert _device_stars("device", "llvm", airy, opts) is None
-    assert _device_stars("device", "llvm", scene, opts) is not None
-    assert _device_stars("auto", "llvm", scene, opts) is None
-    assert _device_stars("auto", "cuda", scene, opts) is not None
