@@ -26,9 +26,11 @@ The point sources may be drawn on the device too (``star_splat``; CUDA's default
 PSF model :mod:`~skynav.renderer.splat_jit` scatter-adds the stamps of the stars and of the
 bodies drawn as points, streaks included, into the sensor's input, and their moments (the
 truth's centres of light and fractions drawn) into small arrays brought back with the launch;
-the ray-traced bodies are drawn per frame by numpy as above. The expected images then equal
-the per-frame path's to roundings (a float64 sum in another order, rounded to float32 once), not
-to the bit; a launch's truths are made once the next launch is under way.
+the ray-traced bodies, traced per frame by Mitsuba on the host, are blurred and composited
+there too (:mod:`~skynav.renderer.bodies_jit`: a direct convolution with the PSF's blur stamp,
+their moments brought back likewise), so that the host only ray-traces. The expected images
+then equal the per-frame path's to roundings (a float64 sum in another order, rounded to
+float32 once), not to the bit; a launch's truths are made once the next launch is under way.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ from .sensor_jit import (
     frame_key,
     pixel_stream_seeds,
 )
+from .bodies_jit import bodies_truth, body_crops, composite_bodies
 from .splat_jit import frame_moments, frame_optics, splat_points, with_moments
 from .truth import frame_truth
 
@@ -166,10 +169,11 @@ def expose_batch(params, electrons, exposure_s: float, keys, *, backend: str = "
     return _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e)[0]
 
 
-def _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e):
+def _expose(params, electrons, exposure_s, keys, backend, charges, stars, background_e, bodies=None):
     """:func:`expose_batch`'s DN, the sensor's input on the device (the expected electrons with
-    the point sources drawn, before the cosmic rays) and the point sources' moments
-    (:func:`~skynav.renderer.splat_jit.splat_points`; None without), all lazy."""
+    the point sources and the ray-traced ``bodies`` drawn, before the cosmic rays) and the
+    moments ``(point sources', bodies')`` (:func:`~skynav.renderer.splat_jit.splat_points`,
+    :func:`~skynav.renderer.bodies_jit.composite_bodies`; each None without), all lazy."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -208,9 +212,10 @@ def _expose(params, electrons, exposure_s, keys, backend, charges, stars, backgr
     moments = None
     if stars is not None or background_e:
         sig, moments = splat_points(sig, [] if stars is None else stars, tuple(shape), background_e)
+    sig, body_moments = composite_bodies(sig, [] if bodies is None else bodies, tuple(shape))
     dn = _batch_exposure(sig, gain, dark, extra, op(float(exposure_s)), key, op(params.full_well_e), readout,
                          pixel, params.bit_depth <= 8)
-    return dn, sig, moments
+    return dn, sig, (moments, body_moments)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -282,11 +287,12 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         inputs are let go every :data:`_FRAMES_IN_FLIGHT` frames (a large batch's memory stays
         that of a few frames but for its DN).
     star_splat : {"auto", "device", "host"}
-        Where the point sources (stars, bodies drawn as points) are drawn: ``device``, by Dr.Jit
-        into the sensor's input (:mod:`~skynav.renderer.splat_jit`, every PSF model); ``host``,
-        per frame by numpy (:func:`~skynav.renderer.expected.expected_image`); ``auto``:
-        ``device`` on CUDA (no image crosses to the device but the ray-traced bodies'), ``host``
-        on LLVM (where the numpy splat is as fast: docs/performance.md, "Batched frames").
+        Where the point sources (stars, bodies drawn as points) and the ray-traced bodies' blur
+        are drawn: ``device``, by Dr.Jit into the sensor's input (:mod:`~skynav.renderer.splat_jit`,
+        every PSF model; :mod:`~skynav.renderer.bodies_jit`); ``host``, per frame by numpy
+        (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device`` on CUDA (no
+        image crosses to the device, only the bodies' crops), ``host`` on LLVM (where the numpy
+        splat and blur are as fast or faster: docs/performance.md, "Batched frames").
 
     Returns
     -------
@@ -329,10 +335,10 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
         made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device) for j, i in enumerate(ks)]
         t = time.perf_counter()
-        dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, [m[0] for m in made], backend,
-                                     [m[1] for m in made], [m[5] for m in made] if device else None,
-                                     options.background_e_per_px_s * cam.exposure_s if device else 0.0)
-        dr.eval(dn, *([sig_d] if device and electrons else []), *([] if moments is None else [moments]))  # launched
+        keys, charges, points, bodies = ([m[k] for m in made] for k in (0, 1, 5, 6))
+        dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, keys, backend, charges, points if device else None,
+                                     options.background_e_per_px_s * cam.exposure_s if device else 0.0, bodies)
+        dr.eval(dn, *([sig_d] if device and electrons else []), *(m for m in moments if m is not None))  # launched
         launched.append(dn)
         t_launch += time.perf_counter() - t
         if waiting is not None:  # the last launch's truths, while the device runs this one
@@ -356,14 +362,17 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
 
 def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, moments):
     """The truths of one launch's frames ``ks`` (their optics ``made``); with the point sources
-    drawn on the device, their centres of light and fractions drawn from the launch's
-    ``moments`` (brought over: the launch's splat is done)."""
+    and the ray-traced bodies drawn on the device, their centres of light and fractions drawn
+    from the launch's ``moments`` (point sources', bodies'; brought over: the launch's splat is
+    done)."""
     figures = None
-    if moments is not None:
-        figures = frame_moments([m[5] for m in made], moments.numpy())
+    if moments[0] is not None:
+        figures = frame_moments([m[5] for m in made], moments[0].numpy())
+    expecteds = bodies_truth([m[3] for m in made], [m[6] for m in made],
+                             None if moments[1] is None else moments[1].numpy())
     out = []
     for j, i in enumerate(ks):
-        expected, hits, points = made[j][3], made[j][4], made[j][5]
+        expected, hits, points = expecteds[j], made[j][4], made[j][5]
         if points is not None:
             n = points.n_sources
             m0, m1 = figures[j] if figures is not None else (np.zeros(n), np.zeros((n, 2)))
@@ -427,18 +436,22 @@ def _frame_optics(scene, rng, options, sig, device=False):
     """One frame's optics as :func:`render` makes them: its expected electrons rounded to
     float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
     the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
-    charge), expected image without its images, hits, point sources)``. With ``device``, the
-    point sources (stars, bodies drawn as points) and the background are left out of ``sig``
-    for the device (:func:`~skynav.renderer.splat_jit.frame_optics`: FramePoints, else None; the
-    expected image then lacks their centres of light), and the hit pixels' electrons are the
-    charge alone (the device's input is added to it)."""
+    charge), expected image without its images, hits, point sources, ray-traced bodies)``. With
+    ``device``, the point sources (stars, bodies drawn as points), the ray-traced bodies and the
+    background are left out of ``sig`` for the device
+    (:func:`~skynav.renderer.splat_jit.frame_optics`: FramePoints and
+    :class:`~skynav.renderer.bodies_jit.BodyCrops`, else None; the expected image then lacks
+    their centres of light), and the hit pixels' electrons are the charge alone (the device's
+    input is added to it)."""
     shape = sig.shape
     support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
-    points = None
+    points = crops = None
     if not device:
         expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
     else:
-        expected, points = frame_optics(scene, rng, options, support)
+        traced = []
+        expected, points = frame_optics(scene, rng, options, support, traced_out=traced)
+        crops = body_crops(traced, options.flux_fraction_lost) if traced else None
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
     key = frame_key(rng)  # where the per-frame sensor draws it
@@ -452,4 +465,5 @@ def _frame_optics(scene, rng, options, sig, device=False):
     else:
         hits_e = (hit, hit_e)
     # the truth needs the sources' figures, not the float64 images: let them go
-    return key, charge, hits_e, dataclasses.replace(expected, electrons=None, irradiance_w_m2=None), hits, points
+    expected = dataclasses.replace(expected, electrons=None, irradiance_w_m2=None)
+    return key, charge, hits_e, expected, hits, points, crops

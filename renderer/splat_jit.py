@@ -178,20 +178,22 @@ def _point_bodies(scene, options):
     return bodies, paths, photocentre
 
 
-def frame_optics(scene, rng, options, support, paths=None):
+def frame_optics(scene, rng, options, support, paths=None, traced_out=None):
     """A frame's optics with its point sources left to :func:`splat_points`: the ray-traced
     bodies (no background) into the returned image and ``support``, as
     :func:`~skynav.renderer.expected.expected_image` makes them (same ``rng`` draws); returns
     ``(expected image for the truth, FramePoints)``, the point sources' electrons and
     photocentres filled in, their centres of light and fractions drawn left to
-    :func:`with_moments`. ``paths``: the stars' paths, px (default: projected here)."""
+    :func:`with_moments`. ``paths``: the stars' paths, px (default: projected here);
+    ``traced_out``: a list, the ray-traced bodies left out of the image too, handed over in it
+    (``expected_image``'s; :mod:`~skynav.renderer.bodies_jit` draws them)."""
     bodies, body_paths, photocentre = _point_bodies(scene, options)
     names = {b.name for b in bodies}
     stars = scene.stars
     no_stars = dataclasses.replace(stars, **{f.name: getattr(stars, f.name)[:0] for f in dataclasses.fields(stars)})
     rest_scene = dataclasses.replace(scene, stars=no_stars, bodies=tuple(b for b in scene.bodies if b.name not in names))
     rest = expected_image(rest_scene, rng=rng, options=dataclasses.replace(options, background_e_per_px_s=0.0),
-                          with_irradiance=False, support=support)
+                          with_irradiance=False, support=support, traced_out=traced_out)
     points = star_points(scene, options, bodies, paths, body_paths)
     body_e = dict(rest.body_electrons)
     body_e.update({name: float(e) for name, e in zip(points.bodies, points.electrons[points.n_stars:])})

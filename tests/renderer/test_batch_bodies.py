@@ -165,3 +165,28 @@ def test_traced_out_keeps_the_draws_and_leaves_the_bodies_out():
     assert float(img.electrons.sum()) == pytest.approx(ref.body_electrons["earth"], rel=1e-12)
     with pytest.raises(ConfigValueError, match="traced_out"):
         expected_image(scene, rng=np.random.default_rng(9), options=opts, traced_out=[])
+
+
+@pytest.mark.parametrize("psf", [None, AIRY], ids=["gaussian", "airy"])
+def test_batch_draws_the_bodies_on_the_device(psf):
+    """render_batch with the device splat: the frames' expected electrons are the reference's
+    (above 1 e-: the stars' float32 stamp sums, tests/renderer/test_batch_splat.py, are in
+    them too), and their truths are the host batch's, the ray-traced bodies' included."""
+    from skynav.renderer.batch import render_batch
+
+    opts = RenderOptions(backend="llvm", mitsuba_spp=4, cosmic_rays_per_frame=0.0)
+    scenes, seeds = [_departure(psf), _departure(psf, cx=6.0, cy=100.0)], [3, 4]
+    dev = render_batch(scenes, seeds, options=opts, star_splat="device")
+    host = render_batch(scenes, seeds, options=opts, star_splat="host")
+    for i, (scene, seed) in enumerate(zip(scenes, seeds)):
+        ref = expected_image(scene, rng=np.random.default_rng(seed), options=opts).electrons
+        bright = ref > 1.0
+        rel = np.abs(dev.electrons[i][bright] - ref[bright]) / ref[bright]
+        assert rel.max() < REL_TOL, (i, rel.max())
+        assert np.all(dev.electrons[i][~bright] < 1.01)
+        (a,), (b,) = ([d for d in t.truths[i]["bodies"] if d["name"] == "earth"] for t in (dev, host))
+        assert a["electrons"] == b["electrons"] and a["resolved"]
+        assert (a.get("flux_fraction_drawn") is None) == (psf is None)  # a table kernel's: the blurred crop's share
+        if psf is not None:
+            assert a["flux_fraction_drawn"] == pytest.approx(b["flux_fraction_drawn"], rel=1e-12)
+        np.testing.assert_allclose(a["centre_of_light_xy"], b["centre_of_light_xy"], rtol=0, atol=CENTRE_TOL_PX)
