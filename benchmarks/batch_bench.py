@@ -2,9 +2,10 @@
 
     python benchmarks/batch_bench.py [--backend llvm] [--sizes 1 2 4 ... 256] [--px 256 512 1024]
                                      [--repeat 3] [--written] [--baseline-frames 32] [--acceptance]
+                                     [--scene default] [--bodies]
 
-For each image size (the default scene, its 20 deg field kept: the pixel pitch follows the
-width) and each batch size N: ``render_batch`` of N frames (seeds 0 .. N-1), the DN brought to
+For each image size (the scene ``--scene``, a preset, the default scene unless said; its field
+kept: the pixel pitch follows the width) and each batch size N: ``render_batch`` of N frames (seeds 0 .. N-1), the DN brought to
 the host, medians of ``--repeat`` rounds, as frames/s, with the per-frame stage split
 (``optics``: expected images, cosmic rays, truths, on this thread; ``launch``: the sensor's
 inputs to the device and its kernels launched; ``sensor wait``: the wait for the last launches),
@@ -16,6 +17,11 @@ machine other processes share). ``--written`` adds each frame written as PNG + t
 ``--acceptance`` then times a batch of 32 default frames (1024 px) in memory against 32 frames
 of the per-frame path, the stars drawn per frame by numpy and by Dr.Jit on the device
 (``star_splat``), the three taking turns in each round, and prints the ratios.
+
+``--bodies`` then times the ray-traced bodies of one frame of the scene (at its own size,
+Mitsuba 4 spp) blurred and composited: by numpy, as ``expected_image`` draws them, against
+Dr.Jit (``renderer/bodies_jit.py``, what ``star_splat='device'`` runs), for the camera's PSF and
+an Airy PSF (550 nm), medians.
 
 This is the CPU twin of ``gpu_bench.py``'s batch section (``--backend cuda`` runs the same
 measurement on a GPU). Dr.Jit's pool has as many threads as the machine has cores unless
@@ -40,10 +46,11 @@ import numpy as np  # noqa: E402
 SIZES = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 
 
-def scene_of_size(px: int):
+def scene_of_size(px: int, name: str = "default"):
     from skynav.scenes import build_from_spec, default_scene_spec
+    from skynav.scenes.presets import preset_mapping, scene_spec_from_mapping
 
-    spec = default_scene_spec()
+    spec = default_scene_spec() if name == "default" else scene_spec_from_mapping(preset_mapping(name))
     cam = spec.camera
     camera = cam.replace(width=px, height=px, pixel_pitch_um=cam.pixel_pitch_um * cam.width / px)
     return build_from_spec(dataclasses.replace(spec, camera=camera))
@@ -101,10 +108,10 @@ def timed(fn, repeat: int):
     return float(np.median(wall)), float(np.median(cpu))
 
 
-def measure(px: int, sizes, repeat: int, written: bool, baseline: int, backend: str) -> dict:
+def measure(px: int, sizes, repeat: int, written: bool, baseline: int, backend: str, name: str = "default") -> dict:
     from skynav.renderer.render import RenderOptions
 
-    scene = scene_of_size(px)
+    scene = scene_of_size(px, name)
     options = RenderOptions(backend=backend)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -139,6 +146,9 @@ def main(argv=None) -> int:
     ap.add_argument("--written", action="store_true", help="also write each frame as PNG + truth JSON")
     ap.add_argument("--acceptance", action="store_true",
                     help="then a batch of 32 default frames against the per-frame path, taking turns")
+    ap.add_argument("--scene", default="default", help="the scene: a preset (default: default)")
+    ap.add_argument("--bodies", action="store_true",
+                    help="then the ray-traced bodies' blur and composite of one frame, numpy against Dr.Jit")
     a = ap.parse_args(argv)
     from skynav.renderer import jit_backend
 
@@ -150,10 +160,55 @@ def main(argv=None) -> int:
           f"{os.environ['DRJIT_NUM_THREADS']}; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}; "
           f"{time.strftime('%Y-%m-%d %H:%M')}", flush=True)
     for px in a.px:
-        measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend)
+        measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend, a.scene)
     if a.acceptance:
         acceptance(a.repeat, a.backend)
+    if a.bodies:
+        bodies(a.scene, a.repeat, a.backend)
     return 0
+
+
+def bodies(name: str, repeat: int, backend: str) -> None:
+    """The ray-traced bodies of one frame of the scene ``name`` (its own camera; Mitsuba 4 spp)
+    blurred and composited by numpy and by Dr.Jit, for the camera's PSF and an Airy PSF, medians."""
+    import drjit as dr
+
+    from skynav.renderer.bodies_jit import body_crops, composite_bodies
+    from skynav.renderer.expected import _draw_resolved_bodies, expected_image
+    from skynav.renderer.render import RenderOptions
+    from skynav.renderer.sensor_jit import _jit_module
+    from skynav.scenes import build_from_spec
+    from skynav.scenes.presets import preset_mapping, scene_spec_from_mapping
+
+    options = RenderOptions(backend=backend, mitsuba_spp=4)
+    for label, psf in (("the camera's PSF", None), ("an Airy PSF", {"model": "airy", "wavelength_nm": 550.0})):
+        m = preset_mapping(name)
+        if psf is not None:
+            m["camera"]["psf"] = psf
+        scene = build_from_spec(scene_spec_from_mapping(m))
+        shape, traced = (scene.camera.height, scene.camera.width), []
+        ex = expected_image(scene, rng=np.random.default_rng(0), options=options, with_irradiance=False,
+                            traced_out=traced)
+        if not traced:
+            print(f"{name}: no ray-traced body in the frame")
+            return
+        light = (dict(ex.body_electrons), dict(ex.body_electrons))
+        sig = _jit_module(backend).Float(np.zeros(shape[0] * shape[1], np.float32))
+
+        def host():
+            _draw_resolved_bodies(traced, options, light, (np.zeros(shape), None), [], {}, {})
+
+        def device():
+            out, moments = composite_bodies(sig, [body_crops(traced, options.flux_fraction_lost)], shape)
+            dr.eval(out, moments)
+            moments.numpy()  # the truth's moments brought over: the launch is done
+
+        h, d = timed(host, repeat)[0], timed(device, repeat)[0]
+        crops = ", ".join(f"{t.name} {t.image.electrons.shape[1]}x{t.image.electrons.shape[0]} px, "
+                          f"{np.count_nonzero(t.image.electrons)} lit" for t in traced)
+        print(f"{name} ({shape[1]} px), {label}: ray-traced bodies ({crops}) blurred and composited: numpy "
+              f"{1e3 * h:.2f} ms, Dr.Jit {backend} {1e3 * d:.2f} ms a frame ({h / d:.2f}x; medians of {repeat})",
+              flush=True)
 
 
 def acceptance(repeat: int, backend: str) -> None:

@@ -101,6 +101,19 @@ def test_batch_bench_prints_each_batch_against_the_per_frame_path():
             assert line and float(line.group(1)) > 0, out
 
 
+def test_batch_bench_times_the_bodies_blur_on_both_sides():
+    from skynav.renderer import jit_backend
+
+    if not jit_backend.llvm_available():
+        pytest.skip("Dr.Jit's LLVM backend does not work here")
+    out = _run("batch_bench.py", "--px", "64", "--sizes", "1", "--repeat", "1", "--baseline-frames", "1",
+               "--scene", "earth_departure", "--bodies")
+    assert re.search(r"64 px, in memory: batch +1: +[0-9.]+ frames/s wall", out), out
+    for psf in ("the camera's PSF", "an Airy PSF"):
+        assert re.search(rf"earth_departure \(1024 px\), {psf}: ray-traced bodies \(earth 40x40 px, [0-9]+ lit.*\) "
+                         r"blurred and composited: numpy [0-9.]+ ms, Dr.Jit llvm [0-9.]+ ms a frame", out), out
+
+
 @pytest.mark.gpu
 def test_gpu_bench_prints_cuda_figures():
     out = _run("gpu_bench.py", "--backends", "cuda", "numpy", "--repeat", "2", "--workers", "1", "--frames-per-worker", "4",
