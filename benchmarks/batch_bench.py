@@ -14,8 +14,8 @@ two taking turns, wall time and CPU time (this process, all threads: the figure 
 machine other processes share). ``--written`` adds each frame written as PNG + truth JSON
 (encoded, then written atomically into a temporary folder), for both paths.
 
-``--acceptance`` then times a batch of 32 default frames (1024 px) in memory against 32 frames
-of the per-frame path, the stars drawn per frame by numpy and by Dr.Jit on the device
+``--acceptance`` then times a batch of 32 frames of the scene (1024 px) in memory against 32
+frames of the per-frame path, the stars drawn per frame by numpy and by Dr.Jit on the device
 (``star_splat``), the three taking turns in each round, and prints the ratios.
 
 ``--bodies`` then times the ray-traced bodies of one frame of the scene (at its own size,
@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline-frames", type=int, default=32, help="frames of the per-frame path (default 32)")
     ap.add_argument("--written", action="store_true", help="also write each frame as PNG + truth JSON")
     ap.add_argument("--acceptance", action="store_true",
-                    help="then a batch of 32 default frames against the per-frame path, taking turns")
+                    help="then a batch of 32 frames of the scene against the per-frame path, taking turns")
     ap.add_argument("--scene", default="default", help="the scene: a preset (default: default)")
     ap.add_argument("--bodies", action="store_true",
                     help="then the ray-traced bodies' blur and composite of one frame, numpy against Dr.Jit")
@@ -162,7 +162,7 @@ def main(argv=None) -> int:
     for px in a.px:
         measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend, a.scene)
     if a.acceptance:
-        acceptance(a.repeat, a.backend)
+        acceptance(a.repeat, a.backend, a.scene)
     if a.bodies:
         bodies(a.scene, a.repeat, a.backend)
     return 0
@@ -211,12 +211,13 @@ def bodies(name: str, repeat: int, backend: str) -> None:
               flush=True)
 
 
-def acceptance(repeat: int, backend: str) -> None:
-    """A batch of 32 default frames in memory against 32 frames of the per-frame path, the two
-    taking turns in each round (a change of the machine's load falls on both), medians."""
+def acceptance(repeat: int, backend: str, name: str = "default") -> None:
+    """A batch of 32 frames of the scene ``name`` (1024 px) in memory against 32 frames of the
+    per-frame path, the two taking turns in each round (a change of the machine's load falls on
+    both), medians."""
     from skynav.renderer.render import RenderOptions
 
-    scene, options = scene_of_size(1024), RenderOptions(backend=backend)
+    scene, options = scene_of_size(1024, name), RenderOptions(backend=backend)
     runs = {"per-frame": lambda: per_frame(scene, options, 32, None),
             "batch": lambda: batched(scene, options, 32, None, {}, "host"),
             "device stars": lambda: batched(scene, options, 32, None, {}, "device")}
@@ -231,11 +232,12 @@ def acceptance(repeat: int, backend: str) -> None:
             cpu[k].append(time.process_time() - c0)
     w = {k: 32 / float(np.median(v)) for k, v in wall.items()}
     c = {k: 32 / float(np.median(v)) for k, v in cpu.items()}
-    print(f"acceptance: a batch of 32 default frames (1024 px) in memory: {w['batch']:.1f} frames/s against the "
+    print(f"acceptance: a batch of 32 {name} frames (1024 px) in memory: {w['batch']:.1f} frames/s against the "
           f"per-frame path's {w['per-frame']:.1f}: {w['batch'] / w['per-frame']:.2f}x wall, "
           f"{c['batch'] / c['per-frame']:.2f}x CPU (taking turns, medians of {repeat}; load average "
           f"{os.getloadavg()[0]:.1f})")
-    print(f"acceptance: the same batch with its stars drawn by Dr.Jit (star_splat='device'): "
+    print(f"acceptance: the same batch with its stars (and ray-traced bodies' blur) drawn by Dr.Jit "
+          f"(star_splat='device'): "
           f"{w['device stars']:.1f} frames/s, {w['device stars'] / w['per-frame']:.2f}x wall, "
           f"{c['device stars'] / c['per-frame']:.2f}x CPU; {w['device stars'] / w['batch']:.2f}x the numpy splat's "
           "batch (wall)")

@@ -205,7 +205,9 @@ def _add_blurred(jt, sig, blurred, p: _Packed, shape):
     inside = (e > 0.0) & (row >= 0) & (row < h_img) & (col >= 0) & (col < w_img)
     frame = dr.gather(jt.UInt32, _upload(jt.UInt32, p.frame.astype(np.uint32)), body)
     index = frame * (h_img * w_img) + jt.UInt32(row * w_img + col)
-    dr.scatter_add(sig, jt.Float(e), index, inside)
+    # atomics straight into the input: a copy of the whole batch per thread and its reduction
+    # (the LLVM backend's choice for a large target) would cost more than these few lanes
+    dr.scatter_add(sig, jt.Float(e), index, inside, mode=dr.ReduceMode.Direct)
     return sig, moments
 
 
