@@ -20,9 +20,10 @@ float64, scatter-added per source into its zeroth and first moments (the parts o
 included, as the reference's). The moments come back with the launch; :func:`with_moments`
 makes the truth's centres of light (first moments over zeroth) and fractions drawn of them.
 
-What stays per frame, in numpy: the ray-traced bodies (Mitsuba) and their blur, composited into
-the same input (:func:`~skynav.renderer.expected.expected_image` of the scene without its stars
-and point-drawn bodies, with the same ``rng`` draws: only the ray-traced bodies draw).
+What stays per frame on the host: the ray tracing of the resolved bodies (Mitsuba;
+:func:`~skynav.renderer.expected.expected_image` of the scene without its stars and point-drawn
+bodies, with the same ``rng`` draws: only the ray-traced bodies draw), whose crops are handed
+over for :mod:`~skynav.renderer.bodies_jit` to blur and composite into the same input.
 
 The result differs from the numpy reference by roundings: the float32 sums of the stamps (the
 reference sums in float64 and rounds once), the Gaussian's erf differences written without the
