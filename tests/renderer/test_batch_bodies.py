@@ -54,11 +54,12 @@ def _departure(psf=None, **camera):
     return build_from_spec(scene_spec_from_mapping(m))
 
 
-def _device(scenes, opts, seed):
-    """Each scene's expected image (its bodies left out) and the device composite of the batch:
-    (expected images with the truth recorded, electrons (N, H, W) float32)."""
-    from drjit.llvm import Float  # Dr.Jit only once the LLVM backend is known to work (the autouse skip)
+def _device(scenes, opts, seed, backend="llvm"):
+    """Each scene's expected image (its bodies left out) and the device composite of the batch
+    on ``backend``: (expected images with the truth recorded, electrons (N, H, W) float32)."""
+    from skynav.renderer.sensor_jit import _jit_module
 
+    Float = _jit_module(backend).Float
     expected, crops = [], []
     for scene in scenes:
         traced = []
@@ -71,12 +72,13 @@ def _device(scenes, opts, seed):
 
 
 @pytest.mark.parametrize("psf", [None, AIRY], ids=["gaussian", "airy"])
-def test_device_bodies_are_the_reference_expected_image(psf):
+def test_device_bodies_are_the_reference_expected_image(psf, jit_backend_name):
     """Three frames in one batch: the Earth in the middle, a frame without a ray-traced body
-    (pointed away), and the Earth across the image's left edge (its crop partly off the image)."""
+    (pointed away), and the Earth across the image's left edge (its crop partly off the image);
+    on LLVM, and on CUDA with ``-m gpu`` (the same Python body)."""
     opts = RenderOptions(mitsuba_spp=4)
     scenes = [_departure(psf), _departure(psf, cx=-200.0), _departure(psf, cx=6.0, cy=100.0)]
-    truths, got = _device(scenes, opts, seed=5)
+    truths, got = _device(scenes, opts, seed=5, backend=jit_backend_name)
     for i, scene in enumerate(scenes):
         ref = expected_image(scene, rng=np.random.default_rng(5), options=opts, with_irradiance=False)
         r = ref.electrons
