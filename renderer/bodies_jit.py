@@ -31,7 +31,7 @@ import dataclasses
 
 import numpy as np
 
-from .expected import TracedBody, record_resolved_body
+from .expected import record_resolved_body
 from .sensor_jit import _module_of
 
 __all__ = ["BodyCrops", "body_crops", "composite_bodies", "bodies_truth"]
@@ -67,7 +67,7 @@ def body_crops(traced, flux_fraction_lost: float) -> BodyCrops:
     list of :func:`~skynav.renderer.expected.expected_image`'s ``traced_out``) with the stamps
     their blur convolves them with, as the reference's :func:`~skynav.renderer.expected.blur_crop`
     does (``flux_fraction_lost``: the render's)."""
-    bodies = tuple(t for t in traced if isinstance(t, TracedBody))
+    bodies = tuple(traced)
     stamps = tuple(np.asarray(t.kernel.blur_stamp(flux_fraction_lost, at_xy=t.at_xy), dtype=float) for t in bodies)
     return BodyCrops(bodies=bodies, stamps=stamps)
 
