@@ -3,6 +3,7 @@
     python benchmarks/batch_bench.py [--backend llvm] [--sizes 1 2 4 ... 256] [--px 256 512 1024]
                                      [--repeat 3] [--written] [--baseline-frames 32] [--acceptance]
                                      [--scene default] [--bodies]
+                                     [--psf scene|airy|optical|polychromatic]
 
 For each image size (the scene ``--scene``, a preset, the default scene unless said; its field
 kept: the pixel pitch follows the width) and each batch size N: ``render_batch`` of N frames (seeds 0 .. N-1), the DN brought to
@@ -22,6 +23,10 @@ frames of the per-frame path, the stars drawn per frame by numpy and by Dr.Jit o
 Mitsuba 4 spp) blurred and composited: by numpy, as ``expected_image`` draws them, against
 Dr.Jit (``renderer/bodies_jit.py``, what ``star_splat='device'`` runs), for the camera's PSF and
 an Airy PSF (550 nm), medians.
+
+``--psf`` gives the camera another PSF model (default the scene's own): ``airy`` (550 nm,
+obscuration 0.2), ``optical`` (the same with coma), ``polychromatic`` (the Airy blended by
+each source's spectrum); the batches and ``--acceptance`` then render with it.
 
 This is the CPU twin of ``gpu_bench.py``'s batch section (``--backend cuda`` runs the same
 measurement on a GPU). Dr.Jit's pool has as many threads as the machine has cores unless
@@ -46,13 +51,23 @@ import numpy as np  # noqa: E402
 SIZES = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 
 
-def scene_of_size(px: int, name: str = "default"):
+#: The PSF models ``--psf`` names (None: the scene's own).
+PSFS = {"scene": None,
+        "airy": {"model": "airy", "obscuration": 0.2, "wavelength_nm": 550.0},
+        "optical": {"model": "optical", "obscuration": 0.2, "wavelength_nm": 550.0,
+                    "zernike_waves": {4: 0.3, 7: 0.2, 8: -0.1}},
+        "polychromatic": {"model": "airy", "obscuration": 0.2}}
+
+
+def scene_of_size(px: int, name: str = "default", psf: str = "scene"):
     from skynav.scenes import build_from_spec, default_scene_spec
     from skynav.scenes.presets import preset_mapping, scene_spec_from_mapping
 
     spec = default_scene_spec() if name == "default" else scene_spec_from_mapping(preset_mapping(name))
     cam = spec.camera
     camera = cam.replace(width=px, height=px, pixel_pitch_um=cam.pixel_pitch_um * cam.width / px)
+    if PSFS[psf] is not None:
+        camera = camera.replace(psf=PSFS[psf])
     return build_from_spec(dataclasses.replace(spec, camera=camera))
 
 
@@ -108,10 +123,11 @@ def timed(fn, repeat: int):
     return float(np.median(wall)), float(np.median(cpu))
 
 
-def measure(px: int, sizes, repeat: int, written: bool, baseline: int, backend: str, name: str = "default") -> dict:
+def measure(px: int, sizes, repeat: int, written: bool, baseline: int, backend: str, name: str = "default",
+            psf: str = "scene") -> dict:
     from skynav.renderer.render import RenderOptions
 
-    scene = scene_of_size(px, name)
+    scene = scene_of_size(px, name, psf)
     options = RenderOptions(backend=backend)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -147,6 +163,7 @@ def main(argv=None) -> int:
     ap.add_argument("--acceptance", action="store_true",
                     help="then a batch of 32 frames of the scene against the per-frame path, taking turns")
     ap.add_argument("--scene", default="default", help="the scene: a preset (default: default)")
+    ap.add_argument("--psf", choices=tuple(PSFS), default="scene", help="the camera's PSF model (default: the scene's own)")
     ap.add_argument("--bodies", action="store_true",
                     help="then the ray-traced bodies' blur and composite of one frame, numpy against Dr.Jit")
     a = ap.parse_args(argv)
@@ -156,13 +173,13 @@ def main(argv=None) -> int:
     if not status.available:
         print(f"batch_bench: Dr.Jit's {a.backend} backend does not work here ({status.reason})", file=sys.stderr)
         return 2
-    print(f"batched frames, backend {a.backend}; {os.cpu_count()} cores, DRJIT_NUM_THREADS="
+    print(f"batched frames, backend {a.backend}, PSF {a.psf}; {os.cpu_count()} cores, DRJIT_NUM_THREADS="
           f"{os.environ['DRJIT_NUM_THREADS']}; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}; "
           f"{time.strftime('%Y-%m-%d %H:%M')}", flush=True)
     for px in a.px:
-        measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend, a.scene)
+        measure(px, a.sizes, a.repeat, a.written, a.baseline_frames, a.backend, a.scene, a.psf)
     if a.acceptance:
-        acceptance(a.repeat, a.backend, a.scene)
+        acceptance(a.repeat, a.backend, a.scene, a.psf)
     if a.bodies:
         bodies(a.scene, a.repeat, a.backend)
     return 0
@@ -211,13 +228,13 @@ def bodies(name: str, repeat: int, backend: str) -> None:
               flush=True)
 
 
-def acceptance(repeat: int, backend: str, name: str = "default") -> None:
+def acceptance(repeat: int, backend: str, name: str = "default", psf: str = "scene") -> None:
     """A batch of 32 frames of the scene ``name`` (1024 px) in memory against 32 frames of the
     per-frame path, the two taking turns in each round (a change of the machine's load falls on
     both), medians."""
     from skynav.renderer.render import RenderOptions
 
-    scene, options = scene_of_size(1024, name), RenderOptions(backend=backend)
+    scene, options = scene_of_size(1024, name, psf), RenderOptions(backend=backend)
     runs = {"per-frame": lambda: per_frame(scene, options, 32, None),
             "batch": lambda: batched(scene, options, 32, None, {}, "host"),
             "device stars": lambda: batched(scene, options, 32, None, {}, "device")}
@@ -232,7 +249,7 @@ def acceptance(repeat: int, backend: str, name: str = "default") -> None:
             cpu[k].append(time.process_time() - c0)
     w = {k: 32 / float(np.median(v)) for k, v in wall.items()}
     c = {k: 32 / float(np.median(v)) for k, v in cpu.items()}
-    print(f"acceptance: a batch of 32 {name} frames (1024 px) in memory: {w['batch']:.1f} frames/s against the "
+    print(f"acceptance ({psf} PSF): a batch of 32 {name} frames (1024 px) in memory: {w['batch']:.1f} frames/s against the "
           f"per-frame path's {w['per-frame']:.1f}: {w['batch'] / w['per-frame']:.2f}x wall, "
           f"{c['batch'] / c['per-frame']:.2f}x CPU (taking turns, medians of {repeat}; load average "
           f"{os.getloadavg()[0]:.1f})")

@@ -338,7 +338,8 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         keys, charges, points, bodies = ([m[k] for m in made] for k in (0, 1, 5, 6))
         dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, keys, backend, charges, points if device else None,
                                      options.background_e_per_px_s * cam.exposure_s if device else 0.0, bodies)
-        dr.eval(dn, *([sig_d] if device and electrons else []), *(m for m in moments if m is not None))  # launched
+        lazy = [v for group in moments if group is not None for v in (group if isinstance(group, tuple) else (group,))]
+        dr.eval(dn, *([sig_d] if device and electrons else []), *lazy)  # launched
         launched.append(dn)
         t_launch += time.perf_counter() - t
         if waiting is not None:  # the last launch's truths, while the device runs this one
@@ -367,7 +368,7 @@ def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, moment
     done)."""
     figures = None
     if moments[0] is not None:
-        figures = frame_moments([m[5] for m in made], moments[0].numpy())
+        figures = frame_moments([m[5] for m in made], [v.numpy() for v in moments[0]])
     expecteds = bodies_truth([m[3] for m in made], [m[6] for m in made],
                              None if moments[1] is None else moments[1].numpy())
     out = []

@@ -239,9 +239,9 @@ def _batch_groups(frames):
 def splat_points(sig, frames, shape, background_e: float = 0.0):
     """Add the point sources of each frame (``frames``, one :class:`FramePoints` per frame) and
     ``background_e`` per pixel into the batch's sensor input ``sig`` (a Dr.Jit Float of N * H *
-    W, frame-major). Returns ``(new input, moments)``, both lazy: ``moments`` a Float64 of the
-    batch's sources' zeroth, then first x, then first y moments (see :func:`frame_moments`), or
-    None without a source."""
+    W, frame-major). Returns ``(new input, moments)``, both lazy: ``moments`` three Float64
+    arrays, the batch's sources' zeroth, first x and first y moments (see
+    :func:`frame_moments`), or None without a source."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -250,16 +250,16 @@ def splat_points(sig, frames, shape, background_e: float = 0.0):
     if total == 0:
         return (sig + jt.Float(background_e) if background_e else sig), None
     # the stamps summed in float64 (a pixel of a streak sums hundreds of sub-samples), rounded once
-    acc = dr.zeros(jt.Float64, dr.width(sig))
+    acc = jt.Float64(sig) + background_e
     n_m = max(total, 2)  # a one-element array would be a constant of the kernel
-    moments = dr.zeros(jt.Float64, 3 * n_m)
+    moments = tuple(dr.zeros(jt.Float64, n_m) for _ in range(3))
     backend = "cuda" if jt.__name__.endswith("cuda") else "llvm"
     for (kernel, half), parts in joined.items():
-        _splat_group(jt, acc, moments, n_m, kernel, half, parts, shape, backend)
-    return jt.Float(jt.Float64(sig) + acc + background_e), moments
+        _splat_group(jt, acc, moments, kernel, half, parts, shape, backend)
+    return jt.Float(acc), moments
 
 
-def _splat_group(jt, acc, moments, n_m, kernel, h, parts, shape, backend):
+def _splat_group(jt, acc, moments, kernel, h, parts, shape, backend):
     """One kernel over the (point, stamp pixel) lanes of a joined group (``parts``: (frame,
     source offset, PointGroup)): the stamps into ``acc`` (float64), the moments into ``moments``."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
@@ -288,19 +288,17 @@ def _splat_group(jt, acc, moments, n_m, kernel, h, parts, shape, backend):
     dr.scatter_add(acc, e, f * (h_img * w_img) + jt.UInt32(row) * w_img + jt.UInt32(col), inside)
     src = dr.gather(jt.UInt32, jt.UInt32(source), point)
     local = dr.ReduceMode.Local  # a point's lanes are neighbours: summed in the packet, then one atomic
-    dr.scatter_add(moments, e, src, mode=local)
-    dr.scatter_add(moments, e * jt.Float64(col), src + n_m, mode=local)
-    dr.scatter_add(moments, e * jt.Float64(row), src + 2 * n_m, mode=local)
+    for m, v in zip(moments, (e, e * jt.Float64(col), e * jt.Float64(row))):
+        dr.scatter_add(m, v, src, mode=local)
 
 
 def frame_moments(frames, moments):
     """Each frame's sources' zeroth (S,) and first (S, 2) moments out of :func:`splat_points`'s
-    ``moments`` (a numpy array, brought from the device), as ``[(m0, m1), ...]``."""
-    _, first, total = _batch_groups(frames)
-    n_m = max(total, 2)
-    m = np.asarray(moments, dtype=float).reshape(3, n_m)
+    ``moments`` (three numpy arrays, brought from the device), as ``[(m0, m1), ...]``."""
+    _, first, _ = _batch_groups(frames)
+    m = [np.asarray(v, dtype=float) for v in moments]
     out = []
     for fp, a in zip(frames, first):
         s = slice(a, a + fp.n_sources)
-        out.append((m[0, s], np.stack([m[1, s], m[2, s]], axis=1)))
+        out.append((m[0][s], np.stack([m[1][s], m[2][s]], axis=1)))
     return out
