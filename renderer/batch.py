@@ -291,8 +291,10 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         are drawn: ``device``, by Dr.Jit into the sensor's input (:mod:`~skynav.renderer.splat_jit`,
         every PSF model; :mod:`~skynav.renderer.bodies_jit`); ``host``, per frame by numpy
         (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device`` on CUDA (no
-        image crosses to the device, only the bodies' crops), ``host`` on LLVM (where the numpy
-        splat and blur are as fast or faster: docs/performance.md, "Batched frames").
+        image crosses to the device, only the bodies' crops); on LLVM ``device`` for a
+        monochromatic Airy PSF (whose stars the device draws faster), ``host`` for the other
+        models (where the numpy splat and blur are as fast or faster: docs/performance.md,
+        "Batched frames").
 
     Returns
     -------
@@ -335,11 +337,7 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
         made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device) for j, i in enumerate(ks)]
         t = time.perf_counter()
-        keys, charges, points, bodies = ([m[k] for m in made] for k in (0, 1, 5, 6))
-        dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, keys, backend, charges, points if device else None,
-                                     options.background_e_per_px_s * cam.exposure_s if device else 0.0, bodies)
-        lazy = [v for group in moments if group is not None for v in (group if isinstance(group, tuple) else (group,))]
-        dr.eval(dn, *([sig_d] if device and electrons else []), *lazy)  # launched
+        dn, sig_d, moments = _launch(cam, sig, made, backend, options, device, electrons)
         launched.append(dn)
         t_launch += time.perf_counter() - t
         if waiting is not None:  # the last launch's truths, while the device runs this one
@@ -359,6 +357,21 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
                       truths=truths, backend=backend,
                       timings_s={"optics": t1 - t0 - t_launch, "launch": t_launch, "sensor_wait": t2 - t1},
                       dtype=np.uint8 if cam.sensor.bit_depth <= 8 else np.uint16)
+
+
+def _launch(cam, sig, made, backend, options, device, electrons):
+    """One launch of :func:`render_batch`: the sensor (and with ``device`` the point sources and
+    the bodies) of the frames ``made`` evaluated on the device, asynchronously; returns
+    :func:`_expose`'s ``(dn, sensor input, moments)``."""
+    # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
+    import drjit as dr
+
+    keys, charges, points, bodies = ([m[k] for m in made] for k in (0, 1, 5, 6))
+    dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, keys, backend, charges, points if device else None,
+                                 options.background_e_per_px_s * cam.exposure_s if device else 0.0, bodies)
+    lazy = [v for group in moments if group is not None for v in (group if isinstance(group, tuple) else (group,))]
+    dr.eval(dn, *([sig_d] if device and electrons else []), *lazy)  # launched: the device works on it
+    return dn, sig_d, moments
 
 
 def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, moments):
@@ -400,11 +413,19 @@ def _electrons(chunks, pending, on_device, shape):
     return np.concatenate(chunks)
 
 
+#: The PSF models whose point sources ``star_splat="auto"`` draws on the device on LLVM too
+#: (monochromatic only): where the batch was faster so (docs/performance.md, "Batched frames").
+_LLVM_DEVICE_MODELS = frozenset({"airy"})
+
+
 def _device_stars(star_splat, backend, scene, options) -> bool:
     """Whether the device draws the point sources (:func:`render_batch`'s ``star_splat``)."""
     if star_splat not in ("auto", "device", "host"):
         raise ConfigValueError("star_splat", star_splat, "auto, device or host")
-    return star_splat == "device" or (star_splat == "auto" and backend == "cuda")
+    if star_splat != "auto":
+        return star_splat == "device"
+    psf = scene.camera.psf
+    return backend == "cuda" or (psf.model in _LLVM_DEVICE_MODELS and not psf.polychromatic)
 
 
 def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):

@@ -259,34 +259,50 @@ def splat_points(sig, frames, shape, background_e: float = 0.0):
     return jt.Float(acc), moments
 
 
+#: Most (point, stamp pixel) lanes of one launch of a group (a long streak of a table kernel
+#: has hundreds of sub-samples of a thousand pixels each; the lane index is 32-bit).
+_LANES_PER_LAUNCH = 1 << 27
+
+
 def _splat_group(jt, acc, moments, kernel, h, parts, shape, backend):
-    """One kernel over the (point, stamp pixel) lanes of a joined group (``parts``: (frame,
-    source offset, PointGroup)): the stamps into ``acc`` (float64), the moments into ``moments``."""
+    """The (point, stamp pixel) lanes of a joined group (``parts``: (frame, source offset,
+    PointGroup)), in launches of at most :data:`_LANES_PER_LAUNCH`: the stamps into ``acc``
+    (float64), the moments into ``moments``."""
+    per_point = (2 * h + 1) ** 2
+    cols = {"xy": np.concatenate([g.xy for _, _, g in parts]),
+            "flux": np.concatenate([g.flux_e for _, _, g in parts]),
+            "frame": np.concatenate([np.full(g.flux_e.size, i, np.uint32) for i, _, g in parts]),
+            "source": np.concatenate([(g.source + off).astype(np.uint32) for _, off, g in parts]),
+            "lam": None if parts[0][2].wavelength_nm is None else np.concatenate([g.wavelength_nm for _, _, g in parts])}
+    step = max(2, _LANES_PER_LAUNCH // per_point)
+    for a in range(0, cols["flux"].size, step):
+        part = {k: None if v is None else v[a:a + step] for k, v in cols.items()}
+        if part["flux"].size == 1:  # a one-element source would be a constant of the kernel: drawn twice, each half
+            part = {k: None if v is None else np.repeat(v, 2, axis=0) for k, v in part.items()}
+            part["flux"] = 0.5 * part["flux"]
+        _splat_lanes(jt, acc, moments, kernel, h, part, shape, backend)
+
+
+def _splat_lanes(jt, acc, moments, kernel, h, part, shape, backend):
+    """One kernel over the lanes of the points ``part`` (xy, flux, frame, source, lam)."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
     h_img, w_img = shape
     n_side = 2 * h + 1
     per_point = n_side * n_side
-    xy = np.concatenate([g.xy for _, _, g in parts])
-    flux = np.concatenate([g.flux_e for _, _, g in parts])
-    frame = np.concatenate([np.full(g.flux_e.size, i, np.uint32) for i, _, g in parts])
-    source = np.concatenate([(g.source + off).astype(np.uint32) for _, off, g in parts])
-    lam = None if parts[0][2].wavelength_nm is None else np.concatenate([g.wavelength_nm for _, _, g in parts])
-    if flux.size == 1:  # a one-element source would be a constant of the kernel: draw it twice, each half
-        xy, flux, frame, source = np.repeat(xy, 2, axis=0), np.repeat(0.5 * flux, 2), np.repeat(frame, 2), np.repeat(source, 2)
-        lam = None if lam is None else np.repeat(lam, 2)
+    xy = part["xy"]
     origin = stamp_origin(xy, h)
-    lane = dr.arange(jt.UInt32, flux.size * per_point)
+    lane = dr.arange(jt.UInt32, part["flux"].size * per_point)
     point, cell = lane // per_point, lane % per_point
     row = dr.gather(jt.Int32, jt.Int32(origin[:, 1].astype(np.int32)), point) + jt.Int32(cell // n_side)
     col = dr.gather(jt.Int32, jt.Int32(origin[:, 0].astype(np.int32)), point) + jt.Int32(cell % n_side)
-    value = stamp_values(jt, kernel, xy, lam, h, point, cell, col, row, backend)
-    e = dr.gather(jt.Float64, jt.Float64(flux), point) * value
+    value = stamp_values(jt, kernel, xy, part["lam"], h, point, cell, col, row, backend)
+    e = dr.gather(jt.Float64, jt.Float64(part["flux"]), point) * value
     inside = (row >= 0) & (row < h_img) & (col >= 0) & (col < w_img)
-    f = dr.gather(jt.UInt32, jt.UInt32(frame), point)
+    f = dr.gather(jt.UInt32, jt.UInt32(part["frame"]), point)
     dr.scatter_add(acc, e, f * (h_img * w_img) + jt.UInt32(row) * w_img + jt.UInt32(col), inside)
-    src = dr.gather(jt.UInt32, jt.UInt32(source), point)
+    src = dr.gather(jt.UInt32, jt.UInt32(part["source"]), point)
     local = dr.ReduceMode.Local  # a point's lanes are neighbours: summed in the packet, then one atomic
     for m, v in zip(moments, (e, e * jt.Float64(col), e * jt.Float64(row))):
         dr.scatter_add(m, v, src, mode=local)

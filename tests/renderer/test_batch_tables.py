@@ -143,9 +143,13 @@ def test_a_body_forced_to_a_point_is_the_reference():
 
 
 def test_every_model_may_be_drawn_on_the_device(tmp_path):
-    """``star_splat="device"`` draws every model's point sources on the device; ``host`` never."""
+    """``star_splat="device"`` draws every model's point sources on the device, ``host`` never;
+    ``auto`` on CUDA always, on LLVM for the monochromatic Airy only (the measured choice)."""
     opts = RenderOptions(backend="llvm")
-    for name in ("airy", "polychromatic"):
+    for name in ("airy", "optical", "tabulated", "polychromatic"):
         scene = _scene(name, tmp_path, px=64)
         assert _device_stars("device", "llvm", scene, opts) and not _device_stars("host", "cuda", scene, opts)
         assert _device_stars("auto", "cuda", scene, opts)
+        assert _device_stars("auto", "llvm", scene, opts) == (name == "airy")
+    gaussian = build_from_spec(default_scene_spec())
+    assert not _device_stars("auto", "llvm", gaussian, opts) and _device_stars("auto", "cuda", gaussian, opts)
