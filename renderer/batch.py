@@ -418,14 +418,18 @@ def _electrons(chunks, pending, on_device, shape):
 _LLVM_DEVICE_MODELS = frozenset({"airy"})
 
 
-def _device_stars(star_splat, backend, scene, options) -> bool:
-    """Whether the device draws the point sources (:func:`render_batch`'s ``star_splat``)."""
+def _device_stars(star_splat, backend, scene, options):
+    """What the device draws (:func:`render_batch`'s ``star_splat``): ``"all"`` (the point
+    sources and the ray-traced bodies' blur), ``"points"`` (the point sources; the bodies on the
+    host: on LLVM their direct convolution does not pay) or False (nothing: numpy's frames)."""
     if star_splat not in ("auto", "device", "host"):
         raise ConfigValueError("star_splat", star_splat, "auto, device or host")
     if star_splat != "auto":
-        return star_splat == "device"
+        return "all" if star_splat == "device" else False
     psf = scene.camera.psf
-    return backend == "cuda" or (psf.model in _LLVM_DEVICE_MODELS and not psf.polychromatic)
+    if backend == "cuda":
+        return "all"
+    return "points" if psf.model in _LLVM_DEVICE_MODELS and not psf.polychromatic else False
 
 
 def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
@@ -454,13 +458,13 @@ def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
 _FRAMES_IN_FLIGHT = 16
 
 
-def _frame_optics(scene, rng, options, sig, device=False):
+def _frame_optics(scene, rng, options, sig, device=False):  # device: _device_stars's
     """One frame's optics as :func:`render` makes them: its expected electrons rounded to
     float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
     the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
     charge), expected image without its images, hits, point sources, ray-traced bodies)``. With
-    ``device``, the point sources (stars, bodies drawn as points), the ray-traced bodies and the
-    background are left out of ``sig`` for the device
+    ``device``, the point sources (stars, bodies drawn as points), the ray-traced bodies (with
+    ``"all"``) and the background are left out of ``sig`` for the device
     (:func:`~skynav.renderer.splat_jit.frame_optics`: FramePoints and
     :class:`~skynav.renderer.bodies_jit.BodyCrops`, else None; the expected image then lacks
     their centres of light), and the hit pixels' electrons are the charge alone (the device's
@@ -471,7 +475,7 @@ def _frame_optics(scene, rng, options, sig, device=False):
     if not device:
         expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
     else:
-        traced = []
+        traced = [] if device == "all" else None  # else the bodies blurred on the host, into sig
         expected, points = frame_optics(scene, rng, options, support, traced_out=traced)
         crops = body_crops(traced, options.flux_fraction_lost) if traced else None
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,

@@ -144,12 +144,40 @@ def test_a_body_forced_to_a_point_is_the_reference():
 
 def test_every_model_may_be_drawn_on_the_device(tmp_path):
     """``star_splat="device"`` draws every model's point sources on the device, ``host`` never;
-    ``auto`` on CUDA always, on LLVM for the monochromatic Airy only (the measured choice)."""
+    ``auto`` on CUDA always, on LLVM the monochromatic Airy's point sources only, its ray-traced
+    bodies' blur left to numpy (the measured choice)."""
     opts = RenderOptions(backend="llvm")
     for name in ("airy", "optical", "tabulated", "polychromatic"):
         scene = _scene(name, tmp_path, px=64)
         assert _device_stars("device", "llvm", scene, opts) and not _device_stars("host", "cuda", scene, opts)
         assert _device_stars("auto", "cuda", scene, opts)
-        assert _device_stars("auto", "llvm", scene, opts) == (name == "airy")
+        assert _device_stars("auto", "llvm", scene, opts) == ("points" if name == "airy" else False)
     gaussian = build_from_spec(default_scene_spec())
     assert not _device_stars("auto", "llvm", gaussian, opts) and _device_stars("auto", "cuda", gaussian, opts)
+
+
+def test_llvm_auto_draws_an_airy_frame_s_stars_on_the_device_and_its_bodies_on_the_host():
+    """The Earth-departure scene at 128 px with an Airy PSF (the Earth and the Moon ray-traced):
+    ``star_splat="auto"`` on LLVM draws the stars on the device and blurs the bodies with numpy;
+    the expected image and the truth are the reference's."""
+    from skynav.scenes.config import scene_spec_from_mapping
+    from skynav.scenes.presets import preset_mapping
+
+    m = preset_mapping("earth_departure")
+    m["camera"].update({"width": 128, "height": 128, "psf": {"model": "airy", "wavelength_nm": 550.0}})
+    scene = build_from_spec(scene_spec_from_mapping(m))
+    opts = RenderOptions(backend="llvm", cosmic_rays_per_frame=0.0, mitsuba_spp=4)
+    assert _device_stars("auto", "llvm", scene, opts) == "points"
+    batch = render_batch([scene], [5], options=opts)
+    ref = expected_image(scene, rng=np.random.default_rng(5), options=opts)
+    assert ref.resolved  # a body ray-traced
+    got = batch.electrons[0].astype(float)
+    bright = ref.electrons > min(1e-3 * ref.electrons.max(), 1.0)
+    rel = np.abs(got[bright] - ref.electrons[bright]) / ref.electrons[bright]
+    assert rel.max() < REL_TOL and np.all(got[~bright] < 1.01)
+    host = render_batch([scene], [5], options=opts, star_splat="host")
+    for a, b in zip(batch.truths[0]["bodies"], host.truths[0]["bodies"]):
+        assert a == b  # the bodies drawn by numpy in both
+    for a, b in zip(batch.truths[0]["stars"], host.truths[0]["stars"]):
+        if b["centre_of_light_xy"][0] is not None:
+            np.testing.assert_allclose(a["centre_of_light_xy"], b["centre_of_light_xy"], rtol=0, atol=CENTRE_TOL_PX)
