@@ -61,6 +61,7 @@ from .sensor_jit import (
     frame_key,
     pixel_stream_seeds,
 )
+from .batch_paths import batch_source_paths
 from .bodies_jit import bodies_truth, body_crops, composite_bodies
 from .splat_jit import frame_moments, frame_optics, splat_points, with_moments
 from .truth import frame_truth
@@ -335,7 +336,9 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     for first in range(0, len(scenes), frames_per_launch):
         ks = range(first, min(first + frames_per_launch, len(scenes)))
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
-        made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device) for j, i in enumerate(ks)]
+        paths = batch_source_paths([scenes[i] for i in ks], [scenes[i].stars.u_icrs for i in ks], options) \
+            if device else [None] * len(ks)  # the stars' paths of the launch's frames, in one pass
+        made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device, paths[j]) for j, i in enumerate(ks)]
         t = time.perf_counter()
         dn, sig_d, moments = _launch(cam, sig, made, backend, options, device, electrons)
         launched.append(dn)
@@ -458,7 +461,7 @@ def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
 _FRAMES_IN_FLIGHT = 16
 
 
-def _frame_optics(scene, rng, options, sig, device=False):  # device: _device_stars's
+def _frame_optics(scene, rng, options, sig, device=False, paths=None):  # device: _device_stars's
     """One frame's optics as :func:`render` makes them: its expected electrons rounded to
     float32 into ``sig`` (the sensor's input), its cosmic rays and sensor key from ``rng`` where
     the per-frame path draws them. Returns ``(key, charge, (hit pixels, electrons there with the
@@ -468,7 +471,8 @@ def _frame_optics(scene, rng, options, sig, device=False):  # device: _device_st
     (:func:`~skynav.renderer.splat_jit.frame_optics`: FramePoints and
     :class:`~skynav.renderer.bodies_jit.BodyCrops`, else None; the expected image then lacks
     their centres of light), and the hit pixels' electrons are the charge alone (the device's
-    input is added to it)."""
+    input is added to it). ``paths``: the stars' paths with ``device``, px (default: projected
+    for this frame alone)."""
     shape = sig.shape
     support = []  # the pixels drawn: a dark frame's stamps are a few per cent of it
     points = crops = None
@@ -476,7 +480,7 @@ def _frame_optics(scene, rng, options, sig, device=False):  # device: _device_st
         expected = expected_image(scene, rng=rng, options=options, with_irradiance=False, support=support)
     else:
         traced = [] if device == "all" else None  # else the bodies blurred on the host, into sig
-        expected, points = frame_optics(scene, rng, options, support, traced_out=traced)
+        expected, points = frame_optics(scene, rng, options, support, paths=paths, traced_out=traced)
         crops = body_crops(traced, options.flux_fraction_lost) if traced else None
     hits = cr.draw_cosmic_rays(shape, options.cosmic_rays_per_frame, rng, mode=options.cosmic_ray_mode,
                                track_prob=options.cosmic_ray_track_prob)
