@@ -336,8 +336,7 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     for first in range(0, len(scenes), frames_per_launch):
         ks = range(first, min(first + frames_per_launch, len(scenes)))
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
-        paths = batch_source_paths([scenes[i] for i in ks], [scenes[i].stars.u_icrs for i in ks], options) \
-            if device else [None] * len(ks)  # the stars' paths of the launch's frames, in one pass
+        paths = _star_paths([scenes[i] for i in ks], options) if device else [None] * len(ks)
         made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device, paths[j]) for j, i in enumerate(ks)]
         t = time.perf_counter()
         dn, sig_d, moments = _launch(cam, sig, made, backend, options, device, electrons)
@@ -459,6 +458,11 @@ def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):
 #: Frames whose sensor inputs are kept in memory at once when the electrons are not asked for
 #: (render_batch waits for the device after that many, then lets the inputs go).
 _FRAMES_IN_FLIGHT = 16
+
+
+def _star_paths(scenes, options):
+    """The stars' paths of a launch's frames, px, projected in one pass (the device draws them)."""
+    return batch_source_paths(scenes, [s.stars.u_icrs for s in scenes], options)
 
 
 def _frame_optics(scene, rng, options, sig, device=False, paths=None):  # device: _device_stars's
