@@ -292,10 +292,10 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         are drawn: ``device``, by Dr.Jit into the sensor's input (:mod:`~skynav.renderer.splat_jit`,
         every PSF model; :mod:`~skynav.renderer.bodies_jit`); ``host``, per frame by numpy
         (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device`` on CUDA (no
-        image crosses to the device, only the bodies' crops); on LLVM ``device`` for a
-        monochromatic Airy PSF (whose stars the device draws faster), ``host`` for the other
-        models (where the numpy splat and blur are as fast or faster: docs/performance.md,
-        "Batched frames").
+        image crosses to the device, only the bodies' crops); on LLVM the point sources on the
+        device for the table PSF models (Airy, optical, tabulated: their stamps are costly in
+        numpy), the ray-traced bodies' blur and the Gaussian's stars on the host (where numpy is
+        as fast or faster: docs/performance.md, "Batched frames").
 
     Returns
     -------
@@ -415,9 +415,10 @@ def _electrons(chunks, pending, on_device, shape):
     return np.concatenate(chunks)
 
 
-#: The PSF models whose point sources ``star_splat="auto"`` draws on the device on LLVM too
-#: (monochromatic only): where the batch was faster so (docs/performance.md, "Batched frames").
-_LLVM_DEVICE_MODELS = frozenset({"airy"})
+#: The PSF models whose point sources ``star_splat="auto"`` draws on the device on LLVM too:
+#: the table kernels', whose batches were faster so (docs/performance.md, "Batched frames");
+#: not the Gaussian's small stamps.
+_LLVM_DEVICE_MODELS = frozenset({"airy", "optical", "tabulated"})
 
 
 def _device_stars(star_splat, backend, scene, options):
@@ -431,7 +432,7 @@ def _device_stars(star_splat, backend, scene, options):
     psf = scene.camera.psf
     if backend == "cuda":
         return "all"
-    return "points" if psf.model in _LLVM_DEVICE_MODELS and not psf.polychromatic else False
+    return "points" if psf.model in _LLVM_DEVICE_MODELS else False
 
 
 def _checked_batch(scenes, seeds, rngs, options, frames_per_launch):

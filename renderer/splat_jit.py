@@ -13,11 +13,12 @@ drawn), keeps the sources that may touch the image and cuts their paths into the
 of :func:`~skynav.renderer.raster.streak_subsamples` with the kernel's quadrature step, as
 :func:`~skynav.renderer.raster.rasterize` does; the points are grouped by kernel and half size
 (:class:`PointGroup`). Then :func:`splat_points` runs one kernel per group of the whole batch
-over its (point, stamp pixel) lanes: the stamp value (:mod:`~skynav.renderer.splat_tables_jit`),
-in float64, times the point's electrons, rounded to float32 and scatter-added into the (N * H * W)
-float32 sensor input (the pixels off the image dropped, as the reference drops them), and, in
-float64, scatter-added per source into its zeroth and first moments (the parts off the image
-included, as the reference's). The moments come back with the launch; :func:`with_moments`
+over its (point, stamp pixel) lanes (in launches of at most 2^27 lanes): the stamp value
+(:mod:`~skynav.renderer.splat_tables_jit`), in float64, times the point's electrons,
+scatter-added in float64 into the (N * H * W) sensor input (the pixels off the image dropped,
+as the reference drops them; a pixel of a streak sums hundreds of sub-samples) and rounded to
+float32 once, and scatter-added per source into its zeroth and first moments (the parts off the
+image included, as the reference's). The moments come back with the launch; :func:`with_moments`
 makes the truth's centres of light (first moments over zeroth) and fractions drawn of them.
 
 What stays per frame on the host: the ray tracing of the resolved bodies (Mitsuba;
@@ -25,10 +26,11 @@ What stays per frame on the host: the ray tracing of the resolved bodies (Mitsub
 bodies, with the same ``rng`` draws: only the ray-traced bodies draw), whose crops are handed
 over for :mod:`~skynav.renderer.bodies_jit` to blur and composite into the same input.
 
-The result differs from the numpy reference by roundings: the float32 sums of the stamps (the
-reference sums in float64 and rounds once), the Gaussian's erf differences written without the
-reference's ``0.5 (1 + erf)``, and the moments' float64 sums in another order (tested to 1e-5
-relative per pixel, tests/renderer/test_batch_splat.py and test_batch_tables.py). One Python body
+The result differs from the numpy reference by roundings: the float64 sums in another order
+(atomic adds), the input's float32 part (the bodies drawn on the host) and the stamps' sum
+rounded apart, the Gaussian's erf differences written without the reference's
+``0.5 (1 + erf)`` (tested to 1e-5 relative per pixel, measured 6e-8 to 1e-7, and the centres of
+light to 1e-9 px: tests/renderer/test_batch_splat.py and test_batch_tables.py). One Python body
 is traced for Dr.Jit's LLVM and CUDA backends.
 """
 

@@ -36,11 +36,10 @@ def _scene(px: int, rate_rad_s=(0.0, 0.0, 0.0)):
 
 #: Relative difference per pixel allowed against the reference, on the pixels above 1e-3 of the
 #: frame's peak or above 1 e- (the frame's peak may be Mars, a thousand times a star's: the 1 e-
-#: floor keeps the stars' stamps in the check). Both round the expected electrons to float32
-#: (6e-8); the device sums each pixel's stamps in float32 (a streak's pixel sums tens of
-#: sub-samples: measured 7e-7) and writes the erf differences without the reference's
-#: ``0.5 (1 + erf)``, whose cancellation in the far tails (1e-16 of a star's electrons, absolute)
-#: is why fainter pixels are left out.
+#: floor keeps the stars' stamps in the check). Both sum each pixel's stamps in float64 (the
+#: device in another order) and round to float32 once (6e-8: measured 6e-8 here); the device
+#: writes the erf differences without the reference's ``0.5 (1 + erf)``, whose cancellation in
+#: the far tails (1e-16 of a star's electrons, absolute) is why fainter pixels are left out.
 REL_TOL = 1e-5
 
 
