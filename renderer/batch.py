@@ -289,13 +289,10 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         that of a few frames but for its DN).
     star_splat : {"auto", "device", "host"}
         Where the point sources (stars, bodies drawn as points) and the ray-traced bodies' blur
-        are drawn: ``device``, by Dr.Jit into the sensor's input (:mod:`~skynav.renderer.splat_jit`,
-        every PSF model; :mod:`~skynav.renderer.bodies_jit`); ``host``, per frame by numpy
-        (:func:`~skynav.renderer.expected.expected_image`); ``auto``: ``device`` on CUDA (no
-        image crosses to the device, only the bodies' crops); on LLVM the point sources on the
-        device for the table PSF models (Airy, optical, tabulated: their stamps are costly in
-        numpy), the ray-traced bodies' blur and the Gaussian's stars on the host (where numpy is
-        as fast or faster: docs/performance.md, "Batched frames").
+        are drawn: ``device``, by Dr.Jit (:mod:`~skynav.renderer.splat_jit`, every PSF model;
+        :mod:`~skynav.renderer.bodies_jit`); ``host``, per frame by numpy (:func:`expected_image`);
+        ``auto``: ``device`` on CUDA; on LLVM the table models' point sources on the device, the
+        bodies' blur and the Gaussian's stars on the host (docs/performance.md, "Batched frames").
 
     Returns
     -------
@@ -338,19 +335,22 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         sig = np.zeros((len(ks), *shape), np.float32)  # the sensor's input, read in place by the device
         paths = _star_paths([scenes[i] for i in ks], options) if device else [None] * len(ks)
         made = [_frame_optics(scenes[i], rngs[i], options, sig[j], device, paths[j]) for j, i in enumerate(ks)]
+        # the last launch's moments, before this launch: reading waits for all the work queued
+        fetched = None if waiting is None else _fetched(waiting[2])
         t = time.perf_counter()
         dn, sig_d, moments = _launch(cam, sig, made, backend, options, device, electrons)
         launched.append(dn)
         t_launch += time.perf_counter() - t
         if waiting is not None:  # the last launch's truths, while the device runs this one
-            truths += _truths(scenes, seeds, options, backend, frames_per_launch, *waiting)
+            truths += _truths(scenes, seeds, options, backend, frames_per_launch, waiting[0], waiting[1], fetched)
         waiting = (ks, made, moments)
         chunks.append(sig_d if device else sig)
         pending.append([m[2] for m in made])
         if not electrons and len(chunks) >= hold:  # the inputs read: let them go
             dr.sync_thread()
             chunks.clear()
-    truths += _truths(scenes, seeds, options, backend, frames_per_launch, *waiting)
+    truths += _truths(scenes, seeds, options, backend, frames_per_launch, waiting[0], waiting[1],
+                      _fetched(waiting[2]))
     t1 = time.perf_counter()
     dr.sync_thread()  # the launches are done
     t2 = time.perf_counter()
@@ -376,16 +376,20 @@ def _launch(cam, sig, made, backend, options, device, electrons):
     return dn, sig_d, moments
 
 
-def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, moments):
+def _fetched(moments):
+    """A launch's moments (:func:`_expose`'s: the point sources' three arrays, the bodies') as
+    numpy arrays, or None where there are none. Bringing them over waits for the work queued on
+    this thread's device stream, the launch's sensor kernel included."""
+    points, bodies = moments
+    return (None if points is None else [v.numpy() for v in points]), (None if bodies is None else bodies.numpy())
+
+
+def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, fetched):
     """The truths of one launch's frames ``ks`` (their optics ``made``); with the point sources
     and the ray-traced bodies drawn on the device, their centres of light and fractions drawn
-    from the launch's ``moments`` (point sources', bodies'; brought over: the launch's splat is
-    done)."""
-    figures = None
-    if moments[0] is not None:
-        figures = frame_moments([m[5] for m in made], [v.numpy() for v in moments[0]])
-    expecteds = bodies_truth([m[3] for m in made], [m[6] for m in made],
-                             None if moments[1] is None else moments[1].numpy())
+    from the launch's moments (``fetched``: :func:`_fetched`'s)."""
+    figures = None if fetched[0] is None else frame_moments([m[5] for m in made], fetched[0])
+    expecteds = bodies_truth([m[3] for m in made], [m[6] for m in made], fetched[1])
     out = []
     for j, i in enumerate(ks):
         expected, hits, points = expecteds[j], made[j][4], made[j][5]
