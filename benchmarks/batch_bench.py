@@ -10,7 +10,8 @@ kept: the pixel pitch follows the width) and each batch size N: ``render_batch``
 the host, medians of ``--repeat`` rounds, as frames/s, with the per-frame stage split
 (``optics``: expected images, cosmic rays, truths, on this thread; ``launch``: the sensor's
 inputs to the device and its kernels launched; ``sensor wait``: the wait for the last launches),
-against ``render`` of ``--baseline-frames`` frames one after the other (the per-frame path), the
+against ``render`` of ``--baseline-frames`` frames one after the other (the per-frame path, in
+a warm heap as a dataset's worker runs it: ``infra/heap.py``; the batch warms its own), the
 two taking turns, wall time and CPU time (this process, all threads: the figure to compare on a
 machine other processes share). ``--written`` adds each frame written as PNG + truth JSON
 (encoded, then written atomically into a temporary folder), for both paths.
@@ -89,10 +90,18 @@ def _write(frames, folder: Path) -> None:
 
 
 def per_frame(scene, options, n: int, folder):
-    """The per-frame path: ``render`` of n frames (and their files when ``folder``)."""
+    """The per-frame path: ``render`` of n frames (and their files when ``folder``), as a
+    dataset's worker loops over them: in a :class:`~skynav.infra.heap.WarmHeap` warmed after
+    the first frame (``render_batch`` warms its own), so that neither path pays the garbage
+    collector's walks of the frames' truths that the other is spared."""
+    from skynav.infra.heap import WarmHeap
     from skynav.renderer.render import render
 
-    frames = [(k, render(scene, seed=k, options=options)) for k in range(n)]
+    frames = []
+    with WarmHeap() as heap:
+        for k in range(n):
+            frames.append((k, render(scene, seed=k, options=options)))
+            heap.warm()
     if folder is not None:
         _write(frames, folder)
 

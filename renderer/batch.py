@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skynav.infra.errors import ConfigValueError
+from skynav.infra.heap import WarmHeap
 
 from . import cosmic_rays as cr
 from . import jit_backend
@@ -321,11 +322,20 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
     (2, 64, 64) float32 2
     """
     scenes, seeds, rngs, backend = _checked_batch(scenes, seeds, rngs, options, frames_per_launch)
-    cam = scenes[0].camera
     device = _device_stars(star_splat, backend, scenes[0], options)
+    with WarmHeap() as heap:
+        return _render_launches(scenes, seeds, rngs, options, frames_per_launch, electrons, backend, device, heap)
+
+
+def _render_launches(scenes, seeds, rngs, options, frames_per_launch, electrons, backend, device, heap):
+    """:func:`render_batch`'s launches, its arguments checked; ``heap`` (a :class:`WarmHeap`)
+    is warmed once the first launch is under way. The frames' truths are thousands of small
+    containers each, kept until the batch returns: the garbage collector would otherwise walk
+    them, and everything a warm process holds, again and again as they pile up."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
+    cam = scenes[0].camera
     t0 = time.perf_counter()
     shape = (cam.height, cam.width)
     chunks, truths, launched, pending, t_launch, waiting = [], [], [], [], 0.0, None
@@ -344,6 +354,7 @@ def render_batch(scenes, seeds, *, rngs=None, options: RenderOptions = RenderOpt
         if waiting is not None:  # the last launch's truths, while the device runs this one
             truths += _truths(scenes, seeds, options, backend, frames_per_launch, waiting[0], waiting[1], fetched)
         waiting = (ks, made, moments)
+        heap.warm()
         chunks.append(sig_d if device else sig)
         pending.append([m[2] for m in made])
         if not electrons and len(chunks) >= hold:  # the inputs read: let them go

@@ -6,6 +6,7 @@ inversion's cumulative sums."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 
 import numpy as np
 import pytest
@@ -118,6 +119,25 @@ def test_without_electrons_the_inputs_go_and_the_frames_stay(scene256):
     assert gone.electrons is None and kept.electrons.shape == (20, 64, 64)
     np.testing.assert_array_equal(gone.dn, kept.dn)
     assert gone.truths == kept.truths
+
+
+def test_render_batch_leaves_the_garbage_collector_as_it_found_it():
+    """The batch keeps the collector off the warm heap while it runs (infra/heap.py), and gives
+    it back: nothing frozen, the thresholds as they were; a caller's frozen heap is left alone."""
+    spec = default_scene_spec()
+    small = build_from_spec(dataclasses.replace(spec, camera=spec.camera.replace(
+        width=64, height=64, pixel_pitch_um=spec.camera.pixel_pitch_um * 16)))
+    opts = RenderOptions(backend="llvm")
+    before = gc.get_threshold()
+    assert gc.get_freeze_count() == 0
+    render_batch([small] * 3, [1, 2, 3], options=opts, frames_per_launch=1)
+    assert gc.get_freeze_count() == 0 and gc.get_threshold() == before
+    gc.freeze()
+    try:
+        render_batch([small] * 2, [1, 2], options=opts, frames_per_launch=1)
+        assert gc.get_freeze_count() > 0 and gc.get_threshold() == before  # still the caller's
+    finally:
+        gc.unfreeze()
 
 
 def test_render_batch_refuses_what_it_cannot_do(scene256):
