@@ -382,17 +382,18 @@ def _launch(cam, sig, made, backend, options, device, electrons):
     keys, charges, points, bodies = ([m[k] for m in made] for k in (0, 1, 5, 6))
     dn, sig_d, moments = _expose(cam.sensor, sig, cam.exposure_s, keys, backend, charges, points if device else None,
                                  options.background_e_per_px_s * cam.exposure_s if device else 0.0, bodies)
-    lazy = [v for group in moments if group is not None for v in (group if isinstance(group, tuple) else (group,))]
+    points, bodies = moments
+    lazy = ([] if points is None else points.arrays()) + ([] if bodies is None else [bodies])
     dr.eval(dn, *([sig_d] if device and electrons else []), *lazy)  # launched: the device works on it
     return dn, sig_d, moments
 
 
 def _fetched(moments):
-    """A launch's moments (:func:`_expose`'s: the point sources' three arrays, the bodies') as
+    """A launch's moments (:func:`_expose`'s: the point sources' PointMoments, the bodies') as
     numpy arrays, or None where there are none. Bringing them over waits for the work queued on
     this thread's device stream, the launch's sensor kernel included."""
     points, bodies = moments
-    return (None if points is None else [v.numpy() for v in points]), (None if bodies is None else bodies.numpy())
+    return (None if points is None else points.numpy()), (None if bodies is None else bodies.numpy())
 
 
 def _truths(scenes, seeds, options, backend, frames_per_launch, ks, made, fetched):

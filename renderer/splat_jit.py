@@ -13,13 +13,16 @@ drawn), keeps the sources that may touch the image and cuts their paths into the
 of :func:`~skynav.renderer.raster.streak_subsamples` with the kernel's quadrature step, as
 :func:`~skynav.renderer.raster.rasterize` does; the points are grouped by kernel and half size
 (:class:`PointGroup`). Then :func:`splat_points` runs one kernel per group of the whole batch
-over its (point, stamp pixel) lanes (in launches of at most 2^27 lanes): the stamp value
+over its (point, stamp pixel) lanes (in launches of at most 2^24 lanes): the stamp value
 (:mod:`~skynav.renderer.splat_tables_jit`), in float64, times the point's electrons,
 scatter-added in float64 into the (N * H * W) sensor input (the pixels off the image dropped,
 as the reference drops them; a pixel of a streak sums hundreds of sub-samples) and rounded to
-float32 once, and scatter-added per source into its zeroth and first moments (the parts off the
-image included, as the reference's). The moments come back with the launch; :func:`with_moments`
-makes the truth's centres of light (first moments over zeroth) and fractions drawn of them.
+float32 once; each point's stamp is also summed over its own lanes into its zeroth and first
+moments (the parts off the image included, as the reference's; a block reduction, no atomics).
+The points' sums come back with the launch and are added per source on the host in the points'
+order (:class:`PointMoments`), so the truth's figures of a frame do not depend on the batch it
+was drawn in; :func:`with_moments` makes its centres of light (first moments over zeroth) and
+fractions drawn.
 
 What stays per frame on the host: the ray tracing of the resolved bodies (Mitsuba;
 :func:`~skynav.renderer.expected.expected_image` of the scene without its stars and point-drawn
@@ -50,7 +53,7 @@ from .raster import _touching, streak_subsamples
 from .sensor_jit import _module_of
 from .splat_tables_jit import stamp_values
 
-__all__ = ["PointGroup", "FramePoints", "star_points", "frame_optics", "splat_points", "with_moments"]
+__all__ = ["PointGroup", "FramePoints", "PointMoments", "star_points", "frame_optics", "splat_points", "with_moments"]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True, eq=False)
@@ -238,12 +241,34 @@ def _batch_groups(frames):
     return joined, first, total
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class PointMoments:
+    """The moments :func:`splat_points` makes on the device: for each launch, its points'
+    sources (numpy) and the three sums of each point's stamp (zeroth, first x, first y: Dr.Jit
+    Float64 arrays, one value a point). :meth:`numpy` sums them per source on the host."""
+
+    n_sources: int
+    launches: list
+
+    def arrays(self) -> list:
+        """The device arrays (to evaluate with the launch)."""
+        return [v for _, sums in self.launches for v in sums]
+
+    def numpy(self) -> list:
+        """The sources' zeroth, first x and first y moments, three numpy arrays (S,): each
+        source's points added in their order (one ``bincount`` over every launch's points), so
+        a source's moments do not depend on the other frames of its batch."""
+        src = np.concatenate([s for s, _ in self.launches])
+        return [np.bincount(src, weights=np.concatenate([sums[k].numpy()[:s.size] for s, sums in self.launches]),
+                            minlength=self.n_sources) for k in range(3)]
+
+
 def splat_points(sig, frames, shape, background_e: float = 0.0):
     """Add the point sources of each frame (``frames``, one :class:`FramePoints` per frame) and
     ``background_e`` per pixel into the batch's sensor input ``sig`` (a Dr.Jit Float of N * H *
-    W, frame-major). Returns ``(new input, moments)``, both lazy: ``moments`` three Float64
-    arrays, the batch's sources' zeroth, first x and first y moments (see
-    :func:`frame_moments`), or None without a source."""
+    W, frame-major). Returns ``(new input, moments)``: the input lazy, ``moments`` a
+    :class:`PointMoments` of the batch's sources (see :func:`frame_moments`), or None without a
+    source."""
     # Dr.Jit only for the JIT backends: import skynav.renderer loads neither Dr.Jit nor Mitsuba
     import drjit as dr
 
@@ -253,23 +278,23 @@ def splat_points(sig, frames, shape, background_e: float = 0.0):
         return (sig + jt.Float(background_e) if background_e else sig), None
     # the stamps summed in float64 (a pixel of a streak sums hundreds of sub-samples), rounded once
     acc = jt.Float64(sig) + background_e
-    n_m = max(total, 2)  # a one-element array would be a constant of the kernel
-    moments = tuple(dr.zeros(jt.Float64, n_m) for _ in range(3))
+    moments = PointMoments(total, [])
     backend = "cuda" if jt.__name__.endswith("cuda") else "llvm"
     for (kernel, half), parts in joined.items():
-        _splat_group(jt, acc, moments, kernel, half, parts, shape, backend)
+        _splat_group(jt, acc, moments.launches, kernel, half, parts, shape, backend)
     return jt.Float(acc), moments
 
 
 #: Most (point, stamp pixel) lanes of one launch of a group (a long streak of a table kernel
-#: has hundreds of sub-samples of a thousand pixels each; the lane index is 32-bit).
-_LANES_PER_LAUNCH = 1 << 27
+#: has hundreds of sub-samples of a thousand pixels each): the stamp sums are reduced from the
+#: lanes' values held in memory, three float64 arrays, 384 MiB at this size.
+_LANES_PER_LAUNCH = 1 << 24
 
 
 def _splat_group(jt, acc, moments, kernel, h, parts, shape, backend):
     """The (point, stamp pixel) lanes of a joined group (``parts``: (frame, source offset,
     PointGroup)), in launches of at most :data:`_LANES_PER_LAUNCH`: the stamps into ``acc``
-    (float64), the moments into ``moments``."""
+    (float64), each launch's points' sources and stamp sums appended to ``moments``."""
     per_point = (2 * h + 1) ** 2
     cols = {"xy": np.concatenate([g.xy for _, _, g in parts]),
             "flux": np.concatenate([g.flux_e for _, _, g in parts]),
@@ -304,10 +329,9 @@ def _splat_lanes(jt, acc, moments, kernel, h, part, shape, backend):
     inside = (row >= 0) & (row < h_img) & (col >= 0) & (col < w_img)
     f = dr.gather(jt.UInt32, jt.UInt32(part["frame"]), point)
     dr.scatter_add(acc, e, f * (h_img * w_img) + jt.UInt32(row) * w_img + jt.UInt32(col), inside)
-    src = dr.gather(jt.UInt32, jt.UInt32(part["source"]), point)
-    local = dr.ReduceMode.Local  # a point's lanes are neighbours: summed in the packet, then one atomic
-    for m, v in zip(moments, (e, e * jt.Float64(col), e * jt.Float64(row))):
-        dr.scatter_add(m, v, src, mode=local)
+    # each point's stamp summed over its own lanes, in one order whatever the batch (no atomics)
+    sums = dr.block_sum((e, e * jt.Float64(col), e * jt.Float64(row)), per_point, mode="evaluated")
+    moments.append((part["source"], sums))
 
 
 def frame_moments(frames, moments):

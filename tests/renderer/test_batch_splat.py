@@ -98,7 +98,7 @@ def test_a_star_holds_its_electrons_by_the_gaussian_closed_form():
     assert (cx, cy) == (12, 18)
     # its moments: the charge drawn, and the centre of light by the closed form's pixel weights
     # (the erf differences of each column and row, scipy's erf, about the pixel centres)
-    m0, m1 = frame_moments(frames, [v.numpy() for v in moments])[1]
+    m0, m1 = frame_moments(frames, moments.numpy())[1]
     assert abs(m0[0] - flux * inside) < 1e-9 * flux
     for axis in range(2):
         centres = np.floor(xy[0, axis] + 0.5) - half + np.arange(2 * half + 1)
