@@ -184,9 +184,10 @@ def test_llvm_auto_draws_an_airy_frame_s_stars_on_the_device_and_its_bodies_on_t
 
 
 def test_a_frame_s_device_drawn_figures_do_not_depend_on_its_batch(tmp_path):
-    """Stream items are reproducible per (seed, index) whatever the batch size: a frame drawn on
-    the device in launches of 1, 2 or 4 frames, beside different frames, has the same bits in its
-    expected image, DN and truth (its sources' moments are summed without atomics)."""
+    """Stream items are reproducible per (seed, index) whatever the batch size: the same code and
+    the same seed draw a frame on the device in launches of 1, 2 or 4 frames, beside different
+    frames, with the same bits in its expected image, DN and truth (its sources' moments are
+    summed without atomics)."""
     still, streaked = _scene("airy", tmp_path), _scene("streaked", tmp_path)
     opts = RenderOptions(backend="llvm")
     seeds = [7, 8, 9, 10]
