@@ -273,10 +273,7 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
     stars = scene.stars
     star_e = np.asarray(rad.star_electrons_per_s(stars.v_mag, stars.teff_k), dtype=float) * T
     star_irr = np.asarray(rad.star_irradiance_w_m2(stars.v_mag, stars.teff_k), dtype=float)
-    track = {b.name: _body_track_xy(scene, proj, b) for b in scene.bodies}
-    near = {b.name: _near_image(proj, track[b.name], b) for b in scene.bodies}
-    traced = [b for b in scene.bodies if b.resolved and options.resolved and near[b.name]]
-    points = [b for b in scene.bodies if b not in traced and near[b.name] and all(map(math.isfinite, track[b.name][0].tolist()))]
+    track, traced, points = _split_bodies(scene, proj, options)
     body_e = {b.name: float(rad.body_electrons_per_s(b.name, b.v_mag)) * T if np.isfinite(b.v_mag) else 0.0
               for b in scene.bodies}
     body_irr = {b.name: float(rad.body_irradiance_w_m2(b.name, b.v_mag)) if np.isfinite(b.v_mag) else 0.0
@@ -306,6 +303,33 @@ def expected_image(scene: Scene, *, projection=None, rng: np.random.Generator, o
                          support=(np.concatenate(support) if support else np.zeros(0, np.int64)) if sparse else None)
 
 
+def _split_bodies(scene: Scene, proj, options: RenderOptions):
+    """Each body's track ({name: (3, 2)}, px: mid-exposure, start, end), the bodies to ray-trace
+    (resolved, near the image) and those to draw as points (the others near the image, at a
+    finite position)."""
+    track = {b.name: _body_track_xy(scene, proj, b) for b in scene.bodies}
+    near = {b.name: _near_image(proj, track[b.name], b) for b in scene.bodies}
+    traced = [b for b in scene.bodies if b.resolved and options.resolved and near[b.name]]
+    points = [b for b in scene.bodies if b not in traced and near[b.name] and all(map(math.isfinite, track[b.name][0].tolist()))]
+    return track, traced, points
+
+
+def _to_photocentres(scene: Scene, proj, bodies, track: dict, paths: np.ndarray) -> dict:
+    """Move the paths ``paths`` (B, S, 2), px, of ``bodies`` drawn as points to their
+    photocentres, in place; returns {name: photocentre drawn at (2,), px}.
+
+    An unresolved body is drawn at its photocentre (the far-field BRDF's offset along the Sun's
+    projection), so its centroid is continuous across the resolved threshold; a body without a
+    finite offset stays at its centre."""
+    body_photocentre = {}
+    for j, b in enumerate(bodies):
+        off = np.asarray(photocentre_offset_xy(proj, scene.R_cam_icrs, b), dtype=float)
+        if np.all(np.isfinite(off)):
+            paths[j] += off
+            body_photocentre[b.name] = track[b.name][0] + off
+    return body_photocentre
+
+
 def _draw_point_sources(scene, proj, options, psf, points, track, star_light, body_light, images, support):
     """Stars and the bodies drawn as points (``points``), rasterised into ``images`` =
     (electrons, irradiance or None) along their paths, each body at its photocentre; returns
@@ -319,14 +343,7 @@ def _draw_point_sources(scene, proj, options, psf, points, track, star_light, bo
     e_pts = np.concatenate([star_e, np.array([body_e[b.name] for b in points])])
     irr_pts = np.concatenate([star_irr, np.array([body_irr[b.name] for b in points])])
     paths = source_paths(scene, u_pts, options, proj)
-    # unresolved bodies are drawn at their photocentre (far-field BRDF offset along the Sun's
-    # projection), so the centroid is continuous across the resolved threshold
-    body_photocentre = {}
-    for j, b in enumerate(points):
-        off = np.asarray(photocentre_offset_xy(proj, scene.R_cam_icrs, b), dtype=float)
-        if np.all(np.isfinite(off)):
-            paths[len(star_e) + j] += off
-            body_photocentre[b.name] = track[b.name][0] + off
+    body_photocentre = _to_photocentres(scene, proj, points, track, paths[len(star_e):])
     centre = np.full((len(e_pts), 2), np.nan)
     drawn = np.zeros(len(e_pts)) if psf.truncated else None  # the charge each source's stamps hold
     shape = electrons.shape

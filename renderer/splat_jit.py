@@ -40,12 +40,10 @@ is traced for Dr.Jit's LLVM and CUDA backends.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
-from .brdf import photocentre_offset_xy
-from .expected import _body_track_xy, _near_image, expected_image, source_paths
+from .expected import _split_bodies, _to_photocentres, expected_image, source_paths
 from .kernels import stamp_origin
 from .optics import is_polychromatic, kernel_for, star_effective_wavelengths_nm
 from .radiometry import Radiometry
@@ -163,25 +161,14 @@ def star_points(scene, options, bodies=(), paths=None, body_paths=None) -> Frame
 
 
 def _point_bodies(scene, options):
-    """The bodies :func:`~skynav.renderer.expected.expected_image` draws as points (not
-    ray-traced, near the image, at a finite position), as it picks them, and their paths at
-    their photocentres ((B, S, 2), px) and photocentres ({name: (2,)})."""
+    """The bodies :func:`~skynav.renderer.expected.expected_image` draws as points, as it picks
+    them, and their paths at their photocentres ((B, S, 2), px) and photocentres ({name: (2,)})."""
     cam = scene.camera
-    track = {b.name: _body_track_xy(scene, cam, b) for b in scene.bodies}
-    near = {b.name: _near_image(cam, track[b.name], b) for b in scene.bodies}
-    traced = {b.name for b in scene.bodies if b.resolved and options.resolved and near[b.name]}
-    bodies = [b for b in scene.bodies if b.name not in traced and near[b.name]
-              and all(map(math.isfinite, track[b.name][0].tolist()))]
+    track, _, bodies = _split_bodies(scene, cam, options)
     if not bodies:
         return [], None, {}
     paths = source_paths(scene, np.array([b.u_icrs for b in bodies]).reshape(-1, 3), options)
-    photocentre = {}
-    for j, b in enumerate(bodies):  # drawn at the photocentre, as the reference draws it
-        off = np.asarray(photocentre_offset_xy(cam, scene.R_cam_icrs, b), dtype=float)
-        if np.all(np.isfinite(off)):
-            paths[j] += off
-            photocentre[b.name] = track[b.name][0] + off
-    return bodies, paths, photocentre
+    return bodies, paths, _to_photocentres(scene, cam, bodies, track, paths)
 
 
 def frame_optics(scene, rng, options, support, paths=None, traced_out=None):
